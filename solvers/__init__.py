@@ -1,0 +1,35 @@
+"""QP problem/solution types and swappable backends (OSQP, Clarabel, qpsolvers, cvxpy, batched JAX ADMM).
+
+Knows nothing of vehicles.  Public contract::
+
+    from solvers import QP, QPBatch, solve, solve_batch, available_backends, Status
+"""
+
+from .base import Backend
+from .problem import QP, QPBatch
+from .registry import (
+    BackendUnavailableError,
+    UnknownBackendError,
+    available_backends,
+    get_backend,
+    register_backend,
+    solve,
+    solve_batch,
+)
+from .solution import BatchSolution, Solution, Status
+
+__all__ = [
+    "QP",
+    "QPBatch",
+    "Solution",
+    "BatchSolution",
+    "Status",
+    "Backend",
+    "BackendUnavailableError",
+    "UnknownBackendError",
+    "available_backends",
+    "get_backend",
+    "register_backend",
+    "solve",
+    "solve_batch",
+]
