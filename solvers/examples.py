@@ -35,7 +35,7 @@ def projection_like_batch(
 
     Each problem projects a noisy, partly infeasible target ``t`` (a random smooth sequence) onto
     ``lo ≤ x ≤ hi`` (values), ``|Δx| ≤ v_max·dt`` (first differences), ``|Δ²x| ≤ a_max·dt²``
-    (second differences) and ``x₀ = t₀, x₁ − x₀ = v₀·dt, x₂ − 2x₁ + x₀ = 0`` (boundary
+    (second differences) and ``x₀ = 0, x₁ − x₀ = v₀·dt, x₂ − 2x₁ + x₀ = 0`` (boundary
     equalities): ``min ½‖x − t‖² (+ ½·w‖Δ²x‖²)``.  Bounds differ per problem.
     """
     if batch_size < 1 or horizon < 4:
@@ -68,7 +68,7 @@ def projection_like_batch(
                 np.full(n, lo_pos),
                 np.full(n - 1, -0.2 * dt),  # nearly no reversing
                 np.full(n - 2, -a_max * dt * dt),
-                [target[0], v0 * dt, 0.0],
+                [0.0, v0 * dt, 0.0],
             ]
         )
         u = np.concatenate(
@@ -76,7 +76,7 @@ def projection_like_batch(
                 np.full(n, hi_pos),
                 np.full(n - 1, v_max * dt),
                 np.full(n - 2, a_max * dt * dt),
-                [target[0], v0 * dt, 0.0],
+                [0.0, v0 * dt, 0.0],
             ]
         )
         qs.append(-target)
