@@ -1,0 +1,438 @@
+"""Reduced-set selection: choose m of n obstacle-trajectory samples and their weights ᾱ.
+
+One signature for every method (paper §"Proposed Reduced-Set Selection", SPEC §e)::
+
+    rs = select_reduced_set(key, samples, m, method="mmd", config=ReducedSetConfig())
+    rs.indices (m,), rs.weights (m,) summing to 1, rs.alpha (n,), rs.method, rs.mmd2, rs.bandwidth
+
+Methods
+-------
+``"mmd"``     the paper's eq. (red_set_opt_proposed) by CEM over α ∈ ℝⁿ, then the refinement
+              eq. (red_set_opt_proposed_2) of the m weights.  Cost
+                  J(α) = αᵀKα − (2/n)1ᵀKα + (1/n²)1ᵀK1 − β Σ_top-m|α| / Σ_bottom-(n−m)|α|
+              i.e. the **exact** squared MMD between the uniform embedding and the α-weighted one.
+              The reference code (and the paper's displayed expansion) halves the linear term,
+              whose unpenalised minimiser is then 1/(2n) instead of 1/n (SPEC §e); fixed here.
+              The ratio's denominator is guarded: ``bottom + ratio_eps·(top + bottom)`` (the ratio
+              is therefore ≤ 1/ratio_eps; the reference's is unbounded, SPEC §8).
+              CEM as the reference (population 100, 20 elites kept, 100 iterations, Σ₀ = 5I,
+              Σ ← cov(elites) + 0.01I) but as a ``lax.scan`` (not unrolled) with a fresh PRNG key
+              every iteration (the reference reuses one), optional smoothing of μ and Σ, and the
+              best α seen over all iterations is returned (the reference: best of the last).
+              The reduced set is the m largest |α*_j|.
+``"herding"`` greedy MMD minimisation = kernel herding without replacement (Chen et al., 2010):
+              step t adds argmax_j (1/n)Σ_i K_ij − (1/(t+1)) Σ_{s∈S} K_js.
+``"random"``  a uniformly random m-subset (the paper's "exhaustive search" baseline).
+``"degroot"`` de Groot et al. as in the reference's baseline: score g_j = max_k f(ego_guess_k,
+              obstacle centre_j,k), f the ellipse collision function (a, b); top-m by score.
+              Needs ``ego_guess`` (K, 2).
+
+Weights of the m selected samples (``config.weights``), the same for every method:
+``"simplex"`` (default) eq. (red_set_opt_proposed_2) with ridge,
+              ``min ½ᾱᵀ(K_RR + ρI)ᾱ − (1/n)1ᵀK_NR ᾱ  s.t. 1ᵀᾱ = 1, ᾱ ≥ 0``: the closed-form KKT
+              solution is used when it is already non-negative (the usual case), otherwise an
+              accelerated projected-gradient solve on the simplex (warm-started from the projected
+              KKT point).  Non-negative weights keep the collision surrogate a mixture of
+              non-negative masses (a negative ᾱ_j would *reward* collision with sample j).
+``"kkt"``     the reference: the equality-constrained QP only (ᾱ may be negative).
+``"uniform"`` ᾱ = 1/m.
+
+Features are the flattened waypoints ``samples.reshape(n, 2K) * feature_scale`` (predictor-agnostic;
+the reference uses its generator's coefficient vectors instead).  Kernel bandwidth: the median
+heuristic on those features unless ``config.bandwidth`` is set (the reference's σ = 30 was on
+coefficient vectors and makes K nearly flat: rank ≈ 5, SPEC §e).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from dataclasses import dataclass, field
+from functools import partial
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from .kernels import gaussian_gram, median_heuristic, one_minus_gaussian_gram
+
+__all__ = [
+    "METHODS",
+    "WEIGHT_MODES",
+    "ReducedSetConfig",
+    "ReducedSet",
+    "select_reduced_set",
+    "select_reduced_sets",
+    "select_reduced_set_unchecked",
+    "refine_weights",
+    "project_simplex",
+]
+
+METHODS = ("mmd", "herding", "random", "degroot")
+WEIGHT_MODES = ("simplex", "kkt", "uniform")
+
+
+def _static(default):
+    return field(default=default, metadata=dict(static=True))
+
+
+@jax.tree_util.register_dataclass
+@dataclass(frozen=True)
+class ReducedSetConfig:
+    """Hyper-parameters of reduced-set selection.
+
+    Sizes and modes are static (changing them recompiles); the scalars are pytree leaves (they
+    can be changed, or vmapped, without recompiling).  ``bandwidth=None`` selects the median
+    heuristic (a structural choice, hence a recompilation when toggled).
+    """
+
+    # static: sizes and modes
+    population: int = _static(100)
+    n_elite: int = _static(20)
+    iterations: int = _static(100)
+    weights: str = _static("simplex")
+    simplex_iterations: int = _static(300)
+    # leaves: tunable scalars
+    beta: float = 1.0  # weight of the top/bottom separation term
+    bandwidth: float | None = None  # Gaussian kernel σ on the features; None = median heuristic
+    feature_scale: float = 1.0  # features = waypoints * feature_scale
+    mean0: float = 0.0  # CEM initial mean of every α_j (reference: 0)
+    sigma0: float = 5.0  # CEM initial covariance sigma0·I (reference: 5)
+    cov_reg: float = 0.01  # added to the elite covariance (reference: 0.01)
+    smoothing: float = 0.0  # μ, Σ ← (1−s)·new + s·old (reference: 0)
+    ratio_eps: float = 1e-6  # relative guard of the ratio's denominator
+    ridge: float = 0.01  # ρ in the refinement QP (reference: 0.01)
+    a: float = 4.5  # "degroot" ellipse semi-axes (m)
+    b: float = 3.5
+
+    def replace(self, **kw) -> ReducedSetConfig:
+        return dataclasses.replace(self, **kw)
+
+    def __post_init__(self):
+        if isinstance(self.population, int) and isinstance(self.n_elite, int):
+            if not 1 <= self.n_elite < self.population:
+                raise ValueError("n_elite must satisfy 1 <= n_elite < population")
+            if self.n_elite < 2:
+                raise ValueError("n_elite must be >= 2 (the elite covariance needs two samples)")
+        if isinstance(self.iterations, int) and self.iterations < 1:
+            raise ValueError("iterations must be >= 1")
+        if isinstance(self.weights, str) and self.weights not in WEIGHT_MODES:
+            raise ValueError(f"weights must be one of {WEIGHT_MODES}, got {self.weights!r}")
+
+
+@jax.tree_util.register_dataclass
+@dataclass(frozen=True)
+class ReducedSet:
+    """Result of a reduced-set selection (a pytree; ``method`` is static).
+
+    indices : (m,) int, positions in ``samples``, ordered by decreasing importance
+    weights : (m,) ᾱ, summing to 1
+    alpha : (n,) the CEM solution α* for "mmd"; for other methods ᾱ scattered into zeros
+    mmd2 : () squared MMD between the uniform embedding of all n samples and the ᾱ-weighted
+        reduced one (same kernel), a diagnostic of how well the set represents the samples
+    bandwidth : () the kernel bandwidth used
+    """
+
+    indices: jax.Array
+    weights: jax.Array
+    alpha: jax.Array
+    mmd2: jax.Array
+    bandwidth: jax.Array
+    method: str = _static("mmd")
+
+
+# ---------------------------------------------------------------------------------------------
+# building blocks
+
+
+def project_simplex(v: jax.Array) -> jax.Array:
+    """Euclidean projection of ``v`` (..., m) onto the probability simplex (Duchi et al., 2008)."""
+    m = v.shape[-1]
+    u = jnp.sort(v, axis=-1)[..., ::-1]
+    css = jnp.cumsum(u, axis=-1) - 1.0
+    k = jnp.arange(1, m + 1, dtype=v.dtype)
+    cond = u - css / k > 0
+    rho = jnp.sum(cond, axis=-1, keepdims=True)
+    theta = jnp.take_along_axis(css, rho - 1, axis=-1) / rho.astype(v.dtype)
+    return jnp.maximum(v - theta, 0.0)
+
+
+def _kkt_weights(A: jax.Array, b: jax.Array) -> jax.Array:
+    """argmin ½xᵀAx − bᵀx s.t. 1ᵀx = 1, A SPD: x = A⁻¹(b + λ1), λ = (1 − 1ᵀA⁻¹b)/(1ᵀA⁻¹1)."""
+    cf = jax.scipy.linalg.cho_factor(A)
+    ainv_b = jax.scipy.linalg.cho_solve(cf, b)
+    ainv_1 = jax.scipy.linalg.cho_solve(cf, jnp.ones_like(b))
+    lam = (1.0 - jnp.sum(ainv_b)) / jnp.sum(ainv_1)
+    return ainv_b + lam * ainv_1
+
+
+def _simplex_qp(A: jax.Array, b: jax.Array, x0: jax.Array, iterations: int) -> jax.Array:
+    """min ½xᵀAx − bᵀx on the simplex by FISTA with step 1/λ_max(A) (fixed iteration count)."""
+    step = 1.0 / jnp.linalg.eigvalsh(A)[-1]
+
+    def body(_, c):
+        x, y, t = c
+        x_new = project_simplex(y - step * (A @ y - b))
+        t_new = 0.5 * (1.0 + jnp.sqrt(1.0 + 4.0 * t * t))
+        y_new = x_new + ((t - 1.0) / t_new) * (x_new - x)
+        return x_new, y_new, t_new
+
+    x, _, _ = jax.lax.fori_loop(0, iterations, body, (x0, x0, jnp.ones((), x0.dtype)))
+    return x
+
+
+def refine_weights(K: jax.Array, idx: jax.Array, config: ReducedSetConfig) -> jax.Array:
+    """Weights ᾱ of the reduced set ``idx`` (eq. red_set_opt_proposed_2 with ridge ρ).
+
+    ``min ½ᾱᵀ(K_RR + ρI)ᾱ − (1/n)1ᵀK_NR ᾱ  s.t. 1ᵀᾱ = 1`` (+ ᾱ ≥ 0 for ``weights="simplex"``);
+    ½ × the squared MMD of eq. (red_set_opt_proposed_2) up to a constant, plus the ridge.
+    """
+    m = idx.shape[0]
+    if config.weights == "uniform":
+        return jnp.full((m,), 1.0 / m, dtype=K.dtype)
+    A = K[idx][:, idx] + config.ridge * jnp.eye(m, dtype=K.dtype)
+    b = jnp.mean(K, axis=0)[idx]  # (1/n) K_NRᵀ 1
+    w = _kkt_weights(A, b)
+    if config.weights == "kkt":
+        return w
+    return jax.lax.cond(
+        jnp.all(w >= 0.0),
+        lambda: w,
+        lambda: _simplex_qp(A, b, project_simplex(w), config.simplex_iterations),
+    )
+
+
+def _reduced_mmd2(D: jax.Array, idx: jax.Array, w: jax.Array) -> jax.Array:
+    """MMD² between the uniform embedding of all n samples and ᾱ on ``idx``, from D = 1 − K."""
+    n = D.shape[0]
+    u = jnp.full((n,), 1.0 / n, dtype=D.dtype)
+    dxx = u @ D @ u
+    dyy = w @ D[idx][:, idx] @ w
+    dxy = u @ D[:, idx] @ w
+    mass = 1.0 - jnp.sum(w)
+    return jnp.maximum(mass * mass + (dxy - dxx) + (dxy - dyy), 0.0)
+
+
+def _cem_alpha(key, K: jax.Array, m: int, cfg: ReducedSetConfig) -> jax.Array:
+    """CEM over α ∈ ℝⁿ for eq. (red_set_opt_proposed); returns the best α seen."""
+    n = K.shape[0]
+    P, E = cfg.population, cfg.n_elite
+    dtype = K.dtype
+    kbar = jnp.mean(K, axis=1)  # (1/n) K 1
+    const = jnp.mean(kbar)  # (1/n²) 1ᵀK1
+
+    def cost(alpha):  # (p, n) -> (p,)
+        quad = jnp.einsum("pi,ij,pj->p", alpha, K, alpha)
+        mmd = quad - 2.0 * alpha @ kbar + const
+        if m >= n:
+            return mmd
+        mag = jnp.sort(jnp.abs(alpha), axis=-1)
+        bottom = jnp.sum(mag[:, : n - m], axis=-1)
+        top = jnp.sum(mag[:, n - m :], axis=-1)
+        ratio = top / (bottom + cfg.ratio_eps * (top + bottom) + jnp.finfo(dtype).tiny)
+        return mmd - cfg.beta * ratio
+
+    eye = jnp.eye(n, dtype=dtype)
+
+    def draw(k, mu, cov, count):
+        L = jnp.linalg.cholesky(cov)
+        z = jax.random.normal(k, (count, n), dtype=dtype)
+        return mu + z @ L.T
+
+    def stats(elites):
+        mu = jnp.mean(elites, axis=0)
+        c = elites - mu
+        cov = c.T @ c / (E - 1) + cfg.cov_reg * eye
+        return mu, cov
+
+    key, k0 = jax.random.split(key)
+    mu0 = jnp.full((n,), cfg.mean0, dtype=dtype)
+    cov0 = cfg.sigma0 * eye
+    pop0 = draw(k0, mu0, cov0, P)
+    c0 = cost(pop0)
+    order = jnp.argsort(c0)[:E]
+    elites, ecost = pop0[order], c0[order]
+    mu, cov = stats(elites)
+    s = cfg.smoothing
+    mu = (1.0 - s) * mu + s * mu0
+    cov = (1.0 - s) * cov + s * cov0
+
+    def step(carry, k):
+        mu, cov, elites, ecost = carry
+        new = draw(k, mu, cov, P - E)
+        pop = jnp.concatenate([elites, new], axis=0)
+        c = jnp.concatenate([ecost, cost(new)])
+        order = jnp.argsort(c)[:E]
+        elites, ecost = pop[order], c[order]
+        mu_new, cov_new = stats(elites)
+        mu = (1.0 - s) * mu_new + s * mu
+        cov = (1.0 - s) * cov_new + s * cov
+        return (mu, cov, elites, ecost), ecost[0]
+
+    keys = jax.random.split(key, cfg.iterations)
+    (_, _, elites, _), _ = jax.lax.scan(step, (mu, cov, elites, ecost), keys)
+    # elites are kept, so elites[0] of the last iteration is the best α seen over all iterations
+    return elites[0]
+
+
+@partial(jax.jit, static_argnames=("m", "method"))
+def select_reduced_set_unchecked(
+    key: jax.Array,
+    samples: jax.Array,
+    m: int,
+    method: str = "mmd",
+    config: ReducedSetConfig = ReducedSetConfig(),  # noqa: B008 (frozen, hashable)
+    ego_guess: jax.Array | None = None,
+) -> ReducedSet:
+    """Jitted core of :func:`select_reduced_set`, without input validation (traceable)."""
+    samples = jnp.asarray(samples)
+    if not jnp.issubdtype(samples.dtype, jnp.floating):
+        samples = samples.astype(float)
+    n = samples.shape[0]
+    feats = samples.reshape(n, -1) * config.feature_scale
+    bw = median_heuristic(feats) if config.bandwidth is None else jnp.asarray(config.bandwidth)
+    bw = bw.astype(feats.dtype)
+    K = gaussian_gram(feats, None, bw)
+    D = one_minus_gaussian_gram(feats, None, bw)
+
+    if method == "mmd":
+        alpha = _cem_alpha(key, K, m, config)
+        _, idx = jax.lax.top_k(jnp.abs(alpha), m)
+    elif method == "herding":
+        kbar = jnp.mean(K, axis=1)
+
+        def body(t, c):
+            sel, ksum, idx = c
+            score = kbar - ksum / (t + 1.0)
+            j = jnp.argmax(jnp.where(sel, -jnp.inf, score))
+            return sel.at[j].set(True), ksum + K[j], idx.at[t].set(j.astype(jnp.int32))
+
+        init = (jnp.zeros((n,), bool), jnp.zeros((n,), K.dtype), jnp.zeros((m,), jnp.int32))
+        _, _, idx = jax.lax.fori_loop(0, m, body, init)
+    elif method == "random":
+        idx = jax.random.permutation(key, n)[:m]
+    elif method == "degroot":
+        ego = jnp.asarray(ego_guess, dtype=samples.dtype)
+        d = ego[None] - samples  # (n, K, 2)
+        f = 1.0 - d[..., 0] ** 2 / config.a**2 - d[..., 1] ** 2 / config.b**2
+        g = jnp.max(f, axis=-1)
+        _, idx = jax.lax.top_k(g, m)
+    else:  # pragma: no cover - validated by the wrapper
+        raise ValueError(f"unknown method {method!r}")
+
+    idx = idx.astype(jnp.int32)
+    w = refine_weights(K, idx, config)
+    if method != "mmd":
+        alpha = jnp.zeros((n,), K.dtype).at[idx].set(w)
+    return ReducedSet(
+        indices=idx,
+        weights=w,
+        alpha=alpha,
+        mmd2=_reduced_mmd2(D, idx, w),
+        bandwidth=bw,
+        method=method,
+    )
+
+
+def _is_concrete(x) -> bool:
+    return not isinstance(x, jax.core.Tracer)
+
+
+def _validate(key, samples, m, method, config, ego_guess, batched: bool):
+    if method not in METHODS:
+        raise ValueError(f"method must be one of {METHODS}, got {method!r}")
+    if not isinstance(config, ReducedSetConfig):
+        raise ValueError(f"config must be a ReducedSetConfig, got {type(config).__name__}")
+    if isinstance(m, bool) or not isinstance(m, int | np.integer):
+        raise ValueError(f"m must be an int, got {m!r}")
+    m = int(m)
+    if samples is None:
+        raise ValueError("samples must be an array of shape (n, K, 2), got None")
+    shape = np.shape(samples)
+    want = 4 if batched else 3
+    dims = "(O, n, K, 2)" if batched else "(n, K, 2)"
+    if len(shape) != want or shape[-1] != 2:
+        raise ValueError(f"samples must have shape {dims}, got {shape}")
+    n, k = shape[-3], shape[-2]
+    if n == 0 or k == 0 or (batched and shape[0] == 0):
+        raise ValueError(f"samples is empty (shape {shape})")
+    if m < 1:
+        raise ValueError(f"m must be >= 1, got {m}")
+    if m > n:
+        raise ValueError(f"m = {m} exceeds the number of samples n = {n}")
+    if _is_concrete(samples):
+        arr = np.asarray(samples)
+        if not np.issubdtype(arr.dtype, np.number):
+            raise ValueError(f"samples must be numeric, got dtype {arr.dtype}")
+        if not np.all(np.isfinite(arr)):
+            raise ValueError("samples contains NaN or inf")
+    if method == "degroot":
+        if ego_guess is None:
+            raise ValueError("ego_guess (K, 2) is required for method='degroot'")
+        if np.shape(ego_guess) != (k, 2):
+            raise ValueError(f"ego_guess must have shape ({k}, 2), got {np.shape(ego_guess)}")
+        if _is_concrete(ego_guess) and not np.all(np.isfinite(np.asarray(ego_guess))):
+            raise ValueError("ego_guess contains NaN or inf")
+    if config.bandwidth is not None and _is_concrete(config.bandwidth):
+        if not float(config.bandwidth) > 0:
+            raise ValueError(f"config.bandwidth must be > 0, got {config.bandwidth}")
+    if np.shape(key) == () and not jnp.issubdtype(jnp.asarray(key).dtype, jax.dtypes.prng_key):
+        raise ValueError("key must be a jax PRNG key (jax.random.key or jax.random.PRNGKey)")
+    return m
+
+
+def select_reduced_set(
+    key: jax.Array,
+    samples,
+    m: int,
+    method: str = "mmd",
+    config: ReducedSetConfig | None = None,
+    ego_guess=None,
+) -> ReducedSet:
+    """Select a reduced set of ``m`` of the ``n`` obstacle-trajectory samples, with weights.
+
+    Parameters
+    ----------
+    key : jax PRNG key (used by "mmd" and "random"; the same key gives the same set)
+    samples : (n, K, 2) obstacle trajectory samples (m), any frame
+    m : size of the reduced set, 1 <= m <= n
+    method : "mmd" | "herding" | "random" | "degroot" (see module docstring)
+    config : :class:`ReducedSetConfig`
+    ego_guess : (K, 2) ego initial-guess trajectory, required for "degroot"
+
+    Returns
+    -------
+    :class:`ReducedSet`
+
+    Raises
+    ------
+    ValueError naming the argument: unknown method, wrong shapes, empty or non-finite samples,
+    m < 1 or m > n, missing ego_guess for "degroot".
+    """
+    config = ReducedSetConfig() if config is None else config
+    m = _validate(key, samples, m, method, config, ego_guess, batched=False)
+    return select_reduced_set_unchecked(key, samples, m, method, config, ego_guess)
+
+
+@partial(jax.jit, static_argnames=("m", "method"))
+def _select_many(keys, samples, m, method, config, ego_guess):
+    return jax.vmap(lambda k, s: select_reduced_set_unchecked(k, s, m, method, config, ego_guess))(
+        keys, samples
+    )
+
+
+def select_reduced_sets(
+    key: jax.Array,
+    samples,
+    m: int,
+    method: str = "mmd",
+    config: ReducedSetConfig | None = None,
+    ego_guess=None,
+) -> ReducedSet:
+    """:func:`select_reduced_set` for O obstacles at once (vmapped; one key per obstacle).
+
+    samples : (O, n, K, 2); returns a :class:`ReducedSet` whose arrays have a leading axis O.
+    """
+    config = ReducedSetConfig() if config is None else config
+    m = _validate(key, samples, m, method, config, ego_guess, batched=True)
+    keys = jax.random.split(key, np.shape(samples)[0])
+    return _select_many(keys, samples, m, method, config, ego_guess)
