@@ -1,0 +1,304 @@
+"""Reference paths and vectorised Cartesian ↔ Frenet conversion.
+
+:class:`ReferencePath` is a C² cubic spline ``r(s) = (x(s), y(s))`` parameterised by arc length
+``s ∈ [0, length]`` (metres), with heading ``θ(s)`` and signed curvature ``κ(s)`` (positive for
+left turns).  Beyond its ends the path continues along its end tangents (straight lines), so every
+point of the plane has a Frenet coordinate and obstacles that run past the end still convert.
+
+Frenet coordinates: ``s`` (arc length of the nearest path point) and ``d`` (signed lateral offset,
+positive to the left of the direction of travel): ``p = r(s) + d·n(s)`` with ``n = (−sin θ, cos θ)``.
+The nearest point is found by a proper projection – a k-d tree over densely sampled path points,
+projection onto the two adjacent chords, then Newton's method on ``(r(s) − p)·r'(s) = 0`` – not a
+brute-force scan.  Round trips are exact to ~1e-9 m wherever the nearest point is unique
+(``|d| < 1/|κ|``).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+from scipy.interpolate import CubicSpline
+from scipy.spatial import cKDTree
+
+__all__ = ["ReferencePath", "wrap_angle"]
+
+_GAUSS_X, _GAUSS_W = np.polynomial.legendre.leggauss(6)
+
+
+def wrap_angle(a: np.ndarray) -> np.ndarray:
+    """Angles wrapped to ``[−π, π)``."""
+    return (np.asarray(a, dtype=np.float64) + np.pi) % (2 * np.pi) - np.pi
+
+
+def _check_finite(name: str, *arrays: np.ndarray) -> None:
+    for a in arrays:
+        if not np.all(np.isfinite(a)):
+            raise ValueError(f"{name} contains NaN or inf")
+
+
+@dataclass(frozen=True, eq=False)
+class ReferencePath:
+    """An arc-length-parameterised cubic-spline path.  Build with :meth:`from_waypoints` or :meth:`straight`.
+
+    Attributes
+    ----------
+    length : float
+        Arc length in metres.
+    spacing : float
+        Spacing (m) of the dense samples used for the coarse nearest-point search and the spline knots.
+    """
+
+    _sx: CubicSpline
+    _sy: CubicSpline
+    length: float
+    spacing: float
+    _knots: np.ndarray
+    _tree: cKDTree
+    waypoints: np.ndarray
+
+    # ------------------------------------------------------------------ construction
+    @classmethod
+    def from_waypoints(cls, xy: np.ndarray, *, spacing: float = 0.5) -> ReferencePath:
+        """Cubic spline (natural end conditions) through way-points ``xy`` (N, 2), N ≥ 2, then
+        re-parameterised by arc length.
+
+        The chord-length spline is sampled every ≈``spacing`` metres, the arc length of each
+        piece is integrated (6-point Gauss–Legendre), and the path is re-fitted as a spline in
+        ``s``.  Raises ``ValueError`` for NaN/inf, fewer than two points, repeated consecutive
+        way-points or a zero-length path.
+        """
+        xy = np.asarray(xy, dtype=np.float64)
+        if xy.ndim != 2 or xy.shape[1] != 2:
+            raise ValueError(f"way-points must have shape (N, 2), got {xy.shape}")
+        if xy.shape[0] < 2:
+            raise ValueError(f"need at least 2 way-points, got {xy.shape[0]}")
+        _check_finite("way-points", xy)
+        if not (np.isfinite(spacing) and spacing > 0):
+            raise ValueError(f"spacing must be positive, got {spacing}")
+        seg = np.linalg.norm(np.diff(xy, axis=0), axis=1)
+        scale = max(1.0, float(np.abs(xy).max()))
+        if seg.sum() <= 1e-9 * scale:
+            raise ValueError("zero-length path: all way-points coincide")
+        dup = np.flatnonzero(seg <= 1e-9 * scale)
+        if dup.size:
+            raise ValueError(
+                f"duplicate consecutive way-points at indices {dup[:5].tolist()} (first 5 shown); "
+                "remove them before building the path"
+            )
+        u = np.concatenate([[0.0], np.cumsum(seg)])
+        bc = "natural" if xy.shape[0] > 2 else "not-a-knot"
+        cx, cy = CubicSpline(u, xy[:, 0], bc_type=bc), CubicSpline(u, xy[:, 1], bc_type=bc)
+        # dense parameter samples: every way-point plus ≈spacing in between
+        pieces = [
+            np.linspace(u[i], u[i + 1], max(2, int(np.ceil(seg[i] / spacing)) + 1))[:-1]
+            for i in range(len(seg))
+        ]
+        ud = np.concatenate(pieces + [[u[-1]]])
+        a, b = ud[:-1], ud[1:]
+        half, mid = (b - a) / 2, (a + b) / 2
+        nodes = mid[:, None] + half[:, None] * _GAUSS_X[None, :]
+        speed = np.hypot(cx(nodes, 1), cy(nodes, 1))
+        ds = half * (speed @ _GAUSS_W)
+        s = np.concatenate([[0.0], np.cumsum(ds)])
+        px, py = cx(ud), cy(ud)
+        return cls._build(s, px, py, xy)
+
+    @classmethod
+    def straight(
+        cls, length: float = 1000.0, *, start=(0.0, 0.0), heading: float = 0.0
+    ) -> ReferencePath:
+        """A straight path of ``length`` metres from ``start`` along ``heading`` (rad)."""
+        if not (np.isfinite(length) and length > 0):
+            raise ValueError(f"length must be positive and finite, got {length}")
+        x0, y0 = map(float, start)
+        d = np.array([np.cos(heading), np.sin(heading)])
+        return cls.from_waypoints(
+            np.array([[x0, y0], [x0, y0] + length * d]), spacing=max(0.5, length / 2000)
+        )
+
+    @classmethod
+    def _build(
+        cls, s: np.ndarray, px: np.ndarray, py: np.ndarray, waypoints: np.ndarray
+    ) -> ReferencePath:
+        bc = "not-a-knot" if len(s) > 3 else "natural"
+        sx, sy = CubicSpline(s, px, bc_type=bc), CubicSpline(s, py, bc_type=bc)
+        tree = cKDTree(np.column_stack([px, py]))
+        spacing = float(np.max(np.diff(s)))
+        return cls(sx, sy, float(s[-1]), spacing, s, tree, waypoints)
+
+    # ------------------------------------------------------------------ geometry
+    def _eval(self, s: np.ndarray):
+        """Position, first and second derivative at ``s`` (flat), linearly extended past the ends."""
+        L = self.length
+        sc = np.clip(s, 0.0, L)
+        x, y = self._sx(sc), self._sy(sc)
+        dx, dy = self._sx(sc, 1), self._sy(sc, 1)
+        ddx, ddy = self._sx(sc, 2), self._sy(sc, 2)
+        out = (s < 0.0) | (s > L)
+        if np.any(out):
+            nrm = np.hypot(dx, dy)
+            tx, ty = dx / nrm, dy / nrm
+            e = s - sc
+            x = np.where(out, x + e * tx, x)
+            y = np.where(out, y + e * ty, y)
+            dx, dy = np.where(out, tx, dx), np.where(out, ty, dy)
+            ddx, ddy = np.where(out, 0.0, ddx), np.where(out, 0.0, ddy)
+        return x, y, dx, dy, ddx, ddy
+
+    def point(self, s) -> tuple[np.ndarray, np.ndarray]:
+        """Cartesian ``(x, y)`` of the path at arc length ``s`` (any shape)."""
+        s = np.asarray(s, dtype=np.float64)
+        x, y, *_ = self._eval(s.ravel())
+        return x.reshape(s.shape), y.reshape(s.shape)
+
+    def heading(self, s) -> np.ndarray:
+        """Path heading ``θ(s)`` (rad, wrapped to [−π, π))."""
+        s = np.asarray(s, dtype=np.float64)
+        _, _, dx, dy, _, _ = self._eval(s.ravel())
+        return np.arctan2(dy, dx).reshape(s.shape)
+
+    def curvature(self, s) -> np.ndarray:
+        """Signed curvature ``κ(s)`` (1/m, positive turning left); zero beyond the ends."""
+        s = np.asarray(s, dtype=np.float64)
+        _, _, dx, dy, ddx, ddy = self._eval(s.ravel())
+        k = (dx * ddy - dy * ddx) / np.hypot(dx, dy) ** 3
+        return k.reshape(s.shape)
+
+    # ------------------------------------------------------------------ conversions
+    def to_frenet(self, x, y, heading=None, *, max_iter: int = 30, tol: float = 1e-12):
+        """Cartesian → Frenet for arrays of any (matching/broadcastable) shape.
+
+        Parameters
+        ----------
+        x, y : array_like, metres
+        heading : array_like, optional
+            Cartesian heading (rad); returned as the heading relative to the path, wrapped.
+
+        Returns
+        -------
+        (s, d) or (s, d, heading_rel), each of the broadcast shape of the inputs.
+        """
+        x, y = np.broadcast_arrays(np.asarray(x, dtype=np.float64), np.asarray(y, dtype=np.float64))
+        _check_finite("x/y", x, y)
+        shape = x.shape
+        px, py = x.ravel(), y.ravel()
+        s = self._coarse(px, py)
+        # Newton on f(s) = (r(s) − p)·r'(s)
+        step_cap = 2.0 * self.spacing
+        for _ in range(max_iter):
+            rx, ry, dx, dy, ddx, ddy = self._eval(s)
+            ex, ey = rx - px, ry - py
+            f = ex * dx + ey * dy
+            g = dx * dx + dy * dy + ex * ddx + ey * ddy
+            step = np.where(g > 0.05, -f / np.where(g > 0.05, g, 1.0), -f)
+            step = np.clip(step, -step_cap, step_cap)
+            s = s + step
+            if np.max(np.abs(step), initial=0.0) < tol * max(1.0, self.length):
+                break
+        rx, ry, dx, dy, _, _ = self._eval(s)
+        nrm = np.hypot(dx, dy)
+        d = ((px - rx) * (-dy) + (py - ry) * dx) / nrm
+        s, d = s.reshape(shape), d.reshape(shape)
+        if heading is None:
+            return s, d
+        heading = np.broadcast_to(np.asarray(heading, dtype=np.float64), shape)
+        _check_finite("heading", heading)
+        return s, d, wrap_angle(heading - np.arctan2(dy, dx).reshape(shape))
+
+    def _coarse(self, px: np.ndarray, py: np.ndarray) -> np.ndarray:
+        """Initial arc length: nearest dense sample, then projection onto its two adjacent chords."""
+        pts = self._tree.data
+        n = len(pts)
+        _, i = self._tree.query(np.column_stack([px, py]))
+        best_s = np.zeros_like(px)
+        best_d = np.full_like(px, np.inf)
+        for lo in (i - 1, i):
+            a = np.clip(lo, 0, n - 2)
+            b = a + 1
+            ax, ay = pts[a, 0], pts[a, 1]
+            vx, vy = pts[b, 0] - ax, pts[b, 1] - ay
+            L2 = vx * vx + vy * vy
+            t = ((px - ax) * vx + (py - ay) * vy) / L2
+            # stay on the chord, except past the path's ends (linear extension)
+            t = np.clip(t, np.where(a == 0, -np.inf, 0.0), np.where(b == n - 1, np.inf, 1.0))
+            dist = np.hypot(ax + t * vx - px, ay + t * vy - py)
+            sa, sb = self._knots[a], self._knots[b]
+            cand = sa + t * (sb - sa)
+            better = dist < best_d
+            best_s = np.where(better, cand, best_s)
+            best_d = np.where(better, dist, best_d)
+        return best_s
+
+    def to_cartesian(self, s, d, heading=None):
+        """Frenet → Cartesian for arrays of any broadcastable shape.
+
+        Returns ``(x, y)`` or ``(x, y, heading_abs)`` when a path-relative ``heading`` is given.
+        """
+        s, d = np.broadcast_arrays(np.asarray(s, dtype=np.float64), np.asarray(d, dtype=np.float64))
+        _check_finite("s/d", s, d)
+        shape = s.shape
+        rx, ry, dx, dy, _, _ = self._eval(s.ravel())
+        nrm = np.hypot(dx, dy)
+        dd = d.ravel()
+        x = rx - dd * dy / nrm
+        y = ry + dd * dx / nrm
+        if heading is None:
+            return x.reshape(shape), y.reshape(shape)
+        heading = np.broadcast_to(np.asarray(heading, dtype=np.float64), shape)
+        _check_finite("heading", heading)
+        return (
+            x.reshape(shape),
+            y.reshape(shape),
+            wrap_angle(heading + np.arctan2(dy, dx).reshape(shape)),
+        )
+
+    def trajectory_to_cartesian(self, s, d, vs, vd):
+        """Frenet trajectories (…, K) with Frenet velocities → Cartesian ``(x, y, heading, speed)``.
+
+        Uses ``ẋ_cart = (1 − dκ) ṡ t + ḋ n``: the heading is ``θ(s) + atan2(ḋ, (1 − dκ) ṡ)``.
+        """
+        s, d, vs, vd = np.broadcast_arrays(
+            *(np.asarray(a, dtype=np.float64) for a in (s, d, vs, vd))
+        )
+        _check_finite("trajectory", s, d, vs, vd)
+        x, y = self.to_cartesian(s, d)
+        k = self.curvature(s)
+        vt = (1.0 - d * k) * vs
+        heading = wrap_angle(self.heading(s) + np.arctan2(vd, vt))
+        return x, y, heading, np.hypot(vt, vd)
+
+    def ego_state(
+        self,
+        x: float,
+        y: float,
+        speed: float,
+        heading: float,
+        accel: float = 0.0,
+        yaw_rate: float = 0.0,
+    ):
+        """The Frenet :class:`~frenet.planner.EgoState` of a vehicle at Cartesian pose/speed.
+
+        ``ṡ = v cos Δψ /(1 − dκ)``, ``ḋ = v sin Δψ``, accelerations from the body-frame
+        acceleration ``(a, v·ψ̇)`` rotated into the path frame (the ``κ'`` term is neglected).
+        """
+        from .planner import EgoState
+
+        vals = np.array([x, y, speed, heading, accel, yaw_rate], dtype=np.float64)
+        _check_finite("ego state", vals)
+        s, d, dpsi = self.to_frenet(x, y, heading)
+        s, d, dpsi = float(s), float(d), float(dpsi)
+        k = float(self.curvature(s))
+        one = 1.0 - d * k
+        if one <= 0:
+            raise ValueError("ego is beyond the path's centre of curvature (1 − dκ ≤ 0)")
+        vs = speed * np.cos(dpsi) / one
+        vd = speed * np.sin(dpsi)
+        dpsi_dot = yaw_rate - k * vs
+        at = accel * np.cos(dpsi) - speed * np.sin(dpsi) * dpsi_dot
+        ad = accel * np.sin(dpsi) + speed * np.cos(dpsi) * dpsi_dot
+        as_ = (at + k * vd * vs) / one
+        return EgoState(s=s, d=d, vs=float(vs), vd=float(vd), as_=float(as_), ad=float(ad))
+
+    def __repr__(self) -> str:
+        return f"ReferencePath(length={self.length:.3f} m, {len(self.waypoints)} way-points)"

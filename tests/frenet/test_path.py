@@ -1,0 +1,99 @@
+"""Reference paths: Cartesian <-> Frenet round trips, geometry, bad inputs."""
+
+import numpy as np
+import pytest
+
+from frenet import ReferencePath, wrap_angle
+
+
+def _circle(R=50.0, arc=1.5 * np.pi):
+    th = np.linspace(0, arc, 40)
+    return ReferencePath.from_waypoints(np.c_[R * np.cos(th), R * np.sin(th)])
+
+
+def _s_curve():
+    xs = np.linspace(0, 200, 30)
+    return ReferencePath.from_waypoints(np.c_[xs, 15 * np.sin(xs / 30)])
+
+
+PATHS = {
+    "straight": (lambda: ReferencePath.straight(300.0, start=(5.0, -2.0), heading=0.4), 10.0),
+    "circle": (_circle, 8.0),
+    "s_curve": (_s_curve, 5.0),
+}
+
+
+@pytest.mark.parametrize("name", PATHS)
+def test_round_trip_frenet_cartesian_frenet_within_micrometre(name):
+    make, dmax = PATHS[name]
+    path = make()
+    rng = np.random.default_rng(0)
+    s = rng.uniform(
+        -10.0, path.length + 10.0, (200, 100)
+    )  # batches of trajectories, past the ends too
+    d = rng.uniform(-dmax, dmax, (200, 100))
+    h = rng.uniform(-np.pi, np.pi, (200, 100))
+    x, y, hc = path.to_cartesian(s, d, h)
+    s2, d2, h2 = path.to_frenet(x, y, hc)
+    assert s2.shape == s.shape
+    assert np.max(np.abs(s2 - s)) <= 1e-6 and np.max(np.abs(d2 - d)) <= 1e-6
+    assert np.max(np.abs(wrap_angle(h2 - h))) <= 1e-9
+    x3, y3 = path.to_cartesian(s2, d2)
+    assert np.max(np.hypot(x3 - x, y3 - y)) <= 1e-6
+
+
+def test_circle_geometry_arc_length_heading_curvature():
+    R = 50.0
+    path = _circle(R)
+    assert path.length == pytest.approx(1.5 * np.pi * R, rel=2e-3)
+    s = np.linspace(30, path.length - 30, 50)  # natural end conditions flatten the very ends
+    np.testing.assert_allclose(path.curvature(s), 1 / R, rtol=0.01)
+    x, y = path.point(s)
+    np.testing.assert_allclose(
+        wrap_angle(path.heading(s) - (np.arctan2(y, x) + np.pi / 2)), 0, atol=5e-3
+    )
+    # arc-length parameterised: the polyline length of a fine sampling equals s
+    ss = np.linspace(0, path.length, 20001)
+    px, py = path.point(ss)
+    assert np.hypot(np.diff(px), np.diff(py)).sum() == pytest.approx(path.length, abs=1e-3)
+
+
+def test_point_left_of_path_has_positive_offset():
+    path = ReferencePath.straight(100.0)
+    s, d = path.to_frenet(np.array([10.0]), np.array([2.0]))
+    assert s[0] == pytest.approx(10.0) and d[0] == pytest.approx(2.0)
+
+
+def test_trajectory_to_cartesian_heading_follows_velocity():
+    path = ReferencePath.straight(100.0, heading=0.3)
+    x, y, heading, speed = path.trajectory_to_cartesian(
+        np.array([1.0]), np.array([0.0]), np.array([3.0]), np.array([4.0])
+    )
+    assert speed[0] == pytest.approx(5.0)
+    assert heading[0] == pytest.approx(0.3 + np.arctan2(4, 3))
+
+
+def test_ego_state_on_straight_path():
+    path = ReferencePath.straight(100.0)
+    st = path.ego_state(3.0, 0.5, speed=10.0, heading=0.0)
+    assert (st.s, st.d, st.vs, st.vd) == pytest.approx((3.0, 0.5, 10.0, 0.0))
+
+
+@pytest.mark.parametrize(
+    "xy, msg",
+    [
+        (np.array([[0.0, 0.0], [np.nan, 1.0], [2.0, 2.0]]), "NaN"),
+        (np.array([[0.0, 0.0], [1.0, 1.0], [1.0, 1.0], [2.0, 0.0]]), "duplicate"),
+        (np.array([[1.0, 1.0], [1.0, 1.0]]), "zero-length"),
+        (np.array([[1.0, 1.0]]), "at least 2"),
+        (np.zeros((4, 3)), "shape"),
+    ],
+)
+def test_bad_waypoints_raise(xy, msg):
+    with pytest.raises(ValueError, match=msg):
+        ReferencePath.from_waypoints(xy)
+
+
+def test_nan_query_raises():
+    with pytest.raises(ValueError, match="NaN"):
+        ReferencePath.straight(10.0).to_frenet(np.array([np.nan]), np.array([0.0]))

@@ -1,0 +1,175 @@
+"""Projection QP: feasibility on every backend, fixed points, user rows, batched ADMM, bad inputs."""
+
+import numpy as np
+import pytest
+
+import solvers
+from frenet import EgoState, LinearConstraints, ProjectionBounds, ProjectionProblem
+
+from .conftest import (
+    BACKENDS,
+    SLOW,
+    backend_settings,
+    backend_tol,
+    make_basis,
+    make_planner,
+    sample_d,
+)
+
+
+def _samples(num, kind="bernstein", seed=0, state=None):
+    planner = make_planner(kind)
+    state = state or EgoState()
+    cx, cy = planner.closed_form(sample_d(num, seed=seed), state)
+    return planner, np.asarray(cx), np.asarray(cy), state
+
+
+@pytest.mark.parametrize("backend", BACKENDS)
+def test_projected_trajectories_satisfy_every_constraint(backend):
+    planner, cx, cy, st = _samples(2 if backend in SLOW else 6, seed=1)
+    prob = ProjectionProblem(planner.basis)
+    before, _ = prob.residuals(cx, cy, st)
+    assert before.max() > 0.5  # the samples do violate the lane / speed bounds
+    res = prob.project(cx, cy, st, backend=backend, **backend_settings(backend))
+    ok = np.isin(res.status, [int(solvers.Status.SOLVED), int(solvers.Status.SOLVED_INACCURATE)])
+    assert ok.all(), res.solution.status_counts()
+    tol = 10 * backend_tol(backend)
+    assert res.residual.max() <= tol, {k: float(v.max()) for k, v in res.residual_groups.items()}
+    # and it is the projection: no farther than Clarabel's optimum (up to tolerance)
+    ref = prob.project(cx, cy, st, backend="clarabel")
+    np.testing.assert_allclose(res.distance, ref.distance, rtol=1e-3, atol=1e-3)
+
+
+def test_triple_integrator_projection_is_feasible():
+    planner, cx, cy, st = _samples(2, kind="triple", seed=2)
+    prob = ProjectionProblem(planner.basis, metric="coefficient")
+    res = prob.project(cx, cy, st, backend="clarabel")
+    assert res.solved.all() and res.residual.max() <= 1e-6
+
+
+def test_residual_groups_name_each_constraint_and_total_is_their_max():
+    planner, cx, cy, st = _samples(5, seed=3)
+    prob = ProjectionProblem(planner.basis, ProjectionBounds(a_max=6.0))
+    total, groups = prob.residuals(cx, cy, st)
+    assert set(groups) == {
+        "boundary",
+        "lane",
+        "speed",
+        "lateral_velocity",
+        "accel_x",
+        "accel_y",
+        "accel_norm",
+    }
+    np.testing.assert_allclose(total, np.max(np.stack(list(groups.values())), axis=0))
+    assert groups["boundary"].max() < 1e-9  # plans meet the boundary conditions already
+
+
+@pytest.mark.parametrize("metric", ["waypoint", "coefficient"])
+def test_feasible_trajectory_is_returned_unchanged(metric):
+    planner = make_planner("bernstein")
+    st = EgoState(vs=10.0)
+    d = np.array(
+        [[10.0, 9.0, 8.0, 8.0, 0.1, 0.1, 0.0, 0.0], [10.0, 10.0, 10.0, 10.0, 0.0, 0.0, 0.0, 0.0]]
+    )
+    cx, cy = map(np.asarray, planner.closed_form(d, st))
+    prob = ProjectionProblem(planner.basis, metric=metric)
+    assert prob.residuals(cx, cy, st)[0].max() < 1e-9
+    tight = {"tol_gap_abs": 1e-12, "tol_gap_rel": 1e-12, "tol_feas": 1e-12, "tol_ktratio": 1e-10}
+    res = prob.project(cx, cy, st, backend="clarabel", **tight)
+    tr, tr0 = planner.trajectories(res.cx, res.cy), planner.trajectories(cx, cy)
+    np.testing.assert_allclose(tr.x, tr0.x, atol=1e-5)
+    np.testing.assert_allclose(tr.y, tr0.y, atol=1e-6)
+    np.testing.assert_allclose(tr.vx, tr0.vx, atol=1e-5)
+    assert res.distance.max() < 1e-8
+
+
+def test_admm_batch_equals_loop_over_clarabel_on_200_projections():
+    if "admm" not in solvers.available_backends():
+        pytest.skip("the 'admm' backend is not available yet (solvers/admm.py)")
+    planner, cx, cy, st = _samples(200, seed=4)
+    prob = ProjectionProblem(planner.basis)
+    batch = prob.batch(cx, cy, st)
+    ref = np.stack([solvers.solve(qp, backend="clarabel").x for qp in batch])
+    res = prob.project(cx, cy, st, backend="admm")
+    solved = res.solved
+    # every sample that ADMM reports SOLVED is Clarabel's solution (same trajectory)
+    assert solved.sum() >= 20, res.solution.status_counts()
+    n = planner.basis.nvar
+    P = planner.basis.P
+    np.testing.assert_allclose(res.cx[solved] @ P.T, ref[solved, :n] @ P.T, atol=0.2)
+    np.testing.assert_allclose(res.cy[solved] @ P.T, ref[solved, n:] @ P.T, atol=5e-3)
+    assert res.residual[solved].max() <= 1e-3
+
+
+def test_user_constraints_are_honoured_including_per_sample_bounds():
+    planner, cx, cy, st = _samples(4, seed=5)
+    K = planner.basis.num_steps
+    zone = LinearConstraints.at_steps(
+        range(50, K), nx=1.0, ny=0.0, upper=6.0, num_steps=K, quantity="velocity", name="speed_zone"
+    )
+    # per-sample "stay behind" half-plane at step 80: x_80 ≤ h_b
+    h = np.array([[40.0], [45.0], [50.0], [55.0]])
+    behind = LinearConstraints.at_steps(
+        [80], nx=1.0, ny=0.0, lower=-np.inf, upper=h, num_steps=K, name="behind"
+    )
+    prob = ProjectionProblem(planner.basis, extra=[zone, behind])
+    res = prob.project(cx, cy, st, backend="clarabel")
+    assert res.solved.all()
+    tr = planner.trajectories(res.cx, res.cy)
+    assert tr.vx[:, 50:].max() <= 6.0 + 1e-6
+    assert np.all(tr.x[:, 80] <= h[:, 0] + 1e-6)
+    assert (
+        res.residual_groups["speed_zone"].max() <= 1e-6
+        and res.residual_groups["behind"].max() <= 1e-6
+    )
+    # the bounds can be swapped per call without rebuilding the problem
+    res2 = prob.project(
+        cx, cy, st, backend="clarabel", extra_bounds=[(-np.inf, 6.0), (-np.inf, h - 5.0)]
+    )
+    assert np.all(planner.trajectories(res2.cx, res2.cy).x[:, 80] <= h[:, 0] - 5.0 + 1e-6)
+
+
+def test_acceleration_norm_polygon_is_conservative():
+    planner, cx, cy, st = _samples(4, seed=6)
+    prob = ProjectionProblem(
+        planner.basis, ProjectionBounds(a_max=1.0, ax_max=np.inf, ay_max=np.inf)
+    )
+    res = prob.project(cx, cy, st, backend="clarabel")
+    tr = planner.trajectories(res.cx, res.cy)
+    assert np.hypot(tr.ax, tr.ay).max() <= 1.0 + 1e-6
+
+
+@pytest.mark.parametrize(
+    "call, msg",
+    [
+        (
+            lambda p, cx, cy: p.project(cx, cy, EgoState(vs=35.0), backend="clarabel"),
+            "initial speed",
+        ),
+        (
+            lambda p, cx, cy: p.project(cx, cy, EgoState(d=1.0), backend="clarabel"),
+            "lateral offset",
+        ),
+        (lambda p, cx, cy: p.batch(cx[:, :5], cy[:, :5], EgoState()), "shape"),
+        (lambda p, cx, cy: p.batch(cx * np.nan, cy, EgoState()), "NaN"),
+        (lambda p, cx, cy: p.batch(cx, cy, np.tile(EgoState().as_array(), (3, 1))), "batch size"),
+    ],
+)
+def test_bad_inputs_raise(call, msg):
+    planner, cx, cy, _ = _samples(2, seed=7)
+    prob = ProjectionProblem(planner.basis)
+    with pytest.raises(ValueError, match=msg):
+        call(prob, cx, cy)
+
+
+def test_bad_problem_definitions_raise():
+    basis = make_basis("bernstein")
+    with pytest.raises(ValueError, match="y_lb > y_ub"):
+        ProjectionProblem(basis, ProjectionBounds(y_lb=1.0, y_ub=0.0))
+    with pytest.raises(ValueError, match="shape"):
+        ProjectionProblem(basis, ProjectionBounds(vx_max=np.ones(7)))
+    wrong_k = LinearConstraints(np.zeros((1, 50)), np.zeros((1, 50)), upper=1.0)
+    with pytest.raises(ValueError, match="K=100"):
+        ProjectionProblem(basis, extra=wrong_k)
+    with pytest.raises(ValueError, match="metric"):
+        ProjectionProblem(basis, metric="l1")
