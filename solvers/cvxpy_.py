@@ -1,0 +1,201 @@
+"""cvxpy backend: the QP built once as a parametrised (DPP) cvxpy problem, re-solved per problem.
+
+For users who model in cvxpy.  ``P`` and ``A`` enter as constants; ``q`` and the finite bounds are
+``cp.Parameter``\\ s, so a batch (shared ``P``/``A``) is canonicalised once and re-solved with new
+parameter values.  Infinite bounds are never replaced by big numbers: only rows whose bound is
+finite get a constraint, so the built problem depends on the *pattern* of finite bounds too.  Built
+problems are cached by the content of ``P`` and ``A`` and that pattern (a small LRU).
+
+Settings: ``solver=`` picks cvxpy's solver (default ``"CLARABEL"``); every other keyword goes to
+``cp.Problem.solve`` and thus to that solver untouched.  cvxpy's own defaults are not changed.
+"""
+
+from __future__ import annotations
+
+import time
+from collections import OrderedDict
+from dataclasses import dataclass
+from typing import Any
+
+import cvxpy as cp
+import numpy as np
+import scipy.sparse as sp
+
+from .base import Backend, failed_solution
+from .problem import QP
+from .solution import Solution, Status
+
+__all__ = ["CvxpyBackend", "make_backend", "DEFAULT_SOLVER"]
+
+DEFAULT_SOLVER = "CLARABEL"
+_CACHE_SIZE = 16
+
+_STATUS = {
+    cp.OPTIMAL: Status.SOLVED,
+    cp.OPTIMAL_INACCURATE: Status.SOLVED_INACCURATE,
+    cp.INFEASIBLE: Status.PRIMAL_INFEASIBLE,
+    cp.INFEASIBLE_INACCURATE: Status.PRIMAL_INFEASIBLE,
+    cp.UNBOUNDED: Status.DUAL_INFEASIBLE,
+    cp.UNBOUNDED_INACCURATE: Status.DUAL_INFEASIBLE,
+    cp.USER_LIMIT: Status.MAX_ITER,
+    # SOLVER_ERROR, INFEASIBLE_OR_UNBOUNDED and anything else -> ERROR
+}
+
+
+def _same(M1: Any, M2: Any) -> bool:
+    if M1 is M2:
+        return True
+    if M1.shape != M2.shape:
+        return False
+    if sp.issparse(M1) or sp.issparse(M2):
+        return (sp.csc_matrix(M1) != sp.csc_matrix(M2)).nnz == 0
+    return bool(np.array_equal(M1, M2))
+
+
+def _rows(qp: QP) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    eq = (qp.l == qp.u) & np.isfinite(qp.u)
+    up = ~eq & np.isfinite(qp.u)
+    lo = ~eq & np.isfinite(qp.l)
+    return eq, up, lo
+
+
+@dataclass
+class _Built:
+    P: Any
+    A: Any
+    pattern: bytes
+    problem: cp.Problem
+    x: cp.Variable
+    q: cp.Parameter
+    b: cp.Parameter | None
+    u: cp.Parameter | None
+    l: cp.Parameter | None
+    c_eq: Any
+    c_up: Any
+    c_lo: Any
+
+
+def _build(qp: QP, eq: np.ndarray, up: np.ndarray, lo: np.ndarray, pattern: bytes) -> _Built:
+    n = qp.n
+    A = sp.csr_matrix(qp.A) if qp.is_sparse else qp.A
+    x = cp.Variable(n, name="x")
+    q = cp.Parameter(n, name="q")
+    # psd_wrap: P is PSD by contract; skip cvxpy's eigenvalue check, which rejects PSD-but-singular
+    # matrices at rounding level
+    obj = 0.5 * cp.quad_form(x, cp.psd_wrap(qp.P)) + q @ x
+    cons = []
+    b = u = l = None
+    c_eq = c_up = c_lo = None
+    if eq.any():
+        b = cp.Parameter(int(eq.sum()), name="b")
+        c_eq = A[eq] @ x == b
+        cons.append(c_eq)
+    if up.any():
+        u = cp.Parameter(int(up.sum()), name="u")
+        c_up = A[up] @ x <= u
+        cons.append(c_up)
+    if lo.any():
+        l = cp.Parameter(int(lo.sum()), name="l")
+        c_lo = A[lo] @ x >= l
+        cons.append(c_lo)
+    problem = cp.Problem(cp.Minimize(obj), cons)
+    return _Built(qp.P, qp.A, pattern, problem, x, q, b, u, l, c_eq, c_up, c_lo)
+
+
+class CvxpyBackend(Backend):
+    name = "cvxpy"
+    detects_infeasibility = True
+
+    def __init__(self) -> None:
+        self._cache: OrderedDict[int, _Built] = OrderedDict()
+        self._key = 0
+
+    def _get(self, qp: QP) -> tuple[_Built, np.ndarray, np.ndarray, np.ndarray]:
+        eq, up, lo = _rows(qp)
+        pattern = np.concatenate([eq, up, lo]).tobytes()
+        for k, built in self._cache.items():
+            if built.pattern == pattern and _same(built.P, qp.P) and _same(built.A, qp.A):
+                self._cache.move_to_end(k)
+                return built, eq, up, lo
+        built = _build(qp, eq, up, lo, pattern)
+        self._key += 1
+        self._cache[self._key] = built
+        while len(self._cache) > _CACHE_SIZE:
+            self._cache.popitem(last=False)
+        return built, eq, up, lo
+
+    def solve(self, qp: QP, *, warm_start: Solution | None = None, **settings: Any) -> Solution:
+        solver = settings.pop("solver", DEFAULT_SOLVER)
+        if solver not in cp.installed_solvers():
+            raise ValueError(
+                f"cvxpy solver {solver!r} is not installed; installed: {cp.installed_solvers()}"
+            )
+        used = {"solver": solver, **settings}
+        t0 = time.perf_counter()
+        built, eq, up, lo = self._get(qp)
+        built.q.value = qp.q
+        if built.b is not None:
+            built.b.value = qp.u[eq]
+        if built.u is not None:
+            built.u.value = qp.u[up]
+        if built.l is not None:
+            built.l.value = qp.l[lo]
+        if warm_start is not None and np.all(np.isfinite(warm_start.x)):
+            built.x.value = np.asarray(warm_start.x, dtype=np.float64)
+        else:
+            built.x.value = None
+        try:
+            built.problem.solve(solver=solver, **settings)
+        except cp.error.SolverError as exc:
+            return failed_solution(
+                qp,
+                self.name,
+                solve_time=time.perf_counter() - t0,
+                settings=used,
+                message=f"SolverError: {exc}",
+            )
+        dt = time.perf_counter() - t0
+        st = built.problem.status
+        status = _STATUS.get(st, Status.ERROR)
+        stats = built.problem.solver_stats
+        iters = int(stats.num_iters) if stats is not None and stats.num_iters is not None else 0
+        extras = {"native_status": st}
+        xv = built.x.value
+        if status in (Status.PRIMAL_INFEASIBLE, Status.DUAL_INFEASIBLE) or xv is None:
+            if status in (Status.SOLVED, Status.SOLVED_INACCURATE, Status.MAX_ITER):
+                status = Status.ERROR  # no point came back
+            sol = failed_solution(
+                qp, self.name, status, solve_time=dt, iterations=iters, settings=used
+            )
+            sol.extras.update(extras)
+            return sol
+        x = np.asarray(xv, dtype=np.float64).reshape(qp.n)
+        y = np.zeros(qp.m)
+        # cvxpy's duals are ≥ 0 for both `Ax <= u` and `Ax >= l`; equality duals enter the
+        # Lagrangian with + sign.  OSQP's y: + on upper bounds, − on lower bounds.
+        for c, mask, sign in ((built.c_eq, eq, 1.0), (built.c_up, up, 1.0), (built.c_lo, lo, -1.0)):
+            if c is None:
+                continue
+            dv = c.dual_value
+            if dv is None:
+                y[:] = np.nan
+                break
+            y[mask] += sign * np.asarray(dv, dtype=np.float64).reshape(-1)
+        finite_y = bool(np.all(np.isfinite(y)))
+        return Solution(
+            x=x,
+            y=y,
+            status=status,
+            objective=qp.objective(x),
+            iterations=iters,
+            solve_time=dt,
+            primal_residual=qp.constraint_violation(x),
+            dual_residual=qp.dual_residual(x, y) if finite_y else float("nan"),
+            backend=self.name,
+            settings=used,
+            extras=extras,
+        )
+
+
+def make_backend() -> Backend:
+    return CvxpyBackend()

@@ -1,0 +1,284 @@
+"""Backends ``qpsolvers:<name>``: any QP solver that the ``qpsolvers`` package finds installed.
+
+Each problem goes through :meth:`QP.to_qpsolvers` (``G = [A[up]; −A[lo]]``, ``Aeq = A[eq]``) and
+``qpsolvers.solve_problem(Problem(...), solver=name, **settings)``; settings are the native solver's
+keyword arguments, passed straight through (qpsolvers itself defaults to ``verbose=False``).
+
+qpsolvers' duals follow the same sign convention as ours (``Px + q + Gᵀz + Aᵀy = 0``), so they
+map back to OSQP's ``y`` over our rows as ``y[eq] = y_qp``, ``y[up] += z[:n_up]`` and
+``y[lo] −= z[n_up:]``.
+
+Status: ``found`` becomes ``SOLVED`` only after we check the residuals ourselves (a solver may
+report success on a poor point): otherwise ``SOLVED_INACCURATE``.  When not found, the solver's own
+status (in ``Solution.extras`` where qpsolvers keeps it) tells infeasibility apart; solvers whose
+status qpsolvers does not expose get ``ERROR`` and ``detects_infeasibility = False``.
+"""
+
+from __future__ import annotations
+
+import re
+import time
+import warnings
+from typing import Any
+
+import numpy as np
+import qpsolvers
+import scipy.sparse as sp
+
+from .base import Backend, failed_solution
+from .problem import QP
+from .solution import Solution, Status
+
+__all__ = ["QpsolversBackend", "installed_solvers", "make_backend", "RESIDUAL_RTOL", "GROSS_RTOL"]
+
+#: a "found" point whose scaled primal or dual residual exceeds this is reported SOLVED_INACCURATE
+#: (scaled as OSQP does: primal by max(1, ‖Ax‖∞), dual by max(1, ‖Px‖∞, ‖Aᵀy‖∞, ‖q‖∞))
+RESIDUAL_RTOL = 1e-4
+#: a "found" point whose scaled primal residual exceeds this is no solution at all: ERROR
+GROSS_RTOL = 1e-2
+
+# Solvers qpsolvers may list that we do not offer, and why.  Every solver installed here was checked
+# on random feasible QPs, projection-like QPs, and the Maros–Meszaros subset in the tests.
+_EXCLUDED: dict[str, str] = {
+    # Offered with caveats instead: quadprog (needs P positive definite: ERROR otherwise), daqp and
+    # quadprog (qpsolvers does not expose their infeasibility status: detects_infeasibility=False),
+    # proxqp (unreliable infeasibility claims, see _DETECTS), scs (first order: ask for accuracy).
+    "highs": (
+        "HiGHS 1.15's QP solver stops with 'Non-convex' (HighsStatus::Error) on convex "
+        "projection-like QPs with P = I, and on QSHARE1B claims optimality 1e-2 off the optimum"
+    ),
+    "jaxopt_osqp": "jaxopt's BoxOSQP in float32 by default; too inaccurate for our tolerances",
+    "gurobi": "commercial: license-dependent behaviour, not tested here",
+    "mosek": "commercial: license-dependent behaviour, not tested here",
+    "cvxopt": "its QP solver needs rank([P; A; G]) = n and fails on our PSD problems",
+}
+
+# Solvers whose failure status qpsolvers keeps in `Solution.extras` (so infeasibility can be told).
+_STATUS_IN_EXTRAS = {"clarabel", "osqp", "piqp", "proxqp", "scs", "qpalm", "kvxopt", "ecos"}
+# ...and of those, the ones whose infeasibility claims we rely on (`detects_infeasibility`).
+# ProxQP is left out: it did not detect dual infeasibility of an unbounded LP (MAX_ITER) and it
+# claimed PRIMAL_INFEASIBLE on feasible problems (QPCBLEND, QSHARE1B, small random QPs); its
+# statuses are still mapped, but the tests only require that it never reports a wrong SOLVED.
+_DETECTS = _STATUS_IN_EXTRAS - {"proxqp"}
+
+
+def installed_solvers() -> list[str]:
+    """qpsolvers' installed solvers usable on our QPs (``_EXCLUDED`` says why not the rest)."""
+    return [s for s in qpsolvers.available_solvers if s not in _EXCLUDED]
+
+
+def _norm(s: str) -> str:
+    return re.sub(r"[^a-z]", "", s.lower())
+
+
+def _native_status(extras: Any) -> str | None:
+    if not isinstance(extras, dict):
+        return None
+    for key in ("status", "info"):
+        v = extras.get(key)
+        if v is None:
+            continue
+        if isinstance(v, dict):  # scs: info dict with a "status" string
+            v = v.get("status", None)
+            if v is None:
+                continue
+        st = getattr(v, "status", v)  # piqp/proxqp/osqp info objects carry .status
+        return str(st)
+    return None
+
+
+def _map_failed(native: str | None) -> Status:
+    if native is None:
+        return Status.ERROR
+    s = _norm(native)
+    if "primalinfeasible" in s or s.startswith("infeasible"):
+        return Status.PRIMAL_INFEASIBLE
+    if "dualinfeasible" in s or s.startswith("unbounded"):
+        return Status.DUAL_INFEASIBLE
+    if "maxiter" in s or "maximumiter" in s or "iterlimit" in s or "iterationlimit" in s:
+        return Status.MAX_ITER
+    if "inaccurate" in s or "almostsolved" in s:
+        return Status.SOLVED_INACCURATE
+    return Status.ERROR
+
+
+class QpsolversBackend(Backend):
+    """One qpsolvers solver; ``settings`` go to ``qpsolvers.solve_problem`` untouched."""
+
+    def __init__(self, solver: str) -> None:
+        if solver not in qpsolvers.available_solvers:
+            from .registry import UnknownBackendError
+
+            raise UnknownBackendError(
+                f"qpsolvers has no installed solver {solver!r}; installed: "
+                f"{', '.join(qpsolvers.available_solvers)}"
+            )
+        if solver in _EXCLUDED:
+            from .registry import UnknownBackendError
+
+            raise UnknownBackendError(
+                f"qpsolvers solver {solver!r} is not offered: {_EXCLUDED[solver]}"
+            )
+        self.solver = solver
+        self.name = f"qpsolvers:{solver}"
+        self.detects_infeasibility = solver in _DETECTS
+        self._status_known = solver in _STATUS_IN_EXTRAS
+        self._sparse = solver in qpsolvers.sparse_solvers
+
+    def _matrices(self, qp: QP) -> dict[str, Any]:
+        d = qp.to_qpsolvers()
+        conv = (
+            (lambda M: sp.csc_matrix(M))
+            if self._sparse
+            else (lambda M: M.toarray() if sp.issparse(M) else np.asarray(M))
+        )
+        for k in ("P", "G", "A"):
+            if d[k] is not None:
+                d[k] = conv(d[k])
+        return d
+
+    def _to_y(self, qp: QP, sol: Any) -> np.ndarray:
+        eq = qp.l == qp.u
+        up = ~eq & np.isfinite(qp.u)
+        lo = ~eq & np.isfinite(qp.l)
+        n_eq, n_up, n_lo = int(eq.sum()), int(up.sum()), int(lo.sum())
+        y = np.zeros(qp.m)
+        zy = None if sol.y is None else np.asarray(sol.y, dtype=np.float64).reshape(-1)
+        zz = None if sol.z is None else np.asarray(sol.z, dtype=np.float64).reshape(-1)
+        if n_eq:
+            if zy is None or zy.size != n_eq:
+                return np.full(qp.m, np.nan)
+            y[eq] = zy
+        if n_up + n_lo:
+            if zz is None or zz.size != n_up + n_lo:
+                return np.full(qp.m, np.nan)
+            y[up] += zz[:n_up]
+            y[lo] -= zz[n_up:]
+        return y
+
+    def solve(self, qp: QP, *, warm_start: Solution | None = None, **settings: Any) -> Solution:
+        used = {"solver": self.solver, **settings}
+        kw = dict(settings)
+        if warm_start is not None and np.all(np.isfinite(warm_start.x)):
+            kw.setdefault("initvals", np.asarray(warm_start.x, dtype=np.float64))
+        t0 = time.perf_counter()
+        with warnings.catch_warnings(record=True) as caught:
+            warnings.simplefilter("always")
+            try:
+                problem = qpsolvers.Problem(**self._matrices(qp))
+                res = qpsolvers.solve_problem(problem, solver=self.solver, **kw)
+            except Exception as exc:  # ProblemError (e.g. P not PD for quadprog), SolverError...
+                return failed_solution(
+                    qp,
+                    self.name,
+                    solve_time=time.perf_counter() - t0,
+                    settings=used,
+                    message=f"{type(exc).__name__}: {exc}",
+                )
+        dt = time.perf_counter() - t0
+        msgs = [str(w.message) for w in caught]
+        native = _native_status(res.extras)
+        extras: dict[str, Any] = {"native_status": native, "found": bool(res.found)}
+        if msgs:
+            extras["warnings"] = msgs
+        x = None if res.x is None else np.asarray(res.x, dtype=np.float64).reshape(-1)
+        iters = _iterations(res.extras)
+        if not res.found or x is None or x.shape != (qp.n,) or not np.all(np.isfinite(x)):
+            status = _map_failed(native) if self._status_known else Status.ERROR
+            if status in (Status.SOLVED, Status.SOLVED_INACCURATE) and (
+                x is None or not np.all(np.isfinite(x))
+            ):
+                status = Status.ERROR
+            ok_x = x is not None and x.shape == (qp.n,) and bool(np.all(np.isfinite(x)))
+            keep_x = ok_x and status not in (Status.PRIMAL_INFEASIBLE, Status.DUAL_INFEASIBLE)
+            sol = failed_solution(
+                qp,
+                self.name,
+                status,
+                x=x if keep_x else None,
+                solve_time=dt,
+                iterations=iters,
+                settings=used,
+            )
+            sol.extras.update(extras)
+            return sol
+        y = self._to_y(qp, res)
+        prim = qp.constraint_violation(x)
+        dual = qp.dual_residual(x, y) if np.all(np.isfinite(y)) else float("nan")
+        Ax = qp.A @ x if qp.m else np.zeros(0)
+        if prim > GROSS_RTOL * max(1.0, float(np.max(np.abs(Ax), initial=0.0))):
+            # "found" at a point that violates the constraints grossly (DAQP does this on
+            # inconsistent equalities): not a solution at all
+            status = Status.ERROR
+            extras["message"] = f"solver reported success at an infeasible point ({prim:.3g})"
+        elif _residuals_ok(qp, x, y, prim, dual):
+            status = Status.SOLVED
+        else:
+            status = Status.SOLVED_INACCURATE
+        return Solution(
+            x=x,
+            y=y,
+            status=status,
+            objective=qp.objective(x),
+            iterations=iters,
+            solve_time=dt,
+            primal_residual=prim,
+            dual_residual=dual,
+            backend=self.name,
+            settings=used,
+            extras=extras,
+        )
+
+
+def _residuals_ok(qp: QP, x: np.ndarray, y: np.ndarray, prim: float, dual: float) -> bool:
+    """Primal residual, dual residual and duality gap, each scaled as OSQP scales them.
+
+    Multipliers of the wrong sign for a bound (``y > 0`` where ``u = inf``, ``y < 0`` where
+    ``l = -inf``) are dropped first, so they show up in the dual residual instead of making the
+    support function infinite: a solver may return ``1e-18`` there.
+    """
+    Ax = qp.A @ x if qp.m else np.zeros(0)
+    p_scale = max(1.0, float(np.max(np.abs(Ax), initial=0.0)))
+    if prim > RESIDUAL_RTOL * p_scale:
+        return False
+    if not np.isfinite(dual):
+        return True  # solver gave no duals: only the primal side can be checked
+    y = np.where(((y > 0) & ~np.isfinite(qp.u)) | ((y < 0) & ~np.isfinite(qp.l)), 0.0, y)
+    Px = qp.P @ x
+    ATy = qp.A.T @ y if qp.m else np.zeros(qp.n)
+    d_scale = max(
+        1.0, float(np.max(np.abs(Px))), float(np.max(np.abs(ATy))), float(np.max(np.abs(qp.q)))
+    )
+    if float(np.max(np.abs(Px + qp.q + ATy))) > RESIDUAL_RTOL * d_scale:
+        return False
+    # duality gap xᵀPx + qᵀx + S(y), S the support function of [l, u]
+    pos, neg = y > 0, y < 0
+    s_terms = np.concatenate([qp.u[pos] * y[pos], qp.l[neg] * y[neg]])
+    xPx, qx = float(x @ Px), float(qp.q @ x)
+    gap = abs(xPx + qx + float(s_terms.sum()))
+    g_scale = max(1.0, abs(xPx), abs(qx), float(np.max(np.abs(s_terms), initial=0.0)))
+    return gap <= RESIDUAL_RTOL * g_scale
+
+
+def _iterations(extras: Any) -> int:
+    if not isinstance(extras, dict):
+        return 0
+    for key in ("iterations", "iter"):  # quadprog, scs
+        if key in extras:
+            try:
+                return int(extras[key])
+            except (TypeError, ValueError):
+                return 0
+    info = extras.get("info")
+    for attr in ("iter", "iterations", "iter_ext"):
+        v = info.get(attr) if isinstance(info, dict) else getattr(info, attr, None)
+        if v is not None:
+            try:
+                return int(v)
+            except (TypeError, ValueError):
+                pass
+    return 0
+
+
+def make_backend(solver_name: str) -> Backend:
+    return QpsolversBackend(solver_name)
