@@ -65,6 +65,7 @@ __all__ = [
     "select_reduced_set_unchecked",
     "refine_weights",
     "project_simplex",
+    "reduced_set_objective",
 ]
 
 METHODS = ("mmd", "herding", "random", "degroot")
@@ -92,13 +93,14 @@ class ReducedSetConfig:
     weights: str = _static("simplex")
     simplex_iterations: int = _static(300)
     # leaves: tunable scalars
-    beta: float = 1.0  # weight of the top/bottom separation term
+    beta: float = 0.01  # weight of the top/bottom separation term (reference: 1, on α-scale 1)
     bandwidth: float | None = None  # Gaussian kernel σ on the features; None = median heuristic
     feature_scale: float = 1.0  # features = waypoints * feature_scale
-    mean0: float = 0.0  # CEM initial mean of every α_j (reference: 0)
+    alpha_scale: float | None = None  # α = alpha_scale·u, CEM over u; None = 1/n (reference: 1)
+    mean0: float = 0.0  # CEM initial mean of every u_j (reference: 0)
     sigma0: float = 5.0  # CEM initial covariance sigma0·I (reference: 5)
     cov_reg: float = 0.01  # added to the elite covariance (reference: 0.01)
-    smoothing: float = 0.0  # μ, Σ ← (1−s)·new + s·old (reference: 0)
+    smoothing: float = 0.5  # μ, Σ ← (1−s)·new + s·old (reference: 0)
     ratio_eps: float = 1e-6  # relative guard of the ratio's denominator
     ridge: float = 0.01  # ρ in the refinement QP (reference: 0.01)
     a: float = 4.5  # "degroot" ellipse semi-axes (m)
@@ -106,6 +108,14 @@ class ReducedSetConfig:
 
     def replace(self, **kw) -> ReducedSetConfig:
         return dataclasses.replace(self, **kw)
+
+    @classmethod
+    def reference(cls, **kw) -> ReducedSetConfig:
+        """The reference code's CEM: α-scale 1, β = 1, no smoothing, signed KKT weights
+        (its σ = 30 was on coefficient vectors; pass ``bandwidth=`` to fix one here)."""
+        base = dict(alpha_scale=1.0, beta=1.0, smoothing=0.0, weights="kkt")
+        base.update(kw)
+        return cls(**base)
 
     def __post_init__(self):
         if isinstance(self.population, int) and isinstance(self.n_elite, int):
@@ -166,8 +176,10 @@ def _kkt_weights(A: jax.Array, b: jax.Array) -> jax.Array:
 
 
 def _simplex_qp(A: jax.Array, b: jax.Array, x0: jax.Array, iterations: int) -> jax.Array:
-    """min ½xᵀAx − bᵀx on the simplex by FISTA with step 1/λ_max(A) (fixed iteration count)."""
-    step = 1.0 / jnp.linalg.eigvalsh(A)[-1]
+    """min ½xᵀAx − bᵀx on the simplex by FISTA (fixed iteration count)."""
+    # λ_max(A) ≤ min(‖A‖_∞, ‖A‖_F): a safe step without an eigen-solve
+    lmax = jnp.minimum(jnp.max(jnp.sum(jnp.abs(A), axis=1)), jnp.sqrt(jnp.sum(A * A)))
+    step = 1.0 / lmax
 
     def body(_, c):
         x, y, t = c
@@ -212,24 +224,51 @@ def _reduced_mmd2(D: jax.Array, idx: jax.Array, w: jax.Array) -> jax.Array:
     return jnp.maximum(mass * mass + (dxy - dxx) + (dxy - dyy), 0.0)
 
 
+def _top_m_mask(v: jax.Array, m: int) -> jax.Array:
+    """Boolean mask of the m largest entries of each row of ``v`` (p, n), ties broken by index.
+
+    By pairwise comparison (O(p·n²) but one fused op): XLA's CPU sort is ~20× slower here.
+    """
+    n = v.shape[-1]
+    i = jnp.arange(n)
+    beats = (v[:, None, :] > v[:, :, None]) | (
+        (v[:, None, :] == v[:, :, None]) & (i[None, :] < i[:, None])
+    )
+    rank = jnp.sum(beats, axis=-1)  # number of entries ranked above entry i
+    return rank < m
+
+
+def reduced_set_objective(alpha: jax.Array, K: jax.Array, m: int, beta=1.0, ratio_eps=1e-6):
+    """eq. (red_set_opt_proposed) for a population ``alpha`` (p, n) -> (p,).
+
+    ``αᵀKα − (2/n)1ᵀKα + (1/n²)1ᵀK1`` (the exact MMD², ≥ 0, minimised at α = 1/n without the
+    second term) ``− β·top/(bottom + ratio_eps·(top + bottom))`` with top/bottom the sums of the
+    m largest / n − m smallest |α_j| (the separation term is 0 when m = n).
+    """
+    n = K.shape[0]
+    kbar = jnp.mean(K, axis=1)  # (1/n) K 1
+    const = jnp.mean(kbar)  # (1/n²) 1ᵀK1
+    quad = jnp.einsum("pi,ij,pj->p", alpha, K, alpha)
+    mmd = quad - 2.0 * alpha @ kbar + const
+    if m >= n:
+        return mmd
+    mag = jnp.abs(alpha)
+    top_mask = _top_m_mask(mag, m)
+    top = jnp.sum(jnp.where(top_mask, mag, 0.0), axis=-1)
+    bottom = jnp.sum(jnp.where(top_mask, 0.0, mag), axis=-1)
+    ratio = top / (bottom + ratio_eps * (top + bottom) + jnp.finfo(alpha.dtype).tiny)
+    return mmd - beta * ratio
+
+
 def _cem_alpha(key, K: jax.Array, m: int, cfg: ReducedSetConfig) -> jax.Array:
     """CEM over α ∈ ℝⁿ for eq. (red_set_opt_proposed); returns the best α seen."""
     n = K.shape[0]
     P, E = cfg.population, cfg.n_elite
     dtype = K.dtype
-    kbar = jnp.mean(K, axis=1)  # (1/n) K 1
-    const = jnp.mean(kbar)  # (1/n²) 1ᵀK1
+    scale = 1.0 / n if cfg.alpha_scale is None else cfg.alpha_scale
 
-    def cost(alpha):  # (p, n) -> (p,)
-        quad = jnp.einsum("pi,ij,pj->p", alpha, K, alpha)
-        mmd = quad - 2.0 * alpha @ kbar + const
-        if m >= n:
-            return mmd
-        mag = jnp.sort(jnp.abs(alpha), axis=-1)
-        bottom = jnp.sum(mag[:, : n - m], axis=-1)
-        top = jnp.sum(mag[:, n - m :], axis=-1)
-        ratio = top / (bottom + cfg.ratio_eps * (top + bottom) + jnp.finfo(dtype).tiny)
-        return mmd - cfg.beta * ratio
+    def cost(u):  # (p, n) -> (p,)
+        return reduced_set_objective(scale * u, K, m, cfg.beta, cfg.ratio_eps)
 
     eye = jnp.eye(n, dtype=dtype)
 
@@ -271,7 +310,7 @@ def _cem_alpha(key, K: jax.Array, m: int, cfg: ReducedSetConfig) -> jax.Array:
     keys = jax.random.split(key, cfg.iterations)
     (_, _, elites, _), _ = jax.lax.scan(step, (mu, cov, elites, ecost), keys)
     # elites are kept, so elites[0] of the last iteration is the best α seen over all iterations
-    return elites[0]
+    return scale * elites[0]
 
 
 @partial(jax.jit, static_argnames=("m", "method"))
@@ -309,7 +348,7 @@ def select_reduced_set_unchecked(
         init = (jnp.zeros((n,), bool), jnp.zeros((n,), K.dtype), jnp.zeros((m,), jnp.int32))
         _, _, idx = jax.lax.fori_loop(0, m, body, init)
     elif method == "random":
-        idx = jax.random.permutation(key, n)[:m]
+        _, idx = jax.lax.top_k(jax.random.uniform(key, (n,)), m)  # uniform m-subset
     elif method == "degroot":
         ego = jnp.asarray(ego_guess, dtype=samples.dtype)
         d = ego[None] - samples  # (n, K, 2)

@@ -12,10 +12,11 @@ import scipy.sparse as sp
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
-from solvers import QP, QPBatch, Status, get_backend, solve, solve_batch
+from solvers import QP, QPBatch, Status, available_backends, get_backend, solve, solve_batch
 from solvers.examples import projection_like_batch, random_feasible_qp
 
 from .conftest import assert_agrees, reference
+from .tolerances import tol_for
 
 # ------------------------------------------------------------------ random QPs (hypothesis)
 
@@ -60,7 +61,7 @@ def test_random_feasible_qps_match_reference(backend, tol):
 
 @pytest.fixture(scope="module")
 def projection_batch() -> QPBatch:
-    return projection_like_batch(6, horizon=100, seed=3)
+    return projection_like_batch(4, horizon=100, seed=3)
 
 
 @pytest.fixture(scope="module")
@@ -205,3 +206,89 @@ def test_infeasible_problem_in_a_batch_does_not_spoil_the_rest(backend, tol):
         assert Status(int(bs.status[1])) is Status.PRIMAL_INFEASIBLE
     for i in (0, 2):
         assert_agrees(bs[i], reference(bad[i]), bad[i], tol, f"{backend} batch problem {i}")
+
+
+# ------------------------------------------------------- backend-specific behaviour
+
+
+def test_osqp_records_its_defaults_and_changes_only_verbose():
+    pytest.importorskip("osqp")
+    sol = solve(random_feasible_qp(4, 3, 1, seed=0), "osqp")
+    s = sol.settings
+    assert s["verbose"] in (0, False)
+    assert s["eps_abs"] == 1e-3 and s["eps_rel"] == 1e-3 and s["max_iter"] == 4000  # OSQP's own
+    sol = solve(random_feasible_qp(4, 3, 1, seed=0), "osqp", eps_abs=1e-6, polishing=True)
+    assert sol.settings["eps_abs"] == 1e-6 and sol.settings["polishing"] in (1, True)
+    with pytest.raises(ValueError, match="Unrecognized settings"):
+        solve(random_feasible_qp(4, 3, 1, seed=0), "osqp", eps_typo=1.0)
+
+
+def test_osqp_batch_sets_up_once_and_warm_starts():
+    osqp = pytest.importorskip("osqp")
+    batch = projection_like_batch(8, horizon=60, seed=2)
+    calls = {"setup": 0}
+    orig = osqp.OSQP.setup
+
+    def counting_setup(self, *a, **k):
+        calls["setup"] += 1
+        return orig(self, *a, **k)
+
+    mp = pytest.MonkeyPatch()
+    mp.setattr(osqp.OSQP, "setup", counting_setup)
+    try:
+        cold = solve_batch(batch, "osqp", eps_abs=1e-5, eps_rel=1e-5, max_iter=50_000)
+        assert calls["setup"] == 1
+        warm = solve_batch(
+            batch, "osqp", warm_start=cold, eps_abs=1e-5, eps_rel=1e-5, max_iter=50_000
+        )
+    finally:
+        mp.undo()
+    assert cold.all_solved and warm.all_solved
+    # started at the answer, every problem stops at its first termination check
+    assert warm.iterations.sum() < cold.iterations.sum()
+    assert cold.settings["eps_abs"] == 1e-5
+
+
+def test_osqp_non_convex_objective_is_an_error_status():
+    pytest.importorskip("osqp")
+    qp = QP(np.diag([1.0, -1.0]), np.zeros(2), np.eye(2), -np.ones(2), np.ones(2))
+    assert solve(qp, "osqp").status is Status.ERROR
+
+
+def test_cvxpy_builds_once_per_pattern_of_finite_bounds():
+    pytest.importorskip("cvxpy")
+    from solvers import cvxpy_
+
+    be = cvxpy_.CvxpyBackend()
+    batch = projection_like_batch(3, horizon=20, seed=1)
+    for qp in batch:
+        assert be.solve(qp).ok
+    assert len(be._cache) == 1  # same P, A and bound pattern: one built problem re-solved
+    l = batch.l[0].copy()
+    l[3] = -np.inf
+    qp = QP(batch.P, batch.q[0], batch.A, l, batch.u[0])
+    sol = be.solve(qp)
+    assert len(be._cache) == 2
+    assert_agrees(sol, reference(qp), qp, tol_for("cvxpy"), "cvxpy new pattern")
+    with pytest.raises(ValueError, match="not installed"):
+        be.solve(qp, solver="NO_SUCH_SOLVER")
+
+
+def test_qpsolvers_lists_only_offered_solvers():
+    pytest.importorskip("qpsolvers")
+    from solvers import UnknownBackendError, qpsolvers_
+
+    offered = qpsolvers_.installed_solvers()
+    assert offered and not set(offered) & set(qpsolvers_._EXCLUDED)
+    for name in set(qpsolvers_._EXCLUDED) & set(__import__("qpsolvers").available_solvers):
+        with pytest.raises(UnknownBackendError, match="not offered"):
+            get_backend(f"qpsolvers:{name}")
+
+
+def test_qpsolvers_never_reports_solved_at_a_grossly_infeasible_point():
+    """A solver that says "found" at a point violating the rows gets ERROR, not SOLVED."""
+    pytest.importorskip("qpsolvers")
+    if "qpsolvers:daqp" not in available_backends():
+        pytest.skip("daqp not installed")
+    sol = solve(_PRIMAL_INFEASIBLE["inconsistent equalities"], "qpsolvers:daqp")
+    assert sol.status is Status.ERROR and "infeasible point" in sol.extras["message"]

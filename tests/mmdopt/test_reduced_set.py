@@ -1,0 +1,205 @@
+"""Reduced-set selection: the objective, the weights, the methods and input validation."""
+
+from __future__ import annotations
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+
+import mmdopt  # noqa: F401  (enables x64)
+from mmdopt.kernels import gaussian_gram
+from mmdopt.reduced_set import (
+    METHODS,
+    ReducedSetConfig,
+    project_simplex,
+    reduced_set_objective,
+    refine_weights,
+    select_reduced_set,
+    select_reduced_set_unchecked,
+    select_reduced_sets,
+)
+
+K_STEPS, DT = 100, 0.1
+
+
+def two_intent(seed: int, n: int = 100, p_keep: float = 0.8):
+    """Lane-keep (prob. p_keep) vs lane change (3.5 m, smooth, 4 s) with speeds N(5, 1) m/s.
+
+    Returns samples (n, K, 2) and the boolean lane-keep label of each sample.
+    """
+    rng = np.random.default_rng(seed)
+    t = np.arange(K_STEPS) * DT
+    keep = rng.random(n) < p_keep
+    v = rng.normal(5.0, 1.0, n)
+    s = np.clip(t / 4.0, 0.0, 1.0)
+    lateral = 3.5 * (3 * s**2 - 2 * s**3)
+    y = np.where(keep[:, None], 0.0, lateral[None]) + rng.normal(0.0, 0.05, n)[:, None]
+    return np.stack([v[:, None] * t, y], axis=-1), keep
+
+
+EGO_GUESS = np.stack([10.0 * np.arange(K_STEPS) * DT - 10.0, np.zeros(K_STEPS)], axis=-1)
+
+
+def _select(method="mmd", seed=0, m=10, config=None, samples=None):
+    X = two_intent(seed)[0] if samples is None else samples
+    return select_reduced_set(jax.random.key(seed), X, m, method, config, ego_guess=EGO_GUESS)
+
+
+@pytest.mark.parametrize("method", METHODS)
+def test_every_method_returns_m_distinct_indices_and_weights_summing_to_one(method):
+    rs = _select(method)
+    idx = np.asarray(rs.indices)
+    assert idx.shape == (10,) and len(set(idx.tolist())) == 10
+    assert idx.min() >= 0 and idx.max() < 100
+    np.testing.assert_allclose(float(jnp.sum(rs.weights)), 1.0, atol=1e-9)
+    assert float(jnp.min(rs.weights)) >= 0.0  # default weights="simplex"
+    assert rs.alpha.shape == (100,) and rs.method == method
+    assert float(rs.mmd2) >= 0.0 and float(rs.bandwidth) > 0.0
+
+
+@pytest.mark.parametrize("p_keep", [0.8, 0.2])
+def test_mmd_reduced_set_favours_the_likely_intent(p_keep):
+    fractions = []
+    for seed in range(8):
+        X, keep = two_intent(seed, p_keep=p_keep)
+        likely = keep if p_keep > 0.5 else ~keep
+        rs = select_reduced_set(jax.random.key(seed), X, 10, "mmd")
+        fractions.append(likely[np.asarray(rs.indices)].mean())
+    assert np.mean(fractions) >= 0.8, fractions
+
+
+def test_objective_is_the_exact_mmd_minimised_at_uniform_weights():
+    objective = jax.jit(reduced_set_objective, static_argnums=2)
+    X = two_intent(0)[0].reshape(100, -1)
+    K = gaussian_gram(X, None, 50.0)
+    uniform = jnp.full((1, 100), 0.01)
+    assert abs(float(objective(uniform, K, 10, 0.0)[0])) < 1e-12
+    scales = jnp.linspace(0.2, 2.0, 19)[:, None] * uniform  # c·(1/n)1, c = 0.2 … 2
+    vals = objective(scales, K, 10, 0.0)
+    assert int(jnp.argmin(vals)) == 8  # c = 1 (the reference's halved linear term gives 0.5)
+
+
+def test_separation_ratio_is_guarded_when_the_bottom_weights_vanish():
+    K = jnp.eye(20)
+    alpha = jnp.zeros((1, 20)).at[0, :5].set(1.0)
+    val = float(jax.jit(reduced_set_objective, static_argnums=2)(alpha, K, 5, 1.0, 1e-6)[0])
+    assert np.isfinite(val) and val > -1.01e6
+
+
+def test_refinement_is_the_equality_constrained_qp_and_uniform_for_the_full_set():
+    refine = jax.jit(refine_weights)
+    X = two_intent(1)[0].reshape(100, -1)
+    K = gaussian_gram(X, None, 50.0)
+    w = refine(K, jnp.arange(100), ReducedSetConfig(weights="kkt"))
+    np.testing.assert_allclose(np.asarray(w), 0.01, atol=1e-9)
+    idx = jnp.arange(0, 100, 10)
+    cfg = ReducedSetConfig(weights="kkt")
+    w = np.asarray(refine(K, idx, cfg))
+    A = np.asarray(K)[np.ix_(idx, idx)] + cfg.ridge * np.eye(10)
+    b = np.asarray(K).mean(0)[idx]
+    kkt = np.block([[A, np.ones((10, 1))], [np.ones((1, 10)), np.zeros((1, 1))]])
+    np.testing.assert_allclose(w, np.linalg.solve(kkt, np.r_[b, 1.0])[:10], atol=1e-8)
+
+
+def test_simplex_weights_are_nonnegative_and_no_worse_than_clipping():
+    for seed in range(6):
+        a = _select("random", seed, config=ReducedSetConfig(weights="kkt"))
+        if float(jnp.min(a.weights)) < 0:
+            break
+    else:  # pragma: no cover
+        pytest.skip("no random set with negative KKT weights")
+    b = _select("random", seed, config=ReducedSetConfig(weights="simplex"))
+    np.testing.assert_array_equal(np.asarray(a.indices), np.asarray(b.indices))
+    assert float(jnp.min(b.weights)) >= 0.0
+    assert float(b.mmd2) >= float(a.mmd2) * (1 - 1e-6)  # the signed optimum is a lower bound
+    X = two_intent(seed)[0].reshape(100, -1)
+    K = np.asarray(gaussian_gram(X, None, b.bandwidth))
+    idx = np.asarray(a.indices)
+    A = K[np.ix_(idx, idx)] + 0.01 * np.eye(10)
+    q = K.mean(0)[idx]
+
+    def obj(w):
+        return 0.5 * w @ A @ w - q @ w
+
+    clipped = np.asarray(project_simplex(a.weights))
+    assert obj(np.asarray(b.weights)) <= obj(clipped) + 1e-12
+
+
+def test_project_simplex_projects():
+    v = jnp.array([[0.5, 0.5, 0.5], [2.0, -1.0, 0.0], [0.2, 0.3, 0.5]])
+    p = np.asarray(project_simplex(v))
+    np.testing.assert_allclose(p.sum(-1), 1.0)
+    np.testing.assert_allclose(p[0], 1 / 3)
+    np.testing.assert_allclose(p[1], [1.0, 0.0, 0.0])
+    np.testing.assert_allclose(p[2], [0.2, 0.3, 0.5])
+
+
+def test_herding_starts_from_the_sample_with_the_largest_mean_kernel():
+    X = two_intent(2)[0]
+    rs = _select("herding", samples=X)
+    K = gaussian_gram(X.reshape(100, -1), None, rs.bandwidth)
+    assert int(rs.indices[0]) == int(jnp.argmax(jnp.mean(K, axis=0)))
+
+
+def test_degroot_picks_the_samples_deepest_in_conflict_with_the_ego_guess():
+    X, keep = two_intent(3)
+    rs = _select("degroot", samples=X)
+    d = EGO_GUESS[None] - X
+    g = np.max(1 - d[..., 0] ** 2 / 4.5**2 - d[..., 1] ** 2 / 3.5**2, axis=-1)
+    assert set(np.asarray(rs.indices).tolist()) == set(np.argsort(-g)[:10].tolist())
+
+
+def test_same_key_gives_the_same_reduced_set_and_different_keys_may_differ():
+    X = two_intent(4)[0]
+    a = select_reduced_set(jax.random.key(7), X, 10)
+    b = select_reduced_set(jax.random.key(7), X, 10)
+    np.testing.assert_array_equal(np.asarray(a.indices), np.asarray(b.indices))
+    np.testing.assert_array_equal(np.asarray(a.weights), np.asarray(b.weights))
+    others = [select_reduced_set(jax.random.key(k), X, 10).indices for k in range(8, 12)]
+    assert any(set(np.asarray(o).tolist()) != set(np.asarray(a.indices).tolist()) for o in others)
+
+
+def test_many_obstacles_at_once_and_inside_jit():
+    X = np.stack([two_intent(5)[0], two_intent(6)[0] + 10.0])
+    rs = select_reduced_sets(jax.random.key(0), X, 10, "herding")
+    assert rs.indices.shape == (2, 10) and rs.weights.shape == (2, 10)
+    np.testing.assert_allclose(np.asarray(rs.weights.sum(-1)), 1.0)
+    f = jax.jit(lambda k, s: select_reduced_set_unchecked(k, s, 10, "herding").weights)
+    np.testing.assert_allclose(
+        np.asarray(f(jax.random.key(0), jnp.asarray(X[0]))), np.asarray(rs.weights[0]), atol=1e-12
+    )
+
+
+def test_config_scalars_are_pytree_leaves_and_reference_config_exists():
+    cfg = ReducedSetConfig(bandwidth=30.0)
+    leaves = jax.tree_util.tree_leaves(cfg)
+    assert 30.0 in leaves and cfg.beta in leaves
+    assert ReducedSetConfig.reference().alpha_scale == 1.0
+    assert cfg.replace(beta=2.0).beta == 2.0
+    with pytest.raises(ValueError, match="weights"):
+        ReducedSetConfig(weights="nope")
+
+
+@pytest.mark.parametrize(
+    "kwargs, match",
+    [
+        (dict(samples=np.full((10, 5, 2), np.nan)), "samples"),
+        (dict(samples=np.zeros((0, 5, 2))), "samples"),
+        (dict(samples=np.zeros((10, 5))), "samples"),
+        (dict(samples=np.zeros((10, 5, 3))), "samples"),
+        (dict(samples=None), "samples"),
+        (dict(m=0), "m"),
+        (dict(m=11), "m"),
+        (dict(m=2.5), "m"),
+        (dict(method="best"), "method"),
+        (dict(method="degroot", ego_guess=None), "ego_guess"),
+        (dict(method="degroot", ego_guess=np.zeros((4, 2))), "ego_guess"),
+        (dict(config=ReducedSetConfig(bandwidth=-1.0)), "bandwidth"),
+    ],
+)
+def test_bad_inputs_raise_value_errors_naming_the_argument(kwargs, match):
+    args = dict(samples=np.zeros((10, 5, 2)), m=3, method="mmd", config=None, ego_guess=None)
+    args.update(kwargs)
+    with pytest.raises(ValueError, match=match):
+        select_reduced_set(jax.random.key(0), **args)
