@@ -1,0 +1,192 @@
+"""Circle footprints, the MMD collision surrogate l_dist and the collision-free count."""
+
+from __future__ import annotations
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+
+import mmdopt  # noqa: F401  (enables x64)
+from mmdopt.geometry import OBSTACLE_FOOTPRINT, CircleFootprint, circle_centres, headings
+from mmdopt.surrogate import (
+    ReducedObstacles,
+    SurrogateConfig,
+    collision_free_count,
+    f_bar,
+    mmd_surrogate,
+    mmd_surrogate_terms,
+    reduced_obstacles,
+)
+
+K, DT = 50, 0.1
+T = np.arange(K) * DT
+
+
+def _obstacle(m=5, lateral=0.0, seed=0, speed=5.0, x0=20.0):
+    """m reduced samples of one obstacle driving along x at lateral offset ``lateral`` (m)."""
+    rng = np.random.default_rng(seed)
+    x = x0 + (speed + rng.normal(0, 0.3, m))[:, None] * T
+    y = lateral + rng.normal(0, 0.1, m)[:, None] + 0 * T
+    return np.stack([x, y], -1)  # (m, K, 2)
+
+
+def _ro(samples_list, weights_list=None):
+    cs = [circle_centres(jnp.asarray(s), OBSTACLE_FOOTPRINT) for s in samples_list]
+    if weights_list is None:
+        weights_list = [np.full(len(s), 1 / len(s)) for s in samples_list]
+    return ReducedObstacles(centres=jnp.stack(cs), weights=jnp.asarray(np.stack(weights_list)))
+
+
+def _ego(lateral):
+    """Ego at 10 m/s starting at x = 0, at the given lateral offsets -> (B, K, 2)."""
+    lateral = np.atleast_1d(lateral)
+    x = np.broadcast_to(10.0 * T, (len(lateral), K))
+    y = np.broadcast_to(lateral[:, None], (len(lateral), K))
+    return np.stack([x, y], -1)
+
+
+def test_headings_follow_the_path_with_the_last_value_repeated():
+    xy = np.stack([T, T], -1)  # 45°
+    np.testing.assert_allclose(headings(xy), np.pi / 4)
+    turn = np.array([[0.0, 0.0], [1.0, 0.0], [1.0, 1.0]])
+    np.testing.assert_allclose(headings(turn), [0.0, np.pi / 2, np.pi / 2])
+
+
+def test_obstacle_circles_sit_along_the_heading():
+    xy = np.stack([T, np.zeros(K)], -1)
+    c = np.asarray(circle_centres(xy, OBSTACLE_FOOTPRINT))
+    assert c.shape == (3, K, 2)
+    np.testing.assert_allclose(c[:, 0], [[0.0, 0.0], [2.5, 0.0], [-2.5, 0.0]], atol=1e-12)
+    up = np.stack([np.zeros(K), T], -1)
+    c = np.asarray(circle_centres(up, OBSTACLE_FOOTPRINT))
+    np.testing.assert_allclose(c[1, 3], up[3] + [0.0, 2.5], atol=1e-12)
+
+
+def test_surrogate_is_exactly_zero_when_every_sample_is_clear():
+    ro = _ro([_obstacle(lateral=0.0), _obstacle(lateral=3.5, seed=1)])
+    ego = _ego([-8.0, 12.0])
+    assert np.all(np.asarray(f_bar(ego[0][None, None, None], ro.centres, 4.5, 3.5)) == 0.0)
+    np.testing.assert_array_equal(np.asarray(mmd_surrogate(ego, ro)), 0.0)
+    cfg = SurrogateConfig(stack_circles=False, bandwidth=0.3)
+    np.testing.assert_array_equal(np.asarray(mmd_surrogate(ego, ro, cfg)), 0.0)
+
+
+@pytest.mark.parametrize("bandwidth, f_scale", [(30.0, 1.0), (0.5, 1.0), (1.0, 10.0)])
+def test_surrogate_grows_monotonically_with_penetration(bandwidth, f_scale):
+    ro = _ro([_obstacle(lateral=0.0)])
+    offsets = np.linspace(6.0, 0.0, 25)  # ego lateral offset: from clear to head-on
+    cfg = SurrogateConfig(bandwidth=bandwidth, f_scale=f_scale)
+    vals = np.asarray(mmd_surrogate(_ego(offsets), ro, cfg))
+    assert vals[0] == 0.0 and vals[-1] > 0.0
+    assert np.all(np.diff(vals) >= 0.0), vals
+    assert np.all(np.diff(vals[vals > 0]) > 0.0)
+
+
+def test_surrogate_matches_the_definition_with_a_same_mass_dirac():
+    rng = np.random.default_rng(3)
+    ro = _ro([_obstacle(lateral=0.5)], [rng.dirichlet(np.ones(5))])
+    ego = _ego([0.8])
+    cfg = SurrogateConfig(bandwidth=0.7, f_scale=2.0)
+    terms = np.asarray(mmd_surrogate_terms(ego, ro, cfg))[0, 0]  # (K,)
+    fb = np.asarray(f_bar(ego[0][None, None], ro.centres[0], 4.5, 3.5)) * 2.0  # (m, C, K)
+    w = np.repeat(np.asarray(ro.weights[0]), 3)  # replicated over the 3 circles, Σw = 3
+    for k in (0, 10, 30):
+        a = fb[:, :, k].reshape(-1)
+        kern = np.exp(-((a[:, None] - a[None]) ** 2) / (2 * 0.7**2))
+        k0 = np.exp(-(a**2) / (2 * 0.7**2))
+        naive = w @ kern @ w - 2 * (w @ k0) * w.sum() + w.sum() ** 2
+        np.testing.assert_allclose(terms[k], naive, rtol=1e-7, atol=1e-12)
+
+
+def test_surrogate_is_accurate_in_float32_at_the_reference_bandwidth():
+    ro = _ro([_obstacle(lateral=0.0)])
+    ego = _ego([3.4])  # grazing: tiny penetrations
+    v64 = float(mmd_surrogate(ego, ro)[0])
+    ro32 = jax.tree_util.tree_map(lambda x: x.astype(jnp.float32), ro)
+    cfg32 = jax.tree_util.tree_map(lambda x: jnp.float32(x), SurrogateConfig())
+    v32 = float(mmd_surrogate(ego.astype(np.float32), ro32, cfg32)[0])
+    assert 0.0 < v64 < 1e-4  # below the reference's float32 floor (≈2e-4)
+    np.testing.assert_allclose(v32, v64, rtol=1e-4)
+
+
+def test_obstacles_add_up_and_zero_weight_padding_is_inert():
+    a, b = _obstacle(lateral=0.0), _obstacle(lateral=1.5, seed=2)
+    ego = _ego([0.5, 1.0, 4.0])
+    both = np.asarray(mmd_surrogate(ego, _ro([a, b])))
+    sep = np.asarray(mmd_surrogate(ego, _ro([a]))) + np.asarray(mmd_surrogate(ego, _ro([b])))
+    np.testing.assert_allclose(both, sep, rtol=1e-12)
+    padded = _ro([np.concatenate([a, b[:2]])], [np.r_[np.full(5, 0.2), 0.0, 0.0]])
+    np.testing.assert_allclose(
+        np.asarray(mmd_surrogate(ego, padded)),
+        np.asarray(mmd_surrogate(ego, _ro([a]))),
+        rtol=1e-12,
+    )
+
+
+def test_batched_surrogate_equals_one_ego_at_a_time():
+    ro = _ro([_obstacle(lateral=0.3)])
+    ego = _ego(np.linspace(-1, 4, 6))
+    batch = np.asarray(mmd_surrogate(ego, ro))
+    single = [float(mmd_surrogate(ego[i : i + 1], ro)[0]) for i in range(6)]
+    np.testing.assert_allclose(batch, single, rtol=1e-12)
+
+
+def test_config_is_a_pytree_and_changing_a_scalar_does_not_recompile():
+    cfg = SurrogateConfig()
+    assert 30.0 in jax.tree_util.tree_leaves(cfg)
+    ro = _ro([_obstacle()])
+    ego = _ego([0.0])
+    mmd_surrogate(ego, ro, cfg)
+    before = mmd_surrogate._cache_size()
+    mmd_surrogate(ego, ro, cfg.replace(bandwidth=0.4, f_scale=3.0))
+    assert mmd_surrogate._cache_size() == before
+
+
+def test_a_longer_ego_footprint_collides_earlier():
+    ro = _ro([_obstacle(lateral=0.0, x0=15.0)])
+    ego = _ego([4.5])  # beside the obstacle's lane
+    point = float(mmd_surrogate(ego, ro)[0])
+    wide = SurrogateConfig(ego_footprint=CircleFootprint((0.0, 2.0, -2.0)))
+    long_ = float(mmd_surrogate(ego, ro, wide)[0])
+    assert long_ >= point
+
+
+def test_reduced_obstacles_from_reduced_sets():
+    samples = np.stack([_obstacle(m=20, seed=4), _obstacle(m=20, lateral=3.5, seed=5)])
+    rs = mmdopt.select_reduced_sets(jax.random.key(0), samples, 4, "herding")
+    ro = reduced_obstacles(samples, rs)
+    assert ro.centres.shape == (2, 4, 3, K, 2) and ro.weights.shape == (2, 4)
+    np.testing.assert_allclose(
+        np.asarray(ro.centres[1, 0, 0]), samples[1, int(rs.indices[1, 0])], atol=1e-12
+    )
+
+
+def test_collision_free_count_is_strict_and_counts_per_obstacle_and_jointly():
+    a = _obstacle(m=10, lateral=0.0, seed=6)
+    b = _obstacle(m=10, lateral=20.0, seed=7)
+    ego_far = _ego([-30.0])[0]
+    cc = collision_free_count(ego_far, np.stack([a, b]))
+    np.testing.assert_array_equal(np.asarray(cc.per_obstacle), [10, 10])
+    assert int(cc.joint) == 10
+    ego_hit = _ego([0.0])[0]
+    cc = collision_free_count(ego_hit, np.stack([a, b]))
+    np.testing.assert_array_equal(np.asarray(cc.per_obstacle), [0, 10])
+    assert int(cc.joint) == 0 and cc.colliding.shape == (2, 10)
+    # f̄ > 0 strictly: just outside the ellipse is clear, just inside collides
+    obs = np.zeros((1, 1, 2, 2))
+    obs[..., 0] = 100.0  # the other circles far away: only the centre circle matters here
+    fp = CircleFootprint((0.0,))
+    edge = np.array([[100.0 + 4.5 + 1e-9, 0.0], [100.0 + 4.5 + 1e-9, 0.0]])
+    assert int(collision_free_count(edge, obs, obstacle_footprint=fp).joint) == 1
+    inside = edge - [2e-9, 0.0]
+    assert int(collision_free_count(inside, obs, obstacle_footprint=fp).joint) == 0
+    batch = collision_free_count(np.stack([ego_far, ego_hit]), np.stack([a, b]))
+    np.testing.assert_array_equal(np.asarray(batch.joint), [10, 0])
+
+
+def test_collision_free_count_rejects_mismatched_shapes():
+    with pytest.raises(ValueError, match="validation_samples"):
+        collision_free_count(np.zeros((K, 2)), np.zeros((2, 3, K + 1, 2)))
+    with pytest.raises(ValueError, match="ego_xy"):
+        collision_free_count(np.zeros((K, 3)), np.zeros((2, 3, K, 2)))
