@@ -217,6 +217,19 @@ class BernsteinBasis(Basis):
         orders = 4 if with_jerk else 3
         return tuple(_bernstein(self.degree, tau, o) / T**o for o in range(orders))
 
+    def control_point_maps(self) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Matrices ``(I, D₁, D₂)`` giving the Bézier control points of ``p``, ``ṗ`` and ``p̈``.
+
+        ``ṗ(t) = Σ_i (D₁c)_i B_{i,n−1}(t/T)`` with ``D₁c = n (c_{i+1} − c_i) / T``, likewise ``p̈``
+        of degree ``n − 2``.  By the convex-hull property, bounds on these control points bound the
+        trajectory at every instant of ``[0, T]``.
+        """
+        n, T = self.degree, self.grid.horizon
+        eye = np.eye(n + 1)
+        D1 = (eye[1:] - eye[:-1]) * n / T
+        D2 = (D1[1:] - D1[:-1]) * (n - 1) / T
+        return eye, D1, D2
+
     def __repr__(self) -> str:
         return f"BernsteinBasis(grid={self.grid}, degree={self.degree})"
 

@@ -31,7 +31,7 @@ from __future__ import annotations
 
 from collections.abc import Sequence
 from dataclasses import dataclass, field
-from typing import Any
+from typing import Any, NamedTuple
 
 import numpy as np
 
@@ -40,7 +40,13 @@ import solvers
 from .basis import Basis
 from .planner import state_array
 
-__all__ = ["ProjectionBounds", "LinearConstraints", "ProjectionProblem", "ProjectionResult"]
+__all__ = [
+    "ProjectionBounds",
+    "LinearConstraints",
+    "ProjectionProblem",
+    "ProjectionResult",
+    "JaxProjection",
+]
 
 _QUANTITY = {"position": "P", "velocity": "Pdot", "acceleration": "Pddot"}
 
@@ -230,6 +236,13 @@ class ProjectionProblem:
     extra : LinearConstraints or a sequence of them, optional
     metric : "waypoint" (default; distance of the position samples, paper) or "coefficient"
     final_lateral_velocity : impose ``ẏ_{K−1} = 0`` (reference: yes).
+    constraint_points : "grid" (default): the kinematic and lane bounds at every grid step.
+        "hull" (Bernstein bases only): the bounds on the control points of ``p``, ``ṗ``, ``p̈``
+        instead – by the convex-hull property this is *sufficient* for the bounds to hold at
+        every instant of ``[0, T]`` (conservative: per-step bounds are replaced by their tightest
+        value), with ~10× fewer, non-degenerate rows, on which ADMM converges much faster.
+        User rows (``extra``) and the boundary equalities are the same in both modes, and
+        residuals are always measured at the grid steps.
 
     Attributes
     ----------
@@ -247,6 +260,7 @@ class ProjectionProblem:
         *,
         metric: str = "waypoint",
         final_lateral_velocity: bool = True,
+        constraint_points: str = "grid",
     ):
         self.basis = basis
         self.bounds = bounds if bounds is not None else ProjectionBounds()
@@ -262,25 +276,62 @@ class ProjectionProblem:
             raise ValueError(f"metric must be 'waypoint' or 'coefficient', got {metric!r}")
         self.metric = metric
         self.final_lateral_velocity = bool(final_lateral_velocity)
+        if constraint_points not in ("grid", "hull"):
+            raise ValueError(f"constraint_points must be 'grid' or 'hull', got {constraint_points!r}")
+        if constraint_points == "hull" and not hasattr(basis, "control_point_maps"):
+            raise ValueError("constraint_points='hull' needs a Bernstein basis (convex-hull property)")
+        self.constraint_points = constraint_points
         K, n = basis.num_steps, basis.nvar
         self.nvar = n
         b = self.bounds.per_step(K)
-        Z = np.zeros((K, n))
+        self._bounds_k = b
+        Aex, Aey = basis.boundary_rows(self.final_lateral_velocity)
+        self._Aex, self._Aey = Aex, Aey
+        self._grid_A, self._grid_groups = self._build_rows("grid")
+        if constraint_points == "grid":
+            self.A, self.groups = self._grid_A, self._grid_groups
+        else:
+            self.A, self.groups = self._build_rows("hull")
+        self._extra_groups = tuple(
+            g for g in self.groups if g.lower is None and g.name != "boundary"
+        )
+        Mx = basis.P if metric == "waypoint" else np.eye(n)
+        H = Mx.T @ Mx
+        self.metric_matrix = H  # per axis
+        # Exact penalty ½ρ‖A_eq c − b‖² (zero on the feasible set: same optimum, same distance)
+        # makes the Hessian positive definite (PᵀP is singular for the triple integrator).
+        self._rho_eq = float(np.trace(H)) / n
+        self.P = np.block(
+            [
+                [H + self._rho_eq * Aex.T @ Aex, np.zeros((n, n))],
+                [np.zeros((n, n)), H + self._rho_eq * Aey.T @ Aey],
+            ]
+        )
+        for M in (self.A, self.P, self._grid_A):
+            M.setflags(write=False)
+
+    def _build_rows(self, kind: str) -> tuple[np.ndarray, tuple[_Group, ...]]:
+        """Constraint rows and their groups, at the grid steps or on Bernstein control points."""
+        basis, b, K, n = self.basis, self._bounds_k, self.basis.num_steps, self.nvar
+        if kind == "grid":
+            Mp, Mv, Ma = basis.P, basis.Pdot, basis.Pddot
+
+            def bnd(key, rows):
+                return b[key]
+        else:
+            Mp, Mv, Ma = basis.control_point_maps()
+
+            def bnd(key, rows):  # the tightest bound over the horizon, on every control point
+                v = b[key]
+                return np.full(rows, v.max() if key in ("y_lb", "vx_min") else v.min())
+
         blocks: list[np.ndarray] = []
         groups: list[_Group] = []
 
         def add(name, M, lo, hi):
-            lo = (
-                np.broadcast_to(np.asarray(lo, dtype=np.float64), (M.shape[0],))
-                if lo is not None
-                else None
-            )
-            hi = (
-                np.broadcast_to(np.asarray(hi, dtype=np.float64), (M.shape[0],))
-                if hi is not None
-                else None
-            )
-            if lo is not None and hi is not None:
+            if lo is not None:
+                lo = np.broadcast_to(np.asarray(lo, dtype=np.float64), (M.shape[0],))
+                hi = np.broadcast_to(np.asarray(hi, dtype=np.float64), (M.shape[0],))
                 keep = np.isfinite(lo) | np.isfinite(hi)
                 if not np.any(keep):
                     return
@@ -289,27 +340,30 @@ class ProjectionProblem:
             blocks.append(M)
             groups.append(_Group(name, slice(start, start + M.shape[0]), lo, hi))
 
-        Aex, Aey = basis.boundary_rows(self.final_lateral_velocity)
-        add(
-            "boundary", np.block([[Aex, np.zeros_like(Aex)], [np.zeros_like(Aey), Aey]]), None, None
-        )
-        add("lane", np.hstack([Z, basis.P]), b["y_lb"], b["y_ub"])
-        add("speed", np.hstack([basis.Pdot, Z]), b["vx_min"], b["vx_max"])
-        add("lateral_velocity", np.hstack([Z, basis.Pdot]), -b["vy_max"], b["vy_max"])
-        add("accel_x", np.hstack([basis.Pddot, Z]), -b["ax_max"], b["ax_max"])
-        add("accel_y", np.hstack([Z, basis.Pddot]), -b["ay_max"], b["ay_max"])
+        def xy(Mx_, My_):
+            return np.hstack([Mx_, np.zeros((Mx_.shape[0], n))]) if My_ is None else np.hstack(
+                [np.zeros((My_.shape[0], n)), My_]
+            )
+
+        Aex, Aey = self._Aex, self._Aey
+        add("boundary", np.block([[Aex, np.zeros_like(Aex)], [np.zeros_like(Aey), Aey]]), None, None)
+        rp, rv, ra = Mp.shape[0], Mv.shape[0], Ma.shape[0]
+        add("lane", xy(None, Mp), bnd("y_lb", rp), bnd("y_ub", rp))
+        add("speed", xy(Mv, None), bnd("vx_min", rv), bnd("vx_max", rv))
+        add("lateral_velocity", xy(None, Mv), -bnd("vy_max", rv), bnd("vy_max", rv))
+        add("accel_x", xy(Ma, None), -bnd("ax_max", ra), bnd("ax_max", ra))
+        add("accel_y", xy(None, Ma), -bnd("ay_max", ra), bnd("ay_max", ra))
         if "a_max" in b:
             m = int(self.bounds.accel_polygon_sides)
             phi = 2 * np.pi * np.arange(m) / m
-            rows = np.concatenate(
-                [np.hstack([np.cos(p) * basis.Pddot, np.sin(p) * basis.Pddot]) for p in phi]
-            )
-            add("accel_norm", rows, -np.inf, np.tile(b["a_max"] * np.cos(np.pi / m), m))
+            rows = np.concatenate([np.hstack([np.cos(p) * Ma, np.sin(p) * Ma]) for p in phi])
+            add("accel_norm", rows, -np.inf, np.tile(bnd("a_max", ra) * np.cos(np.pi / m), m))
         names = {g.name for g in groups}
         for e in self.extra:
             if e.Gx.shape[1] != K:
                 raise ValueError(
-                    f"LinearConstraints {e.name!r} has {e.Gx.shape[1]} columns, the grid has K={K} steps"
+                    f"LinearConstraints {e.name!r} has {e.Gx.shape[1]} columns, "
+                    f"the grid has K={K} steps"
                 )
             name = e.name
             i = 1
@@ -321,25 +375,7 @@ class ProjectionProblem:
             start = sum(x.shape[0] for x in blocks)
             blocks.append(np.hstack([e.Gx @ M, e.Gy @ M]))
             groups.append(_Group(name, slice(start, start + e.num_rows), None, None))
-        self.A = np.vstack(blocks)
-        self.groups = tuple(groups)
-        self._extra_groups = tuple(g for g in groups if g.lower is None and g.name != "boundary")
-        Mx = basis.P if metric == "waypoint" else np.eye(n)
-        H = Mx.T @ Mx
-        self.metric_matrix = H  # per axis
-        # Exact penalty ½ρ‖A_eq c − b‖² (zero on the feasible set: same optimum, same distance)
-        # makes the Hessian positive definite (PᵀP is singular for the triple integrator).
-        self._rho_eq = float(np.trace(H)) / n
-        self._Aex, self._Aey = Aex, Aey
-        self.P = np.block(
-            [
-                [H + self._rho_eq * Aex.T @ Aex, np.zeros((n, n))],
-                [np.zeros((n, n)), H + self._rho_eq * Aey.T @ Aey],
-            ]
-        )
-        self._bounds_k = b
-        for M in (self.A, self.P):
-            M.setflags(write=False)
+        return np.vstack(blocks), tuple(groups)
 
     # ------------------------------------------------------------------ helpers
     @property
@@ -431,16 +467,21 @@ class ProjectionProblem:
                 )
         return st
 
-    def bounds_arrays(self, state, batch: int, extra_bounds=None) -> tuple[np.ndarray, np.ndarray]:
-        """Per-sample ``(l, u)`` of shape ``(B, m)`` for the rows of :attr:`A`."""
+    def bounds_arrays(
+        self, state, batch: int, extra_bounds=None, *, grid: bool = False
+    ) -> tuple[np.ndarray, np.ndarray]:
+        """Per-sample ``(l, u)`` of shape ``(B, m)`` for the rows of :attr:`A` (``grid=True``: for
+        the grid-step rows used by :meth:`residuals`, which differ in ``"hull"`` mode)."""
         st = state_array(state, batch)
-        l = np.empty((batch, self.num_rows))
-        u = np.empty((batch, self.num_rows))
+        groups = self._grid_groups if grid else self.groups
+        m = (self._grid_A if grid else self.A).shape[0]
+        l = np.empty((batch, m))
+        u = np.empty((batch, m))
         beq = np.concatenate([st[:, [0, 2, 4]], st[:, [1, 3, 5]]], axis=1)
         if self.final_lateral_velocity:
             beq = np.concatenate([beq, np.zeros((batch, 1))], axis=1)
         ex = iter(self._extra_bounds(batch, extra_bounds))
-        for g in self.groups:
+        for g in groups:
             if g.name == "boundary":
                 l[:, g.rows] = beq
                 u[:, g.rows] = beq
@@ -518,6 +559,24 @@ class ProjectionProblem:
             cx, cy, total, groups, status, self.distance(cx, cy, cx_bar, cy_bar), sol
         )
 
+    def jax_projector(self, num_iters: int = 100, dtype: str = "float32", **settings):
+        """A pure-JAX batched projector for use inside jitted code (Algorithm 1's inner loop).
+
+        Built on :func:`solvers.admm.admm_factor` / :func:`solvers.admm.admm_iterate`: ``P`` and
+        ``A`` are factored once here (float64, NumPy); each call runs a fixed budget of
+        ``num_iters`` ADMM iterations (rounded up to a multiple of ``check_every``; it may stop
+        earlier once every sample meets the tolerances), no polish.  ``settings`` are
+        :class:`solvers.admm.ADMMSettings` fields (e.g. ``rho=``, ``eps_abs=``).
+
+        Returns ``project(cx_bar (B, nvar), cy_bar (B, nvar), state (6,) or (B, 6),
+        extra_bounds=None, warm_start=None) -> JaxProjection(cx, cy, residual, groups, admm)``.
+        ``extra_bounds`` is one ``(lower, upper)`` pair per user constraint set, each ``(r,)`` or
+        ``(B, r)``; ``warm_start`` is a previous call's ``admm`` state (same batch size).
+        The function does no input validation (it must trace): validate with
+        :meth:`check_state` outside the jitted loop.  float64 needs JAX's x64 mode.
+        """
+        return _jax_projector(self, num_iters, dtype, settings)
+
     def distance(self, cx, cy, cx_bar, cy_bar) -> np.ndarray:
         """(B,) projection objective ``½‖M(c − c̄)‖²`` summed over both axes."""
         H = self.metric_matrix
@@ -535,9 +594,119 @@ class ProjectionProblem:
         cx, cy = self._coeffs(cx, cy)
         B = cx.shape[0]
         st = state_array(state, B)
-        l, u = self.bounds_arrays(st, B, extra_bounds)
-        Az = np.concatenate([cx, cy], axis=1) @ self.A.T
+        l, u = self.bounds_arrays(st, B, extra_bounds, grid=True)
+        Az = np.concatenate([cx, cy], axis=1) @ self._grid_A.T
         viol = np.maximum(np.maximum(l - Az, Az - u), 0.0)
-        groups = {g.name: viol[:, g.rows].max(axis=1, initial=0.0) for g in self.groups}
+        groups = {g.name: viol[:, g.rows].max(axis=1, initial=0.0) for g in self._grid_groups}
         total = np.max(np.stack(list(groups.values())), axis=0)
         return total, groups
+
+
+# ---------------------------------------------------------------------------------- JAX projector
+class JaxProjection(NamedTuple):
+    """Output of the jittable projector (JAX arrays, leading batch axis B).
+
+    cx, cy : (B, nvar) projected coefficients (the ADMM iterate after the fixed iteration count).
+    residual : (B,) total constraint violation (max over groups, as :meth:`ProjectionProblem.residuals`).
+    groups : {group name: (B,)} max violation per constraint group.
+    admm : the :class:`solvers.admm.ADMMState` (``x``, ``y`` warm-start the next call; ``status``).
+    """
+
+    cx: Any
+    cy: Any
+    residual: Any
+    groups: dict
+    admm: Any
+
+
+def _jax_projector(problem: ProjectionProblem, num_iters: int, dtype: str, settings):
+    import jax
+    import jax.numpy as jnp
+
+    try:
+        from solvers.admm import ADMMSettings, admm_factor, admm_iterate
+    except ImportError as exc:  # pragma: no cover - depends on the solvers package state
+        raise ImportError(
+            "ProjectionProblem.jax_projector needs solvers.admm.admm_factor/admm_iterate"
+        ) from exc
+
+    if not (isinstance(num_iters, (int, np.integer)) and num_iters >= 1):
+        raise ValueError(f"num_iters must be a positive integer, got {num_iters!r}")
+    if dtype not in ("float32", "float64"):
+        raise ValueError(f"dtype must be 'float32' or 'float64', got {dtype!r}")
+    base = dict(max_iter=int(num_iters), check_every=min(25, int(num_iters)), dtype=dtype,
+                polish=False)
+    base.update(settings or {})
+    s = ADMMSettings.from_kwargs(**base)
+    n, m = problem.nvar, problem.num_rows
+    # static bounds (the boundary and extra rows are filled per call)
+    l0, u0 = problem.bounds_arrays(np.zeros((1, 6)), 1, [(-np.inf, np.inf)] * len(problem.extra))
+    l0, u0 = l0[0], u0[0]
+    eq = np.zeros(m, bool)
+    bslice = problem.group_slices()["boundary"]
+    eq[bslice] = True
+    free = ~eq & np.isinf(l0) & np.isinf(u0)
+    for g in problem._extra_groups:  # extra rows get their bounds per call: never "free"
+        free[g.rows] = False
+    factor = admm_factor(problem.P, problem.A, s, eq_rows=eq, free_rows=free)
+    H = problem.metric_matrix
+    Aex, Aey = problem._Aex, problem._Aey
+    rho = problem._rho_eq
+    A_grid = problem._grid_A
+    lg0, ug0 = problem.bounds_arrays(
+        np.zeros((1, 6)), 1, [(-np.inf, np.inf)] * len(problem.extra), grid=True
+    )
+    lg0, ug0 = lg0[0], ug0[0]
+    gslice = {g.name: g.rows for g in problem._grid_groups}
+    grid_extra = [g.rows for g in problem._grid_groups if g.lower is None and g.name != "boundary"]
+    groups = [(g.name, g.rows) for g in problem._grid_groups]
+    extra_slices = [g.rows for g in problem._extra_groups]
+    extra_defaults = [(e.lower, e.upper) for e in problem.extra]
+    final_lat = problem.final_lateral_velocity
+    iters = s.max_iter
+
+    def project(cx_bar, cy_bar, state, extra_bounds=None, warm_start=None) -> JaxProjection:
+        dt = jnp.dtype(dtype)
+        cx_bar = jnp.asarray(cx_bar, dt)
+        cy_bar = jnp.asarray(cy_bar, dt)
+        B = cx_bar.shape[0]
+        st = jnp.broadcast_to(jnp.atleast_2d(jnp.asarray(state, dt)), (B, 6))
+        bx = st[:, jnp.array([0, 2, 4])]
+        by = st[:, jnp.array([1, 3, 5])]
+        if final_lat:
+            by = jnp.concatenate([by, jnp.zeros((B, 1), dt)], axis=1)
+        Hj = jnp.asarray(H, dt)
+        q = -jnp.concatenate([cx_bar @ Hj + rho * bx @ jnp.asarray(Aex, dt),
+                              cy_bar @ Hj + rho * by @ jnp.asarray(Aey, dt)], axis=1)
+        beq = jnp.concatenate([bx, by], axis=1)
+        l = jnp.broadcast_to(jnp.asarray(l0, dt), (B, m))
+        u = jnp.broadcast_to(jnp.asarray(u0, dt), (B, m))
+        l = l.at[:, bslice].set(beq)
+        u = u.at[:, bslice].set(beq)
+        eb = extra_defaults if extra_bounds is None else extra_bounds
+        if len(eb) != len(extra_slices):
+            raise ValueError(f"extra_bounds needs {len(extra_slices)} (lower, upper) pairs")
+        for sl, (lo, hi) in zip(extra_slices, eb, strict=True):
+            r = sl.stop - sl.start
+            l = l.at[:, sl].set(jnp.broadcast_to(jnp.asarray(lo, dt), (B, r)))
+            u = u.at[:, sl].set(jnp.broadcast_to(jnp.asarray(hi, dt), (B, r)))
+        lg = jnp.broadcast_to(jnp.asarray(lg0, dt), (B, lg0.shape[0]))
+        ug = jnp.broadcast_to(jnp.asarray(ug0, dt), (B, ug0.shape[0]))
+        lg = lg.at[:, gslice["boundary"]].set(beq)
+        ug = ug.at[:, gslice["boundary"]].set(beq)
+        for sl, gsl in zip(extra_slices, grid_extra, strict=True):
+            lg = lg.at[:, gsl].set(l[:, sl])
+            ug = ug.at[:, gsl].set(u[:, sl])
+        x0 = y0 = None
+        if warm_start is not None:
+            x0, y0 = warm_start.x, warm_start.y
+        fj = jax.tree_util.tree_map(jnp.asarray, factor)  # constants of the traced function
+        out = admm_iterate(fj, q, l, u, x0=x0, y0=y0, iters=iters)
+        z = out.x
+        Az = z @ jnp.asarray(A_grid, dt).T
+        viol = jnp.maximum(jnp.maximum(lg - Az, Az - ug), 0.0)
+        grp = {name: jnp.max(viol[:, sl], axis=1, initial=0.0) for name, sl in groups}
+        total = jnp.max(jnp.stack(list(grp.values())), axis=0)
+        return JaxProjection(z[:, :n], z[:, n:], total, grp, out)
+
+    return project

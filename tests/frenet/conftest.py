@@ -12,7 +12,7 @@ from frenet import BehaviouralPlanner, BernsteinBasis, EgoState, TimeGrid, Tripl
 BACKEND_TABLE: dict[str, tuple[dict, float]] = {
     "clarabel": ({}, 1e-6),
     "osqp": ({"eps_abs": 1e-9, "eps_rel": 1e-9, "max_iter": 200000, "polishing": True}, 1e-5),
-    "admm": ({"eps_abs": 1e-7, "eps_rel": 1e-7, "max_iter": 20000, "dtype": "float64"}, 1e-4),
+    "admm": ({"max_iter": 4000}, 1e-4),
     "cvxpy": ({}, 1e-4),
     "qpsolvers:osqp": ({"eps_abs": 1e-9, "eps_rel": 1e-9, "max_iter": 200000}, 1e-5),
     "qpsolvers:scs": ({"eps_abs": 1e-9, "eps_rel": 1e-9}, 1e-3),
