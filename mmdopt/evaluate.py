@@ -140,29 +140,30 @@ def kinematic_violation(plan, road=None, *, y_lb=None, y_ub=None) -> float:
     """Largest violation (m, m/s or m/s², ≥ 0) of the lane, speed and acceleration bounds.
 
     Checked on the returned Frenet trajectory: ``y_lb ≤ d ≤ y_ub``, ``v_min ≤ v_s ≤ v_max``,
-    ``|a_s|, |a_d| ≤ a_max`` (bounds from ``road`` where it has them; defaults 0, 30 m/s,
-    18 m/s² as the reference), and finiteness (non-finite plans score ``inf``).
+    ``|v_d| ≤ vy_max``, ``|a_s| ≤ ax_max``, ``|a_d| ≤ ay_max`` (bounds from ``road`` where it has
+    them; otherwise 0 and 30 m/s, 18 m/s² as the reference) and finiteness (non-finite plans
+    score ``inf``).
     """
-    d = np.asarray(plan.d, dtype=np.float64)
-    vs = np.asarray(plan.vs, dtype=np.float64)
-    arrs = [d, vs, np.asarray(plan.s, dtype=np.float64)]
-    acc = [
-        np.asarray(getattr(plan, n), dtype=np.float64) for n in ("as_", "ad") if hasattr(plan, n)
-    ]
-    if not all(np.all(np.isfinite(x)) for x in arrs + acc):
+    arr = lambda n: np.asarray(getattr(plan, n), dtype=np.float64)  # noqa: E731
+    names = [n for n in ("s", "d", "vs", "vd", "as_", "ad") if hasattr(plan, n)]
+    vals = {n: arr(n) for n in names}
+    if not all(np.all(np.isfinite(v)) for v in vals.values()):
         return math.inf
     lo = _bound(road, ("y_lb",), -np.inf) if y_lb is None else float(y_lb)
     hi = _bound(road, ("y_ub",), np.inf) if y_ub is None else float(y_ub)
-    v_min = _bound(road, ("v_min",), 0.0)
-    v_max = _bound(road, ("v_max",), 30.0)
-    a_max = _bound(road, ("a_max", "ax_max"), 18.0)
+    d, vs = vals["d"], vals["vs"]
     viol = [
         np.max(lo - d),
         np.max(d - hi),
-        np.max(v_min - vs),
-        np.max(vs - v_max),
+        np.max(_bound(road, ("v_min",), 0.0) - vs),
+        np.max(vs - _bound(road, ("v_max",), 30.0)),
     ]
-    viol += [np.max(np.abs(a)) - a_max for a in acc]
+    limits = {
+        "vd": _bound(road, ("vy_max",), np.inf),
+        "as_": _bound(road, ("ax_max", "a_max"), 18.0),
+        "ad": _bound(road, ("ay_max", "a_max"), 18.0),
+    }
+    viol += [np.max(np.abs(vals[n])) - lim for n, lim in limits.items() if n in vals]
     return float(max(0.0, *viol))
 
 
@@ -558,3 +559,397 @@ def run_synthetic(
     return dict(
         rows=rows, summary=summary, bars=bars, computed=computed, reused=reused, wall_s=wall
     )
+
+
+# ---------------------------------------------------------------------------------------------
+# Algorithm 1 config helpers (field names of helper E's MMDOptConfig)
+
+_REDUCED_SIZE_FIELDS = ("num_reduced", "n_reduced", "reduced_set_size", "m")
+
+
+def with_reduced_set_size(config, m: int):
+    """``config`` with reduced-set size ``m`` (whichever field name the config uses)."""
+    for name in _REDUCED_SIZE_FIELDS:
+        if _has_field(config, name):
+            return config.replace(**{name: int(m)})
+    raise ValueError(f"{type(config).__name__} has no reduced-set size field")
+
+
+def _block(plan) -> None:
+    np.asarray(plan.x)
+
+
+def _time_calls(fn, key, repeats: int) -> tuple[float, float]:
+    """``(first call, median of repeats)`` wall time (s) of ``fn(key)`` (a fresh key each call)."""
+    import jax
+
+    t0 = time.perf_counter()
+    np.asarray(fn(key))
+    first = time.perf_counter() - t0
+    ts = []
+    for r in range(repeats):
+        k = jax.random.fold_in(key, r + 1)
+        t0 = time.perf_counter()
+        np.asarray(fn(k))
+        ts.append(time.perf_counter() - t0)
+    return first, float(np.median(ts))
+
+
+# ---------------------------------------------------------------------------------------------
+# experiment 3: computation time (paper Table II)
+
+TIMING_COLUMNS = (
+    "reduced_set_size",
+    "reduced_set_s",
+    "algorithm1_s",
+    "compile_s",
+    "n_samples",
+    "backend",
+)
+
+
+def run_timing(
+    out: str | Path,
+    *,
+    sizes: Sequence[int] = (10, 20, 30, 40, 50),
+    samples: Sequence[int] = (50, 100, 200),
+    repeats: int = 5,
+    backend: str = "admm",
+    config=None,
+    progress: bool = True,
+) -> list[dict[str, Any]]:
+    """Median wall time of reduced-set selection and of Algorithm 1 (``mmdopt.plan``) per
+    reduced-set size ``m`` (at n = 100 samples) and per sample count n (at m = 10), on the demo
+    scene; ``compile_s`` is the first call's extra time (jit compilation).  Writes
+    ``out/timing.csv`` (:data:`TIMING_COLUMNS` + the first-call times) and ``out/timing.png``.
+    """
+    import jax
+    from tqdm.auto import tqdm
+
+    import mmdopt
+
+    from . import plots
+    from .reduced_set import ReducedSetConfig, select_reduced_set
+    from .scenarios import demo_scene, make_scene
+
+    out = Path(out)
+    out.mkdir(parents=True, exist_ok=True)
+    base = demo_scene()
+    n_def = 100
+    pairs = [(int(m), n_def) for m in sizes] + [(min(sizes), int(n)) for n in samples]
+    pairs = [p for p in dict.fromkeys(pairs) if p[0] <= p[1]]
+    cfg0 = scene_config(base, config)
+    rows = []
+    scenes: dict[int, Scene] = {}
+    for m, n in tqdm(pairs, desc="timing", disable=not progress):
+        if n not in scenes:
+            scenes[n] = make_scene(base.index, base.seed, base.params.replace(n_samples=n))
+        sc = scenes[n]
+        key = sc.key()
+        obs = jax.numpy.asarray(sc.obstacles[0])
+        rs_cfg = ReducedSetConfig()
+        rs_first, rs_med = _time_calls(
+            lambda k, obs=obs, m=m, c=rs_cfg: select_reduced_set(k, obs, m, "mmd", c).weights,
+            key,
+            repeats,
+        )
+        cfg = with_reduced_set_size(cfg0, m)
+        a_first, a_med = _time_calls(
+            lambda k, sc=sc, cfg=cfg: (
+                mmdopt.plan(
+                    sc.ego(),
+                    sc.road(),
+                    sc.obstacles,
+                    method="mmd",
+                    config=cfg,
+                    backend=backend,
+                    key=k,
+                ).x
+            ),
+            key,
+            repeats,
+        )
+        rows.append(
+            dict(
+                reduced_set_size=m,
+                reduced_set_s=rs_med,
+                algorithm1_s=a_med,
+                compile_s=max(0.0, a_first - a_med),
+                n_samples=n,
+                backend=backend,
+                reduced_set_first_s=rs_first,
+                algorithm1_first_s=a_first,
+                repeats=repeats,
+            )
+        )
+    cols = list(TIMING_COLUMNS) + ["reduced_set_first_s", "algorithm1_first_s", "repeats"]
+    with open(out / "timing.csv", "w", newline="") as f:
+        w = csv.DictWriter(f, fieldnames=cols)
+        w.writeheader()
+        w.writerows(rows)
+    plots.timing_figure(rows, out / "timing.png")
+    return rows
+
+
+# ---------------------------------------------------------------------------------------------
+# experiment 2: reduced-set selection vs random reduced sets (paper Fig. 4)
+
+REDUCED_SET_COLUMNS = (
+    "scene",
+    "selection",
+    "draw",
+    "collision_free",
+    "n_validation",
+    "progress_m",
+    "feasible",
+    "rs_mmd2",
+    "plan_time_s",
+)
+
+
+def plan_with_reduced_set(scene: Scene, reduced, *, config=None, backend="admm"):
+    """Algorithm 1 with the MMD surrogate on a *given* reduced set (a single-obstacle
+    :class:`~mmdopt.reduced_set.ReducedSet`): ``(plan, wall_s)``.
+
+    ``mmdopt.plan`` selects its reduced set itself; for this experiment the selection step is
+    swapped for the given set (``mmdopt.api.select_reduced_sets`` is replaced for the duration of
+    the call), everything else - weights ᾱ, cost, optimiser, key - is the same as MMD-Opt's.
+    """
+    import jax
+
+    import mmdopt
+    from mmdopt import api
+
+    batched = jax.tree_util.tree_map(lambda x: jax.numpy.asarray(x)[None], reduced)
+    cfg = scene_config(scene, config)
+    orig = api.select_reduced_sets
+    api.select_reduced_sets = lambda *a, **k: batched
+    try:
+        t0 = time.perf_counter()
+        plan = mmdopt.plan(
+            scene.ego(),
+            scene.road(),
+            scene.obstacles,
+            method="mmd",
+            config=cfg,
+            backend=backend,
+            key=scene.key(),
+        )
+        _block(plan)
+    finally:
+        api.select_reduced_sets = orig
+    return plan, time.perf_counter() - t0
+
+
+def _reduced_set_task(args) -> list[dict[str, Any]]:
+    index, seed, params_dict, methods, random_sets, backend, out, config = args
+    import jax
+
+    from .reduced_set import ReducedSetConfig, select_reduced_set
+
+    params = SceneParams.from_dict(params_dict)
+    scene = make_scene(index, seed, params)
+    path = Path(out) / "scenes" / f"scene_{index:04d}__reduced_set.json"
+    if path.exists():
+        return []
+    cfg = scene_config(scene, config)
+    m = _reduced_size(cfg)
+    obs = scene.obstacles[0]
+    key = scene.key()
+    rs_cfg = getattr(cfg, "reduced_set", None)
+    rs_cfg = rs_cfg if isinstance(rs_cfg, ReducedSetConfig) else ReducedSetConfig()
+    ego_guess = np.stack([scene.params.ego_speed * scene.t, np.zeros_like(scene.t)], -1)
+    jobs = [(meth, 0) for meth in methods if meth != "random"]
+    jobs += [("random", r) for r in range(random_sets if "random" in methods else 0)]
+    rows = []
+    for meth, r in jobs:
+        k = jax.random.fold_in(key, 1000 + r)
+        rs = select_reduced_set(
+            k, obs, m, meth, rs_cfg, ego_guess=ego_guess if meth == "degroot" else None
+        )
+        plan, wall = plan_with_reduced_set(scene, rs, config=cfg, backend=backend)
+        xy = np.stack([np.asarray(plan.x), np.asarray(plan.y)], -1)
+        rows.append(
+            dict(
+                scene=index,
+                selection=meth,
+                draw=r,
+                collision_free=collision_free(xy, scene.validation),
+                n_validation=int(scene.validation.shape[1]),
+                progress_m=progress(plan),
+                feasible=bool(getattr(plan, "feasible", True)),
+                rs_mmd2=float(rs.mmd2),
+                plan_time_s=_float(getattr(plan, "plan_time_s", wall)),
+                x0=scene.x0,
+                y0=scene.y0,
+                p=scene.p,
+            )
+        )
+    _write_json(path, rows)
+    return rows
+
+
+def _reduced_size(cfg) -> int:
+    for name in _REDUCED_SIZE_FIELDS:
+        if _has_field(cfg, name):
+            return int(getattr(cfg, name))
+    return 10
+
+
+def run_reduced_set(
+    out: str | Path,
+    *,
+    scenes: int = 20,
+    seed: int = 0,
+    params: SceneParams | None = None,
+    methods: Sequence[str] = ("mmd", "herding", "degroot", "random"),
+    random_sets: int = 20,
+    backend: str = "admm",
+    jobs: int = 1,
+    config=None,
+    progress: bool = True,
+) -> dict[str, Any]:
+    """Reduced-set selection methods and ``random_sets`` random reduced sets per scene (the
+    paper's near-exhaustive search), each followed by Algorithm 1 with the MMD surrogate;
+    collision-free validation counts per (scene, selection, draw).  Resumable (one JSON per
+    scene in ``out/scenes/``); writes ``out/reduced_set.csv``, ``out/reduced_set_summary.json``
+    and ``out/reduced_set.png``.
+    """
+    from tqdm.auto import tqdm
+
+    from . import plots
+
+    params = SceneParams() if params is None else params
+    n = num_scenes(params, scenes)
+    out = Path(out)
+    (out / "scenes").mkdir(parents=True, exist_ok=True)
+    man = _manifest(seed, params, backend, config)
+    man.update(methods=list(methods), random_sets=int(random_sets))
+    man_path = out / "run_reduced_set.json"
+    if man_path.exists():
+        old = json.loads(man_path.read_text())
+        diff = [k for k in man if old.get(k) != man[k]]
+        if diff:
+            raise ValueError(
+                f"{out} holds reduced-set results made with different settings "
+                f"({', '.join(diff)}); use another --out folder"
+            )
+    else:
+        _write_json(man_path, man)
+    todo = [
+        (i, seed, params.to_dict(), list(methods), random_sets, backend, str(out), config)
+        for i in range(n)
+        if not (out / "scenes" / f"scene_{i:04d}__reduced_set.json").exists()
+    ]
+    bar = tqdm(total=len(todo), desc="scenes", unit="scene", disable=not progress or not todo)
+    if jobs <= 1 or len(todo) <= 1:
+        for t in todo:
+            _reduced_set_task(t)
+            bar.update(1)
+    else:
+        ctx = mp.get_context("spawn")
+        with cf.ProcessPoolExecutor(
+            max_workers=min(jobs, len(todo)), mp_context=ctx, initializer=_worker_init
+        ) as ex:
+            for f in cf.as_completed([ex.submit(_reduced_set_task, t) for t in todo]):
+                f.result()
+                bar.update(1)
+    bar.close()
+    rows = []
+    for i in range(n):
+        rows += json.loads((out / "scenes" / f"scene_{i:04d}__reduced_set.json").read_text())
+    with open(out / "reduced_set.csv", "w", newline="") as f:
+        w = csv.DictWriter(f, fieldnames=list(REDUCED_SET_COLUMNS) + ["x0", "y0", "p"])
+        w.writeheader()
+        w.writerows(rows)
+    sel = [m for m in methods if m != "random"]
+    per_scene = {
+        m: [
+            next(r["collision_free"] for r in rows if r["scene"] == i and r["selection"] == m)
+            for i in range(n)
+        ]
+        for m in sel
+    }
+    rnd = [
+        [r["collision_free"] for r in rows if r["scene"] == i and r["selection"] == "random"]
+        for i in range(n)
+    ]
+    nv = rows[0]["n_validation"] if rows else 1
+    table = []
+    for m in sel:
+        a = np.asarray(per_scene[m], float)
+        table.append(
+            dict(
+                selection=m,
+                mean_pct=a.mean() / nv * 100,
+                std_pct=a.std() / nv * 100,
+                min=a.min(),
+                scenes=n,
+            )
+        )
+    if any(rnd):
+        mean_r = np.array([np.mean(r) for r in rnd]) / nv * 100
+        best_r = np.array([np.max(r) for r in rnd]) / nv * 100
+        table.append(
+            dict(
+                selection=f"random x{random_sets} (mean)",
+                mean_pct=mean_r.mean(),
+                std_pct=mean_r.std(),
+                min=float(np.min([np.min(r) for r in rnd])),
+                scenes=n,
+            )
+        )
+        table.append(
+            dict(
+                selection=f"random x{random_sets} (best)",
+                mean_pct=best_r.mean(),
+                std_pct=best_r.std(),
+                min=float(np.min([np.max(r) for r in rnd])),
+                scenes=n,
+            )
+        )
+        if "mmd" in per_scene:
+            a = np.asarray(per_scene["mmd"], float)
+            frac = [np.mean(a[i] >= np.asarray(rnd[i])) for i in range(n)]
+            table.append(
+                dict(
+                    selection="mmd >= random set (share)",
+                    mean_pct=float(np.mean(frac)) * 100,
+                    std_pct=float(np.std(frac)) * 100,
+                    min=float(np.min(frac)),
+                    scenes=n,
+                )
+            )
+    _write_json(
+        out / "reduced_set_summary.json",
+        dict(table=table, scenes=n, seed=seed, random_sets=random_sets, params=params.to_dict()),
+    )
+    if any(rnd) and sel:
+        plots.reduced_set_figure(per_scene, rnd, out / "reduced_set.png", n_validation=nv)
+    return dict(rows=rows, table=table)
+
+
+# ---------------------------------------------------------------------------------------------
+# qp-backends: benchmarks/qp_backends.py
+
+
+def load_qp_backends_benchmark():
+    """Import ``benchmarks/qp_backends.py`` (as ``benchmarks.qp_backends`` if importable, else
+    from the repository checkout next to this package).  Raises ``ImportError`` if absent."""
+    import importlib
+    import importlib.util
+
+    try:
+        return importlib.import_module("benchmarks.qp_backends")
+    except ImportError:
+        pass
+    path = Path(__file__).resolve().parents[1] / "benchmarks" / "qp_backends.py"
+    if not path.is_file():
+        raise ImportError(
+            "benchmarks/qp_backends.py was not found (it ships with the repository checkout, "
+            "not the installed package); run from a clone of the repository"
+        )
+    spec = importlib.util.spec_from_file_location("benchmarks_qp_backends", path)
+    mod = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(mod)
+    return mod

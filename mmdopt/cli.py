@@ -1,0 +1,511 @@
+"""``mmdopt`` command line: the demo and the paper's experiments.
+
+::
+
+    mmdopt demo [--out DIR]                               plan one built-in scene, table + PNG
+    mmdopt bench synthetic   --scenes N --seed S --out DIR [--methods mmd,degroot,random,saa]
+                             [--scene-params FILE.json] [--backend NAME]
+                             [--preset paper100|reference36|lanechange] [--jobs J]
+    mmdopt bench reduced-set --scenes N --random-sets R --out DIR       (paper Fig. 4)
+    mmdopt bench timing      --out DIR [--sizes 10,20,30,40,50] [--samples 50,100,200]
+    mmdopt bench figure      --scene I --out DIR                        (paper Fig. 3)
+    mmdopt bench qp-backends [ARGS...]                                  (benchmarks/qp_backends.py)
+
+Bad options exit with status 2 and a message naming the option (argparse).
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import sys
+import time
+from collections.abc import Sequence
+from pathlib import Path
+
+__all__ = ["main", "build_parser"]
+
+PLAN_METHODS = ("mmd", "degroot", "random", "saa", "scenario_all")
+REDUCED_SET_METHODS = ("mmd", "herding", "degroot", "random")
+
+
+# ---------------------------------------------------------------------------------------------
+# argument types
+
+
+def _methods(allowed: Sequence[str]):
+    def parse(s: str) -> list[str]:
+        ms = [m.strip() for m in s.split(",") if m.strip()]
+        if not ms:
+            raise argparse.ArgumentTypeError("needs at least one method")
+        bad = [m for m in ms if m not in allowed]
+        if bad:
+            raise argparse.ArgumentTypeError(
+                f"unknown method(s) {', '.join(bad)}; choose from {', '.join(allowed)}"
+            )
+        return list(dict.fromkeys(ms))
+
+    return parse
+
+
+def _positive_int(s: str) -> int:
+    try:
+        v = int(s)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected a positive integer, got {s!r}") from None
+    if v < 1:
+        raise argparse.ArgumentTypeError(f"expected a positive integer, got {v}")
+    return v
+
+
+def _nonneg_int(s: str) -> int:
+    try:
+        v = int(s)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected an integer >= 0, got {s!r}") from None
+    if v < 0:
+        raise argparse.ArgumentTypeError(f"expected an integer >= 0, got {v}")
+    return v
+
+
+def _int_list(s: str) -> list[int]:
+    try:
+        v = [int(x) for x in s.split(",") if x.strip()]
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected comma-separated integers, got {s!r}") from None
+    if not v or min(v) < 1:
+        raise argparse.ArgumentTypeError(f"expected positive integers, got {s!r}")
+    return v
+
+
+def _existing_file(s: str) -> Path:
+    p = Path(s)
+    if not p.is_file():
+        raise argparse.ArgumentTypeError(f"file {s!r} does not exist")
+    return p
+
+
+def _backend(s: str) -> str:
+    import solvers
+
+    avail = list(solvers.available_backends())
+    if s not in avail:
+        raise argparse.ArgumentTypeError(
+            f"backend {s!r} is not available; available: {', '.join(avail)}"
+        )
+    return s
+
+
+def _presets() -> list[str]:
+    from .scenarios import PRESETS
+
+    return sorted(PRESETS)
+
+
+# ---------------------------------------------------------------------------------------------
+# parser
+
+
+def build_parser() -> argparse.ArgumentParser:
+    p = argparse.ArgumentParser(
+        prog="mmdopt",
+        description="MMD-Opt: planning under multi-modal obstacle predictions - demo and "
+        "the paper's experiments.",
+    )
+    sub = p.add_subparsers(dest="command", required=True, metavar="{demo,bench}")
+
+    d = sub.add_parser(
+        "demo", help="plan one built-in multi-modal scene; print a table, write a PNG"
+    )
+    d.add_argument("--out", default="out/demo", help="output folder (default: out/demo)")
+    d.add_argument(
+        "--methods",
+        type=_methods(PLAN_METHODS),
+        default=["mmd", "degroot"],
+        help="comma-separated planning methods (default: mmd,degroot)",
+    )
+    d.add_argument("--backend", type=_backend, default="admm", help="projection QP backend")
+
+    b = sub.add_parser("bench", help="the paper's experiments")
+    bs = b.add_subparsers(
+        dest="experiment",
+        required=True,
+        metavar="{synthetic,reduced-set,timing,figure,qp-backends}",
+    )
+
+    def common(q, scenes_default):
+        q.add_argument(
+            "--scenes",
+            type=_positive_int,
+            default=scenes_default,
+            help="number of scenes (default: the preset's)",
+        )
+        q.add_argument("--seed", type=_nonneg_int, default=0, help="sweep seed (default 0)")
+        q.add_argument(
+            "--preset",
+            choices=_presets(),
+            default="paper100",
+            help="scene preset (default paper100)",
+        )
+        q.add_argument(
+            "--scene-params",
+            type=_existing_file,
+            default=None,
+            metavar="FILE.json",
+            help="JSON object overriding scene-generator parameters (see README)",
+        )
+        q.add_argument("--backend", type=_backend, default="admm", help="projection QP backend")
+        q.add_argument(
+            "--jobs",
+            type=_positive_int,
+            default=os.cpu_count() or 1,
+            help="parallel worker processes (default: number of cores)",
+        )
+        q.add_argument("--no-progress", action="store_true", help="no progress bar")
+
+    s = bs.add_parser("synthetic", help="MMD-Opt vs baselines on synthetic scenes (paper Fig. 5)")
+    common(s, None)
+    s.add_argument("--out", required=True, help="output folder (resumable)")
+    s.add_argument(
+        "--methods",
+        type=_methods(PLAN_METHODS),
+        default=["mmd", "degroot", "random", "saa"],
+        help="comma-separated methods (default: mmd,degroot,random,saa)",
+    )
+
+    r = bs.add_parser(
+        "reduced-set", help="reduced-set selection vs random reduced sets and alternatives (Fig. 4)"
+    )
+    common(r, 20)
+    r.add_argument("--out", required=True, help="output folder (resumable)")
+    r.add_argument(
+        "--random-sets",
+        type=_positive_int,
+        default=20,
+        help="random reduced sets per scene: the near-exhaustive search (default 20)",
+    )
+    r.add_argument(
+        "--methods",
+        type=_methods(REDUCED_SET_METHODS),
+        default=list(REDUCED_SET_METHODS),
+        help="reduced-set selection methods (default: mmd,herding,degroot,random)",
+    )
+
+    t = bs.add_parser("timing", help="computation time vs reduced-set size and samples (Table II)")
+    t.add_argument("--out", required=True, help="output folder")
+    t.add_argument(
+        "--sizes",
+        type=_int_list,
+        default=[10, 20, 30, 40, 50],
+        help="reduced-set sizes (default 10,20,30,40,50)",
+    )
+    t.add_argument(
+        "--samples",
+        type=_int_list,
+        default=[50, 100, 200],
+        help="numbers of planning samples n (default 50,100,200)",
+    )
+    t.add_argument(
+        "--repeats",
+        type=_positive_int,
+        default=5,
+        help="timed calls per setting; the median is reported (default 5)",
+    )
+    t.add_argument("--backend", type=_backend, default="admm", help="projection QP backend")
+    t.add_argument("--no-progress", action="store_true", help="no progress bar")
+
+    f = bs.add_parser("figure", help="qualitative scene figure (paper Fig. 3)")
+    f.add_argument(
+        "--scene",
+        type=_nonneg_int,
+        default=None,
+        help="scene index in the preset (default: the built-in demo scene)",
+    )
+    f.add_argument("--seed", type=_nonneg_int, default=0)
+    f.add_argument("--preset", choices=_presets(), default="reference36")
+    f.add_argument("--scene-params", type=_existing_file, default=None, metavar="FILE.json")
+    f.add_argument("--methods", type=_methods(PLAN_METHODS), default=["degroot", "mmd"])
+    f.add_argument("--backend", type=_backend, default="admm")
+    f.add_argument("--out", required=True, help="output folder")
+
+    q = bs.add_parser(
+        "qp-backends", help="QP backend comparison (benchmarks/qp_backends.py)", add_help=False
+    )
+    q.add_argument("args", nargs=argparse.REMAINDER, help="arguments passed to the benchmark")
+    return p
+
+
+# ---------------------------------------------------------------------------------------------
+# helpers
+
+
+def _scene_params(args, parser):
+    from .scenarios import load_scene_params, preset
+
+    try:
+        base = preset(args.preset)
+        if args.scene_params is not None:
+            return load_scene_params(args.scene_params, base)
+        return base
+    except ValueError as e:
+        parser.error(f"argument --scene-params: {e}")
+
+
+def _table(rows: Sequence[dict], cols: Sequence[str]) -> str:
+    def fmt(v):
+        if isinstance(v, float):
+            return f"{v:.3g}" if abs(v) < 100 else f"{v:.1f}"
+        return str(v)
+
+    cells = [[fmt(r.get(c, "")) for c in cols] for r in rows]
+    w = [max(len(c), *(len(x[i]) for x in cells)) for i, c in enumerate(cols)]
+    line = lambda xs: "  ".join(x.rjust(w[i]) for i, x in enumerate(xs))  # noqa: E731
+    return "\n".join([line(cols), line(["-" * n for n in w])] + [line(x) for x in cells])
+
+
+def _print_summary(summary: dict, bars: dict | None = None) -> None:
+    rows = []
+    for m, s in summary["methods"].items():
+        cf = s["collision_free"]
+        v = summary["vs"].get(m, {})
+        rows.append(
+            dict(
+                method=m,
+                scenes=s["scenes"],
+                mean=cf["mean"],
+                std=cf["std"],
+                q1=cf["q1"],
+                median=cf["median"],
+                min=cf["min"],
+                progress_m=s["progress_m"]["mean"],
+                feasible=s["feasible_share"],
+                mmd_ge=v.get("share_ge", ""),
+                plan_s=s["plan_time_s"]["median"],
+            )
+        )
+    print(
+        _table(
+            rows,
+            [
+                "method",
+                "scenes",
+                "mean",
+                "std",
+                "q1",
+                "median",
+                "min",
+                "progress_m",
+                "feasible",
+                "mmd_ge",
+                "plan_s",
+            ],
+        )
+    )
+    if bars:
+        print(
+            "bars (paper protocol): "
+            + ", ".join(
+                f"{k} {v['value']:.3g} {'>=' if v['ok'] else '<'} {v['target']:g}"
+                for k, v in bars.items()
+            )
+        )
+
+
+# ---------------------------------------------------------------------------------------------
+# commands
+
+
+def cmd_demo(args, parser) -> int:
+    from . import plots
+    from .evaluate import run_scene
+    from .scenarios import demo_scene
+
+    out = Path(args.out)
+    out.mkdir(parents=True, exist_ok=True)
+    t0 = time.perf_counter()
+    scene = demo_scene()
+    print(
+        f"scene: obstacle at x0 = {scene.x0:.0f} m, y0 = {scene.y0:.1f} m; "
+        f"P(ends in ego lane) = {scene.intent_probs[0]:.2f}, P(left lane) = "
+        f"{scene.intent_probs[1]:.2f}; {scene.obstacles.shape[1]} planning samples, "
+        f"{scene.validation.shape[1]} validation samples"
+    )
+    rows, plans = [], {}
+    for m in args.methods:
+        row, plan = run_scene(scene, m, backend=args.backend)
+        rows.append(row)
+        plans[m] = plan
+    print(
+        _table(
+            rows,
+            [
+                "method",
+                "collision_free",
+                "n_validation",
+                "progress_m",
+                "mean_speed",
+                "feasible",
+                "plan_time_s",
+                "wall_s",
+            ],
+        )
+    )
+    png = plots.scene_figure(scene, plans, out / "demo.png")
+    with open(out / "demo.json", "w") as f:
+        json.dump(rows, f, indent=1, default=str)
+    print(f"wrote {png} and {out / 'demo.json'} in {time.perf_counter() - t0:.1f} s")
+    return 0
+
+
+def cmd_synthetic(args, parser) -> int:
+    from . import plots
+    from .evaluate import run_synthetic
+
+    params = _scene_params(args, parser)
+    try:
+        res = run_synthetic(
+            args.out,
+            scenes=args.scenes,
+            seed=args.seed,
+            params=params,
+            methods=args.methods,
+            backend=args.backend,
+            jobs=args.jobs,
+            progress=not args.no_progress,
+        )
+    except ValueError as e:
+        parser.error(str(e))
+    out = Path(args.out)
+    plots.collision_box_violin(
+        res["rows"],
+        out / "collision_free.png",
+        args.methods,
+        title=f"{len(res['rows']) // len(args.methods)} scenes, "
+        f"preset {args.preset}, seed {args.seed}",
+    )
+    _print_summary(res["summary"], res["bars"])
+    print(
+        f"{res['computed']} plans computed, {res['reused']} reused, "
+        f"{res['wall_s']:.1f} s; wrote {out / 'results.csv'}, {out / 'summary.json'}, "
+        f"{out / 'collision_free.png'}"
+    )
+    return 0
+
+
+def cmd_reduced_set(args, parser) -> int:
+    from .evaluate import run_reduced_set
+
+    params = _scene_params(args, parser)
+    try:
+        res = run_reduced_set(
+            args.out,
+            scenes=args.scenes,
+            seed=args.seed,
+            params=params,
+            methods=args.methods,
+            random_sets=args.random_sets,
+            backend=args.backend,
+            jobs=args.jobs,
+            progress=not args.no_progress,
+        )
+    except ValueError as e:
+        parser.error(str(e))
+    print(_table(res["table"], list(res["table"][0])))
+    print(f"wrote {Path(args.out) / 'reduced_set.csv'}, reduced_set_summary.json, reduced_set.png")
+    return 0
+
+
+def cmd_timing(args, parser) -> int:
+    from .evaluate import run_timing
+
+    res = run_timing(
+        args.out,
+        sizes=args.sizes,
+        samples=args.samples,
+        repeats=args.repeats,
+        backend=args.backend,
+        progress=not args.no_progress,
+    )
+    print(
+        _table(
+            res,
+            [
+                "reduced_set_size",
+                "n_samples",
+                "reduced_set_s",
+                "algorithm1_s",
+                "compile_s",
+                "backend",
+            ],
+        )
+    )
+    print(f"wrote {Path(args.out) / 'timing.csv'} and timing.png")
+    return 0
+
+
+def cmd_figure(args, parser) -> int:
+    from . import plots
+    from .evaluate import run_scene
+    from .scenarios import demo_scene, make_scene, num_scenes
+
+    params = _scene_params(args, parser)
+    if args.scene is None and args.scene_params is None and args.preset == "reference36":
+        scene = demo_scene()
+    else:
+        idx = args.scene or 0
+        try:
+            if idx >= num_scenes(params, max(idx + 1, 1)):
+                raise ValueError(f"scene {idx} is outside the preset")
+            scene = make_scene(idx, args.seed, params)
+        except ValueError as e:
+            parser.error(f"argument --scene: {e}")
+    plans = {m: run_scene(scene, m, backend=args.backend)[1] for m in args.methods}
+    out = Path(args.out)
+    out.mkdir(parents=True, exist_ok=True)
+    png = plots.scene_figure(scene, plans, out / f"scene_{scene.index:04d}.png")
+    print(f"wrote {png}")
+    return 0
+
+
+def cmd_qp_backends(args, parser) -> int:
+    from .evaluate import load_qp_backends_benchmark
+
+    try:
+        mod = load_qp_backends_benchmark()
+    except ImportError as e:
+        parser.error(f"qp-backends: {e}")
+    rest = [a for a in args.args if a != "--"]
+    fn = getattr(mod, "main", None) or getattr(mod, "run", None)
+    if fn is None:
+        parser.error("qp-backends: benchmarks/qp_backends.py has neither main() nor run()")
+    try:
+        rc = fn(rest)
+    except TypeError:
+        saved = sys.argv
+        sys.argv = ["qp_backends.py", *rest]
+        try:
+            rc = fn()
+        finally:
+            sys.argv = saved
+    return int(rc or 0) if isinstance(rc, (int, type(None))) else 0
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    """Entry point of the ``mmdopt`` console script; returns the exit status."""
+    parser = build_parser()
+    args = parser.parse_args(argv)
+    if args.command == "demo":
+        return cmd_demo(args, parser)
+    cmd = {
+        "synthetic": cmd_synthetic,
+        "reduced-set": cmd_reduced_set,
+        "timing": cmd_timing,
+        "figure": cmd_figure,
+        "qp-backends": cmd_qp_backends,
+    }[args.experiment]
+    return cmd(args, parser)
+
+
+if __name__ == "__main__":  # pragma: no cover
+    sys.exit(main())

@@ -1,0 +1,281 @@
+"""Figures of the experiments (matplotlib, Agg-safe): paper Figs. 3, 4, 5 and Table II as a plot.
+
+Every function takes plain data (result rows, arrays) and writes one PNG; none needs a display.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Mapping, Sequence
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+__all__ = [
+    "METHOD_LABELS",
+    "METHOD_COLOURS",
+    "collision_box_violin",
+    "scene_figure",
+    "reduced_set_figure",
+    "timing_figure",
+    "reduced_set_indices",
+]
+
+METHOD_LABELS = {
+    "mmd": "MMD-Opt",
+    "degroot": "de Groot (scenario)",
+    "random": "random reduced set",
+    "saa": "SAA",
+    "scenario_all": "scenario, all samples",
+    "herding": "kernel herding",
+}
+METHOD_COLOURS = {
+    "mmd": "tab:blue",
+    "degroot": "goldenrod",
+    "random": "tab:gray",
+    "saa": "tab:green",
+    "scenario_all": "tab:purple",
+    "herding": "tab:cyan",
+}
+
+
+def _plt():
+    import matplotlib
+
+    if matplotlib.get_backend().lower() not in ("agg", "pdf", "svg", "cairo"):
+        try:
+            matplotlib.use("Agg")
+        except Exception:  # pragma: no cover - backend already fixed by the caller
+            pass
+    import matplotlib.pyplot as plt
+
+    return plt
+
+
+def _label(m: str) -> str:
+    return METHOD_LABELS.get(m, m)
+
+
+def collision_box_violin(
+    rows: Sequence[Mapping[str, Any]],
+    path: str | Path,
+    methods: Sequence[str] | None = None,
+    title: str | None = None,
+) -> Path:
+    """Paper Fig. 5: box and violin plots of collision-free validation samples per method,
+    with a third panel for progress (m) so a method cannot win by standing still."""
+    plt = _plt()
+    methods = list(methods or dict.fromkeys(r["method"] for r in rows))
+    data = [
+        np.array([r["collision_free"] for r in rows if r["method"] == m], float) for m in methods
+    ]
+    prog = [np.array([r["progress_m"] for r in rows if r["method"] == m], float) for m in methods]
+    keep = [i for i, d in enumerate(data) if d.size]
+    methods = [methods[i] for i in keep]
+    data, prog = [data[i] for i in keep], [prog[i] for i in keep]
+    labels = [_label(m) for m in methods]
+    fig, axs = plt.subplots(1, 3, figsize=(13, 4.2))
+    axs[0].boxplot(data, tick_labels=labels, showmeans=True)
+    axs[0].set_title("collision-free validation samples (box)")
+    parts = axs[1].violinplot(data, showmedians=True)
+    for body, m in zip(parts["bodies"], methods, strict=True):
+        body.set_facecolor(METHOD_COLOURS.get(m, "tab:blue"))
+    axs[1].set_xticks(range(1, len(labels) + 1), labels)
+    axs[1].set_title("collision-free validation samples (violin)")
+    axs[2].boxplot(prog, tick_labels=labels, showmeans=True)
+    axs[2].set_title("progress in 15 s (m)")
+    for ax in axs:
+        ax.tick_params(axis="x", labelrotation=20)
+        ax.grid(alpha=0.3)
+    n = data[0].size if data else 0
+    fig.suptitle(title or f"{n} scenes")
+    fig.tight_layout()
+    path = Path(path)
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+    return path
+
+
+def reduced_set_indices(plan) -> np.ndarray | None:
+    """The reduced set of the first obstacle of a plan, as indices (None if the plan has none)."""
+    rs = getattr(plan, "reduced_set", None)
+    if rs is None:
+        return None
+    if isinstance(rs, Mapping):
+        rs = rs.get("indices", rs.get(0))
+    if isinstance(rs, (list, tuple)) and rs and not np.isscalar(rs[0]):
+        rs = rs[0]
+    idx = getattr(rs, "indices", rs)
+    if idx is None:
+        return None
+    idx = np.asarray(idx)
+    if idx.ndim == 2:
+        idx = idx[0]
+    return idx.astype(int) if idx.size else None
+
+
+def scene_figure(
+    scene,
+    plans: Mapping[str, Any],
+    path: str | Path,
+    validation_index: int | None = None,
+    title: str | None = None,
+) -> Path:
+    """Paper Fig. 3 style: one panel per method with the planning samples (grey: by intent),
+    the method's reduced set (coloured), its plan (ego positions every 1.5 s) and the validation
+    samples it collides with (red), plus one validation sample with its positions at the plan's
+    time steps (black dashed)."""
+    from .evaluate import collision_free
+    from .surrogate import collision_free_count
+
+    plt = _plt()
+    n = len(plans)
+    fig, axs = plt.subplots(n, 1, figsize=(12, 2.9 * n), squeeze=False)
+    obs = np.asarray(scene.obstacles[0])
+    val = np.asarray(scene.validation[0])
+    if validation_index is None:
+        # a validation sample of the less probable intent, if there is one
+        rare = int(np.argmin(scene.intent_probs))
+        cand = np.flatnonzero(scene.validation_intents == rare)
+        validation_index = int(cand[0]) if cand.size else 0
+    lanes = (-3.5, 0.0, 3.5)
+    for ax, (m, plan) in zip(axs[:, 0], plans.items(), strict=True):
+        xy = np.stack([np.asarray(plan.x), np.asarray(plan.y)], -1)
+        for y in lanes:
+            ax.axhline(y, color="k", lw=0.5, ls=":")
+        for y in (-5.25, -1.75, 1.75, 5.25):
+            ax.axhline(y, color="k", lw=0.8)
+        for intent in np.unique(scene.intents):
+            sel = obs[scene.intents == intent]
+            ax.plot(sel[:, :, 0].T, sel[:, :, 1].T, color="0.7", lw=0.6, alpha=0.6)
+        idx = reduced_set_indices(plan)
+        if idx is not None:
+            rs = obs[idx]
+            ax.plot(rs[:, :, 0].T, rs[:, :, 1].T, color=METHOD_COLOURS.get(m, "m"), lw=1.6)
+        counts = collision_free_count(xy, val[None])
+        hit = np.asarray(counts.colliding)[0]
+        if hit.any():
+            hv = val[hit][:50]
+            ax.plot(hv[:, :, 0].T, hv[:, :, 1].T, color="red", lw=0.7, alpha=0.5)
+        v = val[validation_index]
+        ax.plot(v[:, 0], v[:, 1], "k--", lw=1.0)
+        ax.plot(v[::10, 0], v[::10, 1], "ks", ms=3)
+        ax.plot(xy[:, 0], xy[:, 1], color="tab:blue" if m == "mmd" else "k", lw=2)
+        ax.plot(xy[::10, 0], xy[::10, 1], "o", color="tab:blue" if m == "mmd" else "k", ms=4)
+        cf_ = collision_free(xy, val[None])
+        prog = float(np.asarray(plan.s)[-1] - np.asarray(plan.s)[0])
+        ax.set_title(
+            f"{_label(m)}: {cf_}/{val.shape[0]} validation samples collision-free, "
+            f"progress {prog:.0f} m",
+            fontsize=10,
+        )
+        ax.set_ylim(-6, 6)
+        ax.set_xlim(-5, max(200.0, float(obs[:, -1, 0].max()) + 5))
+        ax.set_ylabel("y (m)")
+    axs[-1, 0].set_xlabel("x (m)")
+    fig.suptitle(
+        title
+        or (
+            f"scene {scene.index}: obstacle at x0 = {scene.x0:.0f} m, y0 = {scene.y0:.1f} m; "
+            f"P(y_d = {scene.params.intent_offsets[0]:g} m) = {scene.intent_probs[0]:.2f}"
+        ),
+        fontsize=11,
+    )
+    fig.tight_layout()
+    path = Path(path)
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+    return path
+
+
+RS_LABELS = {
+    "mmd": "MMD selection (ours)",
+    "herding": "kernel herding",
+    "degroot": "de Groot set",
+    "random": "random set",
+}
+
+
+def _rs_label(m: str) -> str:
+    return RS_LABELS.get(m, m)
+
+
+def reduced_set_figure(
+    per_scene: Mapping[str, Sequence[float]],
+    random_sets: Sequence[Sequence[float]],
+    path: str | Path,
+    n_validation: int = 1000,
+) -> Path:
+    """Paper Fig. 4: (a) mean ± std of collision-free validation samples per reduced-set method
+    and for the random reduced sets (the near-exhaustive search); (b) per scene, every random
+    set's count (dots) against each method's."""
+    plt = _plt()
+    fig, axs = plt.subplots(1, 2, figsize=(13, 4.2), gridspec_kw=dict(width_ratios=[1, 2]))
+    names = list(per_scene)
+    means = [np.mean(per_scene[m]) / n_validation * 100 for m in names]
+    stds = [np.std(per_scene[m]) / n_validation * 100 for m in names]
+    rnd = np.array([np.mean(r) for r in random_sets]) / n_validation * 100
+    rnd_best = np.array([np.max(r) for r in random_sets]) / n_validation * 100
+    names_all = names + ["random sets (mean)", "random sets (best)"]
+    means += [rnd.mean(), rnd_best.mean()]
+    stds += [rnd.std(), rnd_best.std()]
+    cols = [METHOD_COLOURS.get(m, "tab:blue") for m in names] + ["0.6", "0.3"]
+    axs[0].bar(range(len(names_all)), means, yerr=stds, color=cols, capsize=3)
+    axs[0].set_xticks(range(len(names_all)), [_rs_label(m) for m in names_all], rotation=25)
+    axs[0].set_ylabel("collision-free validation samples (%)")
+    axs[0].set_title("Algorithm 1 with the MMD surrogate on each reduced set", fontsize=10)
+    lo = min(m - s for m, s in zip(means, stds, strict=True))
+    axs[0].set_ylim(max(0.0, lo - 5), 100.5)
+    axs[0].grid(alpha=0.3, axis="y")
+    for i, r in enumerate(random_sets):
+        axs[1].plot(np.full(len(r), i), np.asarray(r) / n_validation * 100, ".", color="0.6", ms=3)
+    for m in names:
+        axs[1].plot(
+            range(len(per_scene[m])),
+            np.asarray(per_scene[m]) / n_validation * 100,
+            "_",
+            ms=10,
+            mew=2,
+            color=METHOD_COLOURS.get(m, "tab:blue"),
+            label=_rs_label(m),
+        )
+    axs[1].set_xticks(range(len(random_sets)))
+    axs[1].set_xlabel("scene")
+    axs[1].set_ylabel("collision-free (%)")
+    axs[1].legend(fontsize=8)
+    axs[1].grid(alpha=0.3)
+    fig.tight_layout()
+    path = Path(path)
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+    return path
+
+
+def timing_figure(rows: Sequence[Mapping[str, Any]], path: str | Path) -> Path:
+    """Paper Table II as a plot: reduced-set selection and Algorithm 1 time vs reduced-set size
+    (at the default sample count) and vs the number of samples."""
+    plt = _plt()
+    fig, axs = plt.subplots(1, 2, figsize=(11, 3.8))
+    n_def = max(
+        {r["n_samples"] for r in rows}, key=lambda n: sum(r["n_samples"] == n for r in rows)
+    )
+    a = sorted((r for r in rows if r["n_samples"] == n_def), key=lambda r: r["reduced_set_size"])
+    m_def = 10 if any(r["reduced_set_size"] == 10 for r in rows) else a[0]["reduced_set_size"]
+    b = sorted((r for r in rows if r["reduced_set_size"] == m_def), key=lambda r: r["n_samples"])
+    for ax, rs, key, xl in (
+        (axs[0], a, "reduced_set_size", f"reduced-set size (n = {n_def})"),
+        (axs[1], b, "n_samples", f"samples n (m = {m_def})"),
+    ):
+        x = [r[key] for r in rs]
+        ax.plot(x, [r["reduced_set_s"] * 1e3 for r in rs], "o-", label="reduced-set selection")
+        ax.plot(x, [r["algorithm1_s"] * 1e3 for r in rs], "s-", label="Algorithm 1")
+        ax.set_xlabel(xl)
+        ax.set_ylabel("median time (ms)")
+        ax.set_yscale("log")
+        ax.grid(alpha=0.3)
+        ax.legend(fontsize=8)
+    fig.tight_layout()
+    path = Path(path)
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+    return path
