@@ -17,9 +17,17 @@ Methods
               is therefore ≤ 1/ratio_eps; the reference's is unbounded, SPEC §8).
               CEM as the reference (population 100, 20 elites kept, 100 iterations, Σ₀ = 5I,
               Σ ← cov(elites) + 0.01I) but as a ``lax.scan`` (not unrolled) with a fresh PRNG key
-              every iteration (the reference reuses one), optional smoothing of μ and Σ, and the
-              best α seen over all iterations is returned (the reference: best of the last).
+              every iteration (the reference reuses one), and the best α seen over all
+              iterations is returned (the reference: best of the last; with elitism these agree).
               The reduced set is the m largest |α*_j|.
+              Three defaults differ from the reference, by measurement (40 two-intent mixtures,
+              n = 100, m = 10, docs/benchmarks.md): CEM runs over u with α = u/n
+              (``alpha_scale=None``; the reference samples α itself, where the 0.01·I floor alone
+              adds ≈ 0.01·tr K = 1 of noise to an MMD whose differences are ≈ 1e-3, so its
+              selection is noise-driven), β = 0.01 (on that scale the ratio is O(1) and the MMD
+              O(1e-3)) and smoothing 0.5.  Median MMD² of the refined set: 3.0e-3 against 6.6e-3
+              for the reference settings and 4.7e-3 for a random subset; herding reaches 1.2e-3.
+              ``ReducedSetConfig.reference()`` restores the reference's settings.
 ``"herding"`` greedy MMD minimisation = kernel herding without replacement (Chen et al., 2010):
               step t adds argmax_j (1/n)Σ_i K_ij − (1/(t+1)) Σ_{s∈S} K_js.
 ``"random"``  a uniformly random m-subset (the paper's "exhaustive search" baseline).
@@ -34,6 +42,9 @@ Weights of the m selected samples (``config.weights``), the same for every metho
               accelerated projected-gradient solve on the simplex (warm-started from the projected
               KKT point).  Non-negative weights keep the collision surrogate a mixture of
               non-negative masses (a negative ᾱ_j would *reward* collision with sample j).
+              Measured: the signed KKT solution has a negative weight in 22 of 40 CEM sets
+              (down to −0.25) and 22 of 40 random sets, 3 of 40 herding sets; the simplex
+              constraint costs a median factor 1.006 (max 1.35) in MMD² for CEM sets.
 ``"kkt"``     the reference: the equality-constrained QP only (ᾱ may be negative).
 ``"uniform"`` ᾱ = 1/m.
 

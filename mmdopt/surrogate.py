@@ -153,7 +153,20 @@ def mmd_surrogate_terms(
     ego_xy, obstacles: ReducedObstacles, config: SurrogateConfig, ego_heading=None
 ) -> jax.Array:
     """Per-step terms of :func:`mmd_surrogate`: (B, K, 2) -> (B, O, K)."""
-    ego_c = _ego_centres(jnp.asarray(ego_xy), config, ego_heading)
+    ego_xy = jnp.asarray(ego_xy)
+    oc = obstacles.centres
+    if ego_xy.ndim != 3 or ego_xy.shape[-1] != 2:
+        raise ValueError(f"ego_xy must have shape (B, K, 2), got {ego_xy.shape}")
+    if oc.ndim != 5 or oc.shape[-2:] != ego_xy.shape[-2:]:
+        raise ValueError(
+            f"obstacles.centres must have shape (O, m, C, K, 2) with K = {ego_xy.shape[1]}, "
+            f"got {oc.shape}"
+        )
+    if obstacles.weights.shape != oc.shape[:2]:
+        raise ValueError(
+            f"obstacles.weights must have shape {oc.shape[:2]}, got {obstacles.weights.shape}"
+        )
+    ego_c = _ego_centres(ego_xy, config, ego_heading)
     return jax.vmap(lambda e: _terms_one(e, obstacles, config))(ego_c)
 
 

@@ -190,3 +190,13 @@ def test_collision_free_count_rejects_mismatched_shapes():
         collision_free_count(np.zeros((K, 2)), np.zeros((2, 3, K + 1, 2)))
     with pytest.raises(ValueError, match="ego_xy"):
         collision_free_count(np.zeros((K, 3)), np.zeros((2, 3, K, 2)))
+
+
+def test_surrogate_rejects_mismatched_shapes():
+    ro = _ro([_obstacle()])
+    with pytest.raises(ValueError, match="ego_xy"):
+        mmd_surrogate(_ego([0.0])[0], ro)
+    with pytest.raises(ValueError, match="obstacles.centres"):
+        mmd_surrogate(_ego([0.0])[:, :10], ro)
+    with pytest.raises(ValueError, match="obstacles.weights"):
+        mmd_surrogate(_ego([0.0]), ReducedObstacles(ro.centres, ro.weights[:, :2]))
