@@ -1,0 +1,108 @@
+"""How long does reduced-set selection take at the paper's sizes (n = 100 samples, K = 100 steps)?
+
+For each m and method: the first call (trace + XLA compile + run; m is static, so every m
+compiles once) and the steady-state time (median and 90th percentile over fresh keys; also the
+process CPU time, a proxy less sensitive to a shared, loaded machine), on whatever device JAX
+picks.  Data: a two-intent lane-keep / lane-change mixture (p = 0.8 / 0.2), the same generator as
+tests/mmdopt/test_reduced_set.py; the table also gives the share of the set drawn from the likely
+intent and the MMD² of the weighted reduced set against all samples.
+
+    python benchmarks/reduced_set_timing.py                    # m = 10 … 50, all methods
+    python benchmarks/reduced_set_timing.py --methods mmd --repeats 50
+    python benchmarks/reduced_set_timing.py --reference        # the reference's CEM settings too
+"""
+
+from __future__ import annotations
+
+import argparse
+import platform
+import time
+
+import jax
+import numpy as np
+
+import mmdopt
+from mmdopt.reduced_set import ReducedSetConfig, select_reduced_set_unchecked
+
+
+def two_intent(seed: int, n: int = 100, k: int = 100, p_keep: float = 0.8, dt: float = 0.1):
+    rng = np.random.default_rng(seed)
+    t = np.arange(k) * dt
+    keep = rng.random(n) < p_keep
+    v = rng.normal(5.0, 1.0, n)
+    s = np.clip(t / 4.0, 0.0, 1.0)
+    y = np.where(keep[:, None], 0.0, 3.5 * (3 * s**2 - 2 * s**3)[None])
+    y = y + rng.normal(0.0, 0.05, n)[:, None]
+    return np.stack([v[:, None] * t, y], axis=-1), keep
+
+
+def run(ms, methods, repeats, configs):
+    X, keep = two_intent(0)
+    Xd = jax.device_put(X)
+    ego = jax.device_put(np.stack([10.0 * np.arange(100) * 0.1 - 10.0, np.zeros(100)], -1))
+    rows = []
+    for cname, cfg in configs.items():
+        for method in methods if cname == "default" else ["mmd"]:
+            for m in ms:
+                t0 = time.perf_counter()
+                rs = select_reduced_set_unchecked(jax.random.key(0), Xd, m, method, cfg, ego)
+                jax.block_until_ready(rs)
+                first = time.perf_counter() - t0
+                times, cpu, fracs, mmds = [], [], [], []
+                for r in range(repeats):
+                    key = jax.random.key(r + 1)
+                    t0, c0 = time.perf_counter(), time.process_time()
+                    rs = select_reduced_set_unchecked(key, Xd, m, method, cfg, ego)
+                    jax.block_until_ready(rs)
+                    times.append(time.perf_counter() - t0)
+                    cpu.append(time.process_time() - c0)
+                    fracs.append(keep[np.asarray(rs.indices)].mean())
+                    mmds.append(float(rs.mmd2))
+                t = np.array(times) * 1e3
+                c = float(np.median(cpu)) * 1e3
+                row = (cname, method, m, first, np.median(t), np.percentile(t, 90), c)
+                rows.append(row + (np.mean(fracs), np.median(mmds)))
+                print(
+                    f"{cname:9s} {method:8s} m={m:3d}  first {first:7.2f} s  "
+                    f"steady {np.median(t):8.2f} ms (p90 {np.percentile(t, 90):8.2f}, "
+                    f"CPU {c:8.2f})  likely {np.mean(fracs):.2f}  mmd2 {np.median(mmds):.2e}",
+                    flush=True,
+                )
+    return rows
+
+
+def main():
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--m", type=int, nargs="+", default=[10, 20, 30, 40, 50])
+    ap.add_argument("--methods", nargs="+", default=list(mmdopt.METHODS))
+    ap.add_argument("--repeats", type=int, default=20)
+    ap.add_argument(
+        "--reference",
+        action="store_true",
+        help="also time ReducedSetConfig.reference() (α-scale 1, β = 1, signed KKT)",
+    )
+    args = ap.parse_args()
+    configs = {"default": ReducedSetConfig()}
+    if args.reference:
+        configs["reference"] = ReducedSetConfig.reference()
+    dev = jax.devices()[0]
+    print(
+        f"# device: {dev.platform} {getattr(dev, 'device_kind', '')}; jax {jax.__version__}; "
+        f"{platform.processor() or platform.machine()}; n = 100, K = 100, float64"
+    )
+    rows = run(args.m, args.methods, args.repeats, configs)
+    print()
+    print(
+        "| config | method | m | first call (s) | steady median (ms) | p90 (ms) "
+        "| CPU time median (ms) | share from likely intent | MMD² |"
+    )
+    print("|---|---|---|---|---|---|---|---|---|")
+    for c, meth, m, first, med, p90, cpu, frac, mmd in rows:
+        print(
+            f"| {c} | {meth} | {m} | {first:.2f} | {med:.2f} | {p90:.2f} | {cpu:.2f} "
+            f"| {frac:.2f} | {mmd:.1e} |"
+        )
+
+
+if __name__ == "__main__":
+    main()
