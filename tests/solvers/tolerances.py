@@ -181,7 +181,7 @@ TOLERANCES: dict[str, BackendTol] = {
     ),
     # Batched JAX ADMM (first-order, float64).  Owned by the admm helper: only this row may change.
     "admm": BackendTol(
-        settings={},
+        settings={"max_iter": 4000},
         x_atol=1e-4,
         obj_rtol=1e-5,
         feas_atol=1e-4,

@@ -1,0 +1,213 @@
+"""The batched JAX ADMM backend (``admm``): agreement with Clarabel, statuses, batching, jit, dtypes
+and the functional core.  Each test states its tolerance.
+
+(``tests/solvers/test_backends.py`` runs the generic backend tests, and the Maros–Meszaros set,
+over ``admm`` too, with the ``admm`` row of ``tolerances.py``.)  Shapes and settings are kept few,
+because each distinct ``(batch, n, m, settings)`` costs one XLA compile of ~1–2 s.
+"""
+
+from __future__ import annotations
+
+import jax
+import numpy as np
+import pytest
+
+import solvers.admm as admm
+from solvers import QP, QPBatch, Status, solve, solve_batch
+from solvers.admm import ADMMSettings, admm_factor, admm_iterate, rows_from_bounds
+from solvers.examples import projection_like_batch, random_feasible_qp
+
+from .tolerances import REFERENCE_SETTINGS
+
+#: settings for projection-like QPs (explicit: no Ruiz scaling suits this shape, see the docs)
+PROJ = {"scaling_iter": 0, "max_iter": 4000}
+
+
+def _ref(qp: QP):
+    r = solve(qp, "clarabel", **REFERENCE_SETTINGS)
+    assert r.ok
+    return r
+
+
+def _agree(sol, ref, qp, *, x_rtol, f_rtol, feas):
+    xs = max(1.0, float(np.max(np.abs(ref.x))))
+    assert sol.status is Status.SOLVED, sol.status
+    assert np.max(np.abs(sol.x - ref.x)) <= x_rtol * xs
+    assert abs(sol.objective - ref.objective) <= f_rtol * max(1.0, abs(ref.objective))
+    assert qp.constraint_violation(sol.x) <= feas * xs
+
+
+# ----------------------------------------------------------------------------- settings
+
+
+def test_unknown_setting_is_rejected_by_name():
+    b = projection_like_batch(2, horizon=8)
+    with pytest.raises(ValueError, match="rho_typo"):
+        solve_batch(b, "admm", rho_typo=1.0)
+    with pytest.raises(ValueError, match="dtype"):
+        ADMMSettings(dtype="float16")
+
+
+def test_settings_used_are_recorded_and_defaults_kept():
+    b = projection_like_batch(2, horizon=8)
+    sol = solve_batch(b, "admm", eps_abs=1e-6)
+    want = ADMMSettings(eps_abs=1e-6).as_dict()
+    assert sol.settings == want
+    assert sol.settings["eps_rel"] == ADMMSettings().eps_rel  # untouched default
+    assert sol.extras["fallback_count"] == 0 and "polish_accepted" in sol.extras
+
+
+def test_large_n_warns(monkeypatch):
+    monkeypatch.setattr(admm, "DENSE_N_WARN", 4)
+    b = projection_like_batch(1, horizon=8)
+    with pytest.warns(UserWarning, match="densifies"):
+        solve_batch(b, "admm", max_iter=25)
+
+
+# ------------------------------------------------------------------ agreement with Clarabel
+
+
+@pytest.mark.parametrize("seed", range(6))
+def test_random_feasible_qps_match_clarabel(seed):
+    """Random QPs with equality rows and infinite bounds: x to 1e-6, f to 1e-8 (polished)."""
+    qp = random_feasible_qp(8, 10, 2, seed=seed, sparse=bool(seed % 2))
+    assert np.isinf(qp.l).any() or np.isinf(qp.u).any()
+    sol = solve(qp, "admm")
+    _agree(sol, _ref(qp), qp, x_rtol=1e-6, f_rtol=1e-8, feas=1e-7)
+
+
+def test_projection_like_batch_matches_clarabel():
+    """Every QP of a projection-like batch: SOLVED, x to 1e-6, f to 1e-8, violation ≤ 1e-7."""
+    batch = projection_like_batch(8, horizon=30, seed=1)
+    sol = solve_batch(batch, "admm", **PROJ)
+    assert sol.extras["polish_accepted"] == len(batch)
+    for i, qp in enumerate(batch):
+        _agree(sol[i], _ref(qp), qp, x_rtol=1e-6, f_rtol=1e-8, feas=1e-7)
+
+
+def test_no_polish_still_within_admm_tolerance():
+    """Without polish: SOLVED means the OSQP test holds; f to 1e-3 relative of Clarabel."""
+    batch = projection_like_batch(8, horizon=30, seed=1)
+    sol = solve_batch(batch, "admm", polish=False, **PROJ)
+    for i, qp in enumerate(batch):
+        if sol.status[i] == Status.SOLVED:
+            ref = _ref(qp)
+            assert abs(sol.objective[i] - ref.objective) <= 1e-3 * max(1, abs(ref.objective))
+            assert sol.primal_residual[i] <= 1e-5 + 1e-5 * np.max(np.abs(batch.A @ sol.x[i]))
+
+
+# ------------------------------------------------------------------------- infeasibility
+
+
+def test_infeasible_problems_get_their_certificate_in_a_batch():
+    batch = projection_like_batch(3, horizon=12, seed=5)
+    l, u = batch.l.copy(), batch.u.copy()
+    l[1, 0], u[1, 0] = 5.0, 6.0  # x0 ∈ [5, 6] contradicts the boundary row x0 = 0
+    sol = solve_batch(QPBatch(batch.P, batch.A, batch.q, l, u), "admm", **PROJ)
+    assert Status(int(sol.status[1])) is Status.PRIMAL_INFEASIBLE
+    assert sol.status[0] == Status.SOLVED and sol.status[2] == Status.SOLVED
+
+
+def test_dual_infeasible_is_detected():
+    # min −x2 + ½x1² with x2 unbounded above: unbounded
+    qp = QP(np.diag([1.0, 0.0]), np.array([0.0, -1.0]), np.eye(2), np.array([-1.0, 0.0]),
+            np.array([1.0, np.inf]))
+    assert solve(qp, "admm").status is Status.DUAL_INFEASIBLE
+
+
+def test_nan_guard_reports_error_not_solved():
+    qp = QP(np.eye(2), np.array([3e38, -3e38]), np.eye(2), -np.ones(2), np.ones(2))
+    sol = solve(qp, "admm", polish=False, scaling_iter=0, max_iter=50)
+    assert sol.status is Status.ERROR
+
+
+# -------------------------------------------------------------- batching, jit, warm start
+
+
+def test_solve_batch_equals_loop_of_solve():
+    """Same statuses; x equal to 1e-9 relative (the factor and the per-QP iteration are shared)."""
+    batch = projection_like_batch(3, horizon=12, seed=2)
+    bs = solve_batch(batch, "admm", **PROJ)
+    for i, qp in enumerate(batch):
+        one = solve(qp, "admm", **PROJ)
+        assert int(bs.status[i]) == int(one.status)
+        np.testing.assert_allclose(bs.x[i], one.x, atol=1e-9 * max(1, np.abs(one.x).max()))
+
+
+def test_no_recompile_for_new_data_of_the_same_shape():
+    b1 = projection_like_batch(3, horizon=12, seed=3)
+    b2 = projection_like_batch(3, horizon=12, seed=4)
+    solve_batch(b1, "admm", **PROJ)
+    n0 = admm._admm_iterate_jit._cache_size()
+    solve_batch(b2, "admm", **PROJ)
+    assert admm._admm_iterate_jit._cache_size() == n0
+
+
+def test_warm_start_from_previous_batch_needs_no_more_iterations():
+    batch = projection_like_batch(3, horizon=12, seed=3)
+    first = solve_batch(batch, "admm", **PROJ)
+    again = solve_batch(batch, "admm", warm_start=first, **PROJ)
+    assert again.all_solved
+    assert again.iterations.max() <= first.iterations.max()
+    np.testing.assert_allclose(again.x, first.x, atol=1e-7 * max(1, np.abs(first.x).max()))
+
+
+def _tiny():
+    P = np.array([[2.0, 0.5, 0.0], [0.5, 1.0, 0.0], [0.0, 0.0, 1.0]])
+    A = np.vstack([np.eye(3), [[1.0, 1.0, 1.0]]])
+    rng = np.random.default_rng(0)
+    q = rng.normal(size=(4, 3))
+    l = np.tile([-1.0, -1.0, -np.inf, 0.5], (4, 1))
+    u = np.tile([1.0, 1.0, 0.2, 0.5], (4, 1))  # last row an equality
+    return P, A, q, l, u
+
+
+@pytest.mark.parametrize("dtype, atol", [("float64", 1e-10), ("float32", 1e-4)])
+def test_jitted_equals_eager_on_a_tiny_batch(dtype, atol):
+    """The functional core, jitted vs ``jax.disable_jit()``: x equal to 1e-10 in float64; 1e-4 in
+    float32 (XLA fuses differently; 20 ADMM steps amplify float32 rounding to ~3e-5)."""
+    P, A, q, l, u = _tiny()
+    eq, free = rows_from_bounds(l, u)
+    with jax.enable_x64(dtype == "float64"):
+        f = admm_factor(P, A, ADMMSettings(check_every=5, dtype=dtype), eq_rows=eq,
+                        free_rows=free)
+        jitted = jax.jit(lambda q, l, u: admm_iterate(f, q, l, u, iters=20))(q, l, u)
+        with jax.disable_jit():
+            eager = admm_iterate(f, q, l, u, iters=20)
+        assert jitted.x.dtype == np.dtype(dtype)
+        np.testing.assert_allclose(np.asarray(jitted.x), np.asarray(eager.x), atol=atol)
+        np.testing.assert_array_equal(np.asarray(jitted.status), np.asarray(eager.status))
+
+
+def test_core_vmaps_over_single_problems_like_the_batch():
+    """``vmap`` of the core over 1-D problems equals the batched call (x to 1e-5, float32)."""
+    P, A, q, l, u = _tiny()
+    eq, free = rows_from_bounds(l, u)
+    f = admm_factor(P, A, eq_rows=eq, free_rows=free)
+    batched = admm_iterate(f, q, l, u, iters=300)
+    vm = jax.jit(jax.vmap(lambda q, l, u: admm_iterate(f, q, l, u, iters=300)))(q, l, u)
+    assert vm.x.shape == (4, 3)
+    np.testing.assert_allclose(np.asarray(vm.x), np.asarray(batched.x), atol=1e-5)
+    assert np.all(np.asarray(batched.status) == Status.SOLVED)
+    # the answers are right: Clarabel to the ADMM tolerance (1e-5 abs + rel)
+    for i in range(4):
+        r = _ref(QP(P, q[i], A, l[i], u[i]))
+        assert np.max(np.abs(np.asarray(batched.x[i]) - r.x)) <= 1e-3
+
+
+def test_float32_and_float64_agree():
+    """Polished float32 and float64 runs agree to 1e-7 in x (both polish in float64)."""
+    batch = projection_like_batch(3, horizon=12, seed=6)
+    s32 = solve_batch(batch, "admm", **PROJ)
+    s64 = solve_batch(batch, "admm", dtype="float64", **PROJ)
+    assert s32.all_solved and s64.all_solved
+    np.testing.assert_allclose(s32.x, s64.x, atol=1e-7 * max(1, np.abs(s64.x).max()))
+
+
+def test_fallback_is_visible_and_counted():
+    batch = projection_like_batch(3, horizon=12, seed=7)
+    sol = solve_batch(batch, "admm", max_iter=25, polish=False, fallback="clarabel", **{
+        k: v for k, v in PROJ.items() if k != "max_iter"})
+    assert sol.settings["fallback"] == "clarabel"
+    assert sol.extras["fallback_count"] == sol.extras["fallback_attempted"] > 0
+    assert sol.all_solved
