@@ -71,3 +71,10 @@ __all__ = [
     "mmd_surrogate_terms",
     "reduced_obstacles",
 ]
+
+# Algorithm 1, the baselines and the public planning API (issue 6)
+from .algorithm import MMDOptConfig  # noqa: E402
+from .api import Plan, Road, plan, plan_frenet  # noqa: E402
+from .baselines import METHODS as PLAN_METHODS  # noqa: E402
+
+__all__ += ["MMDOptConfig", "Road", "Plan", "plan", "plan_frenet", "PLAN_METHODS"]

@@ -1,0 +1,554 @@
+"""Public planning API: :class:`Road`, :class:`Plan`, :func:`plan` and :func:`plan_frenet`.
+
+::
+
+    import jax, mmdopt, frenet
+    road = mmdopt.Road(path=frenet.ReferencePath.straight(1000.0), y_lb=-0.3, y_ub=0.3)
+    ego = frenet.EgoState(s=0.0, d=0.0, vs=10.0)
+    p = mmdopt.plan(ego, road, obstacles, method="mmd", key=jax.random.PRNGKey(0))
+    p.x, p.y, p.speed, p.cost, p.feasible, p.status
+
+``obstacles`` are samples of the obstacles' future trajectories from any predictor, ``(O, n, K, 2)``
+Cartesian ``(x, y)`` on the planner's time grid (``K = config.num_steps``).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import time
+from dataclasses import dataclass, field
+from typing import Any
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+import frenet
+import solvers
+
+from .algorithm import CEMResult, Data, MMDOptConfig, build_problem, n_taylor_terms, run_cem
+from .baselines import COST_MODE, METHODS, ellipse_values, mmd_cost
+from .geometry import OBSTACLE_FOOTPRINT, circle_centres
+from .reduced_set import ReducedSet, select_reduced_sets
+from .surrogate import collision_free_count
+
+__all__ = ["Road", "Plan", "plan", "plan_frenet", "METHODS"]
+
+
+def _straight_path() -> frenet.ReferencePath:
+    return frenet.ReferencePath.straight(1000.0)
+
+
+@dataclass(frozen=True, eq=False)
+class Road:
+    """The road the ego drives on: reference path, lane bounds and kinematic limits (SI units).
+
+    path : :class:`frenet.ReferencePath` (default: straight along +x from the origin, 1 km, so
+        Frenet = Cartesian near it).
+    y_lb, y_ub : bounds of the ego's lateral offset in the path's Frenet frame (m); the reference
+        experiments use ±0.3 (lane keeping: speed changes only).
+    v_min, v_max : bounds of the longitudinal speed ṡ (m/s).
+    vy_max : bound of |ḋ| (m/s; ``inf`` = none).
+    ax_max, ay_max : bounds of |s̈|, |d̈| (m/s²).
+    """
+
+    path: frenet.ReferencePath = field(default_factory=_straight_path)
+    y_lb: float = -0.3
+    y_ub: float = 0.3
+    v_min: float = 0.0
+    v_max: float = 30.0
+    vy_max: float = float("inf")
+    ax_max: float = 6.0
+    ay_max: float = 4.0
+
+    def __post_init__(self) -> None:
+        if not isinstance(self.path, frenet.ReferencePath):
+            raise ValueError(f"Road.path must be a frenet.ReferencePath, got {type(self.path)!r}")
+        for name in ("y_lb", "y_ub", "v_min", "v_max", "vy_max", "ax_max", "ay_max"):
+            v = getattr(self, name)
+            try:
+                v = float(v)
+            except (TypeError, ValueError):
+                raise ValueError(f"Road.{name} must be a real number, got {v!r}") from None
+            if np.isnan(v):
+                raise ValueError(f"Road.{name} is NaN")
+            object.__setattr__(self, name, v)
+        if self.y_lb > self.y_ub:
+            raise ValueError(f"Road.y_lb = {self.y_lb} > y_ub = {self.y_ub}")
+        if self.v_min > self.v_max:
+            raise ValueError(f"Road.v_min = {self.v_min} > v_max = {self.v_max}")
+        for name in ("vy_max", "ax_max", "ay_max"):
+            if getattr(self, name) <= 0:
+                raise ValueError(f"Road.{name} must be > 0")
+
+    def bounds(self) -> frenet.ProjectionBounds:
+        """The projection's :class:`frenet.ProjectionBounds`."""
+        return frenet.ProjectionBounds(
+            y_lb=self.y_lb,
+            y_ub=self.y_ub,
+            vx_min=self.v_min,
+            vx_max=self.v_max,
+            vy_max=self.vy_max,
+            ax_max=self.ax_max,
+            ay_max=self.ay_max,
+        )
+
+
+@dataclass(frozen=True, eq=False)
+class Plan:
+    """A planned trajectory and how it was found.  Arrays are NumPy float64, ``(K,)``.
+
+    Cartesian: ``x, y, heading`` (rad), ``speed`` (m/s).  Frenet: ``s, d`` (m), ``vs, vd`` (m/s),
+    ``as_, ad`` (m/s²).  ``cost``: Algorithm 1's cost of the plan; ``cost_trace`` (N,): best-so-far
+    cost after each iteration (non-increasing); ``residual``: max constraint violation on the time
+    grid; ``mmd``: l_dist of the plan against the method's obstacle samples (config's kernel);
+    ``feasible``: ``residual ≤ config.res_tol``; ``fallback``/``status``: see :func:`plan`;
+    ``reduced_set``: the obstacle samples used by the cost (a :class:`ReducedSet` with leading
+    axis O; all n samples for "saa"/"scenario_all"); ``plan_time_s``: wall time of the call;
+    ``diagnostics``: timings, per-iteration traces, the behavioural input ``d``, collision term,
+    progress, residual groups, collision-free count against the planning samples.
+    """
+
+    x: np.ndarray
+    y: np.ndarray
+    heading: np.ndarray
+    speed: np.ndarray
+    s: np.ndarray
+    d: np.ndarray
+    vs: np.ndarray
+    vd: np.ndarray
+    as_: np.ndarray
+    ad: np.ndarray
+    t: np.ndarray
+    cost: float
+    cost_trace: np.ndarray
+    residual: float
+    mmd: float
+    feasible: bool
+    fallback: bool
+    status: str
+    method: str
+    backend: str
+    reduced_set: Any
+    plan_time_s: float
+    diagnostics: dict = field(repr=False, default_factory=dict)
+
+    @property
+    def xy(self) -> np.ndarray:
+        """(K, 2) Cartesian waypoints."""
+        return np.stack([self.x, self.y], axis=-1)
+
+    @property
+    def progress(self) -> float:
+        """Arc length travelled over the horizon (m)."""
+        return float(self.s[-1] - self.s[0])
+
+
+# ------------------------------------------------------------------------------------- validation
+def _check_common(ego, road, method, config, backend, key):
+    if not isinstance(ego, frenet.EgoState):
+        raise ValueError(f"ego must be a frenet.EgoState, got {type(ego).__name__}")
+    if not isinstance(road, Road):
+        raise ValueError(f"road must be an mmdopt.Road, got {type(road).__name__}")
+    if method not in METHODS:
+        raise ValueError(f"method must be one of {METHODS}, got {method!r}")
+    if not isinstance(config, MMDOptConfig):
+        raise ValueError(f"config must be an mmdopt.MMDOptConfig, got {type(config).__name__}")
+    if not isinstance(backend, str) or backend not in solvers.available_backends():
+        raise ValueError(
+            f"backend {backend!r} is not available; available: {solvers.available_backends()}"
+        )
+    try:
+        k = jnp.asarray(key)
+        ok = jnp.issubdtype(k.dtype, jax.dtypes.prng_key) or (
+            k.dtype == jnp.uint32 and k.shape == (2,)
+        )
+    except (TypeError, ValueError):
+        ok = False
+    if not ok:
+        raise ValueError("key must be a jax PRNG key (jax.random.PRNGKey(seed) or jax.random.key)")
+
+
+def _check_obstacles(obstacles, config: MMDOptConfig, method: str, name="obstacles"):
+    if obstacles is None:
+        raise ValueError(f"{name} must be an array (O, n, K, 2), got None")
+    try:
+        arr = np.asarray(obstacles, dtype=np.float64)
+    except (TypeError, ValueError):
+        raise ValueError(f"{name} must be a numeric array (O, n, K, 2)") from None
+    K = config.num_steps
+    if arr.ndim != 4 or arr.shape[-1] != 2:
+        raise ValueError(f"{name} must have shape (O, n, K, 2) = (O, n, {K}, 2), got {arr.shape}")
+    O, n, k, _ = arr.shape
+    if O == 0:
+        raise ValueError(
+            f"{name} has zero obstacles (shape {arr.shape}); pass at least one obstacle's samples"
+        )
+    if n == 0:
+        raise ValueError(f"{name} has zero samples per obstacle (shape {arr.shape})")
+    if k != K:
+        raise ValueError(
+            f"{name} has {k} time steps but config.num_steps = {K}: samples must be on the "
+            f"planner's time grid ({config.horizon} s, {K} points)"
+        )
+    if not np.all(np.isfinite(arr)):
+        raise ValueError(f"{name} contains NaN or inf")
+    m = config.reduced_set_size
+    if COST_MODE[method] != "saa" and method in ("mmd", "random", "degroot") and n < m:
+        raise ValueError(
+            f"{name} has n = {n} samples per obstacle, fewer than config.reduced_set_size = {m}"
+        )
+    return arr
+
+
+# ------------------------------------------------------------------------------------------ API
+def plan(
+    ego: frenet.EgoState,
+    road: Road,
+    obstacles,
+    *,
+    method: str = "mmd",
+    config: MMDOptConfig | None = None,
+    backend: str = "admm",
+    key=None,
+    **backend_settings,
+) -> Plan:
+    """Plan with Algorithm 1 against Cartesian obstacle-trajectory samples.
+
+    Parameters
+    ----------
+    ego : :class:`frenet.EgoState` in the Frenet frame of ``road.path``
+    road : :class:`Road`
+    obstacles : (O, n, K, 2) Cartesian ``(x, y)`` samples of each obstacle's future (m)
+    method : "mmd" (MMD-Opt) | "degroot" | "random" | "saa" | "scenario_all"
+        (:mod:`mmdopt.baselines`)
+    config : :class:`MMDOptConfig` (default: the paper's sizes and the tuned cost)
+    backend : projection backend; "admm" runs the whole algorithm in one jit, any other
+        :mod:`solvers` backend projects on the host each iteration (``backend_settings`` go to it)
+    key : jax PRNG key (default ``PRNGKey(0)``); the same key gives the same plan
+
+    Returns
+    -------
+    :class:`Plan`.  Never raises for an infeasible situation: if the initial state violates the
+    bounds (e.g. speed above ``v_max``) a braking profile is returned, and if no sample satisfies
+    the constraints the least-violating one, both with ``fallback=True`` and a ``status`` that says
+    why.
+
+    Raises
+    ------
+    ValueError naming the argument for bad inputs (wrong shapes or horizon, NaN, zero obstacles,
+    fewer samples than the reduced-set size, unknown method or backend).
+    """
+    t0 = time.perf_counter()
+    config = MMDOptConfig() if config is None else config
+    key = jax.random.PRNGKey(0) if key is None else key
+    _check_common(ego, road, method, config, backend, key)
+    arr = _check_obstacles(obstacles, config, method)
+    t1 = time.perf_counter()
+    s, d = road.path.to_frenet(arr[..., 0], arr[..., 1])
+    obs_fr = np.stack([s, d], axis=-1)
+    t_conv = time.perf_counter() - t1
+    return _plan_impl(
+        ego,
+        road,
+        obs_fr,
+        method,
+        config,
+        backend,
+        key,
+        backend_settings,
+        t0,
+        {"frenet_conversion_s": t_conv},
+    )
+
+
+def plan_frenet(
+    ego: frenet.EgoState,
+    road: Road,
+    obstacles_frenet,
+    *,
+    method: str = "mmd",
+    config: MMDOptConfig | None = None,
+    backend: str = "admm",
+    key=None,
+    **backend_settings,
+) -> Plan:
+    """:func:`plan` with obstacle samples already in the Frenet frame of ``road.path``:
+    ``obstacles_frenet`` (O, n, K, 2) as ``(s, d)``.  On a straight path starting at the origin
+    along +x (the default :class:`Road`) this is the same as Cartesian."""
+    t0 = time.perf_counter()
+    config = MMDOptConfig() if config is None else config
+    key = jax.random.PRNGKey(0) if key is None else key
+    _check_common(ego, road, method, config, backend, key)
+    arr = _check_obstacles(obstacles_frenet, config, method, name="obstacles_frenet")
+    return _plan_impl(
+        ego,
+        road,
+        arr,
+        method,
+        config,
+        backend,
+        key,
+        backend_settings,
+        t0,
+        {"frenet_conversion_s": 0.0},
+    )
+
+
+def _all_samples_set(n: int, O: int) -> ReducedSet:
+    idx = jnp.broadcast_to(jnp.arange(n, dtype=jnp.int32), (O, n))
+    w = jnp.full((O, n), 1.0 / n)
+    return ReducedSet(
+        indices=idx,
+        weights=w,
+        alpha=w,
+        mmd2=jnp.zeros((O,)),
+        bandwidth=jnp.full((O,), jnp.nan),
+        method="all",
+    )
+
+
+def _data(ego, road, config, centres, weights, mask) -> Data:
+    S = config.num_segments
+    v0 = float(np.clip(ego.vs, road.v_min, road.v_max))
+    y0 = float(np.clip(ego.d, road.y_lb, road.y_ub))
+    half = 0.5 * (road.y_ub - road.y_lb)
+    lat_std = float(config.lateral_std_scale) * (half if np.isfinite(half) else 1.75)
+    lat_std = max(lat_std, 1e-3)
+    mu0 = np.array([v0] * S + [y0] * S)
+    cov0 = np.diag([float(config.speed_std0) ** 2] * S + [lat_std**2] * S)
+    lo = np.array([road.v_min] * S + [road.y_lb] * S)
+    hi = np.array([road.v_max] * S + [road.y_ub] * S)
+    vlo = road.v_min if np.isfinite(road.v_min) else 0.0
+    ladder = np.linspace(vlo, max(v0, vlo), config.n_brake)
+    brake = np.concatenate([np.repeat(ladder[:, None], S, 1), np.full((config.n_brake, S), y0)], 1)
+    return Data(
+        state=jnp.asarray(ego.as_array()),
+        mu0=jnp.asarray(mu0),
+        cov0=jnp.asarray(cov0),
+        lo=jnp.asarray(lo),
+        hi=jnp.asarray(hi),
+        brake=jnp.asarray(brake),
+        centres=jnp.asarray(centres),
+        weights=jnp.asarray(weights),
+        mask=jnp.asarray(mask),
+    )
+
+
+def _plan_impl(ego, road, obs_fr, method, config, backend, key, backend_settings, t0, diag):
+    # plan in arc length relative to the ego (float32 keeps ~1e-6 relative precision: absolute
+    # arc lengths of kilometres would cost millimetres); shifted back in _assemble
+    s_off = float(ego.s)
+    ego = dataclasses.replace(ego, s=0.0)
+    obs_fr = np.array(obs_fr, dtype=np.float64, copy=True)
+    obs_fr[..., 0] -= s_off
+    O, n, K, _ = obs_fr.shape
+    diag["s_offset"] = s_off
+    prob = build_problem(config, road.bounds())
+    k_rs, k_cem = jax.random.split(key)
+    # --- obstacle samples used by the cost
+    t1 = time.perf_counter()
+    m = config.reduced_set_size
+    if method in ("mmd", "random", "degroot"):
+        ego_guess = None
+        if method == "degroot":
+            t = prob.t()
+            ego_guess = np.stack([ego.s + ego.vs * t, np.full(K, ego.d)], axis=-1)
+        rs = select_reduced_sets(k_rs, obs_fr, m, method, config.reduced_set, ego_guess)
+        sel = np.take_along_axis(obs_fr, np.asarray(rs.indices)[:, :, None, None], axis=1)
+    else:
+        rs = _all_samples_set(n, O)
+        sel = obs_fr
+    rs = jax.block_until_ready(rs)
+    diag["reduced_set_s"] = time.perf_counter() - t1
+    centres = circle_centres(jnp.asarray(sel), OBSTACLE_FOOTPRINT)  # (O, J, C, K, 2)
+    weights = np.asarray(rs.weights, np.float64)
+    mask = np.ones(weights.shape, bool)
+    data = _data(ego, road, config, centres, weights, mask)
+
+    # --- infeasible initial state: braking profile, flagged
+    try:
+        prob.problem.check_state(ego)
+    except ValueError as exc:
+        return _braking_fallback(
+            ego, road, config, prob, method, backend, rs, t0, diag, f"fallback: {exc}"
+        )
+
+    t2 = time.perf_counter()
+    res: CEMResult = run_cem(config, prob, k_cem, data, method, backend, **backend_settings)
+    res = jax.block_until_ready(res)
+    diag["cem_s"] = time.perf_counter() - t2
+    best, lv = res.best, res.least_violating
+    fallback = False
+    status = "ok"
+    chosen = best
+    if not float(lv.res) <= float(config.res_tol):
+        fallback = True
+        chosen = lv
+        status = (
+            f"fallback: no sample met the constraints (least residual {float(lv.res):.3g} "
+            f"> res_tol {float(config.res_tol):g}); least-violating plan returned"
+        )
+    cx = np.asarray(chosen.cx, np.float64)
+    cy = np.asarray(chosen.cy, np.float64)
+    trace = np.asarray(res.cost_trace, np.float64)
+    return _assemble(
+        ego,
+        road,
+        config,
+        prob,
+        method,
+        backend,
+        rs,
+        cx,
+        cy,
+        float(chosen.cost),
+        trace,
+        fallback,
+        status,
+        t0,
+        diag,
+        res,
+        centres,
+        weights,
+        obs_fr,
+        np.asarray(chosen.d),
+        int(chosen.iteration),
+    )
+
+
+def _braking_fallback(ego, road, config, prob, method, backend, rs, t0, diag, status):
+    S = config.num_segments
+    v = float(np.clip(ego.vs, max(road.v_min, 0.0), road.v_max))
+    y = float(np.clip(ego.d, road.y_lb, road.y_ub))
+    dvec = np.array([[v] * S + [y] * S])
+    cx, cy = prob.planner.closed_form(dvec, ego)
+    cx, cy = np.asarray(cx)[0], np.asarray(cy)[0]
+    trace = np.full(config.iterations, np.nan)
+    return _assemble(
+        ego,
+        road,
+        config,
+        prob,
+        method,
+        backend,
+        rs,
+        cx,
+        cy,
+        float("nan"),
+        trace,
+        True,
+        status,
+        t0,
+        diag,
+        None,
+        None,
+        None,
+        None,
+        dvec[0],
+        -1,
+    )
+
+
+def _assemble(
+    ego,
+    road,
+    config,
+    prob,
+    method,
+    backend,
+    rs,
+    cx,
+    cy,
+    cost,
+    trace,
+    fallback,
+    status,
+    t0,
+    diag,
+    res,
+    centres,
+    weights,
+    obs_fr,
+    dvec,
+    best_iter,
+) -> Plan:
+    B = prob.basis
+    s, vs, as_ = B.P @ cx, B.Pdot @ cx, B.Pddot @ cx
+    d, vd, ad = B.P @ cy, B.Pdot @ cy, B.Pddot @ cy
+    residual, groups = prob.grid_problem.residuals(cx, cy, ego.as_array())  # ego at s = 0
+    s_off = float(diag.get("s_offset", 0.0))
+    x, y, heading, speed = road.path.trajectory_to_cartesian(s + s_off, d, vs, vd)
+    residual = float(residual[0])
+    feasible = residual <= float(config.res_tol) + 1e-9
+    if not fallback and not feasible:
+        status = (
+            f"ok, but the returned plan's grid residual {residual:.3g} exceeds res_tol "
+            f"{float(config.res_tol):g}"
+        )
+    mmd_val = float("nan")
+    cf_plan = None
+    if centres is not None:
+        f = ellipse_values(
+            jnp.asarray(s[None]),
+            jnp.asarray(d[None]),
+            centres,
+            config.a + config.margin_long,
+            config.b + config.margin_lat,
+        )
+        mmd_val = float(
+            mmd_cost(
+                f, jnp.asarray(weights), config.bandwidth, config.f_scale, n_taylor_terms(config)
+            )[0]
+        )
+        cnt = collision_free_count(np.stack([s, d], -1), obs_fr, a=config.a, b=config.b)
+        cf_plan = np.asarray(cnt.per_obstacle)
+    s = s + s_off
+    diag = dict(diag)
+    diag.update(
+        behavioural_input=np.asarray(dvec, np.float64),
+        best_iteration=best_iter,
+        residual_groups={k: float(v[0]) for k, v in groups.items()},
+        progress_m=float(s[-1] - s[0]),
+        mean_speed=float(np.mean(vs)),
+        j_speed=float(np.mean((vs - float(config.v_des)) ** 2)),
+        j_accel=float(np.mean(as_**2 + ad**2)),
+        collision_free_planning=cf_plan,
+        n_planning_samples=None if obs_fr is None else int(obs_fr.shape[1]),
+    )
+    if res is not None:
+        diag.update(
+            iteration_min_cost=np.asarray(res.iter_min_cost, np.float64),
+            iteration_mean_elite_cost=np.asarray(res.iter_mean_elite_cost, np.float64),
+            n_feasible=np.asarray(res.n_feasible),
+            collision_term=float(res.best.coll)
+            if not fallback
+            else float(res.least_violating.coll),
+            final_mu=np.asarray(res.mu, np.float64),
+            final_cov=np.asarray(res.cov, np.float64),
+        )
+    return Plan(
+        x=x,
+        y=y,
+        heading=heading,
+        speed=speed,
+        s=s,
+        d=d,
+        vs=vs,
+        vd=vd,
+        as_=as_,
+        ad=ad,
+        t=prob.t(),
+        cost=cost,
+        cost_trace=trace,
+        residual=residual,
+        mmd=mmd_val,
+        feasible=bool(feasible),
+        fallback=bool(fallback),
+        status=status,
+        method=method,
+        backend=backend,
+        reduced_set=rs,
+        plan_time_s=time.perf_counter() - t0,
+        diagnostics=diag,
+    )

@@ -1,0 +1,150 @@
+"""Algorithm 1 (mmdopt.plan): behaviour on small scenes, determinism, backends, fallbacks, inputs.
+
+One small configuration (200 samples, n_cem 40, n_e 15, N = 5) is shared by every test so that the
+jitted solver compiles once per cost mode.
+"""
+
+from __future__ import annotations
+
+import jax
+import numpy as np
+import pytest
+
+import frenet
+import mmdopt
+from mmdopt.surrogate import collision_free_count
+
+K = 100
+T = np.linspace(0.0, 15.0, K)
+SMALL = mmdopt.MMDOptConfig(n_samples=200, n_cem=40, n_elite=15, iterations=5, n_brake=5)
+EGO = frenet.EgoState(s=0.0, d=0.0, vs=10.0)
+
+
+def _obstacle(x0=40.0, v=4.0, y=0.0, n=20, jitter=0.0, seed=0):
+    """n samples of one obstacle driving along the ego lane at speed v (optionally jittered)."""
+    rng = np.random.default_rng(seed)
+    vs = v + jitter * rng.standard_normal(n)
+    x = x0 + vs[:, None] * T[None]
+    return np.stack([x, np.full_like(x, y)], axis=-1)[None]  # (1, n, K, 2)
+
+
+@pytest.fixture(scope="module")
+def road():
+    return mmdopt.Road()
+
+
+@pytest.fixture(scope="module")
+def certain_plan(road):
+    obs = _obstacle()  # a single-mode (certain) obstacle ahead, slower than the ego
+    return obs, mmdopt.plan(EGO, road, obs, config=SMALL, key=jax.random.PRNGKey(0))
+
+
+def test_certain_obstacle_is_avoided_while_making_progress(certain_plan):
+    obs, p = certain_plan
+    assert p.feasible and not p.fallback and p.status == "ok"
+    counts = collision_free_count(p.xy, obs)
+    assert int(counts.per_obstacle[0]) == obs.shape[1]  # clear of every sample
+    # it follows the obstacle instead of stopping: the obstacle covers 60 m in 15 s
+    assert p.progress > 40.0
+    assert p.residual <= SMALL.res_tol
+    assert p.x.shape == p.y.shape == p.speed.shape == p.vs.shape == (K,)
+    assert p.cost_trace.shape == (SMALL.iterations,)
+
+
+def test_plan_starts_at_the_ego_state(certain_plan):
+    _, p = certain_plan
+    assert abs(p.s[0] - EGO.s) < 1e-4 and abs(p.d[0] - EGO.d) < 1e-4
+    assert abs(p.vs[0] - EGO.vs) < 1e-4
+    assert np.allclose(p.x, p.s) and np.allclose(p.y, p.d)  # straight road: Frenet = Cartesian
+
+
+def test_cost_trace_is_best_so_far_and_returned_plan_has_that_cost(certain_plan):
+    _, p = certain_plan
+    assert np.all(np.diff(p.cost_trace) <= 1e-9)
+    assert p.cost == pytest.approx(p.cost_trace[-1])
+    it_min = p.diagnostics["iteration_min_cost"]
+    assert p.cost == pytest.approx(np.min(it_min))
+
+
+def test_same_key_same_plan(road, certain_plan):
+    obs, p = certain_plan
+    q = mmdopt.plan(EGO, road, obs, config=SMALL, key=jax.random.PRNGKey(0))
+    np.testing.assert_array_equal(p.x, q.x)
+    assert p.cost == q.cost
+    r = mmdopt.plan(EGO, road, obs, config=SMALL, key=jax.random.PRNGKey(1))
+    assert not np.array_equal(p.x, r.x)
+
+
+def test_frenet_entry_point_matches_on_a_straight_road(road, certain_plan):
+    obs, p = certain_plan
+    q = mmdopt.plan_frenet(EGO, road, obs, config=SMALL, key=jax.random.PRNGKey(0))
+    np.testing.assert_allclose(p.x, q.x, atol=1e-6)
+
+
+def test_backend_swap_gives_equal_cost(road):
+    # One iteration with the same key: the same behavioural samples, so only the projection
+    # differs.  ADMM runs 300 iterations here (the default 25 trades accuracy for speed).
+    cfg = SMALL.replace(iterations=1, admm_iters=300)
+    obs = _obstacle()
+    pa = mmdopt.plan(EGO, road, obs, config=cfg, backend="admm", key=jax.random.PRNGKey(3))
+    pc = mmdopt.plan(EGO, road, obs, config=cfg, backend="clarabel", key=jax.random.PRNGKey(3))
+    # tolerance: 1 % of the cost + 0.05 (the cost is O(10) m²/s²; ADMM's projection is ~1e-3
+    # from Clarabel's)
+    assert pa.cost == pytest.approx(pc.cost, rel=0.01, abs=0.05)
+    assert pa.feasible and pc.feasible
+
+
+def test_initial_speed_above_vmax_gives_flagged_braking_fallback(road):
+    ego = frenet.EgoState(vs=35.0)
+    p = mmdopt.plan(ego, road, _obstacle(), config=SMALL)
+    assert p.fallback and not p.feasible
+    assert "initial speed" in p.status
+    assert p.vs[-1] < 31.0  # brakes towards v_max
+
+
+def test_no_feasible_sample_returns_least_violating_plan():
+    # ḋ₀ = 1 m/s inside a ±0.3 m lane with |d̈| ≤ 0.05: nothing can stop in the lane
+    road = mmdopt.Road(ay_max=0.05)
+    ego = frenet.EgoState(vs=10.0, vd=1.0)
+    p = mmdopt.plan(ego, road, _obstacle(), config=SMALL)
+    assert p.fallback and not p.feasible
+    assert "no sample met the constraints" in p.status
+    assert np.all(np.isfinite(p.x))
+
+
+@pytest.mark.parametrize(
+    "obstacles, match",
+    [
+        (np.full((1, 20, K, 2), np.nan), "NaN"),
+        (np.zeros((0, 20, K, 2)), "zero obstacles"),
+        (np.zeros((1, 20, 50, 2)), "time steps"),
+        (np.zeros((1, 5, K, 2)), "reduced_set_size"),
+        (np.zeros((20, K, 2)), "shape"),
+    ],
+)
+def test_bad_obstacles_raise(road, obstacles, match):
+    with pytest.raises(ValueError, match=match):
+        mmdopt.plan(EGO, road, obstacles, config=SMALL)
+
+
+def test_bad_arguments_raise(road):
+    obs = _obstacle()
+    with pytest.raises(ValueError, match="method"):
+        mmdopt.plan(EGO, road, obs, method="nope", config=SMALL)
+    with pytest.raises(ValueError, match="backend"):
+        mmdopt.plan(EGO, road, obs, backend="nope", config=SMALL)
+    with pytest.raises(ValueError, match="ego"):
+        mmdopt.plan((0, 0, 10, 0, 0, 0), road, obs, config=SMALL)
+    with pytest.raises(ValueError, match="key"):
+        mmdopt.plan(EGO, road, obs, config=SMALL, key=3)
+    with pytest.raises(ValueError, match="n_elite"):
+        mmdopt.MMDOptConfig(n_elite=200, n_cem=150)
+    with pytest.raises(ValueError, match="y_lb"):
+        mmdopt.Road(y_lb=1.0, y_ub=0.0)
+
+
+def test_config_is_a_pytree_with_static_sizes():
+    leaves = jax.tree_util.tree_leaves(SMALL)
+    assert SMALL.gamma in leaves and SMALL.w_mmd in leaves
+    assert all(not isinstance(v, str) for v in leaves)
+    assert SMALL.replace(w_mmd=5.0).w_mmd == 5.0

@@ -1,0 +1,71 @@
+"""Baselines: every method runs the same optimiser and returns a plan; the collision terms."""
+
+from __future__ import annotations
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+
+import mmdopt
+from mmdopt import baselines
+from mmdopt.kernels import mmd2_to_dirac
+
+from .test_algorithm import EGO, SMALL, _obstacle
+
+
+@pytest.fixture(scope="module")
+def scene():
+    # a two-mode obstacle: 70 % change to the left lane, 30 % stay ahead in the ego lane
+    a = _obstacle(x0=40.0, v=5.0, n=21, jitter=1.0, seed=1)
+    b = _obstacle(x0=40.0, v=5.0, n=9, jitter=1.0, seed=2)
+    lat = 3.5 * (1.0 - np.exp(-np.linspace(0.0, 15.0, 100) / 1.5))
+    a[..., 1] = lat
+    return np.concatenate([a, b], axis=1)
+
+
+@pytest.mark.parametrize("method", mmdopt.PLAN_METHODS)
+def test_every_method_returns_a_feasible_plan(scene, method):
+    p = mmdopt.plan(EGO, mmdopt.Road(), scene, method=method, config=SMALL,
+                    key=jax.random.PRNGKey(0))
+    assert p.method == method
+    assert np.isfinite(p.cost) and p.feasible and not p.fallback
+    J = SMALL.reduced_set_size if method in ("mmd", "random", "degroot") else scene.shape[1]
+    assert np.shape(p.reduced_set.indices) == (1, J)
+    np.testing.assert_allclose(np.sum(p.reduced_set.weights, axis=1), 1.0, rtol=1e-6)
+    assert p.progress > 20.0
+
+
+def test_degroot_picks_the_samples_in_conflict_with_the_straight_line(scene):
+    p = mmdopt.plan(EGO, mmdopt.Road(), scene, method="degroot", config=SMALL)
+    # the 9 "stay" samples (indices 21..29) conflict with the constant-velocity guess
+    assert set(range(21, 30)) <= set(np.asarray(p.reduced_set.indices[0]).tolist())
+
+
+def test_mmd_cost_matches_the_pairwise_kernel_formula():
+    rng = np.random.default_rng(0)
+    f = jnp.asarray(rng.uniform(-1.0, 1.0, size=(4, 2, 6, 3, 7)))
+    w = jnp.asarray(rng.dirichlet(np.ones(6), size=2))
+    for bw, sc in ((0.5, 1.0), (30.0, 1.0), (0.3, 0.5)):
+        got = baselines.mmd_cost(f, w, bw, sc, baselines.taylor_terms(sc / bw))
+        fb = jnp.maximum(jnp.max(f, axis=3), 0.0) * sc  # (B, O, J, K)
+        a = jnp.moveaxis(fb, 2, -1)  # (B, O, K, J)
+        ref = jnp.sum(mmd2_to_dirac(a, jnp.broadcast_to(w[None, :, None], a.shape), bw),
+                      axis=(1, 2))
+        np.testing.assert_allclose(got, ref, rtol=1e-7, atol=1e-14)
+
+
+def test_collision_terms_vanish_far_from_every_sample():
+    f = -jnp.ones((3, 1, 5, 3, 10))
+    mask = jnp.ones((1, 5), bool)
+    assert np.all(np.asarray(baselines.scenario_cost(f, mask)) == 0.0)
+    assert np.all(np.asarray(baselines.mmd_cost(f, jnp.full((1, 5), 0.2), 0.5, 1.0, 21)) == 0.0)
+    pen, pi = baselines.saa_cost(f, mask, 0.02, 0.05)
+    assert np.all(np.asarray(pen) == 0.0) and np.all(np.asarray(pi) < 1e-6)
+
+
+def test_saa_counts_the_fraction_of_colliding_samples():
+    f = jnp.concatenate([jnp.full((1, 1, 3, 1, 4), 0.5), -jnp.ones((1, 1, 7, 1, 4))], axis=2)
+    pen, pi = baselines.saa_cost(f, jnp.ones((1, 10), bool), 0.1, 0.05)
+    assert float(pi[0, 0]) == pytest.approx(0.3, abs=1e-3)
+    assert float(pen[0]) == pytest.approx((0.3 - 0.1) / 0.1, abs=1e-2)
