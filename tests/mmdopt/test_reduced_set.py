@@ -160,14 +160,22 @@ def test_same_key_gives_the_same_reduced_set_and_different_keys_may_differ():
     assert any(set(np.asarray(o).tolist()) != set(np.asarray(a.indices).tolist()) for o in others)
 
 
-def test_many_obstacles_at_once_and_inside_jit():
+def test_many_obstacles_at_once_match_one_at_a_time():
     X = np.stack([two_intent(5)[0], two_intent(6)[0] + 10.0])
     rs = select_reduced_sets(jax.random.key(0), X, 10, "herding")
     assert rs.indices.shape == (2, 10) and rs.weights.shape == (2, 10)
     np.testing.assert_allclose(np.asarray(rs.weights.sum(-1)), 1.0)
-    f = jax.jit(lambda k, s: select_reduced_set_unchecked(k, s, 10, "herding").weights)
-    np.testing.assert_allclose(
-        np.asarray(f(jax.random.key(0), jnp.asarray(X[0]))), np.asarray(rs.weights[0]), atol=1e-12
+    one = select_reduced_set(jax.random.key(0), X[1], 10, "herding")  # herding is deterministic
+    np.testing.assert_array_equal(np.asarray(rs.indices[1]), np.asarray(one.indices))
+    np.testing.assert_allclose(np.asarray(rs.weights[1]), np.asarray(one.weights), atol=1e-9)
+
+
+def test_core_is_traceable_inside_jit():
+    f = jax.jit(lambda k, s: select_reduced_set_unchecked(k, s, 10, "herding").indices)
+    X = two_intent(5)[0]
+    np.testing.assert_array_equal(
+        np.asarray(f(jax.random.key(0), jnp.asarray(X))),
+        np.asarray(select_reduced_set(jax.random.key(0), X, 10, "herding").indices),
     )
 
 

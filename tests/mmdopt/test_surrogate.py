@@ -154,7 +154,10 @@ def test_a_longer_ego_footprint_collides_earlier():
 
 def test_reduced_obstacles_from_reduced_sets():
     samples = np.stack([_obstacle(m=20, seed=4), _obstacle(m=20, lateral=3.5, seed=5)])
-    rs = mmdopt.select_reduced_sets(jax.random.key(0), samples, 4, "herding")
+    idx = jnp.array([[3, 0, 7, 11], [5, 19, 2, 8]])
+    rs = mmdopt.ReducedSet(
+        idx, jnp.full((2, 4), 0.25), jnp.zeros((2, 20)), jnp.zeros(2), jnp.ones(2), "herding"
+    )
     ro = reduced_obstacles(samples, rs)
     assert ro.centres.shape == (2, 4, 3, K, 2) and ro.weights.shape == (2, 4)
     np.testing.assert_allclose(
