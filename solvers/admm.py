@@ -139,6 +139,10 @@ class ADMMSettings:
     dtype : iteration dtype, ``"float32"`` or ``"float64"``.
     polish, polish_delta, polish_refine_iter, polish_passes : float64 active-set polish; the
         regularisation ``δ``, iterative-refinement steps, active-set repair passes.
+    stage_iter : ``None`` (one stage of ``max_iter``), or run ADMM in stages of this many
+        iterations: after each stage the polish is tried, the QPs it accepts leave the batch and
+        the rest continue (warm-started with their rho) in a smaller batch padded to a power of
+        two.  Saves the dense batch's work on QPs already solved; each new batch size compiles.
     fallback : ``None`` or ``"clarabel"``: re-solve QPs still not solved (not certified
         infeasible) with Clarabel; counted in ``extras["fallback_count"]``.
     """
@@ -161,7 +165,8 @@ class ADMMSettings:
     polish: bool = True
     polish_delta: float = 1e-6
     polish_refine_iter: int = 3
-    polish_passes: int = 10
+    polish_passes: int = 25
+    stage_iter: int | None = None
     fallback: str | None = None
 
     def __post_init__(self) -> None:
@@ -240,7 +245,7 @@ class ADMMFactor:
 
 
 def rows_from_bounds(l: np.ndarray, u: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """``(eq_rows, free_rows)`` masks: equality in every QP, and unbounded on both sides in every QP.
+    """``(eq_rows, free_rows)``: rows equal in every QP, rows unbounded on both sides in every QP.
 
     ``l, u`` are ``(m,)`` or ``(B, m)``.
     """
@@ -274,6 +279,15 @@ def _ruiz(P: np.ndarray, A: np.ndarray, iters: int) -> tuple[np.ndarray, np.ndar
         Ps *= g
         c *= g
     return D, E, c
+
+
+def _spd_inverse(K: np.ndarray) -> np.ndarray:
+    """Inverse of a symmetric positive definite matrix via Cholesky (LU-based ``inv`` is far
+    slower here); falls back to ``inv`` when Cholesky fails."""
+    try:
+        return sla.cho_solve(sla.cho_factor(K, lower=True), np.eye(K.shape[0]))
+    except np.linalg.LinAlgError:
+        return np.linalg.inv(K)
 
 
 def admm_factor(
@@ -310,7 +324,7 @@ def admm_factor(
     for r, rho in enumerate(ladder):
         R = np.where(free, s.rho_free, rho * Rbase)
         K = Ps + s.sigma * np.eye(n) + As.T @ (R[:, None] * As)
-        Ki = np.linalg.inv(K)
+        Ki = _spd_inverse(K)
         Kinv[r] = 0.5 * (Ki + Ki.T)
     dt = np.dtype(s.dtype)
     return ADMMFactor(
@@ -347,11 +361,13 @@ def admm_iterate(
     x0: Any = None,
     y0: Any = None,
     iters: int | None = None,
+    rho0: Any = None,
 ) -> ADMMState:
     """Run batched ADMM (no polish) on unscaled ``q (B, n), l (B, m), u (B, m)``; jittable.
 
     ``iters`` (static; default ``settings.max_iter``) is rounded up to a multiple of
-    ``check_every``.  Returns an :class:`ADMMState`.
+    ``check_every``.  ``rho0`` (scalar or ``(B,)``, optional) starts each QP on the ladder rung
+    nearest to it (default: ``settings.rho``).  Returns an :class:`ADMMState`.
     """
     s = factor.settings
     dt = factor.P.dtype
@@ -380,8 +396,13 @@ def admm_iterate(
     else:
         ys = c * jnp.atleast_2d(jnp.asarray(y0, dt)) * Einv
     zs = jnp.clip(xs @ Ab.T, lb, ub)
-    rung0 = int(np.argmin(np.abs(np.log(np.asarray(s.rho_ladder)) - np.log(s.rho))))
-    rung = jnp.full((B,), rung0, jnp.int32)
+    if rho0 is None:
+        rung0 = int(np.argmin(np.abs(np.log(np.asarray(s.rho_ladder)) - np.log(s.rho))))
+        rung = jnp.full((B,), rung0, jnp.int32)
+    else:  # per-QP start (e.g. the rho a previous run ended with): the nearest rung
+        lr = jnp.log(jnp.broadcast_to(jnp.asarray(rho0, dt), (B,)))
+        rung = jnp.argmin(jnp.abs(lr[:, None] - jnp.log(ladder)[None, :]), axis=-1)
+        rung = rung.astype(jnp.int32)
 
     def row_rho(rung):
         rho = ladder[rung]
@@ -500,6 +521,12 @@ def admm_iterate(
 _admm_iterate_jit = jax.jit(admm_iterate, static_argnames=("iters",))
 
 
+def _flops(n: int, m: int, B: int, iters: int, rung_matmuls: int, check_every: int) -> float:
+    """Matmul FLOPs of one :func:`admm_iterate` call on a dense batch of ``B``."""
+    checks = (iters // check_every) * B * (8.0 * m * n + 4.0 * n * n)
+    return 4.0 * m * n * B * iters + 2.0 * n * n * B * rung_matmuls + checks
+
+
 def flops_per_iteration(n: int, m: int, rungs_used: float = 1.0) -> float:
     """Floating-point operations of one ADMM iteration for one QP (matmuls only).
 
@@ -525,7 +552,7 @@ def _polish_data(P: np.ndarray, A: np.ndarray, s: ADMMSettings, D, E, c) -> _Pol
     Ps = c * D[:, None] * P * D[None, :]
     As = E[:, None] * A * D[None, :]
     H = Ps + s.polish_delta * np.eye(P.shape[0])
-    Hinv = np.linalg.inv(H)
+    Hinv = _spd_inverse(H)
     Hinv = 0.5 * (Hinv + Hinv.T)
     S = As @ Hinv @ As.T
     return _PolishData(Ps, As, Hinv, 0.5 * (S + S.T), D, E, c)
@@ -576,7 +603,9 @@ def _reduced_kkt(pd: _PolishData, qs, low, upp, ls, us, s: ADMMSettings, x0=None
 
     Each refinement step is a proximal-point step on the exact reduced KKT system; started from
     the ADMM iterate ``(x0, y0)`` it converges to the KKT point nearest to it, which keeps the
-    multipliers of degenerate active sets close to ADMM's (sign-correct) ones.
+    multipliers of degenerate active sets close to ADMM's (sign-correct) ones.  NumPy float64:
+    batched Cholesky of the gathered Schur complements, batched triangular solves.  (A JAX x64
+    version of this was measured slower on CPU: XLA's batched triangular solves and scatters.)
     """
     B, m = low.shape
     n = pd.P.shape[0]
@@ -603,7 +632,7 @@ def _reduced_kkt(pd: _PolishData, qs, low, upp, ls, us, s: ADMMSettings, x0=None
         Lc, bad = _batched_cholesky(M)
         rows = np.arange(nb)[:, None]
 
-        def solve(r1, r2):
+        def solve(r1, r2, Lc=Lc, order=order, mask=mask, rows=rows, nb=nb):
             t = r1 @ pd.Hinv
             g = np.take_along_axis(t @ pd.A.T, order, axis=1)
             dy = _cho_solve(Lc, np.where(mask, g - r2, 0.0))
@@ -773,44 +802,80 @@ class ADMMBackend(Backend):
         eq, free = rows_from_bounds(l, u)
         factor, pd = self._factor(P, A, eq, free, s, s.polish)
         t_factor = time.perf_counter() - t0
-        x0 = y0 = None
+        B, n, m = len(batch), batch.n, batch.m
+        x = np.zeros((B, n))
+        y = np.zeros((B, m))
         if warm_start is not None:
-            x0 = np.nan_to_num(np.asarray(warm_start.x, float), nan=0.0, posinf=0.0, neginf=0.0)
-            y0 = np.nan_to_num(np.asarray(warm_start.y, float), nan=0.0, posinf=0.0, neginf=0.0)
-        t1 = time.perf_counter()
-        st = _admm_iterate_jit(factor, q, l, u, x0, y0, iters=s.max_iter)
-        st = jax.tree_util.tree_map(np.asarray, st)
-        t_iter = time.perf_counter() - t1
-        x = st.x.astype(np.float64)
-        y = st.y.astype(np.float64)
-        z = st.z.astype(np.float64)
-        status = st.status.astype(np.int32).copy()
-        # float64 re-check of what the iteration dtype declared solved
-        ok64, prim, dual, _, _ = _termination(P, A, q, l, u, x, y, s)
-        status[(status == _SOLVED) & ~ok64] = int(Status.SOLVED_INACCURATE)
+            x = np.nan_to_num(np.asarray(warm_start.x, float), nan=0.0, posinf=0.0, neginf=0.0)
+            y = np.nan_to_num(np.asarray(warm_start.y, float), nan=0.0, posinf=0.0, neginf=0.0)
+        z = np.zeros((B, m))
+        rho = np.full(B, s.rho)
+        status = np.full(B, _MAX_ITER, np.int32)
+        admm_status = status.copy()
+        iters = np.zeros(B, np.int64)
+        polished = np.zeros(B, bool)
+        stage = s.max_iter if s.stage_iter is None else max(s.check_every, int(s.stage_iter))
+        todo = np.arange(B)
+        done_iter = 0
+        t_iter = t_pol = flops = 0.0
+        rung_mm = iters_run = attempted = 0
+        first = True
+        while todo.size and (first or done_iter < s.max_iter):
+            first = False
+            k = min(stage, s.max_iter - done_iter)
+            Bs = todo.size if todo.size == B else min(B, 1 << (todo.size - 1).bit_length())
+            sub = np.concatenate([todo, np.repeat(todo[:1], Bs - todo.size)])  # padded
+            t1 = time.perf_counter()
+            st = _admm_iterate_jit(factor, q[sub], l[sub], u[sub], x[sub], y[sub], iters=k,
+                                   rho0=rho[sub])
+            st = jax.tree_util.tree_map(np.asarray, st)
+            t_iter += time.perf_counter() - t1
+            r = slice(0, todo.size)
+            x[todo] = st.x[r]
+            y[todo] = st.y[r]
+            z[todo] = st.z[r]
+            rho[todo] = st.rho[r]
+            iters[todo] += st.iterations[r]
+            stt = st.status[r].astype(np.int32)
+            admm_status[todo] = stt
+            status[todo] = stt
+            it_s = int(st.iterations.max(initial=0))
+            iters_run += it_s
+            rung_mm += int(st.rung_matmuls)
+            flops += _flops(n, m, Bs, it_s, int(st.rung_matmuls), s.check_every)
+            done_iter += k
+            # float64 re-check of what the iteration dtype declared solved
+            ok64, *_ = _termination(P, A, q[todo], l[todo], u[todo], x[todo], y[todo], s)
+            status[todo[(stt == _SOLVED) & ~ok64]] = int(Status.SOLVED_INACCURATE)
+            t2 = time.perf_counter()
+            if s.polish:
+                cand = todo[~np.isin(stt, (_PINF, _DINF, _ERROR))]
+                if cand.size:
+                    acc, xp, yp, _, _ = polish(
+                        pd, P, A, q[cand], l[cand], u[cand], x[cand], z[cand], y[cand], s)
+                    ids = cand[acc]
+                    x[ids], y[ids] = xp[acc], yp[acc]
+                    status[ids] = _SOLVED
+                    polished[ids] = True
+                    attempted += int(cand.size)
+            t_pol += time.perf_counter() - t2
+            # only QPs that ran out of iterations and were not polished go on
+            todo = todo[(stt == _MAX_ITER) & ~polished[todo]]
         extras: dict[str, Any] = {
-            "admm_status_counts": _counts(st.status),
-            "iterations_run": int(st.iterations.max(initial=0)),
-            "rung_matmuls": int(st.rung_matmuls),
-            "rho": st.rho.astype(np.float64),
+            "admm_status_counts": _counts(admm_status),
+            "iterations_run": iters_run,
+            "rung_matmuls": rung_mm,
+            "flops": flops,
+            "rho": rho,
             "time_factor": t_factor,
             "time_iterations": t_iter,
+            "time_polish": t_pol,
+            "polished": polished,
         }
-        t2 = time.perf_counter()
-        polished = np.zeros(len(batch), bool)
         if s.polish:
-            cand = np.flatnonzero((status != _PINF) & (status != _DINF))
-            if cand.size:
-                acc, xp, yp, pp, dp = polish(
-                    pd, P, A, q[cand], l[cand], u[cand], x[cand], z[cand], y[cand], s)
-                ids = cand[acc]
-                x[ids], y[ids] = xp[acc], yp[acc]
-                status[ids] = _SOLVED
-                polished[ids] = True
-            extras["polish_attempted"] = int(cand.size)
+            extras["polish_attempted"] = attempted
             extras["polish_accepted"] = int(polished.sum())
-        extras["polished"] = polished
-        extras["time_polish"] = time.perf_counter() - t2
+        st = None
         fb = 0
         if s.fallback == "clarabel":
             from .clarabel_ import ClarabelBackend
@@ -836,7 +901,7 @@ class ADMMBackend(Backend):
         B = len(batch)
         return BatchSolution(
             x=x, y=y, status=status, objective=obj,
-            iterations=st.iterations.astype(np.int64),
+            iterations=iters,
             solve_time=np.full(B, total / B), primal_residual=prim, dual_residual=dual,
             backend=self.name, total_time=total, settings=s.as_dict(), extras=extras,
         )
