@@ -6,7 +6,13 @@ Layered on :mod:`solvers` (QPs and backends); nothing here knows about MMD or ob
 from .basis import Basis, BernsteinBasis, TimeGrid, TripleIntegratorBasis, make_basis
 from .path import ReferencePath, wrap_angle
 from .planner import BehaviouralPlanner, EgoState, PlannerConfig, Trajectories, state_array
-from .projection import LinearConstraints, ProjectionBounds, ProjectionProblem, ProjectionResult
+from .projection import (
+    JaxProjection,
+    LinearConstraints,
+    ProjectionBounds,
+    ProjectionProblem,
+    ProjectionResult,
+)
 
 __all__ = [
     "TimeGrid",
@@ -25,4 +31,5 @@ __all__ = [
     "LinearConstraints",
     "ProjectionProblem",
     "ProjectionResult",
+    "JaxProjection",
 ]

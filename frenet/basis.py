@@ -33,7 +33,7 @@ __all__ = ["TimeGrid", "Basis", "TripleIntegratorBasis", "BernsteinBasis", "make
 
 @dataclass(frozen=True)
 class TimeGrid:
-    """``K = num_steps`` equally spaced times ``t_k = k·Δ`` on ``[0, horizon]`` (both ends included).
+    """``K = num_steps`` equally spaced times ``t_k = k·Δ`` on ``[0, horizon]`` (ends included).
 
     ``Δ = horizon / (K − 1)``: for the paper's T = 15 s, K = 100 that is 0.151515… s, not 0.15.
     """
@@ -94,7 +94,7 @@ class Basis:
         return self.grid.num_steps
 
     def smoothness(self) -> np.ndarray:
-        """(nvar, nvar) Hessian of the smoothness cost ``Σ_k jerk_k²`` (see the module docstring)."""
+        """(nvar, nvar) Hessian of the smoothness cost ``Σ_k jerk_k²`` (module docstring)."""
         return self.Pdddot.T @ self.Pdddot
 
     def boundary_rows(self, final_lateral_velocity: bool = True) -> tuple[np.ndarray, np.ndarray]:
@@ -110,7 +110,7 @@ class Basis:
         return Ax, Ay
 
     def trajectory(self, c: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """Positions, velocities, accelerations ``(…, K)`` for coefficients ``c`` of shape ``(…, nvar)``."""
+        """Positions, velocities, accelerations ``(…, K)`` for coefficients ``c`` ``(…, nvar)``."""
         c = np.asarray(c, dtype=np.float64)
         if c.shape[-1] != self.nvar:
             raise ValueError(
@@ -160,7 +160,8 @@ class TripleIntegratorBasis(Basis):
         self._freeze()
 
     def evaluate(self, t: np.ndarray) -> tuple[np.ndarray, ...]:
-        """``(P, Pdot, Pddot)`` rows at arbitrary times ``t`` in ``[0, horizon]`` (piecewise cubic)."""
+        """``(P, Pdot, Pddot)`` rows at arbitrary times ``t`` in ``[0, horizon]`` (piecewise cubic).
+        """
         t = np.atleast_1d(np.asarray(t, dtype=np.float64))
         dt, K = self.grid.dt, self.grid.num_steps
         k = np.clip(np.floor(t / dt).astype(int), 0, K - 2)
@@ -178,7 +179,7 @@ class TripleIntegratorBasis(Basis):
 
 
 def _bernstein(n: int, tau: np.ndarray, order: int = 0) -> np.ndarray:
-    """``order``-th τ-derivative of the degree-``n`` Bernstein polynomials at ``tau``: (len(tau), n+1)."""
+    """``order``-th τ-derivative of the degree-``n`` Bernstein polynomials: (len(tau), n+1)."""
     tau = np.asarray(tau, dtype=np.float64)
     if order > n:
         return np.zeros((tau.size, n + 1))
@@ -194,7 +195,9 @@ def _bernstein(n: int, tau: np.ndarray, order: int = 0) -> np.ndarray:
 
 
 class BernsteinBasis(Basis):
-    """One polynomial of degree ``degree`` over ``[0, horizon]`` in Bernstein form, ``nvar = degree + 1``.
+    """One polynomial of degree ``degree`` over ``[0, horizon]`` in Bernstein form.
+
+    ``nvar = degree + 1``.
 
     ``p(t) = Σ_i c_i B_{i,n}(t/T)``; derivatives are exact (``d/dt = (1/T) d/dτ``).  The
     coefficients are the Bézier control points (metres), so their scale matches the positions.

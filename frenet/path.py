@@ -6,7 +6,7 @@ left turns).  Beyond its ends the path continues along its end tangents (straigh
 point of the plane has a Frenet coordinate and obstacles that run past the end still convert.
 
 Frenet coordinates: ``s`` (arc length of the nearest path point) and ``d`` (signed lateral offset,
-positive to the left of the direction of travel): ``p = r(s) + d·n(s)`` with ``n = (−sin θ, cos θ)``.
+positive to the left of the direction of travel): ``p = r(s) + d·n(s)``, ``n = (−sin θ, cos θ)``.
 The nearest point is found by a proper projection – a k-d tree over densely sampled path points,
 projection onto the two adjacent chords, then Newton's method on ``(r(s) − p)·r'(s) = 0`` – not a
 brute-force scan.  Round trips are exact to ~1e-9 m wherever the nearest point is unique
@@ -39,14 +39,14 @@ def _check_finite(name: str, *arrays: np.ndarray) -> None:
 
 @dataclass(frozen=True, eq=False)
 class ReferencePath:
-    """An arc-length-parameterised cubic-spline path.  Build with :meth:`from_waypoints` or :meth:`straight`.
+    """An arc-length-parameterised cubic-spline path (:meth:`from_waypoints`, :meth:`straight`).
 
     Attributes
     ----------
     length : float
         Arc length in metres.
     spacing : float
-        Spacing (m) of the dense samples used for the coarse nearest-point search and the spline knots.
+        Spacing (m) of the dense samples (coarse nearest-point search and spline knots).
     """
 
     _sx: CubicSpline
@@ -129,7 +129,7 @@ class ReferencePath:
 
     # ------------------------------------------------------------------ geometry
     def _eval(self, s: np.ndarray):
-        """Position, first and second derivative at ``s`` (flat), linearly extended past the ends."""
+        """Position, first and second derivatives at ``s`` (flat), linear past the ends."""
         L = self.length
         sc = np.clip(s, 0.0, L)
         x, y = self._sx(sc), self._sy(sc)
@@ -207,7 +207,7 @@ class ReferencePath:
         return s, d, wrap_angle(heading - np.arctan2(dy, dx).reshape(shape))
 
     def _coarse(self, px: np.ndarray, py: np.ndarray) -> np.ndarray:
-        """Initial arc length: nearest dense sample, then projection onto its two adjacent chords."""
+        """Initial arc length: nearest dense sample, then projection onto its two chords."""
         pts = self._tree.data
         n = len(pts)
         _, i = self._tree.query(np.column_stack([px, py]))

@@ -1,10 +1,10 @@
-"""Behavioural (Frenet) planner: behavioural input ``d`` → smooth trajectory (paper appendix, SPEC §c).
+"""Behavioural (Frenet) planner: behavioural input ``d`` → trajectory (paper appendix, SPEC §c).
 
-Behavioural input, for ``S = num_segments`` segments of the horizon (the reference uses 4 × 25 steps)::
+Behavioural input, for ``S = num_segments`` segments of the horizon (reference: 4 × 25 steps)::
 
     d = (v_d¹, …, v_d^S, y_d¹, …, y_d^S)          speed set-points (m/s), lateral offsets (m)
 
-Per axis (``c_x``: longitudinal ``s``, ``c_y``: lateral ``d``), an equality-constrained least squares::
+Per axis (``c_x``: longitudinal ``s``, ``c_y``: lateral ``d``), equality-constrained least squares::
 
     min_c  ½ w_s cᵀSc + ½ w_v Σ_k (ẍ_k − σ k_v (ẋ_k − v_d^{seg(k)}))²          (x)
            ½ w_s cᵀSc + ½ w_o Σ_k (ÿ_k − σ k_p (y_k − y_d^{seg(k)}) + σ k_d ẏ_k)²   (y)
@@ -13,7 +13,7 @@ Per axis (``c_x``: longitudinal ``s``, ``c_y``: lateral ``d``), an equality-cons
 with ``S`` the basis' smoothness (sum of squared jerk over the grid, :mod:`frenet.basis`).
 Defaults reproduce the reference code: ``k_p = k_v = 2``, ``k_d = 0`` (no lateral damping),
 all weights 1, ``σ = +1`` (the paper's and the code's sign, ``ẍ − k(ẋ − v_d)``; ``σ = −1`` gives
-the stable feedback law ``ẍ = −k(ẋ − v_d)`` – both are available, see ``PlannerConfig.feedback_sign``).
+the stable feedback law ``ẍ = −k(ẋ − v_d)``; see ``PlannerConfig.feedback_sign``).
 
 The optimum is affine in ``(d, boundary state)``: :meth:`BehaviouralPlanner.closed_form` precomputes
 that map once from the KKT system in float64, after which a batch of plans is one matrix product
@@ -60,12 +60,12 @@ class EgoState:
             object.__setattr__(self, f.name, v)
 
     def as_array(self) -> np.ndarray:
-        """``(6,)`` float64: ``(s, d, vs, vd, as_, ad)``, the layout every batched function takes."""
+        """``(6,)`` float64 ``(s, d, vs, vd, as_, ad)``, the layout batched functions take."""
         return np.array([self.s, self.d, self.vs, self.vd, self.as_, self.ad])
 
 
 def state_array(state, batch: int | None = None) -> np.ndarray:
-    """``state`` (an :class:`EgoState`, a ``(6,)`` or a ``(B, 6)`` array) → finite ``(B, 6)`` float64."""
+    """``state`` (:class:`EgoState`, ``(6,)`` or ``(B, 6)``) → finite ``(B, 6)`` float64."""
     if isinstance(state, EgoState):
         arr = state.as_array()[None]
     else:
@@ -220,7 +220,8 @@ class BehaviouralPlanner:
         if d.ndim != 2 or d.shape[1] != D:
             raise ValueError(
                 f"behavioural input must have shape ({D},) or (B, {D}) "
-                f"(= {self.config.num_segments} speeds then {self.config.num_segments} offsets), got {d.shape}"
+                f"(= {self.config.num_segments} speeds then {self.config.num_segments} offsets), "
+                f"got {d.shape}"
             )
         if not np.all(np.isfinite(d)):
             raise ValueError("behavioural input d contains NaN or inf")

@@ -6,10 +6,10 @@ For every sample ``(c̄_x, c̄_y)`` (coefficients of a :mod:`frenet.basis` basis
     s.t. A_eq,x c_x = (s₀, v_s0, a_s0),  A_eq,y c_y = (d₀, v_d0, a_d0[, 0])          boundary
          y_lb ≤ y_k ≤ y_ub                                                           lane
          vx_min ≤ ẋ_k ≤ vx_max                                                       speed
-         |ẏ_k| ≤ vy_max                                                              lateral_velocity
-         |ẍ_k| ≤ ax_max,  |ÿ_k| ≤ ay_max                                             accel_x, accel_y
-         cos φ_i ẍ_k + sin φ_i ÿ_k ≤ a_max cos(π/m),  φ_i = 2πi/m                   accel_norm (optional)
-         lower ≤ G_x q_x + G_y q_y ≤ upper                                           user rows (extra)
+         |ẏ_k| ≤ vy_max                                                        lateral_velocity
+         |ẍ_k| ≤ ax_max,  |ÿ_k| ≤ ay_max                                       accel_x, accel_y
+         cos φ_i ẍ_k + sin φ_i ÿ_k ≤ a_max cos(π/m),  φ_i = 2πi/m             accel_norm (optional)
+         lower ≤ G_x q_x + G_y q_y ≤ upper                                     user rows (extra)
 
 at every step ``k = 0 … K−1`` (bounds may be scalars or per-step ``(K,)`` arrays).  The optional
 norm bound ``‖(ẍ_k, ÿ_k)‖ ≤ a_max`` is approximated by the regular ``m``-gon *inscribed* in the
@@ -87,7 +87,7 @@ class ProjectionBounds:
     accel_polygon_sides: int = 8
 
     def per_step(self, K: int) -> dict[str, np.ndarray]:
-        """All bounds as ``(K,)`` arrays, validated (NaN, negative magnitudes and ``lower > upper`` raise)."""
+        """All bounds as ``(K,)`` arrays; NaN, negative magnitudes and ``lower > upper`` raise."""
         out = {}
         for name in ("y_lb", "y_ub", "vx_min", "vx_max", "vy_max", "ax_max", "ay_max"):
             out[name] = _per_step(getattr(self, name), K, name)
@@ -277,9 +277,13 @@ class ProjectionProblem:
         self.metric = metric
         self.final_lateral_velocity = bool(final_lateral_velocity)
         if constraint_points not in ("grid", "hull"):
-            raise ValueError(f"constraint_points must be 'grid' or 'hull', got {constraint_points!r}")
+            raise ValueError(
+                f"constraint_points must be 'grid' or 'hull', got {constraint_points!r}"
+            )
         if constraint_points == "hull" and not hasattr(basis, "control_point_maps"):
-            raise ValueError("constraint_points='hull' needs a Bernstein basis (convex-hull property)")
+            raise ValueError(
+                "constraint_points='hull' needs a Bernstein basis (convex-hull property)"
+            )
         self.constraint_points = constraint_points
         K, n = basis.num_steps, basis.nvar
         self.nvar = n
@@ -346,7 +350,8 @@ class ProjectionProblem:
             )
 
         Aex, Aey = self._Aex, self._Aey
-        add("boundary", np.block([[Aex, np.zeros_like(Aex)], [np.zeros_like(Aey), Aey]]), None, None)
+        eq_rows = np.block([[Aex, np.zeros_like(Aex)], [np.zeros_like(Aey), Aey]])
+        add("boundary", eq_rows, None, None)
         rp, rv, ra = Mp.shape[0], Mv.shape[0], Ma.shape[0]
         add("lane", xy(None, Mp), bnd("y_lb", rp), bnd("y_ub", rp))
         add("speed", xy(Mv, None), bnd("vx_min", rv), bnd("vx_max", rv))
@@ -396,14 +401,15 @@ class ProjectionProblem:
         n = self.nvar
         if cx.ndim != 2 or cx.shape[1] != n or cy.shape != cx.shape:
             raise ValueError(
-                f"coefficients must have shape (B, {n}) for this basis, got {cx.shape} and {cy.shape}"
+                f"coefficients must have shape (B, {n}) for this basis, "
+                f"got {cx.shape} and {cy.shape}"
             )
         if not (np.all(np.isfinite(cx)) and np.all(np.isfinite(cy))):
             raise ValueError("coefficients contain NaN or inf")
         return cx, cy
 
     def _extra_bounds(self, B: int, extra_bounds) -> list[tuple[np.ndarray, np.ndarray]]:
-        """Per-sample ``(lower, upper)`` (B, r) for every extra group (``extra_bounds`` overrides)."""
+        """Per-sample ``(lower, upper)`` (B, r) per extra group (``extra_bounds`` overrides)."""
         if extra_bounds is not None:
             if len(extra_bounds) != len(self.extra):
                 raise ValueError(
@@ -566,7 +572,9 @@ class ProjectionProblem:
         ``A`` are factored once here (float64, NumPy); each call runs a fixed budget of
         ``num_iters`` ADMM iterations (rounded up to a multiple of ``check_every``; it may stop
         earlier once every sample meets the tolerances), no polish.  ``settings`` are
-        :class:`solvers.admm.ADMMSettings` fields (e.g. ``rho=``, ``eps_abs=``).
+        :class:`solvers.admm.ADMMSettings` fields (e.g. ``rho=``, ``eps_abs=``); the defaults
+        here start at ``rho = 62.5`` on a ladder extended to 312.5, with adaptation (measured
+        best at 25–500 iterations, docs/benchmarks.md).
 
         Returns ``project(cx_bar (B, nvar), cy_bar (B, nvar), state (6,) or (B, 6),
         extra_bounds=None, warm_start=None) -> JaxProjection(cx, cy, residual, groups, admm)``.
@@ -607,7 +615,8 @@ class JaxProjection(NamedTuple):
     """Output of the jittable projector (JAX arrays, leading batch axis B).
 
     cx, cy : (B, nvar) projected coefficients (the ADMM iterate after the fixed iteration count).
-    residual : (B,) total constraint violation (max over groups, as :meth:`ProjectionProblem.residuals`).
+    residual : (B,) total constraint violation (max over groups, as
+        :meth:`ProjectionProblem.residuals`).
     groups : {group name: (B,)} max violation per constraint group.
     admm : the :class:`solvers.admm.ADMMState` (``x``, ``y`` warm-start the next call; ``status``).
     """
@@ -634,8 +643,12 @@ def _jax_projector(problem: ProjectionProblem, num_iters: int, dtype: str, setti
         raise ValueError(f"num_iters must be a positive integer, got {num_iters!r}")
     if dtype not in ("float32", "float64"):
         raise ValueError(f"dtype must be 'float32' or 'float64', got {dtype!r}")
+    # Start at a large step, rho = 62.5 (the backend's default 0.1 stalls at these budgets),
+    # with OSQP's adaptive rule over a ladder extended upwards: measured best for residual and
+    # distance at 25-500 iterations (docs/benchmarks.md).
     base = dict(max_iter=int(num_iters), check_every=min(25, int(num_iters)), dtype=dtype,
-                polish=False)
+                polish=False, rho=62.5, adaptive_rho=True,
+                rho_ladder=(0.1 / 125, 0.1 / 25, 0.1 / 5, 0.1, 0.5, 2.5, 12.5, 62.5, 312.5))
     base.update(settings or {})
     s = ADMMSettings.from_kwargs(**base)
     n, m = problem.nvar, problem.num_rows
