@@ -29,6 +29,7 @@ User constraints (e.g. linearised collision half-planes, a speed-limit zone) are
 
 from __future__ import annotations
 
+import time
 from collections.abc import Sequence
 from dataclasses import dataclass, field
 from typing import Any, NamedTuple
@@ -111,7 +112,11 @@ class LinearConstraints:
     """User rows ``lower ≤ G_x q_x + G_y q_y ≤ upper`` on a trajectory quantity at the grid steps.
 
     ``q = P c`` (``quantity="position"``), ``Ṗ c`` (``"velocity"``) or ``P̈ c`` (``"acceleration"``),
-    so ``G_x, G_y`` are ``(r, K)`` weights on the K samples of each axis (shared by the batch).
+    so ``G_x, G_y`` are ``(r, K)`` weights on the K samples of each axis, shared by the batch, or
+    ``(B, r, K)`` per sample (e.g. collision half-planes linearised about each sample: then the
+    problems no longer share ``A``; :meth:`ProjectionProblem.project` solves them one by one and
+    :meth:`ProjectionProblem.batch`/``jax_projector`` refuse them – prefer shared rows with
+    per-sample bounds where the geometry allows).
     ``lower, upper`` are scalars, ``(r,)``, or ``(B, r)`` per sample; ``±inf`` for one-sided rows.
 
     Examples
@@ -133,15 +138,15 @@ class LinearConstraints:
 
     def __post_init__(self) -> None:
         Gx, Gy = np.asarray(self.Gx, dtype=np.float64), np.asarray(self.Gy, dtype=np.float64)
-        if Gx.ndim != 2 or Gx.shape != Gy.shape:
+        if Gx.ndim not in (2, 3) or Gx.shape != Gy.shape:
             raise ValueError(
-                f"Gx and Gy must be 2-D with equal shapes (r, K), got {Gx.shape}, {Gy.shape}"
+                f"Gx and Gy must have equal shapes (r, K) or (B, r, K), got {Gx.shape}, {Gy.shape}"
             )
         if not (np.all(np.isfinite(Gx)) and np.all(np.isfinite(Gy))):
             raise ValueError("Gx/Gy contain NaN or inf")
         if self.quantity not in _QUANTITY:
             raise ValueError(f"quantity must be one of {sorted(_QUANTITY)}, got {self.quantity!r}")
-        r = Gx.shape[0]
+        r = Gx.shape[-2]
         for nm in ("lower", "upper"):
             v = np.asarray(getattr(self, nm), dtype=np.float64)
             if v.ndim == 0:
@@ -161,7 +166,12 @@ class LinearConstraints:
 
     @property
     def num_rows(self) -> int:
-        return self.Gx.shape[0]
+        return self.Gx.shape[-2]
+
+    @property
+    def per_sample(self) -> bool:
+        """True when the rows themselves differ per sample (``Gx`` of shape ``(B, r, K)``)."""
+        return self.Gx.ndim == 3
 
     @classmethod
     def at_steps(
@@ -365,9 +375,9 @@ class ProjectionProblem:
             add("accel_norm", rows, -np.inf, np.tile(bnd("a_max", ra) * np.cos(np.pi / m), m))
         names = {g.name for g in groups}
         for e in self.extra:
-            if e.Gx.shape[1] != K:
+            if e.Gx.shape[-1] != K:
                 raise ValueError(
-                    f"LinearConstraints {e.name!r} has {e.Gx.shape[1]} columns, "
+                    f"LinearConstraints {e.name!r} has {e.Gx.shape[-1]} columns, "
                     f"the grid has K={K} steps"
                 )
             name = e.name
@@ -378,7 +388,8 @@ class ProjectionProblem:
             names.add(name)
             M = getattr(basis, _QUANTITY[e.quantity])
             start = sum(x.shape[0] for x in blocks)
-            blocks.append(np.hstack([e.Gx @ M, e.Gy @ M]))
+            G0x, G0y = (e.Gx[0], e.Gy[0]) if e.per_sample else (e.Gx, e.Gy)  # placeholder rows
+            blocks.append(np.hstack([G0x @ M, G0y @ M]))
             groups.append(_Group(name, slice(start, start + e.num_rows), None, None))
         return np.vstack(blocks), tuple(groups)
 
@@ -508,14 +519,60 @@ class ProjectionProblem:
         optionally overrides the user constraints' bounds: one ``(lower, upper)`` pair per
         :class:`LinearConstraints`, each ``(r,)`` or ``(B, r)``.
         """
+        if self.per_sample_rows:
+            raise ValueError(
+                "the user constraints have per-sample rows, so the problems do not share A: "
+                "use qps() or project()"
+            )
+        q, l, u = self._qlu(cx_bar, cy_bar, state, extra_bounds)
+        return solvers.QPBatch(self.P, self.A, q, l, u)
+
+    @property
+    def per_sample_rows(self) -> bool:
+        """True when some user constraint has per-sample rows (no shared ``A``)."""
+        return any(e.per_sample for e in self.extra)
+
+    def _qlu(self, cx_bar, cy_bar, state, extra_bounds):
         cx, cy = self._coeffs(cx_bar, cy_bar)
         B = cx.shape[0]
         st = self.check_state(state)
         if st.shape[0] not in (1, B):
             raise ValueError(f"state has batch size {st.shape[0]}, expected 1 or {B}")
+        for e in self.extra:
+            if e.per_sample and e.Gx.shape[0] != B:
+                raise ValueError(
+                    f"LinearConstraints {e.name!r} has rows for {e.Gx.shape[0]} samples, "
+                    f"the batch has {B}"
+                )
         q = self.linear_term(cx, cy, st)
         l, u = self.bounds_arrays(st, B, extra_bounds)
-        return solvers.QPBatch(self.P, self.A, q, l, u)
+        return q, l, u
+
+    def _sample_rows(self, Az: np.ndarray, cx: np.ndarray, cy: np.ndarray, grid: bool) -> None:
+        """Overwrite the per-sample user rows of ``Az (B, m)`` with each sample's own rows."""
+        gs = self._grid_groups if grid else self.groups
+        ex = [g for g in gs if g.lower is None and g.name != "boundary"]
+        for g, e in zip(ex, self.extra, strict=True):
+            if e.per_sample:
+                M = getattr(self.basis, _QUANTITY[e.quantity])
+                Az[:, g.rows] = np.einsum("brk,bk->br", e.Gx, cx @ M.T) + np.einsum(
+                    "brk,bk->br", e.Gy, cy @ M.T
+                )
+
+    def qps(self, cx_bar, cy_bar, state, extra_bounds=None) -> list[solvers.QP]:
+        """The projection of each sample as its own :class:`solvers.QP` (allows per-sample rows)."""
+        q, l, u = self._qlu(cx_bar, cy_bar, state, extra_bounds)
+        out = []
+        n = self.nvar
+        for b in range(q.shape[0]):
+            A = np.array(self.A)
+            for g, e in zip(self._extra_groups, self.extra, strict=True):
+                if e.per_sample:
+                    M = getattr(self.basis, _QUANTITY[e.quantity])
+                    A[g.rows, :n] = e.Gx[b] @ M
+                    A[g.rows, n:] = e.Gy[b] @ M
+            out.append(solvers.QP(self.P, q[b], A, l[b], u[b]))
+        return out
 
     def linear_term(self, cx_bar, cy_bar, state) -> np.ndarray:
         """``q (B, 2 nvar)`` of the QP: ``−blockdiag(MᵀM) c̄ − ρ A_eqᵀ b`` (see :attr:`P`)."""
@@ -549,8 +606,14 @@ class ProjectionProblem:
         """
         if backend is None:
             backend = "admm" if "admm" in solvers.available_backends() else "clarabel"
-        batch = self.batch(cx_bar, cy_bar, state, extra_bounds)
-        sol = solvers.solve_batch(batch, backend=backend, warm_start=warm_start, **settings)
+        if self.per_sample_rows:  # no shared A: one QP at a time
+            t0 = time.perf_counter()
+            qps = self.qps(cx_bar, cy_bar, state, extra_bounds)
+            sols = [solvers.solve(qp, backend=backend, **settings) for qp in qps]
+            sol = solvers.BatchSolution.stack(sols, backend, time.perf_counter() - t0)
+        else:
+            batch = self.batch(cx_bar, cy_bar, state, extra_bounds)
+            sol = solvers.solve_batch(batch, backend=backend, warm_start=warm_start, **settings)
         n = self.nvar
         x = np.asarray(sol.x, dtype=np.float64)
         finite = np.all(np.isfinite(x), axis=1)
@@ -604,6 +667,8 @@ class ProjectionProblem:
         st = state_array(state, B)
         l, u = self.bounds_arrays(st, B, extra_bounds, grid=True)
         Az = np.concatenate([cx, cy], axis=1) @ self._grid_A.T
+        if self.per_sample_rows:
+            self._sample_rows(Az, cx, cy, grid=True)
         viol = np.maximum(np.maximum(l - Az, Az - u), 0.0)
         groups = {g.name: viol[:, g.rows].max(axis=1, initial=0.0) for g in self._grid_groups}
         total = np.max(np.stack(list(groups.values())), axis=0)
@@ -639,6 +704,11 @@ def _jax_projector(problem: ProjectionProblem, num_iters: int, dtype: str, setti
             "ProjectionProblem.jax_projector needs solvers.admm.admm_factor/admm_iterate"
         ) from exc
 
+    if problem.per_sample_rows:
+        raise ValueError(
+            "jax_projector needs rows shared by the batch (one factorisation); these user "
+            "constraints have per-sample rows – use shared rows with per-sample bounds"
+        )
     if not (isinstance(num_iters, (int, np.integer)) and num_iters >= 1):
         raise ValueError(f"num_iters must be a positive integer, got {num_iters!r}")
     if dtype not in ("float32", "float64"):

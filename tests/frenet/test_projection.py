@@ -235,3 +235,23 @@ def test_jax_projector_matches_clarabel_inside_jit_and_warm_starts():
                  warm_start=out.admm)
     assert again.groups["zone"].shape == (64,)
     assert float(np.median(again.residual)) <= 2 * np.median(res) + 1e-4
+
+
+def test_per_sample_rows_such_as_linearised_half_planes_are_honoured():
+    planner, cx, cy, st = _samples(3, seed=12)
+    K = planner.basis.num_steps
+    # one half-plane n_b·(x_k, y_k) ≤ h_b per sample at k = 70, with a different normal each
+    normals = np.array([[1.0, 0.0], [0.8, 0.6], [0.6, -0.8]])
+    Gx, Gy = np.zeros((3, 1, K)), np.zeros((3, 1, K))
+    Gx[:, 0, 70], Gy[:, 0, 70] = normals[:, 0], normals[:, 1]
+    h = np.array([[30.0], [35.0], [25.0]])
+    hp = LinearConstraints(Gx, Gy, lower=-np.inf, upper=h, name="halfplane")
+    prob = ProjectionProblem(planner.basis, extra=hp)
+    res = prob.project(cx, cy, st, backend="clarabel")
+    assert res.solved.all() and res.residual.max() <= 1e-6
+    tr = planner.trajectories(res.cx, res.cy)
+    assert np.all(normals[:, 0] * tr.x[:, 70] + normals[:, 1] * tr.y[:, 70] <= h[:, 0] + 1e-6)
+    with pytest.raises(ValueError, match="per-sample rows"):
+        prob.batch(cx, cy, st)
+    with pytest.raises(ValueError, match="rows for 3 samples"):
+        prob.project(cx[:2], cy[:2], st, backend="clarabel")
