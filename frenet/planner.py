@@ -279,14 +279,15 @@ class BehaviouralPlanner:
         return out[0], out[1]
 
     # ------------------------------------------------------------------ closed form
-    def closed_form_fn(self, dtype=np.float64):
+    def closed_form_fn(self, dtype=None):
         """A pure, jitted JAX function ``plan(d (B, 2S), state (6,) or (B, 6)) -> (cx, cy)``.
 
         ``cx, cy`` are ``(B, nvar)``.  The affine map is precomputed once in float64 and cast to
-        ``dtype`` when traced.  Safe to call inside other jitted code (e.g. a CEM loop); float64
-        needs JAX's x64 mode at trace and call time (``with jax.enable_x64(True): ...``).
+        ``dtype`` when traced; ``dtype=None`` (default) means float64 when JAX's x64 mode is on
+        at trace time and float32 otherwise.  Safe to call inside other jitted code (e.g. a CEM
+        loop); float64 needs x64 mode at trace and call time (``with jax.enable_x64(True):``).
         """
-        return _closed_form_fn(self, _check_dtype(dtype))
+        return _closed_form_fn(self, None if dtype is None else _check_dtype(dtype))
 
     def closed_form(self, d_batch, state, dtype=np.float64):
         """Batched closed-form plans: ``(cx (B, nvar), cy (B, nvar))`` as JAX arrays of ``dtype``.
@@ -332,9 +333,12 @@ def _closed_form_fn(planner: BehaviouralPlanner, dtype):
 
     @jax.jit
     def plan(d, state):
-        W = jnp.asarray(W_np, dtype=dtype)
-        d = jnp.asarray(d, dtype)
-        state = jnp.broadcast_to(jnp.atleast_2d(jnp.asarray(state, dtype)), (d.shape[0], 6))
+        dt = dtype
+        if dt is None:
+            dt = jnp.float64 if jax.config.read("jax_enable_x64") else jnp.float32
+        W = jnp.asarray(W_np, dtype=dt)
+        d = jnp.asarray(d, dt)
+        state = jnp.broadcast_to(jnp.atleast_2d(jnp.asarray(state, dt)), (d.shape[0], 6))
         z = jnp.concatenate([d, state], axis=1) @ W
         return z[:, :n], z[:, n:]
 
