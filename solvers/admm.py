@@ -618,8 +618,11 @@ def _reduced_kkt(pd: _PolishData, qs, low, upp, ls, us, s: ADMMSettings, x0=None
         nb = actc.shape[0]
         k = int(actc.sum(axis=1).max(initial=0))
         q = qs[sl]
-        if k == 0:
-            xs[sl] = -q @ pd.Hinv
+        if k == 0:  # no active row: (refined) unconstrained minimiser
+            x = -q @ pd.Hinv if x0 is None else x0[sl].copy()
+            for _ in range(s.polish_refine_iter + 1):
+                x = x + (-q - x @ pd.P) @ pd.Hinv
+            xs[sl] = x
             continue
         order = np.argsort(~actc, axis=1, kind="stable")[:, :k]
         mask = np.take_along_axis(actc, order, axis=1)

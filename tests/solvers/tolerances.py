@@ -179,37 +179,23 @@ TOLERANCES: dict[str, BackendTol] = {
         feas_atol=1e-5,
         mm_rtol=1e-5,
     ),
-    # Batched JAX ADMM (first-order, float64).  Owned by the admm helper: only this row may change.
+    # Batched JAX ADMM: float32 iterations, float64 active-set polish.  Owned by the admm helper:
+    # only this row may change.  eps 1e-7 (explicit): at its default 1e-5 the OSQP-style relative
+    # test is met on HS268/S268 (data norms ~1e4) 6e-3 away from the optimum; at 1e-7 float32 ADMM
+    # alone rarely claims SOLVED and the polish (exact for the right active set) decides.
     "admm": BackendTol(
-        settings={"max_iter": 4000},
+        settings={"eps_abs": 1e-7, "eps_rel": 1e-7, "max_iter": 4000, "stage_iter": 1000},
         x_atol=1e-4,
         obj_rtol=1e-5,
         feas_atol=1e-4,
         mm_rtol=1e-4,
         mm_skip={},
         mm_fails={
-            name: "not expected of the ADMM backend (set by its owner)"
-            for name in (
-                "CVXQP1_S",
-                "CVXQP2_S",
-                "DUAL1",
-                "DUAL2",
-                "DUAL3",
-                "DUAL4",
-                "DUALC1",
-                "DUALC2",
-                "DUALC8",
-                "HS268",
-                "S268",
-                "PRIMALC1",
-                "PRIMALC2",
-                "QADLITTL",
-                "QAFIRO",
-                "QPCBLEND",
-                "QSC205",
-                "QSHARE1B",
-                "VALUES",
-            )
+            "QADLITTL": "admm: MAX_ITER (4000); the polish finds no acceptable active set",
+            "QAFIRO": "admm: MAX_ITER (4000); the polish finds no acceptable active set",
+            "QSHARE1B": "admm: MAX_ITER (4000); the polish finds no acceptable active set",
+            "VALUES": "admm: MAX_ITER at eps 1e-7 (objective 1e-7 off, residuals ~1e-4); no "
+                      "polished point accepted (cause not investigated)",
         },
         examples=10,
     ),
