@@ -762,11 +762,15 @@ def _reduced_set_task(args) -> list[dict[str, Any]]:
     jobs = [(meth, 0) for meth in methods if meth != "random"]
     jobs += [("random", r) for r in range(random_sets if "random" in methods else 0)]
     rows = []
+    # the selection's features as in mmdopt.plan (an anisotropic kernel when the config has one)
+    lam = float(getattr(cfg, "rs_lateral_scale", 1.0))
+    feats = obs * np.array([1.0, lam])
     for meth, r in jobs:
         k = jax.random.fold_in(key, 1000 + r)
-        rs = select_reduced_set(
-            k, obs, m, meth, rs_cfg, ego_guess=ego_guess if meth == "degroot" else None
-        )
+        if meth == "degroot":
+            rs = select_reduced_set(k, obs, m, meth, rs_cfg, ego_guess=ego_guess)
+        else:
+            rs = select_reduced_set(k, feats, m, meth, rs_cfg)
         plan, wall = plan_with_reduced_set(scene, rs, config=cfg, backend=backend)
         xy = np.stack([np.asarray(plan.x), np.asarray(plan.y)], -1)
         rows.append(

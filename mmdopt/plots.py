@@ -216,7 +216,7 @@ def reduced_set_figure(
     stds = [np.std(per_scene[m]) / n_validation * 100 for m in names]
     rnd = np.array([np.mean(r) for r in random_sets]) / n_validation * 100
     rnd_best = np.array([np.max(r) for r in random_sets]) / n_validation * 100
-    names_all = names + ["random sets (mean)", "random sets (best)"]
+    names_all = names + ["random sets (mean)", "random sets (best, oracle)"]
     means += [rnd.mean(), rnd_best.mean()]
     stds += [rnd.std(), rnd_best.std()]
     cols = [METHOD_COLOURS.get(m, "tab:blue") for m in names] + ["0.6", "0.3"]
