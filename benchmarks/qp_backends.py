@@ -131,7 +131,8 @@ def main(argv: list[str] | None = None) -> None:
                          settings=settings or "defaults"))
         if name == "admm":
             admm_info = dict(sol=sol, compile=t_cold - total, total=total)
-        print(f"  {name}: {total:.2f} s", flush=True)
+        print(f"  {name}: {total:.2f} s, violation {viol:.1e}, gap {gap:.1e}, "
+              f"solved {sol.n_solved}/{B}", flush=True)
 
     a = next(r for r in rows if r["name"] == "admm")
     print("\n| backend | time/QP (ms) | batch (s) | CPU time/QP (ms) | max violation "
