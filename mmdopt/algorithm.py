@@ -85,15 +85,19 @@ class MMDOptConfig:
     Bernstein basis of ``degree`` 10.
     Projection: ``constraint_points`` ("hull": bounds on Bernstein control points, sufficient
     for the bounds at every instant; "grid": at the grid steps), ``admm_iters`` fixed ADMM
-    iterations per CEM iteration, ``admm_rho`` step size, ``dtype`` of the jitted loop.
+    iterations per CEM iteration, ``admm_rho`` fixed step size (``None``: the projector's
+    defaults, rho = 62.5 then adaptive), ``dtype`` of the jitted loop.
 
     Scalars (leaves): ``gamma`` γ = 0.9 (temperature), ``eta`` η = 0.6 (learning rate),
     ``cov_reg`` ε = 0.01; initial sampling distribution ``speed_std0`` (m/s) around the ego's
     speed and ``lateral_std_scale`` × half the lane width around its offset; cost weights and
     kernel (see :mod:`mmdopt.algorithm` and ``docs/benchmarks.md`` for how they were chosen);
-    ``a``, ``b`` collision ellipse (m) plus the planning margins ``margin_long``, ``margin_lat``;
+    ``a``, ``b`` collision ellipse (m) plus the planning margins ``margin_long``, ``margin_lat``
+    (m) and ``margin_rate`` (m/s: the longitudinal margin grows by this much per second);
     ``res_tol`` feasibility tolerance of the residual; ``saa_eps``, ``saa_temperature`` for the
-    SAA baseline.  ``reduced_set`` configures the reduced-set selection.
+    SAA baseline.  ``reduced_set`` configures the reduced-set selection; ``rs_lateral_scale``
+    multiplies the samples' lateral offsets in the selection's kernel features (an anisotropic
+    kernel: lateral intents count more than longitudinal spread).
     """
 
     # static: sizes and modes
@@ -111,19 +115,19 @@ class MMDOptConfig:
     admm_iters: int = _static(25)
     admm_check_every: int = _static(25)
     dtype: str = _static("float32")
+    admm_rho: float | None = _static(None)
     # leaves: optimiser
     gamma: float = 0.9
     eta: float = 0.6
     cov_reg: float = 0.01
     speed_std0: float = 4.0
     lateral_std_scale: float = 0.5
-    admm_rho: float = 0.5
     # leaves: cost (eq. c_aug)
     v_des: float = 10.0
     w_speed: float = 1.0
     w_accel: float = 0.1
     w_res: float = 10.0
-    w_mmd: float = 1.0e4
+    w_mmd: float = 1.0e5
     w_coll: float = 100.0
     w_saa: float = 100.0
     bandwidth: float = 0.5
@@ -131,7 +135,9 @@ class MMDOptConfig:
     a: float = 4.5
     b: float = 3.5
     margin_long: float = 2.0
-    margin_lat: float = 0.0
+    margin_rate: float = 1.5
+    rs_lateral_scale: float = 10.0
+    margin_lat: float = 0.3
     res_tol: float = 0.05
     saa_eps: float = 0.02
     saa_temperature: float = 0.05
@@ -185,7 +191,6 @@ class MMDOptConfig:
             "saa_eps",
             "saa_temperature",
             "speed_std0",
-            "admm_rho",
         ):
             v = getattr(self, name)
             if _concrete(v) and not float(v) > 0:
@@ -229,8 +234,8 @@ class CEMProblem:
             num_iters=cfg.admm_iters,
             dtype=cfg.dtype,
             check_every=min(cfg.admm_check_every, cfg.admm_iters),
-            adaptive_rho=False,
-            rho=float(cfg.admm_rho),
+            # None: the projector's measured defaults (start at rho = 62.5, adaptive)
+            **({} if cfg.admm_rho is None else dict(rho=float(cfg.admm_rho), adaptive_rho=False)),
         )
         self.nvar = self.basis.nvar
         self.W = np.asarray(self.planner.W)
@@ -244,9 +249,7 @@ class CEMProblem:
 
 
 def _statics(cfg: MMDOptConfig) -> tuple:
-    return tuple(
-        getattr(cfg, f.name) for f in dataclasses.fields(cfg) if f.metadata.get("static")
-    ) + (float(cfg.admm_rho),)
+    return tuple(getattr(cfg, f.name) for f in dataclasses.fields(cfg) if f.metadata.get("static"))
 
 
 def build_problem(cfg: MMDOptConfig, bounds: frenet.ProjectionBounds) -> CEMProblem:
@@ -377,7 +380,11 @@ def _evaluate(
     j_speed = jnp.mean((vs - cfg.v_des) ** 2, axis=1)
     j_acc = jnp.mean(as_ * as_ + ad * ad, axis=1)
     f = ellipse_values(
-        s, dd, data.centres.astype(dt), cfg.a + cfg.margin_long, cfg.b + cfg.margin_lat
+        s,
+        dd,
+        data.centres.astype(dt),
+        planning_semi_axis(cfg, prob.t(), dt),
+        cfg.b + cfg.margin_lat,
     )
     if mode == "mmd":
         coll = mmd_cost(f, data.weights.astype(dt), cfg.bandwidth, cfg.f_scale, n_terms)
@@ -423,6 +430,13 @@ def _evaluate(
     lv = jax.tree_util.tree_map(lambda a, b: jnp.where(take_lv, a, b), lv_cand, lv)
     info = (best.cost, cost_e[0], jnp.mean(cost_e), n_feas)
     return mu_new, cov_new, d_e, best, lv, info
+
+
+def planning_semi_axis(cfg: MMDOptConfig, t, dt=None):
+    """Longitudinal semi-axis of the planning ellipse per step, ``a + margin_long + margin_rate·t``
+    (m; the margin may grow with time like the spread of the predictions)."""
+    t = jnp.asarray(t, dt) if dt is not None else jnp.asarray(t)
+    return cfg.a + cfg.margin_long + cfg.margin_rate * t
 
 
 def _plan(prob: CEMProblem, d, state, dt):

@@ -26,7 +26,15 @@ import numpy as np
 import frenet
 import solvers
 
-from .algorithm import CEMResult, Data, MMDOptConfig, build_problem, n_taylor_terms, run_cem
+from .algorithm import (
+    CEMResult,
+    Data,
+    MMDOptConfig,
+    build_problem,
+    n_taylor_terms,
+    planning_semi_axis,
+    run_cem,
+)
 from .baselines import COST_MODE, METHODS, ellipse_values, mmd_cost
 from .geometry import OBSTACLE_FOOTPRINT, circle_centres
 from .reduced_set import ReducedSet, select_reduced_sets
@@ -354,7 +362,12 @@ def _plan_impl(ego, road, obs_fr, method, config, backend, key, backend_settings
         if method == "degroot":
             t = prob.t()
             ego_guess = np.stack([ego.s + ego.vs * t, np.full(K, ego.d)], axis=-1)
-        rs = select_reduced_sets(k_rs, obs_fr, m, method, config.reduced_set, ego_guess)
+        feats = obs_fr
+        lam = float(config.rs_lateral_scale)
+        if method != "degroot" and lam != 1.0:
+            # anisotropic kernel for the selection: lateral offsets (the intent) weigh lam× more
+            feats = obs_fr * np.array([1.0, lam])
+        rs = select_reduced_sets(k_rs, feats, m, method, config.reduced_set, ego_guess)
         sel = np.take_along_axis(obs_fr, np.asarray(rs.indices)[:, :, None, None], axis=1)
     else:
         rs = _all_samples_set(n, O)
@@ -493,7 +506,7 @@ def _assemble(
             jnp.asarray(s[None]),
             jnp.asarray(d[None]),
             centres,
-            config.a + config.margin_long,
+            planning_semi_axis(config, prob.t()),
             config.b + config.margin_lat,
         )
         mmd_val = float(
