@@ -83,7 +83,11 @@ def main(argv: list[str] | None = None) -> None:
     ap.add_argument("--backends", default="", help="comma-separated names (default: all)")
     ap.add_argument("--quick", action="store_true", help="100 QPs")
     ap.add_argument("--seed", type=int, default=0)
+    ap.add_argument("--admm-fallback", action="store_true",
+                    help="admm with fallback='clarabel' for the QPs it leaves unsolved (counted)")
     args = ap.parse_args(argv)
+    if args.admm_fallback:
+        SETTINGS["admm"] = {**SETTINGS["admm"], "fallback": "clarabel"}
     B = 100 if args.quick else args.batch
     names = [s for s in args.backends.split(",") if s] or available_backends()
     if "admm" not in names:
