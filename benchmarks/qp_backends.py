@@ -85,7 +85,11 @@ def main(argv: list[str] | None = None) -> None:
     ap.add_argument("--seed", type=int, default=0)
     ap.add_argument("--admm-fallback", action="store_true",
                     help="admm with fallback='clarabel' for the QPs it leaves unsolved (counted)")
+    ap.add_argument("--admm-eps", type=float, default=None,
+                    help="admm eps_abs = eps_rel (default: the ADMMSettings default, 1e-5)")
     args = ap.parse_args(argv)
+    if args.admm_eps is not None:
+        SETTINGS["admm"] = {**SETTINGS["admm"], "eps_abs": args.admm_eps, "eps_rel": args.admm_eps}
     if args.admm_fallback:
         SETTINGS["admm"] = {**SETTINGS["admm"], "fallback": "clarabel"}
     B = 100 if args.quick else args.batch
