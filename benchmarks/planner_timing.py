@@ -88,11 +88,12 @@ def _cpu() -> float:
 
 
 def time_plan(scene, cfg, method, repeats, seed0=100):
-    """(first wall, median wall, median CPU, median CEM-only wall, plan) over fresh keys."""
+    """(first wall, first CPU, median wall, median CPU, median CEM-only wall, plan)."""
     ego, road, obs = scene.ego(), scene.road(), scene.obstacles
-    t0 = time.perf_counter()
+    c0, t0 = _cpu(), time.perf_counter()
     p = mmdopt.plan(ego, road, obs, method=method, config=cfg, key=jax.random.PRNGKey(seed0))
     first = time.perf_counter() - t0
+    first_cpu = _cpu() - c0
     walls, cpus, cems = [], [], []
     for r in range(repeats):
         c0, w0 = _cpu(), time.perf_counter()
@@ -102,7 +103,14 @@ def time_plan(scene, cfg, method, repeats, seed0=100):
         walls.append(time.perf_counter() - w0)
         cpus.append(_cpu() - c0)
         cems.append(p.diagnostics["cem_s"])
-    return first, float(np.median(walls)), float(np.median(cpus)), float(np.median(cems)), p
+    return (
+        first,
+        first_cpu,
+        float(np.median(walls)),
+        float(np.median(cpus)),
+        float(np.median(cems)),
+        p,
+    )
 
 
 def time_reduced_set(obs, m, cfg, repeats):
@@ -204,7 +212,8 @@ def main(argv=None) -> None:
         "m",
         "rs first s",
         "rs median s",
-        "alg1 first s",
+        "plan first s",
+        "plan first CPU s",
         "alg1 median s",
         "alg1 CPU s",
         "plan median s",
@@ -217,7 +226,7 @@ def main(argv=None) -> None:
     for m in args.sizes:
         cfg = base.replace(reduced_set_size=m)
         rs_first, rs_med = time_reduced_set(scene.obstacles, m, cfg.reduced_set, args.repeats)
-        first, wall, cpu, cem, p = time_plan(scene, cfg, "mmd", args.repeats)
+        first, first_cpu, wall, cpu, cem, p = time_plan(scene, cfg, "mmd", args.repeats)
         prob = alg.build_problem(cfg, scene.road().bounds())
         fl = flops_per_iteration(cfg, prob, m, alg.n_taylor_terms(cfg))
         bound = fl["total"] * cfg.iterations / (gf * 1e9)
@@ -227,6 +236,7 @@ def main(argv=None) -> None:
                 rs_first=rs_first,
                 rs=rs_med,
                 first=first,
+                first_cpu=first_cpu,
                 alg1=cem,
                 cpu=cpu,
                 plan=wall,
@@ -235,7 +245,8 @@ def main(argv=None) -> None:
             )
         )
         print(
-            f"| {m} | {rs_first:.2f} | {rs_med:.4f} | {first:.1f} | {cem:.3f} | {cpu:.3f} | "
+            f"| {m} | {rs_first:.2f} | {rs_med:.4f} | {first:.1f} | {first_cpu:.1f} | "
+            f"{cem:.3f} | {cpu:.3f} | "
             f"{wall:.3f} | {bound:.4f} | {cem / bound:.0f} |",
             flush=True,
         )
@@ -259,11 +270,12 @@ def main(argv=None) -> None:
         f"{'met' if r10['alg1'] <= BARS['alg1'] else 'MISSED'}"
     )
     print(
-        f"  first call {r10['first']:.1f} s (reference 52–396 s);  bar ≤ {BARS['first']} s: "
+        f"  first call {r10['first']:.1f} s wall, {r10['first_cpu']:.1f} s CPU "
+        f"(reference 52–396 s);  bar ≤ {BARS['first']} s: "
         f"{'met' if r10['first'] <= BARS['first'] else 'MISSED'}"
     )
     if not args.no_baseline:
-        first, wall, cpu, cem, _ = time_plan(scene, base, "degroot", args.repeats)
+        first, _, wall, cpu, cem, _ = time_plan(scene, base, "degroot", args.repeats)
         print(
             f"  de Groot baseline: Algorithm 1 {cem:.3f} s (first call {first:.1f} s): "
             f"{REF['baseline'] / cem:.0f}× faster than the reference's 24.6 s"

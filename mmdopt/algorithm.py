@@ -204,7 +204,8 @@ class MMDOptConfig:
 
 
 def _concrete(v) -> bool:
-    return not isinstance(v, jax.core.Tracer) and np.ndim(v) == 0
+    # only plain numbers are validated: pytree unflattening (jit, lower) passes other objects
+    return isinstance(v, int | float | np.number) and not isinstance(v, bool)
 
 
 # ---------------------------------------------------------------------------------- problem set-up
