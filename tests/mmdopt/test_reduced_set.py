@@ -87,6 +87,23 @@ def test_separation_ratio_is_guarded_when_the_bottom_weights_vanish():
     assert np.isfinite(val) and val > -1.01e6
 
 
+def test_separation_term_sums_the_m_largest_magnitudes_exactly_with_ties():
+    rng = np.random.default_rng(0)
+    alpha = rng.normal(size=(6, 20)) * 10.0 ** rng.integers(-4, 1, size=(6, 1))
+    alpha[0] = np.round(alpha[0] * 3) / 3  # many ties, including at the m-th largest
+    alpha[1] = 0.25  # every entry equal
+    alpha[2, :10] = 0.0
+    K = np.eye(20)
+    objective = jax.jit(reduced_set_objective, static_argnums=2)
+    for m in (1, 5, 12):
+        mag = np.sort(np.abs(alpha), axis=-1)[:, ::-1]
+        top, bottom = mag[:, :m].sum(-1), mag[:, m:].sum(-1)
+        d = alpha - 1.0 / 20
+        want = (d * d).sum(-1) - top / (bottom + 1e-6 * (top + bottom))
+        got = np.asarray(objective(jnp.asarray(alpha), jnp.asarray(K), m, 1.0, 1e-6))
+        np.testing.assert_allclose(got, want, rtol=1e-9)
+
+
 def test_refinement_is_the_equality_constrained_qp_and_uniform_for_the_full_set():
     refine = jax.jit(refine_weights)
     X = two_intent(1)[0].reshape(100, -1)
