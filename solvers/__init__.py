@@ -1,4 +1,6 @@
-"""QP problem/solution types and swappable backends (OSQP, Clarabel, qpsolvers, cvxpy, batched JAX ADMM).
+"""QP problem/solution types and swappable backends.
+
+Backends: OSQP, Clarabel, qpsolvers, cvxpy and a batched, jitted ADMM in JAX.
 
 Knows nothing of vehicles.  Public contract::
 

@@ -86,7 +86,13 @@ def projection_like_batch(
 
 
 def random_feasible_qp(
-    n: int, m_ineq: int, m_eq: int, *, seed: int = 0, sparse: bool = False, psd_rank: int | None = None
+    n: int,
+    m_ineq: int,
+    m_eq: int,
+    *,
+    seed: int = 0,
+    sparse: bool = False,
+    psd_rank: int | None = None,
 ) -> QP:
     """A random convex QP that is feasible and bounded (a strictly feasible point is built in)."""
     rng = np.random.default_rng(seed)

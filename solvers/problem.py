@@ -72,7 +72,8 @@ def _is_symmetric(P: np.ndarray | sp.csc_matrix) -> bool:
     D = P - P.T
     if sp.issparse(D):
         return D.nnz == 0 or float(abs(D).max()) <= 1e-9 * max(1.0, float(abs(P).max()))
-    return bool(np.max(np.abs(D), initial=0.0) <= 1e-9 * max(1.0, float(np.max(np.abs(P), initial=0.0))))
+    scale = max(1.0, float(np.max(np.abs(P), initial=0.0)))
+    return bool(np.max(np.abs(D), initial=0.0) <= 1e-9 * scale)
 
 
 @dataclass(frozen=True, eq=False)
@@ -280,7 +281,7 @@ class QP:
 
 @dataclass(frozen=True, eq=False)
 class QPBatch:
-    """Many QPs sharing ``P`` (n, n) and ``A`` (m, n), with per-problem ``q`` (B, n), ``l``, ``u`` (B, m).
+    """Many QPs sharing ``P`` (n, n) and ``A`` (m, n); per-problem ``q`` (B, n), ``l``/``u`` (B, m).
 
     Iterating or indexing yields :class:`QP` objects, so any backend can loop over a batch.
     """
