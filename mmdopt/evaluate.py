@@ -879,6 +879,13 @@ def run_reduced_set(
         for i in range(n)
     ]
     nv = rows[0]["n_validation"] if rows else 1
+
+    def prog(sel_name):
+        return float(np.mean([r["progress_m"] for r in rows if r["selection"] == sel_name]))
+
+    def mmd2(sel_name):
+        return float(np.mean([r["rs_mmd2"] for r in rows if r["selection"] == sel_name]))
+
     table = []
     for m in sel:
         a = np.asarray(per_scene[m], float)
@@ -888,6 +895,8 @@ def run_reduced_set(
                 mean_pct=a.mean() / nv * 100,
                 std_pct=a.std() / nv * 100,
                 min=a.min(),
+                progress_m=prog(m),
+                rs_mmd2=mmd2(m),
                 scenes=n,
             )
         )
@@ -900,12 +909,14 @@ def run_reduced_set(
                 mean_pct=mean_r.mean(),
                 std_pct=mean_r.std(),
                 min=float(np.min([np.min(r) for r in rnd])),
+                progress_m=prog("random"),
+                rs_mmd2=mmd2("random"),
                 scenes=n,
             )
         )
         table.append(
             dict(
-                selection=f"random x{random_sets} (best)",
+                selection=f"random x{random_sets} (best, oracle)",
                 mean_pct=best_r.mean(),
                 std_pct=best_r.std(),
                 min=float(np.min([np.max(r) for r in rnd])),
