@@ -93,7 +93,12 @@ class MMDOptConfig:
     speed and ``lateral_std_scale`` × half the lane width around its offset; cost weights and
     kernel (see :mod:`mmdopt.algorithm` and ``docs/benchmarks.md`` for how they were chosen);
     ``a``, ``b`` collision ellipse (m) plus the planning margins ``margin_long``, ``margin_lat``
-    (m) and ``margin_rate`` (m/s: the longitudinal margin grows by this much per second);
+    (m) and ``margin_rate`` (m/s: the longitudinal margin grows by this much per second) —
+    part of MMD-Opt's surrogate design (they stand for the prediction spread a 10-sample reduced
+    set cannot represent); the scenario baselines (``degroot``, ``scenario_all``, ``saa``) use
+    ``baseline_margin_scale`` × these margins, by default 0: the nominal ellipse, as de Groot et
+    al. and the reference code plan (their worst-case sample set is their safety mechanism; see
+    docs/benchmarks.md for both settings at matched progress);
     ``res_tol`` feasibility tolerance of the residual; ``saa_eps``, ``saa_temperature`` for the
     SAA baseline.  ``reduced_set`` configures the reduced-set selection; ``rs_lateral_scale``
     multiplies the samples' lateral offsets in the selection's kernel features (an anisotropic
@@ -106,13 +111,13 @@ class MMDOptConfig:
     n_elite: int = _static(50)
     iterations: int = _static(20)
     n_brake: int = _static(10)
-    reduced_set_size: int = _static(10)
+    reduced_set_size: int = _static(20)
     num_segments: int = _static(4)
     horizon: float = _static(15.0)
     num_steps: int = _static(100)
     degree: int = _static(10)
     constraint_points: str = _static("hull")
-    admm_iters: int = _static(25)
+    admm_iters: int = _static(10)
     admm_check_every: int = _static(25)
     dtype: str = _static("float32")
     admm_rho: float | None = _static(None)
@@ -134,10 +139,11 @@ class MMDOptConfig:
     f_scale: float = 1.0
     a: float = 4.5
     b: float = 3.5
-    margin_long: float = 2.0
-    margin_rate: float = 1.5
+    margin_long: float = 2.5
+    margin_rate: float = 1.9
     rs_lateral_scale: float = 10.0
-    margin_lat: float = 0.3
+    margin_lat: float = 0.4
+    baseline_margin_scale: float = 0.0
     res_tol: float = 0.05
     saa_eps: float = 0.02
     saa_temperature: float = 0.05
@@ -195,6 +201,9 @@ class MMDOptConfig:
             v = getattr(self, name)
             if _concrete(v) and not float(v) > 0:
                 raise ValueError(f"MMDOptConfig.{name} must be > 0, got {v}")
+        v = self.baseline_margin_scale
+        if _concrete(v) and not float(v) >= 0:
+            raise ValueError(f"MMDOptConfig.baseline_margin_scale must be >= 0, got {v}")
         if _concrete(self.eta) and not 0 < float(self.eta) <= 1:
             raise ValueError(f"MMDOptConfig.eta must be in (0, 1], got {self.eta}")
 
@@ -380,12 +389,13 @@ def _evaluate(
     # --- cost, eq. (c_aug) + residual
     j_speed = jnp.mean((vs - cfg.v_des) ** 2, axis=1)
     j_acc = jnp.mean(as_ * as_ + ad * ad, axis=1)
+    scale = 1.0 if mode == "mmd" else cfg.baseline_margin_scale
     f = ellipse_values(
         s,
         dd,
         data.centres.astype(dt),
-        planning_semi_axis(cfg, prob.t(), dt),
-        cfg.b + cfg.margin_lat,
+        planning_semi_axis(cfg, prob.t(), dt, scale),
+        cfg.b + scale * cfg.margin_lat,
     )
     if mode == "mmd":
         coll = mmd_cost(f, data.weights.astype(dt), cfg.bandwidth, cfg.f_scale, n_terms)
@@ -433,11 +443,12 @@ def _evaluate(
     return mu_new, cov_new, d_e, best, lv, info
 
 
-def planning_semi_axis(cfg: MMDOptConfig, t, dt=None):
-    """Longitudinal semi-axis of the planning ellipse per step, ``a + margin_long + margin_rate·t``
-    (m; the margin may grow with time like the spread of the predictions)."""
+def planning_semi_axis(cfg: MMDOptConfig, t, dt=None, scale=1.0):
+    """Longitudinal semi-axis of the planning ellipse per step,
+    ``a + scale·(margin_long + margin_rate·t)`` (m; the margin may grow with time like the spread
+    of the predictions; ``scale`` is 1 for MMD-Opt, ``baseline_margin_scale`` for baselines)."""
     t = jnp.asarray(t, dt) if dt is not None else jnp.asarray(t)
-    return cfg.a + cfg.margin_long + cfg.margin_rate * t
+    return cfg.a + scale * (cfg.margin_long + cfg.margin_rate * t)
 
 
 def _plan(prob: CEMProblem, d, state, dt):

@@ -144,11 +144,19 @@ def mmd_cost(f, weights, bandwidth, f_scale, n_terms: int):
     h = 0.5 * t * t
     w = weights[None, :, :, None]
     first = jnp.sum(w * (-jnp.expm1(-h)), axis=2) ** 2  # (B, O, K)
-    # φ_n(t) = tⁿ/√n! by running products (unrolled: n_terms fused passes, no (…, N) array)
+    # φ_n(t) = tⁿ/√n! by running products in a scan over n: one pass per term, no (…, N) array
+    # (an unrolled Python loop lets XLA re-fuse the whole product chain into every term's
+    # reduction, O(n_terms²) work: measured 1.45× slower at B = 150, J = 20, K = 100)
     g = w * jnp.exp(-h)
-    second = jnp.zeros(first.shape, first.dtype)
-    for n in range(1, n_terms + 1):
-        g = g * t * (1.0 / math.sqrt(n))
+    if n_terms < 1:
+        return jnp.sum(first, axis=(1, 2))
+    c = jnp.asarray([1.0 / math.sqrt(n) for n in range(1, n_terms + 1)], t.dtype)
+
+    def term(carry, cn):
+        g, acc = carry
+        g = g * t * cn
         proj = jnp.sum(g, axis=2)  # (B, O, K)
-        second = second + proj * proj
+        return (g, acc + proj * proj), None
+
+    (_, second), _ = jax.lax.scan(term, (g, jnp.zeros(first.shape, first.dtype)), c)
     return jnp.sum(first + second, axis=(1, 2))

@@ -157,6 +157,14 @@ def build_parser() -> argparse.ArgumentParser:
         )
         q.add_argument("--backend", type=_backend, default="admm", help="projection QP backend")
         q.add_argument(
+            "--config",
+            type=_existing_file,
+            default=None,
+            metavar="FILE.json",
+            help="JSON object overriding MMDOptConfig fields, e.g. "
+            '{"baseline_margin_scale": 1.0} (see README)',
+        )
+        q.add_argument(
             "--jobs",
             type=_positive_int,
             default=os.cpu_count() or 1,
@@ -250,6 +258,70 @@ def _scene_params(args, parser):
         return base
     except ValueError as e:
         parser.error(f"argument --scene-params: {e}")
+
+
+def _planner_config(args, parser):
+    """``MMDOptConfig`` with the overrides of ``--config FILE.json`` (``None`` without it)."""
+    path = getattr(args, "config", None)
+    if path is None:
+        return None
+    try:
+        return load_planner_config(path)
+    except ValueError as e:
+        parser.error(f"argument --config: {e}")
+
+
+def load_planner_config(path):
+    """``MMDOptConfig().replace(**overrides)`` from a JSON object of field names; the nested
+    ``reduced_set`` takes a JSON object of ``ReducedSetConfig`` fields.  Unknown keys, wrong
+    types or invalid values raise ``ValueError`` naming the key."""
+    try:
+        raw = json.loads(Path(path).read_text())
+    except json.JSONDecodeError as e:
+        raise ValueError(f"{path} is not valid JSON: {e}") from None
+    return load_planner_config_from_dict(raw)
+
+
+def load_planner_config_from_dict(raw):
+    """:func:`load_planner_config` from an already parsed JSON value."""
+    import dataclasses
+
+    from .algorithm import MMDOptConfig
+    from .reduced_set import ReducedSetConfig
+
+    if not isinstance(raw, dict):
+        raise ValueError("the config must be a JSON object of MMDOptConfig fields")
+    fields = {f.name: f for f in dataclasses.fields(MMDOptConfig)}
+    bad = sorted(set(raw) - set(fields))
+    if bad:
+        raise ValueError(
+            f"unknown MMDOptConfig field(s) {', '.join(bad)}; known: {', '.join(sorted(fields))}"
+        )
+    kw = dict(raw)
+    if "reduced_set" in kw:
+        rs = kw["reduced_set"]
+        if not isinstance(rs, dict):
+            raise ValueError("reduced_set must be a JSON object of ReducedSetConfig fields")
+        try:
+            kw["reduced_set"] = ReducedSetConfig(**rs)
+        except TypeError as e:
+            raise ValueError(f"reduced_set: {e}") from None
+    base = MMDOptConfig()
+    for k, v in kw.items():
+        if k == "reduced_set":
+            continue
+        default = getattr(base, k)
+        if isinstance(default, bool) or default is None:
+            continue
+        if isinstance(default, int) and not (isinstance(v, int) and not isinstance(v, bool)):
+            raise ValueError(f"{k} must be an integer, got {v!r}")
+        if isinstance(default, float) and not (
+            isinstance(v, int | float) and not isinstance(v, bool)
+        ):
+            raise ValueError(f"{k} must be a number, got {v!r}")
+        if isinstance(default, float):
+            kw[k] = float(v)
+    return base.replace(**kw)
 
 
 def _table(rows: Sequence[dict], cols: Sequence[str]) -> str:
@@ -366,6 +438,7 @@ def cmd_synthetic(args, parser) -> int:
     try:
         res = run_synthetic(
             args.out,
+            config=_planner_config(args, parser),
             scenes=args.scenes,
             seed=args.seed,
             params=params,
@@ -400,6 +473,7 @@ def cmd_reduced_set(args, parser) -> int:
     try:
         res = run_reduced_set(
             args.out,
+            config=_planner_config(args, parser),
             scenes=args.scenes,
             seed=args.seed,
             params=params,

@@ -65,6 +65,38 @@ def test_unknown_scene_param_key_is_a_clear_error(tmp_path, capsys):
     assert not (tmp_path / "o").exists()
 
 
+@pytest.mark.parametrize(
+    "overrides, named",
+    [
+        ({"w_mmd": 1.0, "margin_sideways": 0.3}, "margin_sideways"),
+        ({"iterations": 2.5}, "iterations"),
+        ({"baseline_margin_scale": -1.0}, "baseline_margin_scale"),
+        ({"reduced_set": {"betta": 1.0}}, "betta"),
+        ([1, 2], "JSON object"),
+    ],
+)
+def test_bad_planner_config_is_a_clear_error(tmp_path, capsys, overrides, named):
+    f = tmp_path / "c.json"
+    f.write_text(json.dumps(overrides))
+    code, err = _exit_code(
+        ["bench", "synthetic", "--out", str(tmp_path / "o"), "--config", str(f)], capsys
+    )
+    assert code == 2 and "--config" in err and named in err
+    assert not (tmp_path / "o").exists()
+
+
+def test_planner_config_file_overrides_fields():
+    import mmdopt
+
+    cfg = cli.load_planner_config_from_dict(
+        {"baseline_margin_scale": 1, "w_mmd": 2e4, "reduced_set": {"iterations": 20}}
+    )
+    assert isinstance(cfg, mmdopt.MMDOptConfig)
+    assert cfg.baseline_margin_scale == 1.0 and isinstance(cfg.baseline_margin_scale, float)
+    assert cfg.w_mmd == 2e4 and cfg.reduced_set.iterations == 20
+    assert cfg.n_samples == mmdopt.MMDOptConfig().n_samples  # untouched fields keep defaults
+
+
 def test_module_entry_point_exit_status():
     env = dict(os.environ, MPLBACKEND="Agg")
     r = subprocess.run(

@@ -211,3 +211,19 @@ def test_fallback_is_visible_and_counted():
     assert sol.settings["fallback"] == "clarabel"
     assert sol.extras["fallback_count"] == sol.extras["fallback_attempted"] > 0
     assert sol.all_solved
+
+
+def test_fixed_rung_fast_path_equals_the_ladder_dispatch():
+    """One check chunk (no rho update can happen before the end) runs K⁻¹ as one fixed matrix;
+    forcing the general per-QP rung dispatch (an explicit ``rho0`` on the same rung) gives the
+    same iterate to 1e-10 (float64), and the same status."""
+    P, A, q, l, u = _tiny()
+    eq, free = rows_from_bounds(l, u)
+    with jax.enable_x64(True):
+        s = ADMMSettings(check_every=30, dtype="float64", rho=0.5)
+        f = admm_factor(P, A, s, eq_rows=eq, free_rows=free)
+        fast = admm_iterate(f, q, l, u, iters=30)
+        ladder = admm_iterate(f, q, l, u, iters=30, rho0=np.full(4, 0.5))
+        np.testing.assert_allclose(np.asarray(fast.x), np.asarray(ladder.x), atol=1e-10)
+        np.testing.assert_allclose(np.asarray(fast.y), np.asarray(ladder.y), atol=1e-10)
+        np.testing.assert_array_equal(np.asarray(fast.status), np.asarray(ladder.status))
