@@ -303,6 +303,11 @@ def plan_frenet(
     )
 
 
+#: the plan's own MMD value for the diagnostics (jitted: eagerly, the Taylor-feature scan would be
+#: compiled again on every call)
+_mmd_cost_jit = jax.jit(mmd_cost, static_argnums=(4,))
+
+
 def _all_samples_set(n: int, O: int) -> ReducedSet:
     idx = jnp.broadcast_to(jnp.arange(n, dtype=jnp.int32), (O, n))
     w = jnp.full((O, n), 1.0 / n)
@@ -510,7 +515,7 @@ def _assemble(
             config.b + config.margin_lat,
         )
         mmd_val = float(
-            mmd_cost(
+            _mmd_cost_jit(
                 f, jnp.asarray(weights), config.bandwidth, config.f_scale, n_taylor_terms(config)
             )[0]
         )

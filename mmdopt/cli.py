@@ -4,7 +4,7 @@
 
     mmdopt demo [--out DIR]                               plan one built-in scene, table + PNG
     mmdopt bench synthetic   --scenes N --seed S --out DIR [--methods mmd,degroot,random,saa]
-                             [--scene-params FILE.json] [--backend NAME]
+                             [--scene-params FILE.json] [--backend NAME] [--config FILE.json]
                              [--preset paper100|reference36|lanechange] [--jobs J]
     mmdopt bench reduced-set --scenes N --random-sets R --out DIR       (paper Fig. 4)
     mmdopt bench timing      --out DIR [--sizes 10,20,30,40,50] [--samples 50,100,200]

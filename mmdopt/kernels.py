@@ -77,6 +77,28 @@ def one_minus_gaussian_gram(x: jax.Array, y: jax.Array | None = None, bandwidth=
 
 
 @jax.jit
+def _kth_smallest_nonneg(v: jax.Array, ks: jax.Array) -> jax.Array:
+    """The ``ks``-th smallest (0-based, each of ``ks`` (r,)) of ``v`` (..., N) ≥ 0 -> (..., r).
+
+    Exact radix select on the IEEE bit patterns (order-preserving for non-negative floats): the
+    answer is built from the highest bit down, keeping a bit when fewer than k + 1 entries lie
+    below the trial value; one compare-and-count over ``v`` per bit, no sort.
+    """
+    ut = jnp.uint32 if v.dtype == jnp.float32 else jnp.uint64
+    nbits = 32 if v.dtype == jnp.float32 else 64
+    bits = jax.lax.bitcast_convert_type(v, ut)[..., None, :]  # (..., 1, N)
+    ks = jnp.asarray(ks, jnp.int32)
+
+    def body(i, ans):
+        trial = ans | (ut(1) << (nbits - 2 - i).astype(ut))  # the sign bit is 0
+        below = jnp.sum(bits < trial[..., None], axis=-1, dtype=jnp.int32)
+        return jnp.where(below <= ks, trial, ans)
+
+    ans0 = jnp.zeros(v.shape[:-1] + ks.shape, ut)
+    ans = jax.lax.fori_loop(0, nbits - 1, body, ans0)
+    return jax.lax.bitcast_convert_type(ans, v.dtype)
+
+
 def median_heuristic(x: jax.Array) -> jax.Array:
     """Data-driven bandwidth: the median pairwise Euclidean distance (Gretton et al., 2012).
 
@@ -98,9 +120,10 @@ def median_heuristic(x: jax.Array) -> jax.Array:
     # every pair appears twice off the diagonal and the n diagonal zeros sort first, so the
     # median of the sorted tail equals the median over the n(n−1)/2 distinct pairs
     d = jnp.sqrt(sq_distances(x)).reshape(x.shape[:-2] + (n * n,))
-    ds = jnp.sort(d, axis=-1)[..., n:]  # (jnp.median / triu gathers compile far slower)
     npairs = n * (n - 1)
-    med = 0.5 * (ds[..., npairs // 2 - 1] + ds[..., npairs // 2])
+    ranks = jnp.asarray([n + npairs // 2 - 1, n + npairs // 2])
+    lo_hi = _kth_smallest_nonneg(d, ranks)  # (jnp.sort costs ≈ 1 ms at n = 100 on CPU)
+    med = 0.5 * (lo_hi[..., 0] + lo_hi[..., 1])
     nz = d > 0
     mean_nz = jnp.sum(d, axis=-1) / jnp.maximum(jnp.sum(nz, axis=-1), 1)
     out = jnp.where(med > 0, med, mean_nz)

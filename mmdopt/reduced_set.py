@@ -296,6 +296,20 @@ def _top_m_sum(v: jax.Array, m: int) -> jax.Array:
     return jnp.where(count == m, ge_sum, tie_sum)
 
 
+def _smallest(c: jax.Array, k: int) -> jax.Array:
+    """Indices of the ``k`` smallest entries of ``c`` (p,), ascending, ties by index: the same
+    as ``jnp.argsort(c, stable=True)[:k]`` (NaN counts as +inf), by pairwise ranks (one fused
+    p² comparison and a scatter; XLA's CPU sort costs ≈ 13 µs per call at p = 100, this ≈ 5)."""
+    c = jnp.where(jnp.isnan(c), jnp.inf, c)
+    p = c.shape[0]
+    idx = jnp.arange(p)
+    ci, cj = c[:, None], c[None, :]
+    before = (cj < ci) | ((cj == ci) & (idx[None, :] < idx[:, None]))  # j precedes i
+    rank = jnp.sum(before, axis=1)  # a permutation of 0 … p−1
+    out = jnp.zeros((k,), jnp.int32)
+    return out.at[jnp.where(rank < k, rank, k)].set(idx.astype(jnp.int32), mode="drop")
+
+
 def reduced_set_objective(alpha: jax.Array, K: jax.Array, m: int, beta=1.0, ratio_eps=1e-6):
     """eq. (red_set_opt_proposed) for a population ``alpha`` (p, n) -> (p,).
 
@@ -356,7 +370,7 @@ def _cem_alpha(key, K: jax.Array, m: int, cfg: ReducedSetConfig) -> jax.Array:
     cov0 = cfg.sigma0 * eye
     pop0 = mu0 + jnp.sqrt(jnp.asarray(cfg.sigma0, dtype)) * z0  # Σ₀ = sigma0·I
     c0 = cost(pop0)
-    order = jnp.argsort(c0)[:E]
+    order = _smallest(c0, E)
     elites, ecost = pop0[order], c0[order]
     mu, cov = stats(elites)
     s = cfg.smoothing
@@ -368,7 +382,7 @@ def _cem_alpha(key, K: jax.Array, m: int, cfg: ReducedSetConfig) -> jax.Array:
         new = mu + z @ jnp.linalg.cholesky(cov).T
         pop = jnp.concatenate([elites, new], axis=0)
         c = jnp.concatenate([ecost, cost(new)])
-        order = jnp.argsort(c)[:E]
+        order = _smallest(c, E)
         elites, ecost = pop[order], c[order]
         mu_new, cov_new = stats(elites)
         mu = (1.0 - s) * mu_new + s * mu

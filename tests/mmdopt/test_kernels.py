@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import jax.numpy as jnp
 import numpy as np
+import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 from hypothesis.extra.numpy import arrays
@@ -160,3 +161,15 @@ def test_median_heuristic_scales_with_the_data_and_survives_identical_samples():
     assert float(median_heuristic(np.ones((10, 4)))) == 1.0
     mostly_same = np.concatenate([np.zeros((8, 2)), [[3.0, 4.0]]])
     assert float(median_heuristic(mostly_same)) == 5.0  # median 0 -> mean of non-zero distances
+
+
+@pytest.mark.parametrize("dtype", [np.float64, np.float32])
+def test_median_heuristic_is_the_exact_median_of_the_distinct_pairwise_distances(dtype):
+    """The sort-free (radix select) median equals NumPy's median over the n(n−1)/2 pairs."""
+    rng = np.random.default_rng(1)
+    for n, d in [(2, 3), (7, 1), (37, 5), (100, 20)]:
+        x = (rng.normal(size=(n, d)) * rng.uniform(0.01, 100.0)).astype(dtype)
+        dist = np.sqrt(((x[:, None].astype(float) - x[None]) ** 2).sum(-1))
+        want = np.median(dist[np.triu_indices(n, 1)])
+        got = float(median_heuristic(jnp.asarray(x)))
+        assert got == pytest.approx(want, rel=1e-5 if dtype == np.float32 else 1e-12)

@@ -228,3 +228,17 @@ def test_bad_inputs_raise_value_errors_naming_the_argument(kwargs, match):
     args.update(kwargs)
     with pytest.raises(ValueError, match=match):
         select_reduced_set(jax.random.key(0), **args)
+
+
+def test_elite_ranking_equals_a_stable_argsort_with_ties_and_nan():
+    """The CEM's sort-free elite selection is ``argsort(c, stable)[:k]`` exactly (NaN last)."""
+    from mmdopt.reduced_set import _smallest
+
+    rng = np.random.default_rng(0)
+    f = jax.jit(_smallest, static_argnums=1)
+    for trial in range(20):
+        c = rng.integers(0, 6, 100).astype(np.float32) if trial % 2 else rng.normal(size=100)
+        if trial % 5 == 0:
+            c[rng.integers(0, 100, 7)] = np.nan
+        want = np.argsort(np.where(np.isnan(c), np.inf, c), kind="stable")[:20]
+        np.testing.assert_array_equal(np.asarray(f(jnp.asarray(c), 20)), want)
