@@ -141,6 +141,9 @@ def mmd_cost(f, weights, bandwidth, f_scale, n_terms: int):
     n_terms : static number of Taylor features
     """
     t = jnp.maximum(jnp.max(f, axis=3), 0.0) * (f_scale / bandwidth)  # (B, O, J, K)
+    # materialise t once: otherwise XLA fuses the collision function into each of t's consumers
+    # and evaluates it (B·O·J·C·K values) several times
+    t = jax.lax.optimization_barrier(t)
     h = 0.5 * t * t
     w = weights[None, :, :, None]
     first = jnp.sum(w * (-jnp.expm1(-h)), axis=2) ** 2  # (B, O, K)

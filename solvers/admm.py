@@ -502,6 +502,30 @@ def admm_iterate(
             rung = jnp.where(active & (status == _RUNNING) & ~keep, best.astype(jnp.int32), rung)
         return prim, dual, status, rung
 
+    def _iterate_batch_last(x, z, y, cnt):
+        # The same iterations as ``step`` (fixed rung, every QP active) with the batch as the
+        # last axis: the products become (m, n)·(n, B) instead of (B, n)·(n, m), which XLA's CPU
+        # backend runs ≈ 3× faster at these shapes (n, m ≲ 100; measured, docs/benchmarks.md).
+        AbT_, Ab_, K_ = Ab.T, Ab, K_fix  # K⁻¹ is symmetric
+        R, Rinv = R_fix.T, Rinv_fix.T  # (m, 1)
+        qT, lT, uT = qb.T, lb.T, ub.T
+
+        def it(_, c_):
+            xT, zT, yT, _xp, _yp = c_
+            rhs = s.sigma * xT - qT + AbT_ @ (R * zT - yT)
+            xt = K_ @ rhs
+            zt = Ab_ @ xt
+            xn = s.alpha * xt + (1.0 - s.alpha) * xT
+            zr = s.alpha * zt + (1.0 - s.alpha) * zT
+            zn = jnp.clip(zr + yT * Rinv, lT, uT)
+            yn = yT + R * (zr - zn)
+            return xn, zn, yn, xT, yT
+
+        xT, zT, yT = x.T, z.T, y.T
+        xT, zT, yT, xpT, ypT = lax.fori_loop(0, s.check_every, it, (xT, zT, yT, xT, yT))
+        used = jnp.asarray(s.check_every, jnp.int32) * (x.shape[0] > 0)
+        return xT.T, zT.T, yT.T, xpT.T, ypT.T, cnt + used
+
     def chunk(carry, all_active=False):
         x, z, y, rung, status, iters_b, prim, dual, k, cnt = carry
         active = status == _RUNNING
@@ -511,7 +535,10 @@ def admm_iterate(
             xn, zn, yn, _, _, cnt = step((x, z, y, rung, active, cnt), all_active)
             return xn, zn, yn, x, y, cnt
 
-        x, z, y, xp, yp, cnt = lax.fori_loop(0, s.check_every, it, (x, z, y, x, y, cnt))
+        if all_active and fixed_rung:
+            x, z, y, xp, yp, cnt = _iterate_batch_last(x, z, y, cnt)
+        else:
+            x, z, y, xp, yp, cnt = lax.fori_loop(0, s.check_every, it, (x, z, y, x, y, cnt))
         prim_n, dual_n, status_n, rung = check(x, z, y, xp, yp, rung, status, active)
         prim = jnp.where(active, prim_n, prim)
         dual = jnp.where(active, dual_n, dual)
