@@ -509,6 +509,7 @@ def cmd_timing(args, parser) -> int:
                 "n_samples",
                 "reduced_set_s",
                 "algorithm1_s",
+                "plan_s",
                 "compile_s",
                 "backend",
             ],

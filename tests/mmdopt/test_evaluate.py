@@ -221,3 +221,20 @@ def test_sweep_refuses_to_mix_settings(tmp_path, fake_planner):
             methods=["mmd"],
             progress=False,
         )
+
+
+def test_timing_table_has_the_contract_columns_and_algorithm1_inside_plan(tmp_path):
+    """``run_timing`` (``mmdopt bench timing``) writes the contract columns; Algorithm 1 (the CEM
+    alone) takes no longer than the whole ``plan()`` call that contains it."""
+    cfg = mmdopt.MMDOptConfig(n_samples=200, n_cem=40, n_elite=15, iterations=3, n_brake=5)
+    rows = evaluate.run_timing(
+        tmp_path, sizes=[5], samples=[], repeats=2, config=cfg, progress=False
+    )
+    with open(tmp_path / "timing.csv") as f:
+        got = list(csv.DictReader(f))
+    assert len(got) == len(rows) == 1
+    assert set(evaluate.TIMING_COLUMNS) <= set(got[0])
+    r = rows[0]
+    assert r["reduced_set_size"] == 5 and r["n_samples"] == 100 and r["backend"] == "admm"
+    assert 0 < r["algorithm1_s"] <= r["plan_s"] and r["reduced_set_s"] > 0
+    assert r["compile_s"] >= 0 and (tmp_path / "timing.png").exists()
