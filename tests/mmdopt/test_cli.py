@@ -208,7 +208,7 @@ def test_smoke_five_scenes_pipeline_bar(tmp_path, capsys):
     assert mean >= SMOKE_FLOOR
 
 
-#: MMD-Opt's mean on these 5 scenes (seed 0) was 995.6 when the floor was set (per scene 997, 996,
-#: 994, 991, 1000; de Groot 981.0; commit after efd8ab6, m = 20 and the session-2 margins); the
-#: floor leaves a margin for numerical differences between machines and library versions
+#: MMD-Opt's mean on these 5 scenes (seed 0) was 995.2 at 69e9db7 (per scene 996, 999, 999, 988,
+#: 994; de Groot 981.0; 995.6 at cf55bc5), m = 20 and the session-2 margins; the floor leaves a
+#: margin for numerical differences between machines and library versions
 SMOKE_FLOOR = 980.0
