@@ -76,7 +76,6 @@ def one_minus_gaussian_gram(x: jax.Array, y: jax.Array | None = None, bandwidth=
     return -jnp.expm1(-sq_distances(x, y) / (2.0 * s * s))
 
 
-@jax.jit
 def _kth_smallest_nonneg(v: jax.Array, ks: jax.Array) -> jax.Array:
     """The ``ks``-th smallest (0-based, each of ``ks`` (r,)) of ``v`` (..., N) ≥ 0 -> (..., r).
 
@@ -99,6 +98,7 @@ def _kth_smallest_nonneg(v: jax.Array, ks: jax.Array) -> jax.Array:
     return jax.lax.bitcast_convert_type(ans, v.dtype)
 
 
+@jax.jit
 def median_heuristic(x: jax.Array) -> jax.Array:
     """Data-driven bandwidth: the median pairwise Euclidean distance (Gretton et al., 2012).
 
