@@ -418,9 +418,6 @@ def admm_iterate(
         K_fix = Kinv[rung0]
 
     def kinv_apply(rhs, rung, active):
-        if fixed_rung:
-            return rhs @ K_fix, jnp.any(active).astype(jnp.int32)
-
         # one matmul per rung in use, then a select (a rolled loop keeps compile time small)
         def body(r, acc):
             out, cnt = acc
@@ -432,22 +429,17 @@ def admm_iterate(
 
         return lax.fori_loop(0, L, body, (jnp.zeros_like(rhs), jnp.zeros((), jnp.int32)))
 
-    def step(carry, all_active=False):
+    def step(carry):
+        # one iteration with each QP on its own rung of the ladder
         x, z, y, rung, active, cnt = carry
-        if fixed_rung:
-            R, Rinv = R_fix, Rinv_fix
-        else:
-            R = row_rho(rung)
-            Rinv = 1.0 / R
+        R = row_rho(rung)
         rhs = s.sigma * x - qb + (R * z - y) @ Ab
         xt, k = kinv_apply(rhs, rung, active)
         zt = xt @ Ab.T
         xn = s.alpha * xt + (1.0 - s.alpha) * x
         zr = s.alpha * zt + (1.0 - s.alpha) * z
-        zn = jnp.clip(zr + y * Rinv, lb, ub)
+        zn = jnp.clip(zr + y / R, lb, ub)
         yn = y + R * (zr - zn)
-        if all_active:
-            return xn, zn, yn, rung, active, cnt + k
         a = active[:, None]
         return (jnp.where(a, xn, x), jnp.where(a, zn, z), jnp.where(a, yn, y), rung, active,
                 cnt + k)
@@ -502,29 +494,30 @@ def admm_iterate(
             rung = jnp.where(active & (status == _RUNNING) & ~keep, best.astype(jnp.int32), rung)
         return prim, dual, status, rung
 
-    def _iterate_batch_last(x, z, y, cnt):
-        # The same iterations as ``step`` (fixed rung, every QP active) with the batch as the
-        # last axis: the products become (m, n)·(n, B) instead of (B, n)·(n, m), which XLA's CPU
-        # backend runs ≈ 3× faster at these shapes (n, m ≲ 100; measured, docs/benchmarks.md).
-        AbT_, Ab_, K_ = Ab.T, Ab, K_fix  # K⁻¹ is symmetric
+    def fixed_rung_iterations(x, z, y, active, all_active):
+        # ``check_every`` iterations of ``step`` on the fixed rung, with the batch as the last
+        # axis: the products become (m, n)·(n, B) instead of (B, n)·(n, m), which XLA's CPU
+        # backend runs ≈ 3× faster at these shapes (n, m ≲ 100; measured, docs/benchmarks.md)
         R, Rinv = R_fix.T, Rinv_fix.T  # (m, 1)
         qT, lT, uT = qb.T, lb.T, ub.T
+        a = active[None, :]
 
         def it(_, c_):
             xT, zT, yT, _xp, _yp = c_
-            rhs = s.sigma * xT - qT + AbT_ @ (R * zT - yT)
-            xt = K_ @ rhs
-            zt = Ab_ @ xt
+            rhs = s.sigma * xT - qT + Ab.T @ (R * zT - yT)
+            xt = K_fix @ rhs  # K⁻¹ is symmetric
+            zt = Ab @ xt
             xn = s.alpha * xt + (1.0 - s.alpha) * xT
             zr = s.alpha * zt + (1.0 - s.alpha) * zT
             zn = jnp.clip(zr + yT * Rinv, lT, uT)
             yn = yT + R * (zr - zn)
+            if not all_active:  # QPs that have stopped keep their iterate
+                xn, zn, yn = (jnp.where(a, new, old) for new, old in ((xn, xT), (zn, zT), (yn, yT)))
             return xn, zn, yn, xT, yT
 
         xT, zT, yT = x.T, z.T, y.T
         xT, zT, yT, xpT, ypT = lax.fori_loop(0, s.check_every, it, (xT, zT, yT, xT, yT))
-        used = jnp.asarray(s.check_every, jnp.int32) * (x.shape[0] > 0)
-        return xT.T, zT.T, yT.T, xpT.T, ypT.T, cnt + used
+        return xT.T, zT.T, yT.T, xpT.T, ypT.T
 
     def chunk(carry, all_active=False):
         x, z, y, rung, status, iters_b, prim, dual, k, cnt = carry
@@ -532,11 +525,12 @@ def admm_iterate(
 
         def it(_, c_):
             x, z, y, _xp, _yp, cnt = c_
-            xn, zn, yn, _, _, cnt = step((x, z, y, rung, active, cnt), all_active)
+            xn, zn, yn, _, _, cnt = step((x, z, y, rung, active, cnt))
             return xn, zn, yn, x, y, cnt
 
-        if all_active and fixed_rung:
-            x, z, y, xp, yp, cnt = _iterate_batch_last(x, z, y, cnt)
+        if fixed_rung:
+            x, z, y, xp, yp = fixed_rung_iterations(x, z, y, active, all_active)
+            cnt = cnt + s.check_every * jnp.any(active).astype(jnp.int32)
         else:
             x, z, y, xp, yp, cnt = lax.fori_loop(0, s.check_every, it, (x, z, y, x, y, cnt))
         prim_n, dual_n, status_n, rung = check(x, z, y, xp, yp, rung, status, active)
