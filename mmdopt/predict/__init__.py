@@ -1,0 +1,1 @@
+"""Predictor protocol and predictors: black-box samplers of obstacles' futures."""
