@@ -89,6 +89,7 @@ __all__ = [
     "shift",
     "planning_semi_axis",
     "n_taylor_terms",
+    "check_backend",
 ]
 
 #: the planner's default projection: the jitted fixed-budget ADMM projector inside the CEM step
@@ -696,9 +697,16 @@ def _evaluate_host(state: CEMState, obstacles: ObstacleSet, d, cx, cy, res):
 
 
 # ------------------------------------------------------------------------------------ public API
-def _check_backend(backend: str) -> None:
+def check_backend(backend: str, settings: dict) -> None:
+    """Raise ``ValueError`` for a non-string backend or settings given to ``admm-fixed``."""
     if not isinstance(backend, str):
         raise ValueError(f"backend must be a string, got {type(backend).__name__}")
+    if backend == PLANNER_BACKEND and settings:
+        raise ValueError(
+            f"backend {PLANNER_BACKEND!r} takes no solver settings (got {sorted(settings)}): its "
+            "budget and step size are MMDOptConfig.admm_iters / admm_rho; pass backend='admm' "
+            "for the registry's ADMM with settings"
+        )
 
 
 @x64
@@ -726,7 +734,7 @@ def update(
     """One CEM iteration (sample, plan, project, score, update).  Raises ``ValueError`` once the
     state has done ``config.iterations`` iterations (its keys are used up: :func:`shift` or
     :func:`init` a new state)."""
-    _check_backend(backend)
+    check_backend(backend, backend_settings)
     if not isinstance(state, CEMState):
         raise ValueError(f"state must be a CEMState, got {type(state).__name__}")
     if not isinstance(obstacles, ObstacleSet):
@@ -735,7 +743,7 @@ def update(
         raise ValueError(
             f"state has done all config.iterations = {state.config.iterations} iterations"
         )
-    if backend == PLANNER_BACKEND and not backend_settings:
+    if backend == PLANNER_BACKEND:
         return _step_jit(state, obstacles)
     prob = build_problem(state.config, state.problem.bounds)
     d, cx_bar, cy_bar = _sample_plan(state)
@@ -743,7 +751,7 @@ def update(
         np.asarray(cx_bar, np.float64),
         np.asarray(cy_bar, np.float64),
         np.asarray(state.problem.state, np.float64),
-        backend="admm" if backend == PLANNER_BACKEND else backend,
+        backend=backend,
         **backend_settings,
     )
     return _evaluate_host(state, obstacles, d, pr.cx, pr.cy, pr.residual)
@@ -761,8 +769,8 @@ def run(
 ) -> CEMState:
     """:func:`init` then ``config.iterations`` × :func:`update`; with ``admm-fixed`` one jitted
     ``lax.scan``.  Returns the final :class:`CEMState` (``best``, ``least_violating``, traces)."""
-    _check_backend(backend)
-    if backend == PLANNER_BACKEND and not backend_settings:
+    check_backend(backend, backend_settings)
+    if backend == PLANNER_BACKEND:
         if not isinstance(config, MMDOptConfig):
             raise ValueError(f"config must be an MMDOptConfig, got {type(config).__name__}")
         return _run_fixed(config, problem, obstacles, key, warm_start)

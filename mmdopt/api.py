@@ -279,6 +279,7 @@ def plan(
     config = MMDOptConfig() if config is None else config
     key = jax.random.PRNGKey(0) if key is None else key
     _check_common(ego, road, method, config, backend, key)
+    alg.check_backend(backend, backend_settings)
     arr = _check_obstacles(obstacles, config, method)
     t1 = time.perf_counter()
     s, d = road.path.to_frenet(arr[..., 0], arr[..., 1])
@@ -313,6 +314,7 @@ def plan_frenet(
     config = MMDOptConfig() if config is None else config
     key = jax.random.PRNGKey(0) if key is None else key
     _check_common(ego, road, method, config, backend, key)
+    alg.check_backend(backend, backend_settings)
     arr = _check_obstacles(obstacles_frenet, config, method, name="obstacles_frenet")
     diag = {"frenet_conversion_s": 0.0}
     return _plan_impl(
