@@ -180,11 +180,10 @@ def as_warm_start(ws: Any, n: int, m: int, batch: int | None = None) -> WarmStar
         )
     shape_x = (n,) if batch is None else (batch, n)
     shape_y = (m,) if batch is None else (batch, m)
-    try:
-        x = np.asarray(x, dtype=np.float64)
-        y = np.zeros(shape_y) if y is None else np.asarray(y, dtype=np.float64)
-    except (TypeError, ValueError) as exc:
-        raise ValueError(f"warm_start must hold real arrays: {exc}") from None
+    from .problem import _real
+
+    x = _real(x, "warm_start x")
+    y = np.zeros(shape_y) if y is None else _real(y, "warm_start y")
     if x.shape != shape_x:
         raise ValueError(f"warm_start x has shape {x.shape}, expected {shape_x}")
     if y.shape != shape_y:

@@ -12,7 +12,8 @@ import jax
 import numpy as np
 import pytest
 
-import solvers.admm as admm
+import solvers.admm.backend as admm_backend
+import solvers.admm.core as admm_core
 from solvers import QP, QPBatch, Status, solve, solve_batch
 from solvers.admm import ADMMSettings, admm_factor, admm_iterate, rows_from_bounds
 from solvers.examples import projection_like_batch, random_feasible_qp
@@ -58,7 +59,7 @@ def test_settings_used_are_recorded_and_defaults_kept():
 
 
 def test_large_n_warns(monkeypatch):
-    monkeypatch.setattr(admm, "DENSE_N_WARN", 4)
+    monkeypatch.setattr(admm_backend, "DENSE_N_WARN", 4)
     b = projection_like_batch(1, horizon=8)
     with pytest.warns(UserWarning, match="densifies"):
         solve_batch(b, "admm", max_iter=25)
@@ -138,9 +139,9 @@ def test_no_recompile_for_new_data_of_the_same_shape():
     b1 = projection_like_batch(3, horizon=12, seed=3)
     b2 = projection_like_batch(3, horizon=12, seed=4)
     solve_batch(b1, "admm", **PROJ)
-    n0 = admm._admm_iterate_jit._cache_size()
+    n0 = admm_core._admm_iterate_jit._cache_size()
     solve_batch(b2, "admm", **PROJ)
-    assert admm._admm_iterate_jit._cache_size() == n0
+    assert admm_core._admm_iterate_jit._cache_size() == n0
 
 
 def test_warm_start_from_previous_batch_needs_no_more_iterations():
