@@ -71,29 +71,52 @@ _SOLVER_SPECS: dict[str, tuple[dict, frozenset | None, tuple, tuple]] = {
         },
         frozenset(
             {
-                "normalize", "scale", "adaptive_scale", "rho_x", "max_iters", "eps_abs",
-                "eps_rel", "eps_infeas", "alpha", "time_limit_secs", "verbose", "warm_start",
-                "acceleration_lookback", "acceleration_interval", "write_data_filename",
-                "log_csv_filename", "use_indirect", "gpu", "mkl",
+                "normalize",
+                "scale",
+                "adaptive_scale",
+                "rho_x",
+                "max_iters",
+                "eps_abs",
+                "eps_rel",
+                "eps_infeas",
+                "alpha",
+                "time_limit_secs",
+                "verbose",
+                "warm_start",
+                "acceleration_lookback",
+                "acceleration_interval",
+                "write_data_filename",
+                "log_csv_filename",
+                "use_indirect",
+                "gpu",
+                "mkl",
             }
-        ),  # fmt: skip
+        ),
         ("eps_abs", "eps_rel"),
         (1e-5, 1e-5),
     ),
     "PIQP": (
-        {"eps_abs": ("eps_abs",), "eps_rel": ("eps_rel",), "max_iter": ("max_iter",),
-         "verbose": ("verbose",)},
+        {
+            "eps_abs": ("eps_abs",),
+            "eps_rel": ("eps_rel",),
+            "max_iter": ("max_iter",),
+            "verbose": ("verbose",),
+        },
         None,
         ("eps_abs", "eps_rel"),
         (1e-8, 1e-9),
-    ),  # fmt: skip
+    ),
     "PROXQP": (
-        {"eps_abs": ("eps_abs",), "eps_rel": ("eps_rel",), "max_iter": ("max_iter",),
-         "verbose": ("verbose",)},
+        {
+            "eps_abs": ("eps_abs",),
+            "eps_rel": ("eps_rel",),
+            "max_iter": ("max_iter",),
+            "verbose": ("verbose",),
+        },
         None,
         ("eps_abs", "eps_rel"),
         (1e-5, 0.0),
-    ),  # fmt: skip
+    ),
     "DAQP": (
         {"eps_abs": ("primal_tol",), "max_iter": ("iter_limit",), "verbose": ("verbose",)},
         None,

@@ -46,14 +46,37 @@ _STATUS = {
 #: OSQP's own setting names (osqp 1.x)
 NATIVE = frozenset(
     {
-        "adaptive_rho", "adaptive_rho_fraction", "adaptive_rho_interval",
-        "adaptive_rho_tolerance", "alpha", "cg_max_iter", "cg_precond", "cg_tol_fraction",
-        "cg_tol_reduction", "check_dualgap", "check_termination", "delta", "device",
-        "eps_abs", "eps_dual_inf", "eps_prim_inf", "eps_rel", "linsys_solver", "max_iter",
-        "polish_refine_iter", "polishing", "rho", "rho_is_vec", "scaled_termination",
-        "scaling", "sigma", "time_limit", "verbose", "warm_starting",
+        "adaptive_rho",
+        "adaptive_rho_fraction",
+        "adaptive_rho_interval",
+        "adaptive_rho_tolerance",
+        "alpha",
+        "cg_max_iter",
+        "cg_precond",
+        "cg_tol_fraction",
+        "cg_tol_reduction",
+        "check_dualgap",
+        "check_termination",
+        "delta",
+        "device",
+        "eps_abs",
+        "eps_dual_inf",
+        "eps_prim_inf",
+        "eps_rel",
+        "linsys_solver",
+        "max_iter",
+        "polish_refine_iter",
+        "polishing",
+        "rho",
+        "rho_is_vec",
+        "scaled_termination",
+        "scaling",
+        "sigma",
+        "time_limit",
+        "verbose",
+        "warm_starting",
     }
-)  # fmt: skip
+)
 #: the common vocabulary: OSQP's names are the common ones
 COMMON = {k: (k,) for k in ("eps_abs", "eps_rel", "max_iter", "time_limit", "verbose")}
 SPEC = SettingsSpec(

@@ -539,8 +539,10 @@ class QPBatch:
         P0, A0 = qps[0].dense()
         for i, qp in enumerate(qps[1:], 1):
             P, A = qp.dense()
-            if P.shape != P0.shape or A.shape != A0.shape or not (
-                np.array_equal(P, P0) and np.array_equal(A, A0)
+            if (
+                P.shape != P0.shape
+                or A.shape != A0.shape
+                or not (np.array_equal(P, P0) and np.array_equal(A, A0))
             ):
                 raise ValueError(f"qps[{i}] does not share P and A with qps[0]")
         return cls(

@@ -1,11 +1,11 @@
 """Backends ``qpsolvers:<name>``: any QP solver that the ``qpsolvers`` package finds installed.
 
 Each problem goes through :meth:`QP.to_qpsolvers` (``G = [A[up]; −A[lo]]``, ``Aeq = A[eq]``) and
-``qpsolvers.solve_problem(Problem(...), solver=name, **settings)``.  Settings: the common vocabulary,
-mapped per solver (:data:`SPECS`), and the native solver's keyword arguments, checked against its
-known names (qpsolvers itself would pass an unknown one on, where PIQP ignores it and others fail);
-an unknown name raises :class:`~solvers.errors.InvalidSettingError`.  qpsolvers defaults to
-``verbose=False``.  ``qpsolvers`` is imported on first use, not when this module is imported.
+``qpsolvers.solve_problem(Problem(...), solver=name, **settings)``.  Settings: the common
+vocabulary, mapped per solver (:data:`SPECS`), and the native solver's keyword arguments, checked
+against its known names (qpsolvers itself would pass an unknown one on, where PIQP ignores it and
+others fail); an unknown name raises :class:`~solvers.errors.InvalidSettingError`.  qpsolvers
+defaults to ``verbose=False``.  ``qpsolvers`` is imported on first use, not at module import.
 
 qpsolvers' duals follow the same sign convention as ours (``Px + q + Gᵀz + Aᵀy = 0``), so they
 map back to OSQP's ``y`` over our rows as ``y[eq] = y_qp``, ``y[up] += z[:n_up]`` and
@@ -28,7 +28,7 @@ import numpy as np
 import scipy.sparse as sp
 
 from .base import Backend, failed_solution
-from .errors import InvalidSettingError, UnknownBackendError
+from .errors import UnknownBackendError
 from .problem import QP
 from .settings import SettingsSpec
 from .solution import Solution, Status
@@ -70,14 +70,38 @@ _EXCLUDED = EXCLUDED
 _C = ("eps_abs", "eps_rel", "max_iter", "time_limit", "verbose")
 _OSQP_NATIVE = frozenset(
     {
-        "adaptive_rho", "adaptive_rho_fraction", "adaptive_rho_interval",
-        "adaptive_rho_tolerance", "alpha", "cg_max_iter", "cg_precond", "cg_tol_fraction",
-        "cg_tol_reduction", "check_dualgap", "check_termination", "delta", "device",
-        "eps_abs", "eps_dual_inf", "eps_prim_inf", "eps_rel", "linsys_solver", "max_iter",
-        "polish_refine_iter", "polishing", "rho", "rho_is_vec", "scaled_termination",
-        "scaling", "sigma", "time_limit", "verbose", "warm_starting", "raise_error",
+        "adaptive_rho",
+        "adaptive_rho_fraction",
+        "adaptive_rho_interval",
+        "adaptive_rho_tolerance",
+        "alpha",
+        "cg_max_iter",
+        "cg_precond",
+        "cg_tol_fraction",
+        "cg_tol_reduction",
+        "check_dualgap",
+        "check_termination",
+        "delta",
+        "device",
+        "eps_abs",
+        "eps_dual_inf",
+        "eps_prim_inf",
+        "eps_rel",
+        "linsys_solver",
+        "max_iter",
+        "polish_refine_iter",
+        "polishing",
+        "rho",
+        "rho_is_vec",
+        "scaled_termination",
+        "scaling",
+        "sigma",
+        "time_limit",
+        "verbose",
+        "warm_starting",
+        "raise_error",
     }
-)  # fmt: skip
+)
 #: per qpsolvers solver: common -> native names, native names (None: unchecked), whether a warm
 #: start (qpsolvers' ``initvals``) is used, stated tolerance keys and defaults
 SPECS: dict[str, tuple[dict, frozenset | None, bool, tuple, tuple]] = {
@@ -98,60 +122,126 @@ SPECS: dict[str, tuple[dict, frozenset | None, bool, tuple, tuple]] = {
         {"eps_abs": ("eps_abs",), "eps_rel": ("eps_rel",), "max_iter": ("max_iter",)},
         frozenset(
             {
-                "backend", "check_duality_gap", "compute_timings", "delta_init", "eps_abs",
-                "eps_dual_inf", "eps_duality_gap_abs", "eps_duality_gap_rel", "eps_primal_inf",
-                "eps_rel", "infeasibility_threshold", "iterative_refinement_always_enabled",
-                "iterative_refinement_eps_abs", "iterative_refinement_eps_rel",
-                "iterative_refinement_max_iter", "iterative_refinement_min_improvement_rate",
+                "backend",
+                "check_duality_gap",
+                "compute_timings",
+                "delta_init",
+                "eps_abs",
+                "eps_dual_inf",
+                "eps_duality_gap_abs",
+                "eps_duality_gap_rel",
+                "eps_primal_inf",
+                "eps_rel",
+                "infeasibility_threshold",
+                "iterative_refinement_always_enabled",
+                "iterative_refinement_eps_abs",
+                "iterative_refinement_eps_rel",
+                "iterative_refinement_max_iter",
+                "iterative_refinement_min_improvement_rate",
                 "iterative_refinement_static_regularization_eps",
-                "iterative_refinement_static_regularization_rel", "kkt_solver",
-                "max_factor_retires", "max_iter", "num_threads", "preconditioner_iter",
-                "preconditioner_reuse_on_update", "preconditioner_scale_cost",
-                "reg_finetune_dual_update_threshold", "reg_finetune_lower_limit",
-                "reg_finetune_primal_update_threshold", "reg_lower_limit", "rho_init", "tau",
+                "iterative_refinement_static_regularization_rel",
+                "kkt_solver",
+                "max_factor_retires",
+                "max_iter",
+                "num_threads",
+                "preconditioner_iter",
+                "preconditioner_reuse_on_update",
+                "preconditioner_scale_cost",
+                "reg_finetune_dual_update_threshold",
+                "reg_finetune_lower_limit",
+                "reg_finetune_primal_update_threshold",
+                "reg_lower_limit",
+                "rho_init",
+                "tau",
             }
         ),
         False,  # qpsolvers: "warm-start values are ignored by PIQP"
         ("eps_abs", "eps_rel"),
         (1e-8, 1e-9),
-    ),  # fmt: skip
+    ),
     "proxqp": (
         {"eps_abs": ("eps_abs",), "eps_rel": ("eps_rel",), "max_iter": ("max_iter",)},
         frozenset(
             {
-                "backend", "x", "y", "z", "rho", "mu_eq", "mu_in", "alpha_bcl",
-                "alpha_gpdal", "bcl_update", "beta_bcl", "check_duality_gap",
-                "cold_reset_mu_eq", "cold_reset_mu_in", "compute_preconditioner",
-                "compute_timings", "default_H_eigenvalue_estimate", "default_mu_eq",
-                "default_mu_in", "default_rho", "eps_abs", "eps_dual_inf",
-                "eps_duality_gap_abs", "eps_duality_gap_rel", "eps_primal_inf", "eps_rel",
-                "frequence_infeasibility_check", "initial_guess", "max_iter", "max_iter_in",
-                "merit_function_type", "mu_max_eq_inv", "mu_max_in_inv", "mu_min_eq",
-                "mu_min_in", "mu_update_factor", "nb_iterative_refinement",
-                "preconditioner_accuracy", "preconditioner_max_iter",
-                "primal_infeasibility_solving", "refactor_dual_feasibility_threshold",
-                "refactor_rho_threshold", "sparse_backend", "update_preconditioner",
+                "backend",
+                "x",
+                "y",
+                "z",
+                "rho",
+                "mu_eq",
+                "mu_in",
+                "alpha_bcl",
+                "alpha_gpdal",
+                "bcl_update",
+                "beta_bcl",
+                "check_duality_gap",
+                "cold_reset_mu_eq",
+                "cold_reset_mu_in",
+                "compute_preconditioner",
+                "compute_timings",
+                "default_H_eigenvalue_estimate",
+                "default_mu_eq",
+                "default_mu_in",
+                "default_rho",
+                "eps_abs",
+                "eps_dual_inf",
+                "eps_duality_gap_abs",
+                "eps_duality_gap_rel",
+                "eps_primal_inf",
+                "eps_rel",
+                "frequence_infeasibility_check",
+                "initial_guess",
+                "max_iter",
+                "max_iter_in",
+                "merit_function_type",
+                "mu_max_eq_inv",
+                "mu_max_in_inv",
+                "mu_min_eq",
+                "mu_min_in",
+                "mu_update_factor",
+                "nb_iterative_refinement",
+                "preconditioner_accuracy",
+                "preconditioner_max_iter",
+                "primal_infeasibility_solving",
+                "refactor_dual_feasibility_threshold",
+                "refactor_rho_threshold",
+                "sparse_backend",
+                "update_preconditioner",
                 "manual_minimal_H_eigenvalue",
             }
         ),
         True,  # initvals -> ProxQP's x
         ("eps_abs", "eps_rel"),
         (1e-5, 0.0),
-    ),  # fmt: skip
+    ),
     "daqp": (
         {"eps_abs": ("primal_tol",), "max_iter": ("iter_limit",)},
         frozenset(
             {
-                "primal_tol", "dual_tol", "zero_tol", "pivot_tol", "progress_tol",
-                "cycle_tol", "iter_limit", "fval_bound", "eps_prox", "eta_prox", "rho_soft",
-                "rel_subopt", "abs_subopt", "sing_tol", "refactor_tol", "eq_reduction",
-                "presolve", "time_limit",
+                "primal_tol",
+                "dual_tol",
+                "zero_tol",
+                "pivot_tol",
+                "progress_tol",
+                "cycle_tol",
+                "iter_limit",
+                "fval_bound",
+                "eps_prox",
+                "eta_prox",
+                "rho_soft",
+                "rel_subopt",
+                "abs_subopt",
+                "sing_tol",
+                "refactor_tol",
+                "eq_reduction",
+                "presolve",
+                "time_limit",
             }
         ),
         False,  # qpsolvers: "warm-start values are ignored by DAQP"
         ("primal_tol", None),
         (1e-6, 0.0),
-    ),  # fmt: skip
+    ),
     "quadprog": ({}, frozenset({"factorized"}), False, (None, None), (1e-9, 1e-9)),
     "scs": (
         {
@@ -162,16 +252,29 @@ SPECS: dict[str, tuple[dict, frozenset | None, bool, tuple, tuple]] = {
         },
         frozenset(
             {
-                "normalize", "scale", "adaptive_scale", "rho_x", "max_iters", "eps_abs",
-                "eps_rel", "eps_infeas", "alpha", "time_limit_secs", "acceleration_lookback",
-                "acceleration_interval", "write_data_filename", "log_csv_filename",
-                "use_indirect", "gpu", "mkl",
+                "normalize",
+                "scale",
+                "adaptive_scale",
+                "rho_x",
+                "max_iters",
+                "eps_abs",
+                "eps_rel",
+                "eps_infeas",
+                "alpha",
+                "time_limit_secs",
+                "acceleration_lookback",
+                "acceleration_interval",
+                "write_data_filename",
+                "log_csv_filename",
+                "use_indirect",
+                "gpu",
+                "mkl",
             }
         ),
         True,  # initvals -> SCS's x
         ("eps_abs", "eps_rel"),
         (1e-4, 1e-4),
-    ),  # fmt: skip
+    ),
 }
 
 
@@ -308,11 +411,7 @@ class QpsolversBackend(Backend):
         settings, record = self.native_settings(settings)
         used = {"solver": self.solver, **settings, **record}
         kw = dict(settings)
-        if (
-            self.honours_warm_start
-            and warm_start is not None
-            and np.all(np.isfinite(warm_start.x))
-        ):
+        if self.honours_warm_start and warm_start is not None and np.all(np.isfinite(warm_start.x)):
             kw.setdefault("initvals", np.asarray(warm_start.x, dtype=np.float64))
         t0 = time.perf_counter()
         with warnings.catch_warnings(record=True) as caught:

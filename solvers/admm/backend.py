@@ -1,4 +1,4 @@
-"""The registry's ``admm`` backend: batched, jitted ADMM in JAX for many QPs sharing ``P`` and ``A``.
+"""The registry's ``admm`` backend: batched, jitted ADMM in JAX for QPs sharing ``P`` and ``A``.
 
 Meant for small dense shared matrices (``n`` up to a few hundred; a warning is given above
 ``n = 2000``): ``P`` and ``A`` are densified, and the batch of ``q, l, u`` is solved with batched
@@ -147,7 +147,9 @@ class ADMMBackend(Backend):
             warnings.warn(
                 f"admm densifies P and A and stores (n, n) inverses per rho rung; n = {batch.n} "
                 f"is above {DENSE_N_WARN}: expect large memory use; a sparse backend (osqp, "
-                "clarabel) is likely better", stacklevel=3)
+                "clarabel) is likely better",
+                stacklevel=3,
+            )
         q, l, u = batch.q, batch.l, batch.u
         eq, free = rows_from_bounds(l, u)
         factor, pd = self._factor(P, A, eq, free, s, s.polish)
@@ -176,8 +178,9 @@ class ADMMBackend(Backend):
             Bs = todo.size if todo.size == B else min(B, 1 << (todo.size - 1).bit_length())
             sub = np.concatenate([todo, np.repeat(todo[:1], Bs - todo.size)])  # padded
             t1 = time.perf_counter()
-            st = _admm_iterate_jit(factor, q[sub], l[sub], u[sub], x[sub], y[sub], iters=k,
-                                   rho0=rho[sub])
+            st = _admm_iterate_jit(
+                factor, q[sub], l[sub], u[sub], x[sub], y[sub], iters=k, rho0=rho[sub]
+            )
             st = jax.tree_util.tree_map(np.asarray, st)
             t_iter += time.perf_counter() - t1
             r = slice(0, todo.size)
@@ -202,7 +205,8 @@ class ADMMBackend(Backend):
                 cand = todo[~np.isin(stt, (_PINF, _DINF, _ERROR))]
                 if cand.size:
                     acc, xp, yp, _, _ = polish(
-                        pd, P, A, q[cand], l[cand], u[cand], x[cand], z[cand], y[cand], s)
+                        pd, P, A, q[cand], l[cand], u[cand], x[cand], z[cand], y[cand], s
+                    )
                     ids = cand[acc]
                     x[ids], y[ids] = xp[acc], yp[acc]
                     status[ids] = _SOLVED
@@ -249,19 +253,29 @@ class ADMMBackend(Backend):
         extras["diverged"] = diverged
         extras["floor_failed"] = floor_failed
         yfin = np.all(np.isfinite(y), axis=1)
-        dual = np.where(finite & yfin, batch.dual_residual(xs, np.where(yfin[:, None], y, 0.0)),
-                        np.nan)
+        dual = np.where(
+            finite & yfin, batch.dual_residual(xs, np.where(yfin[:, None], y, 0.0)), np.nan
+        )
         B = len(batch)
         return BatchSolution(
-            x=x, y=y, status=status, objective=obj,
+            x=x,
+            y=y,
+            status=status,
+            objective=obj,
             iterations=iters,
-            solve_time=np.full(B, total / B), primal_residual=prim, dual_residual=dual,
-            backend=self.name, total_time=total, settings=s.as_dict(), extras=extras,
+            solve_time=np.full(B, total / B),
+            primal_residual=prim,
+            dual_residual=dual,
+            backend=self.name,
+            total_time=total,
+            settings=s.as_dict(),
+            extras=extras,
         )
 
 
-def _final_check(batch: QPBatch, x: np.ndarray, prim: np.ndarray, status: np.ndarray,
-                 s: ADMMSettings):  # fmt: skip
+def _final_check(
+    batch: QPBatch, x: np.ndarray, prim: np.ndarray, status: np.ndarray, s: ADMMSettings
+):
     """The last word on each status, in float64 on the point returned (never on the iterate).
 
     * ``SOLVED`` stays only if the unscaled primal residual is within the absolute floor

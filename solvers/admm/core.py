@@ -179,8 +179,17 @@ class ADMMFactor:
     settings: ADMMSettings
 
     def tree_flatten(self):
-        leaves = (self.P, self.A, self.D, self.E, self.c, self.Kinv, self.ladder, self.Rbase,
-                  self.free)
+        leaves = (
+            self.P,
+            self.A,
+            self.D,
+            self.E,
+            self.c,
+            self.Kinv,
+            self.ladder,
+            self.Rbase,
+            self.free,
+        )
         return leaves, self.settings
 
     @classmethod
@@ -280,8 +289,15 @@ def admm_factor(
         Kinv[r] = 0.5 * (Ki + Ki.T)
     dt = np.dtype(s.dtype)
     return ADMMFactor(
-        P=Ps.astype(dt), A=As.astype(dt), D=D.astype(dt), E=E.astype(dt), c=np.asarray(c, dt),
-        Kinv=Kinv.astype(dt), ladder=ladder.astype(dt), Rbase=Rbase.astype(dt), free=free,
+        P=Ps.astype(dt),
+        A=As.astype(dt),
+        D=D.astype(dt),
+        E=E.astype(dt),
+        c=np.asarray(c, dt),
+        Kinv=Kinv.astype(dt),
+        ladder=ladder.astype(dt),
+        Rbase=Rbase.astype(dt),
+        free=free,
         settings=s,
     )
 
@@ -348,9 +364,23 @@ def _scale_problem(factor: ADMMFactor, q, l, u) -> _Scaled:
         jnp.asarray(v) for v in (factor.Kinv, factor.ladder, factor.Rbase, factor.free)
     )
     return _Scaled(
-        P=Pb, A=Ab, D=D, E=E, c=c, Dinv=1.0 / D, Einv=1.0 / E, Kinv=Kinv, ladder=ladder,
-        Rbase=Rbase, free=free, q=c * D * q, lb=E * l, ub=E * u, l=l, u=u,
-    )  # fmt: skip
+        P=Pb,
+        A=Ab,
+        D=D,
+        E=E,
+        c=c,
+        Dinv=1.0 / D,
+        Einv=1.0 / E,
+        Kinv=Kinv,
+        ladder=ladder,
+        Rbase=Rbase,
+        free=free,
+        q=c * D * q,
+        lb=E * l,
+        ub=E * u,
+        l=l,
+        u=u,
+    )
 
 
 def _initial_rung(pb: _Scaled, s: ADMMSettings, B: int, rho0, dt) -> jax.Array:
@@ -370,7 +400,9 @@ def _row_rho(pb: _Scaled, s: ADMMSettings, rung):
     """Per-row step sizes ``R`` (B, m): rung's rho × row multiplier, or rho_free on free rows."""
     rho = pb.ladder[rung]
     dt = pb.P.dtype
-    return jnp.where(pb.free[None, :], jnp.asarray(s.rho_free, dt), rho[:, None] * pb.Rbase[None, :])
+    return jnp.where(
+        pb.free[None, :], jnp.asarray(s.rho_free, dt), rho[:, None] * pb.Rbase[None, :]
+    )
 
 
 def _kinv_apply(pb: _Scaled, rhs, rung, active):
@@ -404,8 +436,7 @@ def _step(pb: _Scaled, s: ADMMSettings, x, z, y, rung, active):
     return jnp.where(a, xn, x), jnp.where(a, zn, z), jnp.where(a, yn, y), k
 
 
-def _fixed_rung_iterations(pb: _Scaled, s: ADMMSettings, K_fix, R_fix, x, z, y, active,
-                           all_active):  # fmt: skip
+def _fixed_rung_iterations(pb: _Scaled, s: ADMMSettings, K_fix, R_fix, x, z, y, active, all_active):
     """``check_every`` iterations of :func:`_step` on one fixed rung, with the batch as the last
     axis: the products become (m, n)·(n, B) instead of (B, n)·(n, m), which XLA's CPU backend
     runs ≈ 3× faster at these shapes (n, m ≲ 100; measured, docs/benchmarks.md).
@@ -452,8 +483,10 @@ def _residuals(pb: _Scaled, s: ADMMSettings, x, z, y) -> _Residuals:
     dual = _inf_norm(Dinv * (Px + pb.q + Aty)) / c
     n_Ax, n_z = _inf_norm(Einv * Ax), _inf_norm(Einv * z)
     n_Px, n_Aty, n_q = (
-        _inf_norm(Dinv * Px) / c, _inf_norm(Dinv * Aty) / c, _inf_norm(Dinv * pb.q) / c
-    )  # fmt: skip
+        _inf_norm(Dinv * Px) / c,
+        _inf_norm(Dinv * Aty) / c,
+        _inf_norm(Dinv * pb.q) / c,
+    )
     eps_p = s.eps_abs + s.eps_rel * jnp.maximum(n_Ax, n_z)
     eps_d = s.eps_abs + s.eps_rel * jnp.maximum(jnp.maximum(n_Px, n_Aty), n_q)
     solved = (prim <= eps_p) & (dual <= eps_d)
@@ -649,5 +682,3 @@ def flops_per_iteration(n: int, m: int, rungs_used: float = 1.0) -> float:
     ``Āᵀ(Rz − y)``: 2mn; ``K⁻¹·rhs``: 2n² per rung in use; ``Āx̃``: 2mn.
     """
     return 4.0 * m * n + 2.0 * n * n * rungs_used
-
-

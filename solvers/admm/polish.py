@@ -51,11 +51,16 @@ def termination(P, A, q, l, u, x, y, s: ADMMSettings):
     Aty = y @ A
     prim = np.abs(Ax - z).max(axis=1, initial=0.0)
     dual = np.abs(Px + q + Aty).max(axis=1, initial=0.0)
-    eps_p = s.eps_abs + s.eps_rel * np.maximum(np.abs(Ax).max(1, initial=0.0),
-                                               np.abs(z).max(1, initial=0.0))
+    eps_p = s.eps_abs + s.eps_rel * np.maximum(
+        np.abs(Ax).max(1, initial=0.0), np.abs(z).max(1, initial=0.0)
+    )
     eps_d = s.eps_abs + s.eps_rel * np.maximum.reduce(
-        [np.abs(Px).max(1, initial=0.0), np.abs(Aty).max(1, initial=0.0),
-         np.abs(q).max(1, initial=0.0)])
+        [
+            np.abs(Px).max(1, initial=0.0),
+            np.abs(Aty).max(1, initial=0.0),
+            np.abs(q).max(1, initial=0.0),
+        ]
+    )
     return (prim <= eps_p) & (dual <= eps_d), prim, dual, eps_p, eps_d
 
 
@@ -82,8 +87,9 @@ def _cho_solve(L: np.ndarray, b: np.ndarray) -> np.ndarray:
     return sla.solve_triangular(L, t, lower=True, trans="T")[..., 0]
 
 
-def _reduced_kkt(pd: PolishData, qs, low, upp, ls, us, s: ADMMSettings, x0=None, y0=None,
-                 chunk: int = 256):
+def _reduced_kkt(
+    pd: PolishData, qs, low, upp, ls, us, s: ADMMSettings, x0=None, y0=None, chunk: int = 256
+):
     """Solve the reduced KKT systems for active sets ``low``/``upp`` (B, m); scaled space.
 
     Each refinement step is a proximal-point step on the exact reduced KKT system; started from
@@ -170,16 +176,17 @@ def polish(
     for _ in range(max(1, s.polish_passes)):
         if todo.size == 0:
             break
-        xs_, ys_ = _reduced_kkt(pd, qs[todo], low[todo], upp[todo], ls[todo], us[todo], s,
-                                x0=xsc[todo], y0=ysc[todo])
+        xs_, ys_ = _reduced_kkt(
+            pd, qs[todo], low[todo], upp[todo], ls[todo], us[todo], s, x0=xsc[todo], y0=ysc[todo]
+        )
         xp = D * xs_
         yp = E * ys_ / c
         # project the duals on the normal cone of the guessed active set
         lo_t, up_t, eq_t = low[todo] & ~eq[todo], upp[todo], eq[todo]
-        yproj = np.where(eq_t, yp, np.where(lo_t, np.minimum(yp, 0), np.where(
-            up_t, np.maximum(yp, 0), 0.0)))
-        ok, prim, dual, eps_p, eps_d = termination(
-            P, A, q[todo], l[todo], u[todo], xp, yproj, s)
+        yproj = np.where(
+            eq_t, yp, np.where(lo_t, np.minimum(yp, 0), np.where(up_t, np.maximum(yp, 0), 0.0))
+        )
+        ok, prim, dual, eps_p, eps_d = termination(P, A, q[todo], l[todo], u[todo], xp, yproj, s)
         ok &= np.all(np.isfinite(xp), axis=1) & np.all(np.isfinite(yproj), axis=1)
         score = np.where(ok, np.maximum(prim / eps_p, dual / eps_d), np.inf)
         # better than the ADMM iterate and than any earlier pass
@@ -224,5 +231,3 @@ def polish(
         low[idx], upp[idx] = new_low, new_upp
         todo = idx[changed]
     return accepted, xo, yo, prim_o, dual_o
-
-

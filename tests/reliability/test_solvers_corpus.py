@@ -131,8 +131,12 @@ QP_CASES = [
         ValueError,
         r"^l is \+inf",
     ),
-    raises("u--inf-alone", lambda: _qp(u=np.array([-np.inf, 1.0]),
-                                       l=np.array([-np.inf, 0.0])), ValueError, r"^u is -inf"),
+    raises(
+        "u--inf-alone",
+        lambda: _qp(u=np.array([-np.inf, 1.0]), l=np.array([-np.inf, 0.0])),
+        ValueError,
+        r"^u is -inf",
+    ),
     raises("P-indefinite", lambda: _qp(P=INDEFINITE), NonConvexError, r"^P is not positive semi"),
     raises("P-negdef", lambda: _qp(P=-I2), NonConvexError, r"^P is not positive semidefinite"),
     raises(
@@ -148,7 +152,6 @@ QP_CASES = [
 ]
 
 
-
 def _equality_stays_finite(qp: QP) -> None:
     assert qp.l[0] == qp.u[0] == 1e25  # never read as an infinite bound
 
@@ -158,16 +161,26 @@ def _one_sided_rule(qp: QP) -> None:
 
 
 QP_CASES += [
-    Case("eq-1e25-stays-finite", lambda: _qp(l=np.array([1e25, 0.0]), u=np.array([1e25, 1.0])),
-         check=_equality_stays_finite),
-    Case("1e20-rule-one-sided", lambda: _qp(l=np.array([-1e20, 1e21]), u=np.array([1.0, 1e22])),
-         check=_one_sided_rule),
-]  # fmt: skip
+    Case(
+        "eq-1e25-stays-finite",
+        lambda: _qp(l=np.array([1e25, 0.0]), u=np.array([1e25, 1.0])),
+        check=_equality_stays_finite,
+    ),
+    Case(
+        "1e20-rule-one-sided",
+        lambda: _qp(l=np.array([-1e20, 1e21]), u=np.array([1.0, 1e22])),
+        check=_one_sided_rule,
+    ),
+]
 
 # ---------------------------------------------------------------------- QPBatch
 BATCH_CASES = [
-    raises("n=0", lambda: _batch(q=np.zeros((2, 0)), A=np.zeros((2, 0)), P=np.zeros((0, 0))),
-           ValueError, r"^q has shape \(B, 0\)"),  # fmt: skip
+    raises(
+        "n=0",
+        lambda: _batch(q=np.zeros((2, 0)), A=np.zeros((2, 0)), P=np.zeros((0, 0))),
+        ValueError,
+        r"^q has shape \(B, 0\)",
+    ),
     raises("q-1d", lambda: _batch(q=np.ones(2)), ValueError, r"^q must have shape \(B, n\)"),
     raises("B=0", lambda: _batch(q=np.zeros((0, 2))), ValueError, r"^q has an empty batch axis"),
     raises("q-strings", lambda: _batch(q=[["a", "b"]]), ValueError, r"^q must be numeric"),
@@ -294,11 +307,12 @@ ENTRY_CASES = [
     ),
     raises(
         "batch-forces-convexity-check",
-        lambda: solve_batch(_batch(P=INDEFINITE, check_convex=False), "clarabel",
-                            check_convex=True),
+        lambda: solve_batch(
+            _batch(P=INDEFINITE, check_convex=False), "clarabel", check_convex=True
+        ),
         NonConvexError,
         r"^P is not positive",
-    ),  # fmt: skip
+    ),
 ]
 if any(b.startswith("qpsolvers:") for b in BACKENDS):
     ENTRY_CASES.append(
@@ -366,33 +380,61 @@ def _huge_equality_outcome(sol: Solution) -> None:
 def _backend_cases(be: str) -> list[Case]:
     cases: list[Case] = []
     for name, kw, names in BAD_SETTINGS:
-        cases.append(raises(f"{be}-solve-{name}", lambda kw=kw: solve(_qp(), be, **kw),
-                            InvalidSettingError, names))  # fmt: skip
-    for name, kw, names in BAD_SETTINGS[:2]:
-        cases.append(raises(f"{be}-batch-{name}", lambda kw=kw: solve_batch(_batch(), be, **kw),
-                            InvalidSettingError, names))  # fmt: skip
         cases.append(
             raises(
-                f"{be}-solve_qp-{name}",
-                lambda kw=kw: solve_qp(I2, [1.0, -1.0], lb=[-0.5] * 2, ub=[1.0] * 2, backend=be,
-                                       **kw),
+                f"{be}-solve-{name}",
+                lambda kw=kw: solve(_qp(), be, **kw),
                 InvalidSettingError,
                 names,
             )
-        )  # fmt: skip
+        )
+    for name, kw, names in BAD_SETTINGS[:2]:
+        cases.append(
+            raises(
+                f"{be}-batch-{name}",
+                lambda kw=kw: solve_batch(_batch(), be, **kw),
+                InvalidSettingError,
+                names,
+            )
+        )
+        cases.append(
+            raises(
+                f"{be}-solve_qp-{name}",
+                lambda kw=kw: solve_qp(
+                    I2, [1.0, -1.0], lb=[-0.5] * 2, ub=[1.0] * 2, backend=be, **kw
+                ),
+                InvalidSettingError,
+                names,
+            )
+        )
     cases += [
-        raises(f"{be}-nonconvex-solve_qp", lambda: solve_qp(INDEFINITE, [0.0, 0.0], lb=[-1.0] * 2,
-               ub=[1.0] * 2, backend=be), NonConvexError, r"^P is not positive semidefinite"),
-        raises(f"{be}-nonconvex-forced", lambda: solve(_NONCONVEX_UNCHECKED(), be,
-               check_convex=True), NonConvexError, r"^P is not positive semidefinite"),
-        Case(f"{be}-primal-infeasible", lambda: solve(_primal_infeasible(), be),
-             statuses=_NOT_SOLVED),
+        raises(
+            f"{be}-nonconvex-solve_qp",
+            lambda: solve_qp(INDEFINITE, [0.0, 0.0], lb=[-1.0] * 2, ub=[1.0] * 2, backend=be),
+            NonConvexError,
+            r"^P is not positive semidefinite",
+        ),
+        raises(
+            f"{be}-nonconvex-forced",
+            lambda: solve(_NONCONVEX_UNCHECKED(), be, check_convex=True),
+            NonConvexError,
+            r"^P is not positive semidefinite",
+        ),
+        Case(
+            f"{be}-primal-infeasible", lambda: solve(_primal_infeasible(), be), statuses=_NOT_SOLVED
+        ),
         Case(f"{be}-dual-infeasible", lambda: solve(_dual_infeasible(), be), statuses=_NOT_SOLVED),
-        Case(f"{be}-batch-with-infeasible-member", lambda: solve_batch(_mixed_batch(), be),
-             check=_mixed_batch_outcome),
-        Case(f"{be}-eq-1e25-not-solved-as-inf", lambda: solve(_huge_equality(), be),
-             check=_huge_equality_outcome),
-    ]  # fmt: skip
+        Case(
+            f"{be}-batch-with-infeasible-member",
+            lambda: solve_batch(_mixed_batch(), be),
+            check=_mixed_batch_outcome,
+        ),
+        Case(
+            f"{be}-eq-1e25-not-solved-as-inf",
+            lambda: solve(_huge_equality(), be),
+            check=_huge_equality_outcome,
+        ),
+    ]
     return cases
 
 
@@ -433,6 +475,9 @@ def test_zero_wrong_solved_over_the_corpus():
     """Every solve in the corpus was of an infeasible or unbounded problem or a batch holding one:
     none came back SOLVED where it cannot be (runs after the cases in file order)."""
     assert _SEEN, "run the whole file: the cases record what they saw"
-    wrong = [(i, s.name) for i, s in _SEEN if s is Status.SOLVED and "infeasible" in i
-             and "batch" not in i]  # fmt: skip
+    wrong = [
+        (i, s.name)
+        for i, s in _SEEN
+        if s is Status.SOLVED and "infeasible" in i and "batch" not in i
+    ]
     assert not wrong, wrong

@@ -42,8 +42,9 @@ def _load(name: str) -> QP:
     return QP((P + P.T) / 2, vec("q"), A, vec("l"), vec("u"))
 
 
-def _assert_no_wrong_solved(backend: str, settings: dict, l, u, status, prim, extras_failed,
-                            what: str) -> int:  # fmt: skip
+def _assert_no_wrong_solved(
+    backend: str, settings: dict, l, u, status, prim, extras_failed, what: str
+) -> int:
     """Returns how many SOLVED answers were flagged."""
     be = get_backend(backend)
     status = np.atleast_1d(status)
@@ -55,7 +56,9 @@ def _assert_no_wrong_solved(backend: str, settings: dict, l, u, status, prim, ex
         li, ui = (l[i], u[i]) if np.ndim(l) == 2 else (l, u)
         tol = primal_tolerance(li, ui, *be.stated_tolerance(settings))
         if backend == "admm":
-            assert prim[i] <= tol, f"{what}[{i}]: admm SOLVED with residual {prim[i]:.3g} > {tol:.3g}"
+            assert prim[i] <= tol, (
+                f"{what}[{i}]: admm SOLVED with residual {prim[i]:.3g} > {tol:.3g}"
+            )
         elif prim[i] > RESIDUAL_FLAG_FACTOR * tol:
             assert flagged[i], f"{what}[{i}]: {backend} SOLVED, residual {prim[i]:.3g}, not flagged"
             return_count += 1
@@ -79,9 +82,15 @@ def test_maros_meszaros_at_defaults_no_unflagged_wrong_solved(backend):
         if sol.status is Status.SOLVED:
             assert rc, f"{backend} on {name}: SOLVED without a residual check"
         _assert_no_wrong_solved(
-            backend, sol.settings, qp.l, qp.u, int(sol.status), sol.primal_residual,
-            rc.get("result") == "failed", f"{backend} on {name}",
-        )  # fmt: skip
+            backend,
+            sol.settings,
+            qp.l,
+            qp.u,
+            int(sol.status),
+            sol.primal_residual,
+            rc.get("result") == "failed",
+            f"{backend} on {name}",
+        )
         if sol.status in (Status.PRIMAL_INFEASIBLE, Status.DUAL_INFEASIBLE):
             # every problem here is feasible and bounded; a backend that claims otherwise must
             # be one whose claims the tests do not rely on, or a known false claim
@@ -116,8 +125,16 @@ def test_random_ill_conditioned_no_unflagged_wrong_solved(backend):
         sol = solve_batch(b, backend)
         rc = sol.extras.get("residual_check", {})
         failed = rc.get("failed", np.zeros(len(b), bool))
-        _assert_no_wrong_solved(backend, sol.settings, b.l, b.u, sol.status, sol.primal_residual, failed,
-                                f"{backend} seed {seed}")  # fmt: skip
+        _assert_no_wrong_solved(
+            backend,
+            sol.settings,
+            b.l,
+            b.u,
+            sol.status,
+            sol.primal_residual,
+            failed,
+            f"{backend} seed {seed}",
+        )
         for i in range(len(b)):  # feasible and bounded (P ≻ 0): never an infeasibility claim
             st = Status(int(sol.status[i]))
             if get_backend(backend).detects_infeasibility:

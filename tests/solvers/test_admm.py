@@ -111,8 +111,13 @@ def test_infeasible_problems_get_their_certificate_in_a_batch():
 
 def test_dual_infeasible_is_detected():
     # min −x2 + ½x1² with x2 unbounded above: unbounded
-    qp = QP(np.diag([1.0, 0.0]), np.array([0.0, -1.0]), np.eye(2), np.array([-1.0, 0.0]),
-            np.array([1.0, np.inf]))
+    qp = QP(
+        np.diag([1.0, 0.0]),
+        np.array([0.0, -1.0]),
+        np.eye(2),
+        np.array([-1.0, 0.0]),
+        np.array([1.0, np.inf]),
+    )
     assert solve(qp, "admm").status is Status.DUAL_INFEASIBLE
 
 
@@ -170,8 +175,7 @@ def test_jitted_equals_eager_on_a_tiny_batch(dtype, atol):
     P, A, q, l, u = _tiny()
     eq, free = rows_from_bounds(l, u)
     with jax.enable_x64(dtype == "float64"):
-        f = admm_factor(P, A, ADMMSettings(check_every=5, dtype=dtype), eq_rows=eq,
-                        free_rows=free)
+        f = admm_factor(P, A, ADMMSettings(check_every=5, dtype=dtype), eq_rows=eq, free_rows=free)
         jitted = jax.jit(lambda q, l, u: admm_iterate(f, q, l, u, iters=20))(q, l, u)
         with jax.disable_jit():
             eager = admm_iterate(f, q, l, u, iters=20)
@@ -207,8 +211,14 @@ def test_float32_and_float64_agree():
 
 def test_fallback_is_visible_and_counted():
     batch = projection_like_batch(3, horizon=12, seed=7)
-    sol = solve_batch(batch, "admm", max_iter=25, polish=False, fallback="clarabel", **{
-        k: v for k, v in PROJ.items() if k != "max_iter"})
+    sol = solve_batch(
+        batch,
+        "admm",
+        max_iter=25,
+        polish=False,
+        fallback="clarabel",
+        **{k: v for k, v in PROJ.items() if k != "max_iter"},
+    )
     assert sol.settings["fallback"] == "clarabel"
     assert sol.extras["fallback_count"] == sol.extras["fallback_attempted"] > 0
     assert sol.all_solved

@@ -35,7 +35,7 @@ from .tolerances import tol_for
 REPO = Path(__file__).resolve().parents[2]
 
 
-# ------------------------------------------------------------------------- solve_qp / from_qpsolvers
+# ------------------------------------------------------------- solve_qp / from_qpsolvers
 def _qpsolvers_form():
     """min ½‖x‖² + [1, −1]·x  s.t.  x0 + x1 ≤ 0.25, x0 − x1 = −1, −2 ≤ x ≤ 2."""
     P = np.eye(2)
@@ -91,8 +91,9 @@ def test_common_settings_are_recorded_on_every_backend(backend, tol):
     sol = solve(qp, backend, verbose=False, warm_start=(np.zeros(4), None), **common)
     for k in (*common, "verbose", "warm_start"):
         assert k in sol.settings, k
-    assert sol.settings["warm_start"] == ("used" if get_backend(backend).honours_warm_start
-                                          else "ignored")  # fmt: skip
+    assert sol.settings["warm_start"] == (
+        "used" if get_backend(backend).honours_warm_start else "ignored"
+    )
     for k, v in common.items():
         assert sol.settings[k] in (v, "ignored"), (k, sol.settings[k])
     assert sol.status in (Status.SOLVED, Status.SOLVED_INACCURATE), sol.status
@@ -106,14 +107,21 @@ def test_common_settings_are_recorded_on_every_backend(backend, tol):
         ("clarabel", {"eps_rel": 1e-6, "max_iter": 7}, {"tol_gap_rel": 1e-6, "max_iter": 7}),
         ("clarabel", {"time_limit": 5.0}, {"time_limit": 5.0}),
         ("osqp", {"eps_abs": 1e-6, "time_limit": 5.0}, {"eps_abs": 1e-6, "time_limit": 5.0}),
-        ("qpsolvers:scs", {"max_iter": 123, "time_limit": 5.0},
-         {"max_iters": 123, "time_limit_secs": 5.0}),
-        ("qpsolvers:daqp", {"eps_abs": 1e-7, "max_iter": 99}, {"primal_tol": 1e-7, "iter_limit": 99}),
+        (
+            "qpsolvers:scs",
+            {"max_iter": 123, "time_limit": 5.0},
+            {"max_iters": 123, "time_limit_secs": 5.0},
+        ),
+        (
+            "qpsolvers:daqp",
+            {"eps_abs": 1e-7, "max_iter": 99},
+            {"primal_tol": 1e-7, "iter_limit": 99},
+        ),
         ("qpsolvers:piqp", {"eps_abs": 1e-7, "time_limit": 5.0}, {"eps_abs": 1e-7}),
         ("qpsolvers:quadprog", {"eps_abs": 1e-7, "max_iter": 5}, {}),
         ("admm", {"eps_abs": 1e-6, "max_iter": 50}, {"eps_abs": 1e-6, "max_iter": 50}),
     ],
-)  # fmt: skip
+)
 def test_common_names_map_to_native_names(backend_name, common, native):
     if backend_name not in available_backends():
         pytest.skip(f"{backend_name} not installed")
@@ -217,8 +225,17 @@ class _IgnoresConstraints(Backend):
         P = qp.P if isinstance(qp.P, np.ndarray) else qp.P.toarray()
         x = np.linalg.solve(P, -qp.q)
         y = np.zeros(qp.m)
-        return Solution(x, y, Status.SOLVED, qp.objective(x), 1, 0.0,
-                        qp.constraint_violation(x), qp.dual_residual(x, y), self.name)  # fmt: skip
+        return Solution(
+            x,
+            y,
+            Status.SOLVED,
+            qp.objective(x),
+            1,
+            0.0,
+            qp.constraint_violation(x),
+            qp.dual_residual(x, y),
+            self.name,
+        )
 
 
 def test_a_wrong_solved_is_flagged_not_hidden(monkeypatch):
@@ -277,7 +294,8 @@ def test_available_backends_imports_no_solver_package():
 def test_import_frenet_does_not_import_mmdopt_or_cvxpy():
     out = _fresh(
         "import json, sys, frenet\n"
-        "print(json.dumps([m for m in ('mmdopt', 'cvxpy', 'qpsolvers', 'osqp') if m in sys.modules]))"
+        "mods = ('mmdopt', 'cvxpy', 'qpsolvers', 'osqp')\n"
+        "print(json.dumps([m for m in mods if m in sys.modules]))"
     )
     assert out == []
 

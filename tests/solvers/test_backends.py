@@ -261,7 +261,9 @@ def test_osqp_batch_sets_up_once_and_warm_starts():
 def test_osqp_non_convex_objective_is_an_error_status():
     """With the convexity check skipped by the caller, OSQP's own NON_CVX is still an ERROR."""
     pytest.importorskip("osqp")
-    qp = QP(np.diag([1.0, -1.0]), np.zeros(2), np.eye(2), -np.ones(2), np.ones(2), check_convex=False)
+    qp = QP(
+        np.diag([1.0, -1.0]), np.zeros(2), np.eye(2), -np.ones(2), np.ones(2), check_convex=False
+    )
     assert solve(qp, "osqp").status is Status.ERROR
 
 
