@@ -10,6 +10,9 @@ matrix products (:mod:`solvers.admm.core`), on GPU when JAX has one, on CPU othe
   (:mod:`solvers.admm.polish`).  A polished point replaces the ADMM iterate only where it passes
   the same termination test (with its duals projected onto the normal cone) and is no worse.
 * Optional, visible and counted: ``fallback="clarabel"`` re-solves the QPs still not solved.
+* Infeasibility claims are re-checked in float64 on the unscaled data (OSQP's certificates on
+  the last ``δx``/``δy``); a claim that does not hold becomes ``MAX_ITER`` (then the fallback,
+  if asked for, gets it).
 * Before any status is reported, a final float64 check on the returned point (never on the
   float32 iterate): ``SOLVED`` needs OSQP's unscaled test **and** the primal residual within
   ``eps_abs + eps_rel·max(1, ‖finite l, u‖∞)`` (an absolute floor that the size of a diverging
@@ -161,6 +164,7 @@ class ADMMBackend(Backend):
             x = np.nan_to_num(np.asarray(warm_start.x, float), nan=0.0, posinf=0.0, neginf=0.0)
             y = np.nan_to_num(np.asarray(warm_start.y, float), nan=0.0, posinf=0.0, neginf=0.0)
         z = np.zeros((B, m))
+        dx, dy = np.zeros((B, n)), np.zeros((B, m))
         rho = np.full(B, s.rho)
         status = np.full(B, _MAX_ITER, np.int32)
         admm_status = status.copy()
@@ -187,6 +191,7 @@ class ADMMBackend(Backend):
             x[todo] = st.x[r]
             y[todo] = st.y[r]
             z[todo] = st.z[r]
+            dx[todo], dy[todo] = st.delta_x[r], st.delta_y[r]
             rho[todo] = st.rho[r]
             iters[todo] += st.iterations[r]
             stt = st.status[r].astype(np.int32)
@@ -229,6 +234,9 @@ class ADMMBackend(Backend):
         if s.polish:
             extras["polish_attempted"] = attempted
             extras["polish_accepted"] = int(polished.sum())
+        rejected = _recheck_certificates(batch, P, A, status, dx, dy, s)
+        status[rejected] = _MAX_ITER
+        extras["certificate_rejected"] = rejected
         st = None
         fb = 0
         if s.fallback == "clarabel":
@@ -271,6 +279,48 @@ class ADMMBackend(Backend):
             settings=s.as_dict(),
             extras=extras,
         )
+
+
+def _recheck_certificates(batch: QPBatch, P, A, status, dx, dy, s: ADMMSettings) -> np.ndarray:
+    """OSQP's infeasibility certificates again, in float64 on the unscaled data, for every QP the
+    iterations declared infeasible (the float32 test ran on the scaled problem).  Returns the mask
+    of claims that do not hold (they become ``MAX_ITER``: nothing is certified).
+    (Stellato et al. 2020, §3.4: ``‖Aᵀδy‖ ≤ ε‖δy‖, uᵀδy₊ + lᵀδy₋ ≤ −ε‖δy‖`` and ``‖Pδx‖ ≤ ε‖δx‖,
+    qᵀδx ≤ −ε‖δx‖, Aδx ∈ recession cone of [l, u] ± ε‖δx‖``.)"""
+    l, u, q = batch.l, batch.u, batch.q
+    fl, fu = np.isfinite(l), np.isfinite(u)
+    rejected = np.zeros(len(batch), bool)
+    pinf = status == _PINF
+    if pinf.any():
+        d = dy[pinf]
+        d = np.where(fu[pinf], d, np.minimum(d, 0.0))
+        d = np.where(fl[pinf], d, np.maximum(d, 0.0))
+        nd = np.abs(d).max(axis=1, initial=0.0)
+        At = np.abs(d @ A).max(axis=1, initial=0.0)
+        supp = np.sum(
+            np.where(d > 0, np.where(fu[pinf], u[pinf], 0.0) * d, 0.0)
+            + np.where(d < 0, np.where(fl[pinf], l[pinf], 0.0) * d, 0.0),
+            axis=1,
+        )
+        ok = (nd > 0) & (At <= s.eps_prim_inf * nd) & (supp <= -s.eps_prim_inf * nd)
+        rejected[np.flatnonzero(pinf)[~ok]] = True
+    dinf = status == _DINF
+    if dinf.any():
+        d = dx[dinf]
+        nd = np.abs(d).max(axis=1, initial=0.0)
+        Pd = np.abs(d @ P).max(axis=1, initial=0.0)
+        qd = np.sum(q[dinf] * d, axis=1)
+        Ad = d @ A.T
+        tol = s.eps_dual_inf * nd[:, None]
+        rows = np.where(fu[dinf], Ad <= tol, True) & np.where(fl[dinf], Ad >= -tol, True)
+        ok = (
+            (nd > 0)
+            & (Pd <= s.eps_dual_inf * nd)
+            & (qd <= -s.eps_dual_inf * nd)
+            & np.all(rows, axis=1)
+        )
+        rejected[np.flatnonzero(dinf)[~ok]] = True
+    return rejected
 
 
 def _final_check(

@@ -19,7 +19,8 @@ Pure JAX, for use inside your own ``jit``::
   as ``B = 1`` and squeezed back), an optional warm start ``x0 (B, n), y0 (B, m)`` (unscaled,
   OSQP sign convention) and a static iteration budget ``iters`` (rounded up to a multiple of
   ``check_every``).  It is jittable and vmappable, has no Python loop over samples, and returns an
-  :class:`ADMMState` ``(x, z, y, prim_res, dual_res, status, iterations, rho, rung_matmuls)``,
+  :class:`ADMMState` ``(x, z, y, prim_res, dual_res, status, iterations, rho, delta_x, delta_y,
+  rung_matmuls)``,
   unscaled, with ``status`` the :class:`solvers.Status` integer codes (``MAX_ITER`` where the
   budget ran out).  It does not polish; :func:`solvers.admm.polish` (NumPy, host side) can be
   applied after.
@@ -314,6 +315,8 @@ class ADMMState(NamedTuple):
     status: jax.Array  # (B,) int32 Status codes
     iterations: jax.Array  # (B,) iterations each QP ran
     rho: jax.Array  # (B,) final rho of each QP
+    delta_x: jax.Array  # (B, n) x − x_prev at the last check (dual infeasibility certificate)
+    delta_y: jax.Array  # (B, m) y − y_prev at the last check (primal infeasibility certificate)
     rung_matmuls: jax.Array  # () number of (B,n)x(n,n) K⁻¹ products executed
 
 
@@ -349,6 +352,8 @@ class _Carry(NamedTuple):
     iterations: jax.Array  # (B,) int32 iterations each QP ran
     prim: jax.Array  # (B,) unscaled primal residual at the last check
     dual: jax.Array  # (B,) unscaled dual residual at the last check
+    dx: jax.Array  # (B, n) x − x_prev at the last check (scaled)
+    dy: jax.Array  # (B, m) y − y_prev at the last check (scaled)
     chunk: jax.Array  # () int32 chunks done
     matmuls: jax.Array  # () int32 K⁻¹ products executed
 
@@ -589,6 +594,8 @@ def _chunk(pb: _Scaled, s: ADMMSettings, fixed, carry: _Carry, all_active=False)
         iterations=carry.iterations + jnp.where(active, s.check_every, 0),
         prim=jnp.where(active, prim_n, carry.prim),
         dual=jnp.where(active, dual_n, carry.dual),
+        dx=jnp.where(active[:, None], x - xp, carry.dx),
+        dy=jnp.where(active[:, None], y - yp, carry.dy),
         chunk=carry.chunk + 1,
         matmuls=cnt,
     )
@@ -639,7 +646,20 @@ def admm_iterate(
     inf = jnp.full((B,), jnp.inf, dt)
     zero_b = jnp.zeros((B,), jnp.int32)
     zero = jnp.zeros((), jnp.int32)
-    init = _Carry(xs, zs, ys, rung, zero_b, zero_b, inf, inf, zero, zero)
+    init = _Carry(
+        xs,
+        zs,
+        ys,
+        rung,
+        zero_b,
+        zero_b,
+        inf,
+        inf,
+        jnp.zeros_like(xs),
+        jnp.zeros_like(ys),
+        zero,
+        zero,
+    )
     if n_chunks == 1:
         # one chunk: no loop, every QP active; outputs nobody uses (the check, when a jitted
         # caller keeps only x) are then removed by XLA
@@ -660,6 +680,8 @@ def admm_iterate(
         status=status,
         iterations=out.iterations,
         rho=pb.ladder[out.rung],
+        delta_x=pb.D * out.dx,
+        delta_y=pb.E * out.dy / pb.c,
         rung_matmuls=out.matmuls,
     )
     if squeeze:

@@ -215,6 +215,23 @@ def test_admm_final_check_refuses_a_diverged_or_floor_failing_point():
     assert diverged.tolist() == [False, True, False] and floor.tolist() == [False, True, True]
 
 
+def test_admm_infeasibility_claims_are_rechecked_in_float64():
+    """A certificate that does not hold on the unscaled data in float64 is no claim: MAX_ITER."""
+    from solvers.admm import ADMMSettings
+    from solvers.admm.backend import _recheck_certificates
+
+    A = np.array([[1.0, 0.0], [1.0, 0.0]])  # x0 ≥ 1 and x0 ≤ 0: primal infeasible
+    l = np.array([[1.0, -np.inf], [1.0, -np.inf]])
+    u = np.array([[np.inf, 0.0], [np.inf, 0.0]])
+    b = QPBatch(np.eye(2), A, np.zeros((2, 2)), l, u)
+    status = np.full(2, int(Status.PRIMAL_INFEASIBLE), np.int32)
+    dy = np.array([[-1.0, 1.0], [1.0, 1.0]])  # a true certificate, and one that is not
+    out = _recheck_certificates(b, np.eye(2), A, status, np.zeros((2, 2)), dy, ADMMSettings())
+    assert out.tolist() == [False, True]
+    sol = solve(b[0], "admm")
+    assert sol.status is Status.PRIMAL_INFEASIBLE and not sol.extras["certificate_rejected"][0]
+
+
 # -------------------------------------------------------------------------------- residual flag
 class _IgnoresConstraints(Backend):
     """A real but sloppy solver: returns the unconstrained minimiser and calls it SOLVED."""
