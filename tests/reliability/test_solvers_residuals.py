@@ -23,7 +23,10 @@ from solvers.base import RESIDUAL_FLAG_FACTOR, primal_tolerance
 from tests.conftest import SHARED_DATA
 
 MM = SHARED_DATA / "maros_meszaros"
-BACKENDS = available_backends()
+#: admm compiles once per Maros–Meszaros shape: its run of that test is `slow` (> 20 s)
+BACKENDS = [
+    pytest.param(b, marks=pytest.mark.slow) if b == "admm" else b for b in available_backends()
+]
 
 
 def _mm_names() -> list[str]:
@@ -67,7 +70,7 @@ def _assert_no_wrong_solved(
 
 #: admm compiles per problem shape (~2 s each): at defaults it runs on the small problems only
 #: (the whole set, at tight settings, is in tests/solvers/test_maros_meszaros.py)
-ADMM_MAX_N = 10
+ADMM_MAX_N = 5
 
 
 @pytest.mark.skipif(not _mm_names(), reason=f"Maros–Meszaros data not found at {MM}")
