@@ -41,6 +41,7 @@ _BUILTIN: dict[str, tuple[str, tuple[str, ...], str]] = {
     "osqp": ("solvers.osqp_", ("osqp",), "osqp"),
     "cvxpy": ("solvers.cvxpy_", ("cvxpy",), "cvxpy"),
     "admm": ("solvers.admm", ("jax",), "core"),
+    "ipm": ("solvers.ipm", ("jax",), "core"),
 }
 _USER: dict[str, Callable[[], Backend]] = {}
 _CACHE: dict[str, Backend] = {}
