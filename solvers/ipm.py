@@ -188,23 +188,45 @@ class IPMSetup:
     width: int  # half-bandwidth w of M in the permuted order (n − 1 for dense)
     n: int
     m: int
-    settings: IPMSettings
+    refine_iter: int
+    #: the settings it was made with (host side only: not part of the pytree)
+    settings: IPMSettings | None = None
 
     def tree_flatten(self):
+        # tolerances, max_iter, step fraction and regularisations are the array leaf "params":
+        # changing them does not recompile; only the structure is static
         keys = tuple(sorted(self.arrays))
-        return tuple(self.arrays[k] for k in keys), (
-            keys,
-            self.kind,
-            self.width,
-            self.n,
-            self.m,
-            self.settings,
-        )
+        aux = (keys, self.kind, self.width, self.n, self.m, self.refine_iter)
+        return tuple(self.arrays[k] for k in keys), aux
 
     @classmethod
     def tree_unflatten(cls, aux, leaves):
-        keys, kind, width, n, m, settings = aux
-        return cls(dict(zip(keys, leaves, strict=True)), kind, width, n, m, settings)
+        keys, kind, width, n, m, refine_iter = aux
+        return cls(dict(zip(keys, leaves, strict=True)), kind, width, n, m, refine_iter)
+
+    def with_settings(self, settings: IPMSettings) -> IPMSetup:
+        """The same shared data with another set of tunables (no new factorisation tables)."""
+        arrays = {**self.arrays, "params": _params(settings)}
+        return IPMSetup(
+            arrays, self.kind, self.width, self.n, self.m, settings.refine_iter, settings
+        )
+
+
+#: settings passed to the iteration as array leaves (in this order)
+_TUNABLE = (
+    "eps_abs",
+    "eps_rel",
+    "eps_prim_inf",
+    "eps_dual_inf",
+    "max_iter",
+    "step_fraction",
+    "reg_primal",
+    "reg_dual",
+)
+
+
+def _params(s: IPMSettings) -> np.ndarray:
+    return np.array([float(getattr(s, k)) for k in _TUNABLE], dtype=np.float64)
 
 
 def _ruiz(P: np.ndarray, A: np.ndarray, iters: int) -> tuple[np.ndarray, np.ndarray, float]:
@@ -302,11 +324,12 @@ def ipm_setup(P: Any, A: Any, settings: IPMSettings | None = None) -> IPMSetup:
         "c": np.asarray(c),
         "perm": perm.astype(np.int32),
         "iperm": np.argsort(perm).astype(np.int32),
+        "params": _params(s),
     }
     if kind == "banded":
         Pb, coef, rows = _band_tables(Pp, Ap, w)
         arrays["band_P"], arrays["band_coef"], arrays["band_rows"] = Pb, coef, rows
-    return IPMSetup(arrays, kind, w, n, m, s)
+    return IPMSetup(arrays, kind, w, n, m, s.refine_iter, s)
 
 
 # ------------------------------------------------------------------------- linear algebra (JAX)
@@ -396,13 +419,14 @@ def _inf_norm(v):
 
 def _ipm_one(st: IPMSetup, q, l, u):
     """One QP (scaled, permuted ``q̄ (n,), l̄, ū (m,)``); vmapped by :func:`ipm_iterate`."""
-    s = st.settings
     ar = st.arrays
+    eps_abs, eps_rel, eps_pinf, eps_dinf, max_iter, tau, rho, delta = (
+        ar["params"][i] for i in range(len(_TUNABLE))
+    )
     n, m, w = st.n, st.m, st.width
     f64 = jnp.float64
     D, E, c = ar["D"], ar["E"], ar["c"]
     Dinv, Einv = 1.0 / D, 1.0 / E
-    rho, delta = s.reg_primal, s.reg_dual
     Ad, Pd = ar["A"], ar["P"]
 
     # (dense products: under vmap XLA's batched matmul beats gathers over the nonzeros of A on
@@ -465,7 +489,7 @@ def _ipm_one(st: IPMSetup, q, l, u):
             Acx = Amul(cx)
             return dx + cx, dye + fe * (Acx - e2) / delta, Adx + Acx
 
-        return lax.fori_loop(0, s.refine_iter, refine, (dx, dye, Adx))
+        return lax.fori_loop(0, st.refine_iter, refine, (dx, dye, Adx))
 
     # ---- unscaled residuals, termination and certificates (float64)
     def check(x, y, Ax, Px, ATy, dxs, dys, Adx, Pdx, ATdy, it):
@@ -474,17 +498,17 @@ def _ipm_one(st: IPMSetup, q, l, u):
         viol = jnp.maximum(jnp.maximum(l_u - Ax_u, Ax_u - u_u), 0.0)
         prim = _inf_norm(viol)
         proj = jnp.clip(Ax_u, l_u, u_u)
-        eps_p = s.eps_abs + s.eps_rel * jnp.maximum(_inf_norm(Ax_u), _inf_norm(proj))
+        eps_p = eps_abs + eps_rel * jnp.maximum(_inf_norm(Ax_u), _inf_norm(proj))
         Px_u, ATy_u, q_u = Dinv * Px / c, Dinv * ATy / c, Dinv * q / c
         dual = _inf_norm(Px_u + q_u + ATy_u)
-        eps_d = s.eps_abs + s.eps_rel * jnp.maximum(
+        eps_d = eps_abs + eps_rel * jnp.maximum(
             jnp.maximum(_inf_norm(Px_u), _inf_norm(ATy_u)), _inf_norm(q_u)
         )
         xPx, qx = x @ Px / c, q @ x / c
         supp = jnp.sum(jnp.where(y > 0, uf * y, lf * y)) / c  # S(y): support function of [l, u]
         pobj, dobj = 0.5 * xPx + qx, -0.5 * xPx - supp
         gap = jnp.abs(pobj - dobj)
-        eps_g = s.eps_abs + s.eps_rel * jnp.maximum(jnp.abs(pobj), jnp.abs(dobj))
+        eps_g = eps_abs + eps_rel * jnp.maximum(jnp.abs(pobj), jnp.abs(dobj))
         solved = (prim <= eps_p) & (dual <= eps_d) & (gap <= eps_g)
         # primal infeasibility: δy (sign-projected on the finite sides) with Aᵀδy ≈ 0, S(δy) < 0
         dy_u = E * dys / c
@@ -495,12 +519,12 @@ def _ipm_one(st: IPMSetup, q, l, u):
         pinf = (
             jnp.all(keep)
             & (ndy > 1e-300)
-            & (ATdy_n <= s.eps_prim_inf * ndy)
-            & (supp_dy <= -s.eps_prim_inf * ndy)
+            & (ATdy_n <= eps_pinf * ndy)
+            & (supp_dy <= -eps_pinf * ndy)
         )
         # dual infeasibility: δx with Pδx ≈ 0, qᵀδx < 0, Aδx in the recession cone of [l, u]
         ndx = _inf_norm(D * dxs)
-        tol = s.eps_dual_inf * ndx
+        tol = eps_dinf * ndx
         Adx_u = Einv * Adx
         cone = jnp.all(jnp.where(fin_u, Adx_u <= tol, True) & jnp.where(fin_l, Adx_u >= -tol, True))
         dinf = (ndx > 1e-300) & (_inf_norm(Dinv * Pdx / c) <= tol) & (q @ dxs / c <= -tol) & cone
@@ -512,7 +536,7 @@ def _ipm_one(st: IPMSetup, q, l, u):
                 solved,
                 _SOLVED,
                 jnp.where(
-                    pinf, _PINF, jnp.where(dinf, _DINF, jnp.where(it >= s.max_iter, _MAX_ITER, 0))
+                    pinf, _PINF, jnp.where(dinf, _DINF, jnp.where(it >= max_iter, _MAX_ITER, 0))
                 ),
             ),
         )
@@ -548,8 +572,9 @@ def _ipm_one(st: IPMSetup, q, l, u):
     ye0 = jnp.zeros(m, f64)
     y0 = zu0 - zl0
     Px0, ATy0 = Pmul(x0), ATmul(y0)
-    zn, zm = jnp.zeros(n, f64), jnp.zeros(m, f64)
-    st0, p0, du0, g0 = check(x0, y0, Ax0, Px0, ATy0, zn, zm, zm, zn, zn, 0)
+    inf = jnp.asarray(jnp.inf, f64)
+    st0 = jnp.zeros((), jnp.int32)  # RUNNING: the first check follows the first step
+    p0 = du0 = g0 = inf
     it0 = jnp.zeros((), jnp.int32)
     init = (x0, sl0, su0, zl0, zu0, ye0, Ax0, Px0, ATy0, it0, st0, p0, du0, g0)
 
@@ -598,10 +623,11 @@ def _ipm_one(st: IPMSetup, q, l, u):
             dzu = fu * (-rcu - zu * dsu) / sur
             return dx, dsl, dsu, dzl, dzu, dye, Adx
 
+        zn, zm = jnp.zeros(n, f64), jnp.zeros(m, f64)
         zero = (zn, zm, zm, zm, zm, zm, zm)
         dx, dsl, dsu, dzl, dzu, dye, Adx = lax.fori_loop(0, 2, mehrotra, zero)
         # step length: a fraction τ of the way to the boundary of s, z ≥ 0 (one α for all)
-        a = jnp.minimum(1.0, s.step_fraction * alpha_max(dsl, dsu, dzl, dzu))
+        a = jnp.minimum(1.0, tau * alpha_max(dsl, dsu, dzl, dzu))
         xn = x + a * dx
         sln = jnp.where(fl > 0, sl + a * dsl, 1.0)
         sun = jnp.where(fu > 0, su + a * dsu, 1.0)
@@ -646,7 +672,7 @@ def ipm_iterate(setup: IPMSetup, q: Any, l: Any, u: Any) -> IPMResult:
             f"{q.shape}, {l.shape}, {u.shape}"
         )
     arr = {k: jnp.asarray(v) for k, v in ar.items()}
-    stj = IPMSetup(arr, setup.kind, setup.width, setup.n, setup.m, setup.settings)
+    stj = IPMSetup(arr, setup.kind, setup.width, setup.n, setup.m, setup.refine_iter)
     perm, iperm = arr["perm"], arr["iperm"]
     D, E, c = arr["D"], arr["E"], arr["c"]
     qs = c * D * q[:, perm]  # D is stored in the permuted order
@@ -675,7 +701,10 @@ def ipm_solve(
     """
     setup = ipm_setup(P, A, settings)
     with jax.enable_x64(True):
-        return _ipm_iterate_jit(setup, q, l, u)
+        squeeze = np.ndim(q) == 1
+        q, l, u = (jnp.atleast_2d(jnp.asarray(v, jnp.float64)) for v in (q, l, u))
+        out = _ipm_iterate_jit(setup, q, l, u)  # 2-D inputs: the backend's compiled code
+        return IPMResult(*(v[0] for v in out)) if squeeze else out
 
 
 # ------------------------------------------------------------------------------ the backend
@@ -701,8 +730,8 @@ class IPMBackend(Backend):
                 self._setups.pop(next(iter(self._setups)))
             self._setups[key] = hit
             return hit, False
-        # tolerances are not baked into the arrays: swap the settings in
-        return dataclasses.replace(hit, settings=s), True
+        # tolerances are not baked into the tables: swap the tunables in
+        return hit.with_settings(s), True
 
     def solve(self, qp: QP, *, warm_start: Solution | None = None, **settings: Any) -> Solution:
         # interior point: no warm start (warm_start is accepted and ignored)
