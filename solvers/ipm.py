@@ -114,6 +114,9 @@ class IPMSettings:
     linear_solver : ``"auto"``, ``"dense"`` or ``"banded"`` (see the module docstring).
     band_ratio : ``"auto"`` picks the banded Cholesky when the half-bandwidth ``w`` after RCM
         ordering satisfies ``w + 1 ≤ band_ratio · n`` and ``n ≥ 32``.
+    chunk_size : a batch larger than this is solved in chunks of this many QPs, one after the
+        other inside the same jitted call (``lax.map`` over ``vmap``-ed chunks): each chunk stops
+        at its own slowest QP, and its iterates stay in cache.  ``None``: one chunk.
     """
 
     eps_abs: float = 1e-9
@@ -128,6 +131,7 @@ class IPMSettings:
     scaling_iter: int = 10
     linear_solver: str = "auto"
     band_ratio: float = 0.2
+    chunk_size: int | None = 32
 
     def __post_init__(self) -> None:
         if self.linear_solver not in ("auto", "dense", "banded"):
@@ -152,6 +156,10 @@ class IPMSettings:
             v = getattr(self, name)
             if not (isinstance(v, (int, np.integer)) and v >= 0):
                 raise ValueError(f"{name} must be an integer ≥ 0, got {v!r}")
+        if self.chunk_size is not None and not (
+            isinstance(self.chunk_size, (int, np.integer)) and self.chunk_size >= 1
+        ):
+            raise ValueError(f"chunk_size must be None or an integer ≥ 1, got {self.chunk_size!r}")
         if not (0.0 < self.band_ratio <= 1.0):
             raise ValueError(f"band_ratio must be in (0, 1], got {self.band_ratio!r}")
 
@@ -189,6 +197,7 @@ class IPMSetup:
     n: int
     m: int
     refine_iter: int
+    chunk_size: int | None = None
     #: the settings it was made with (host side only: not part of the pytree)
     settings: IPMSettings | None = None
 
@@ -196,19 +205,26 @@ class IPMSetup:
         # tolerances, max_iter, step fraction and regularisations are the array leaf "params":
         # changing them does not recompile; only the structure is static
         keys = tuple(sorted(self.arrays))
-        aux = (keys, self.kind, self.width, self.n, self.m, self.refine_iter)
+        aux = (keys, self.kind, self.width, self.n, self.m, self.refine_iter, self.chunk_size)
         return tuple(self.arrays[k] for k in keys), aux
 
     @classmethod
     def tree_unflatten(cls, aux, leaves):
-        keys, kind, width, n, m, refine_iter = aux
-        return cls(dict(zip(keys, leaves, strict=True)), kind, width, n, m, refine_iter)
+        keys, kind, width, n, m, refine_iter, chunk = aux
+        return cls(dict(zip(keys, leaves, strict=True)), kind, width, n, m, refine_iter, chunk)
 
     def with_settings(self, settings: IPMSettings) -> IPMSetup:
         """The same shared data with another set of tunables (no new factorisation tables)."""
         arrays = {**self.arrays, "params": _params(settings)}
         return IPMSetup(
-            arrays, self.kind, self.width, self.n, self.m, settings.refine_iter, settings
+            arrays,
+            self.kind,
+            self.width,
+            self.n,
+            self.m,
+            settings.refine_iter,
+            settings.chunk_size,
+            settings,
         )
 
 
@@ -329,7 +345,7 @@ def ipm_setup(P: Any, A: Any, settings: IPMSettings | None = None) -> IPMSetup:
     if kind == "banded":
         Pb, coef, rows = _band_tables(Pp, Ap, w)
         arrays["band_P"], arrays["band_coef"], arrays["band_rows"] = Pb, coef, rows
-    return IPMSetup(arrays, kind, w, n, m, s.refine_iter, s)
+    return IPMSetup(arrays, kind, w, n, m, s.refine_iter, s.chunk_size, s)
 
 
 # ------------------------------------------------------------------------- linear algebra (JAX)
@@ -672,7 +688,9 @@ def ipm_iterate(setup: IPMSetup, q: Any, l: Any, u: Any) -> IPMResult:
             f"{q.shape}, {l.shape}, {u.shape}"
         )
     arr = {k: jnp.asarray(v) for k, v in ar.items()}
-    stj = IPMSetup(arr, setup.kind, setup.width, setup.n, setup.m, setup.refine_iter)
+    stj = IPMSetup(
+        arr, setup.kind, setup.width, setup.n, setup.m, setup.refine_iter, setup.chunk_size
+    )
     perm, iperm = arr["perm"], arr["iperm"]
     D, E, c = arr["D"], arr["E"], arr["c"]
     qs = c * D * q[:, perm]  # D is stored in the permuted order
@@ -681,7 +699,19 @@ def ipm_iterate(setup: IPMSetup, q: Any, l: Any, u: Any) -> IPMResult:
     def one(qi, li, ui):
         return _ipm_one(stj, qi, li, ui)
 
-    x, y, status, it, prim, dual, gap, obj = jax.vmap(one)(qs, ls, us)
+    B, C = qs.shape[0], setup.chunk_size
+    if C is None or B <= C:
+        x, y, status, it, prim, dual, gap, obj = jax.vmap(one)(qs, ls, us)
+    else:  # chunks of C QPs in sequence (the last padded with copies of the first QP)
+        nc = -(-B // C)
+        pad = nc * C - B
+
+        def chunked(v):
+            v = jnp.concatenate([v, jnp.broadcast_to(v[:1], (pad, *v.shape[1:]))])
+            return v.reshape(nc, C, *v.shape[1:])
+
+        outs = lax.map(lambda a: jax.vmap(one)(*a), (chunked(qs), chunked(ls), chunked(us)))
+        x, y, status, it, prim, dual, gap, obj = (v.reshape(nc * C, *v.shape[2:])[:B] for v in outs)
     out = IPMResult(x[:, iperm], y, status, it, prim, dual, gap, obj)
     if squeeze:
         out = IPMResult(*(v[0] for v in out))
