@@ -2,7 +2,7 @@
 
 Solves many QPs ``min ½xᵀPx + qᵀx  s.t.  l ≤ Ax ≤ u`` that share ``P`` and ``A`` and differ in
 ``q, l, u`` (a :class:`solvers.QPBatch`), in float64, one jitted call for the whole batch (``vmap``
-over the QPs, no Python loop over them).
+over the QPs of a chunk, ``lax.map`` over chunks of ``chunk_size``; no Python loop over QPs).
 
 Method
 ------
@@ -27,7 +27,9 @@ Method
   function of ``[l, u]``) meet ``eps_abs + eps_rel · scale``; ``PRIMAL_INFEASIBLE`` /
   ``DUAL_INFEASIBLE`` from the usual certificates on the last step (``δy`` with ``Aᵀδy ≈ 0``,
   ``S(δy) < 0``; ``δx`` with ``Pδx ≈ 0``, ``qᵀδx < 0``, ``Aδx`` in the recession cone), checked in
-  float64; ``MAX_ITER``; ``ERROR`` on NaN.  A finished QP is frozen while the rest go on.
+  float64; ``MAX_ITER``; ``ERROR`` on NaN.  A finished QP is frozen while the rest of its chunk
+  goes on.  Tolerances, ``max_iter``, the step fraction and the regularisations are array leaves
+  of the setup pytree (changing them does not recompile).
 
 Backend use
 -----------
