@@ -37,6 +37,7 @@ _BUILTIN: dict[str, tuple[str, tuple[str, ...], str]] = {
     "osqp": ("solvers.osqp_", ("osqp",), "osqp"),
     "cvxpy": ("solvers.cvxpy_", ("cvxpy",), "cvxpy"),
     "admm": ("solvers.admm", ("jax",), "core"),
+    "ipm": ("solvers.ipm", ("jax",), "core"),
 }
 # qpsolvers' solver name -> the module its solver imports (found without importing anything)
 _QPSOLVERS_MODULES: dict[str, str] = {
