@@ -75,6 +75,7 @@ from jax import lax
 from scipy.sparse.csgraph import reverse_cuthill_mckee
 
 from .base import Backend
+from .settings import SettingsSpec
 from .problem import QP, QPBatch
 from .solution import BatchSolution, Solution, Status
 
@@ -740,11 +741,25 @@ def ipm_solve(
 
 
 # ------------------------------------------------------------------------------ the backend
+SPEC = SettingsSpec(
+    backend="ipm",
+    common={"eps_abs": ("eps_abs",), "eps_rel": ("eps_rel",), "max_iter": ("max_iter",)},
+    native=frozenset(f.name for f in dataclasses.fields(IPMSettings)),
+    warm_start=False,
+    tolerance=("eps_abs", "eps_rel"),
+    tolerance_defaults=(IPMSettings.eps_abs, IPMSettings.eps_rel),
+)
+
+
 class IPMBackend(Backend):
     """Batched interior-point backend (see the module docstring)."""
 
     name = "ipm"
     detects_infeasibility = True
+    honours_warm_start = False
+
+    def settings_spec(self, settings: dict[str, Any] | None = None) -> SettingsSpec:
+        return SPEC
 
     def __init__(self) -> None:
         self._setups: dict[tuple, IPMSetup] = {}
@@ -774,7 +789,13 @@ class IPMBackend(Backend):
     def solve_batch(
         self, batch: QPBatch, *, warm_start: BatchSolution | None = None, **settings: Any
     ) -> BatchSolution:
-        s = IPMSettings.from_kwargs(**settings)
+        native, record = self.native_settings(settings)
+        s = IPMSettings.from_kwargs(**native)
+        sol = self._solve_batch(batch, s)
+        sol.settings.update(record)
+        return sol
+
+    def _solve_batch(self, batch: QPBatch, s: IPMSettings) -> BatchSolution:
         t0 = time.perf_counter()
         P, A = batch.dense()
         P = np.asarray(P, np.float64)
