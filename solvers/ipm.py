@@ -75,8 +75,8 @@ from jax import lax
 from scipy.sparse.csgraph import reverse_cuthill_mckee
 
 from .base import Backend
-from .settings import SettingsSpec
 from .problem import QP, QPBatch
+from .settings import SettingsSpec
 from .solution import BatchSolution, Solution, Status
 
 __all__ = [

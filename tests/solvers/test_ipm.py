@@ -16,7 +16,7 @@ import pytest
 import scipy.io as sio
 import scipy.sparse as sp
 
-from solvers import QP, QPBatch, Status, solve, solve_batch
+from solvers import QP, InvalidSettingError, QPBatch, Status, solve, solve_batch
 from solvers.examples import projection_like_batch
 from solvers.ipm import IPMSettings, ipm_iterate, ipm_setup, ipm_solve
 
@@ -191,7 +191,7 @@ def test_functional_core_is_jittable_and_leaves_x64_alone(random_qps):
 
 def test_input_validation(random_qps):
     qp = random_qps[0]
-    with pytest.raises(ValueError, match="unknown ipm setting"):
+    with pytest.raises(InvalidSettingError, match="unknown setting 'rho'"):
         solve(qp, backend="ipm", rho=1.0)
     with pytest.raises(ValueError, match="max_iter"):
         IPMSettings(max_iter=0)
