@@ -555,6 +555,8 @@ class SimulatorPredictor:
         traj[:, :, 0, 0], traj[:, :, 0, 1] = x[:, idx], y[:, idx]
         rows = np.arange(n)[:, None]
         eye = np.eye(N, dtype=bool)[None]
+        crashed = np.broadcast_to(np.array([bool(c.crashed) for c in near]), (n, N)).copy()
+        length, width = IDMVehicle.LENGTH, IDMVehicle.WIDTH
 
         def idm_acc(vi, v0i, Ti, ai, bi, di, gap, vf, has):
             # IDMVehicle.acceleration: free road term minus the interaction term (centre gap)
@@ -675,8 +677,12 @@ class SimulatorPredictor:
                     )
                     ok = valid & (new_fol_pred_a >= -brake_imposed) & (jerk >= gain)
                     tgt = np.where(ok, cand_c, tgt)
+            # crashed cars brake to a stop (highway-env: acceleration −speed, no steering); a
+            # crash is an overlap of the 5 m × 2 m boxes (axis-aligned: lanes run along +x)
+            a = np.where(crashed, -v, a)
             # lateral motion: first-order response to the target lane centre
             vy = np.clip((yc[tgt] - y) / 0.55, -5.0, 5.0)
+            vy = np.where(crashed, 0.0, vy)
             vy = np.where(passive[None, :], vy0[None, :], vy)
             vx = np.where(passive[None, :], vx_passive[None, :], v)
             x = x + vx * dt
@@ -687,6 +693,10 @@ class SimulatorPredictor:
             if ego_fn is not None:
                 ex, ey, ev = ego_fn(t)
                 x[:, ego_i], y[:, ego_i], v[:, ego_i] = ex, ey, ev
+            hit = (np.abs(x[:, None, :] - x[:, :, None]) < length) & (
+                np.abs(y[:, None, :] - y[:, :, None]) < width
+            )
+            crashed |= np.any(hit & ~eye, axis=2)
             traj[:, :, k + 1, 0], traj[:, :, k + 1, 1] = x[:, idx], y[:, idx]
         return traj
 
