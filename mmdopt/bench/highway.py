@@ -76,6 +76,7 @@ __all__ = [
     "add_highway_parser",
     "cmd_highway",
     "highway_available",
+    "main",
 ]
 
 METHODS = ("mmd", "degroot", "cv", "idm")
@@ -1382,3 +1383,18 @@ def cmd_highway(args) -> int:
             )
             print(f"wrote {p}")
     return 0
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    """``python -m mmdopt.bench.highway [OPTIONS]``: the options of ``mmdopt bench highway``."""
+    import argparse
+    import sys
+
+    p = argparse.ArgumentParser(prog="python -m mmdopt.bench")
+    add_highway_parser(p.add_subparsers(dest="experiment", required=True))
+    args = p.parse_args(["highway", *(sys.argv[1:] if argv is None else argv)])
+    return cmd_highway(args)
+
+
+if __name__ == "__main__":  # pragma: no cover
+    raise SystemExit(main())
