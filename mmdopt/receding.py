@@ -153,7 +153,8 @@ class RecedingConfig:
 
 @dataclass(frozen=True)
 class StepRecord:
-    """One replan: simulation time, plan time and outcome (JSON-friendly scalars)."""
+    """One replan: simulation time, plan time and outcome (JSON-friendly scalars); ``info`` is
+    the observation's, ``timings`` the plan's own (``reduced_set_s``, ``cem_s``, ...)."""
 
     time: float
     plan_time_s: float
@@ -168,6 +169,7 @@ class StepRecord:
     s: float
     d: float
     info: dict = field(default_factory=dict)
+    timings: dict = field(default_factory=dict)
 
 
 @dataclass
@@ -325,6 +327,11 @@ def run_receding(
                 s=float(p.s[0]),
                 d=float(p.d[0]),
                 info=dict(obs.info),
+                timings={
+                    k: float(v)
+                    for k, v in p.diagnostics.items()
+                    if k.endswith("_s") and isinstance(v, int | float)
+                },
             )
         )
         if callback is not None:

@@ -819,6 +819,7 @@ class HighwaySource:
             )
         else:
             ego = PlanFollower(road, old.position.copy(), old.heading, old.speed)
+        ego.color = (50, 200, 0)  # highway-env's ego green in videos
         road.vehicles[road.vehicles.index(old)] = ego
         self.env.controlled_vehicles = [ego]
         self.ego = ego
@@ -993,6 +994,8 @@ def run_episode(
         plan_times = [float(x) for x in res.plan_times]
         fallbacks = sum(r.fallback for r in res.steps)
         steps_status = [r.status for r in res.steps if r.status != "ok"]
+        for name in ("reduced_set_s", "cem_s"):
+            rec[name] = [r.timings.get(name, float("nan")) for r in res.steps]
     pt = np.array(plan_times) if plan_times else np.array([np.nan])
     pr = np.array(src.predict_times) if src.predict_times else np.array([np.nan])
     speeds = np.array(src.speeds)
