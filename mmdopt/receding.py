@@ -251,12 +251,13 @@ def _plan_once(obs: Observation, rc: RecedingConfig, config: MMDOptConfig, key, 
 
 
 def _shifted(p: Plan, dt: float):
-    """The warm start for the next plan: the previous solution shifted by ``dt`` (the step API's
-    ``shift``), or ``None`` when the installed :mod:`mmdopt` has none."""
+    """The warm start for the next plan: the previous solution's Algorithm 1 state shifted by
+    ``dt`` (:func:`mmdopt.algorithm.shift` of ``plan.state``), or ``None`` when the installed
+    :mod:`mmdopt` has no step API or the plan carries no state (a braking fallback)."""
     from . import algorithm
 
     shift = getattr(algorithm, "shift", None)
-    state = p.diagnostics.get("state") if isinstance(p.diagnostics, dict) else None
+    state = getattr(p, "state", None)
     if shift is None or state is None:
         return None
     return shift(state, dt)
