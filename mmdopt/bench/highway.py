@@ -360,7 +360,8 @@ class SimulatorPredictor:
     ``lane_change_prob`` a car is also sent to a random neighbouring lane at a random time in the
     first half of the horizon (the modes).  The ego keeps following its current plan.
 
-    ``mode="vectorised"`` (default; straight multi-lane roads along +x such as highway-v0) steps
+    ``mode="auto"`` (default) picks ``"vectorised"`` on roads made only of straight lanes along
+    +x (highway-v0) and ``"clone"`` otherwise (merge-v0's ramp).  ``mode="vectorised"`` steps
     all rollouts at once with a NumPy replica of highway-env's ``IDMVehicle`` (IDM acceleration
     with its centre-to-centre gap, MOBIL with its own conventions: neighbours found with
     ``on_lane``'s 1 m margin, the deciding car's parameters, the minimum over the current and the
@@ -376,13 +377,13 @@ class SimulatorPredictor:
     lane_change_prob: float = 0.25
     speed_spread: float = 2.0
     randomise: bool = True
-    mode: str = "vectorised"
+    mode: str = "auto"
     name: str = "sim"
     last_time_s: float = 0.0
 
     def __post_init__(self) -> None:
-        if self.mode not in ("vectorised", "clone"):
-            raise ValueError(f"mode must be 'vectorised' or 'clone', got {self.mode!r}")
+        if self.mode not in ("auto", "vectorised", "clone"):
+            raise ValueError(f"mode must be 'auto', 'vectorised' or 'clone', got {self.mode!r}")
 
     def __call__(self, road, ego_vehicle, targets, t_grid: np.ndarray, n: int, rng) -> np.ndarray:
         t0 = time.perf_counter()
@@ -403,7 +404,10 @@ class SimulatorPredictor:
         dt = 1.0 / self.rollout_frequency
         steps = int(math.ceil(t_grid[-1] / dt - 1e-9))
         t_roll = np.arange(steps + 1) * dt
-        if self.mode == "vectorised":
+        mode = self.mode
+        if mode == "auto":
+            mode = "vectorised" if _straight_parallel(road.network) else "clone"
+        if mode == "vectorised":
             traj = self._vectorised(road, near, idx, ego_vehicle, steps, dt, n, rng)
         else:
             traj = self._clone(road, near, idx, steps, dt, n, rng)
@@ -700,6 +704,19 @@ class SimulatorPredictor:
             crashed |= np.any(hit & ~eye, axis=2)
             traj[:, :, k + 1, 0], traj[:, :, k + 1, 1] = x[:, idx], y[:, idx]
         return traj
+
+
+def _straight_parallel(network) -> bool:
+    """Whether every lane of ``network`` is a straight lane along +x (the vectorised rollout's
+    road model)."""
+    from highway_env.road.lane import StraightLane
+
+    for lane in network.lanes_list():
+        if not isinstance(lane, StraightLane) or abs(math.sin(lane.heading)) > 1e-9:
+            return False
+        if math.cos(lane.heading) < 0:
+            return False
+    return True
 
 
 def _ego_motion(ego):
