@@ -712,7 +712,7 @@ def _straight_parallel(network) -> bool:
     from highway_env.road.lane import StraightLane
 
     for lane in network.lanes_list():
-        if not isinstance(lane, StraightLane) or abs(math.sin(lane.heading)) > 1e-9:
+        if type(lane) is not StraightLane or abs(math.sin(lane.heading)) > 1e-9:
             return False
         if math.cos(lane.heading) < 0:
             return False
@@ -1011,6 +1011,7 @@ def run_episode(
         plan_times = [float(x) for x in res.plan_times]
         fallbacks = sum(r.fallback for r in res.steps)
         steps_status = [r.status for r in res.steps if r.status != "ok"]
+        rec["plan_d"] = [r.d for r in res.steps]  # lateral offset at each replan (m)
         for name in ("reduced_set_s", "cem_s"):
             rec[name] = [r.timings.get(name, float("nan")) for r in res.steps]
     pt = np.array(plan_times) if plan_times else np.array([np.nan])

@@ -267,3 +267,27 @@ def test_cli_parser_and_bad_options(tmp_path, capsys):
     args = p.parse_args(["highway", "--out", str(tmp_path / "o"), "--config", str(bad)])
     assert hw.cmd_highway(args) == 2
     assert "no_such_field" in capsys.readouterr().err
+
+
+def test_merge_env_uses_its_main_road_and_the_exact_clone_rollouts():
+    st = hw.HighwaySettings(env="merge-v0", duration=1.0, n_samples=4, max_obstacles=3)
+    src = hw.HighwaySource(st, 1, hw.highway_config(TINY), method="mmd")
+    try:
+        assert (src.road.y_lb, src.road.y_ub) == (0.0, 4.0)  # the two main-road lanes
+        assert not hw._straight_parallel(src.env.road.network)  # the ramp: clone mode
+        obs = src.observe()
+        assert obs.obstacles.shape[1:] == (4, len(src.t_grid), 2)
+        assert np.all(np.isfinite(obs.obstacles)) and obs.info["predict_s"] > 0
+    finally:
+        src.close()
+
+
+def test_video_of_one_episode(tmp_path):
+    import imageio.v2 as imageio
+
+    st = hw.HighwaySettings(duration=1.0, dt=0.5)
+    path = hw.write_video(tmp_path / "v.mp4", 0, 2, "idm", st, hw.highway_config(TINY))
+    frames = imageio.mimread(path)
+    # the first frame plus one per simulator step (10 Hz for 1 s)
+    assert len(frames) == 11 and frames[0].ndim == 3
+    assert path.suffix in (".gif", ".mp4")
