@@ -14,6 +14,7 @@ import numpy as np
 import pytest
 
 from mmdopt.bench import highway as hw
+from mmdopt.receding import pad_obstacles
 
 pytestmark = pytest.mark.skipif(
     not hw.highway_available(),
@@ -77,7 +78,7 @@ def test_ego_follows_the_plan_exactly():
         p = mmdopt.plan(
             obs.ego,
             obs.road,
-            hw.pad_obstacles(obs.obstacles, 3, obs.ego, obs.road, src.t_grid),
+            pad_obstacles(obs.obstacles, 3, obs.ego, obs.road, src.t_grid),
             config=cfg,
             key=jax.random.PRNGKey(0),
         )
