@@ -53,6 +53,7 @@ __all__ = [
     "run_receding",
     "warm_start_supported",
     "pad_obstacles",
+    "warm_up",
 ]
 
 
@@ -261,6 +262,22 @@ def _shifted(p: Plan, dt: float):
     if shift is None or state is None:
         return None
     return shift(state, dt)
+
+
+def warm_up(obs: Observation, receding: RecedingConfig, config: MMDOptConfig, key=None) -> float:
+    """Compile the planner for the loop's shapes before timing it: one cold plan on ``obs`` and,
+    when warm starts are used, one warm-started plan (a different traced input).  Returns the
+    wall time (s), i.e. mostly JIT compilation.  Results are discarded; the loop's own plans are
+    unaffected (they use their own keys)."""
+    key = jax.random.PRNGKey(0) if key is None else key
+    t_grid = frenet.TimeGrid(config.horizon, config.num_steps).t
+    t0 = time.perf_counter()
+    p, _ = _plan_once(obs, receding, config, key, None, t_grid)
+    if receding.warm_start:
+        warm = _shifted(p, receding.dt)
+        if warm is not None:
+            _plan_once(obs, receding, config, key, warm, t_grid)
+    return time.perf_counter() - t0
 
 
 # ------------------------------------------------------------------------------------ the loop

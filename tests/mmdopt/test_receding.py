@@ -23,6 +23,7 @@ from mmdopt.receding import (
     StepOutcome,
     pad_obstacles,
     run_receding,
+    warm_up,
 )
 
 CFG = mmdopt.MMDOptConfig(
@@ -108,6 +109,12 @@ def test_plan_times_and_budget_are_reported(run):
     s = res.summary()
     assert s["steps"] == 6 and s["over_budget"] == 0
     assert s["max_plan_s"] >= s["median_plan_s"] > 0
+
+
+def test_warm_up_compiles_without_touching_the_source(run):
+    src = TwoLaneScene()
+    secs = warm_up(src.observe(), RecedingConfig(), CFG, jax.random.PRNGKey(0))
+    assert secs > 0 and src.steps == 0 and src.t == 0.0
 
 
 def test_tiny_budget_counts_every_step_over_budget():

@@ -15,7 +15,7 @@ from typing import Any
 import numpy as np
 
 import mmdopt
-from mmdopt.receding import RecedingConfig, pad_obstacles, run_receding
+from mmdopt.receding import RecedingConfig, run_receding, warm_up
 
 from .adapter import HighwaySource
 from .settings import METHODS, HighwaySettings, highway_config
@@ -88,16 +88,7 @@ def run_episode(
         obs0 = src.observe()
         src.predict_times.clear()
         src.step_index = 0
-        t0 = time.perf_counter()
-        mmdopt.plan(
-            obs0.ego,
-            obs0.road,
-            pad_obstacles(obs0.obstacles, settings.max_obstacles, obs0.ego, obs0.road, src.t_grid),
-            method=planner_method,
-            config=config,
-            key=jax.random.PRNGKey(seed),
-        )
-        first_plan = time.perf_counter() - t0
+        first_plan = warm_up(obs0, rc, config, jax.random.PRNGKey(seed))
         res = run_receding(src, rc, config=config, key=jax.random.PRNGKey(seed))
         crashed = res.crashed
         plan_times = [float(x) for x in res.plan_times]
