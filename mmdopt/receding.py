@@ -15,8 +15,9 @@ traffic, a synthetic scene.  Each step the loop
 1. ``obs = source.observe()``: the ego's Frenet state, the road, and samples of the obstacles'
    futures ``(O, n, K, 2)`` (Cartesian, on the planner's time grid; from any predictor);
 2. plans with :func:`mmdopt.plan` (``method`` of :data:`mmdopt.PLAN_METHODS`), warm-started from
-   the previous step's solution shifted by δ when the installed :mod:`mmdopt` offers it (see
-   :func:`warm_start_supported`), otherwise from the cold initial distribution;
+   the previous step's Algorithm 1 state shifted by δ (``plan(..., warm_start=
+   algorithm.shift(previous.state, δ))``: the sampling mean, covariance and elites re-timed; the
+   first step, and a step after a braking fallback, start cold);
 3. ``source.step(plan, δ)`` executes the first δ seconds of the plan and says whether the episode
    is over and whether the ego crashed (the source's own collision checker decides).
 
@@ -28,7 +29,6 @@ format or :mod:`mmdopt.bench`.
 
 from __future__ import annotations
 
-import inspect
 import math
 import time
 from dataclasses import dataclass, field
@@ -39,7 +39,8 @@ import numpy as np
 
 import frenet
 
-from .algorithm import MMDOptConfig
+from . import algorithm
+from .algorithm import PLANNER_BACKEND, MMDOptConfig
 from .api import Plan, Road, plan
 from .baselines import METHODS
 
@@ -51,7 +52,6 @@ __all__ = [
     "StepRecord",
     "RecedingResult",
     "run_receding",
-    "warm_start_supported",
     "pad_obstacles",
     "warm_up",
 ]
@@ -110,8 +110,9 @@ class RecedingConfig:
     max_steps : at most this many replans (the source may end the episode earlier)
     budget_s : per-step plan-time budget (s); longer plans are counted, not cut
     method : planning method (:data:`mmdopt.PLAN_METHODS`)
-    backend : projection QP backend of :func:`mmdopt.plan`
-    warm_start : warm-start each plan from the previous solution shifted by δ when supported
+    backend : projection QP backend of :func:`mmdopt.plan` (default: the planner's jitted
+        projector, :data:`mmdopt.algorithm.PLANNER_BACKEND`)
+    warm_start : warm-start each plan from the previous solution shifted by δ (False: all cold)
     max_obstacles : pad/truncate the obstacle axis to this many (``None``: as observed).  A fixed
         O keeps the jitted planner from recompiling for every new number of neighbours.
     """
@@ -120,7 +121,7 @@ class RecedingConfig:
     max_steps: int = 10_000
     budget_s: float = 0.5
     method: str = "mmd"
-    backend: str = "admm"
+    backend: str = PLANNER_BACKEND
     warm_start: bool = True
     max_obstacles: int | None = None
 
@@ -208,11 +209,6 @@ class RecedingResult:
 
 
 # ------------------------------------------------------------------------------------ helpers
-def warm_start_supported() -> bool:
-    """Whether :func:`mmdopt.plan` takes ``warm_start=`` (the Algorithm 1 step API)."""
-    return "warm_start" in inspect.signature(plan).parameters
-
-
 def pad_obstacles(
     obstacles, num: int | None, ego: frenet.EgoState, road: Road, t: np.ndarray
 ) -> np.ndarray:
@@ -243,25 +239,18 @@ def pad_obstacles(
 def _plan_once(obs: Observation, rc: RecedingConfig, config: MMDOptConfig, key, warm, t_grid):
     obstacles = pad_obstacles(obs.obstacles, rc.max_obstacles, obs.ego, obs.road, t_grid)
     kw: dict[str, Any] = dict(method=rc.method, config=config, backend=rc.backend, key=key)
-    warm_used = False
-    if rc.warm_start and warm is not None and warm_start_supported():
+    warm_used = rc.warm_start and warm is not None
+    if warm_used:
         kw["warm_start"] = warm
-        warm_used = True
     p = plan(obs.ego, obs.road, obstacles, **kw)
     return p, warm_used
 
 
 def _shifted(p: Plan, dt: float):
-    """The warm start for the next plan: the previous solution's Algorithm 1 state shifted by
-    ``dt`` (:func:`mmdopt.algorithm.shift` of ``plan.state``), or ``None`` when the installed
-    :mod:`mmdopt` has no step API or the plan carries no state (a braking fallback)."""
-    from . import algorithm
-
-    shift = getattr(algorithm, "shift", None)
+    """The warm start for the next plan: the plan's Algorithm 1 state shifted by ``dt``
+    (:func:`mmdopt.algorithm.shift`); ``None`` for a plan without state (a braking fallback)."""
     state = getattr(p, "state", None)
-    if shift is None or state is None:
-        return None
-    return shift(state, dt)
+    return None if state is None else algorithm.shift(state, dt)
 
 
 def warm_up(obs: Observation, receding: RecedingConfig, config: MMDOptConfig, key=None) -> float:

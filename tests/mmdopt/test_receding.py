@@ -80,6 +80,8 @@ class TwoLaneScene:
 
 @pytest.fixture(scope="module")
 def run():
+    # compile the cold and the warm-started planner first: the timed loop then sees plan times
+    warm_up(TwoLaneScene().observe(), RecedingConfig(), CFG)
     src = TwoLaneScene()
     res = run_receding(
         src, RecedingConfig(dt=0.5, budget_s=60.0), config=CFG, key=jax.random.PRNGKey(3)
@@ -99,6 +101,13 @@ def test_loop_replans_every_delta_until_the_source_is_done(run):
     assert src.ego.s > 6 * 0.5 * 5.0  # it kept moving (at least 5 m/s on average)
     # executed states are the plans' states: each record starts where the previous plan was at δ
     assert all(r.n_obstacles == 1 for r in res.steps)
+
+
+def test_every_replan_after_the_first_is_warm_started(run):
+    _, res = run
+    assert [r.warm_started for r in res.steps] == [False] + [True] * 5
+    cold = run_receding(TwoLaneScene(duration=1.0), RecedingConfig(warm_start=False), config=CFG)
+    assert not any(r.warm_started for r in cold.steps)
 
 
 def test_plan_times_and_budget_are_reported(run):

@@ -7,6 +7,7 @@ import math
 from collections.abc import Sequence
 from pathlib import Path
 
+from ..executors import EXECUTORS
 from .runner import run_highway, summarize, write_video
 from .settings import METHODS, PREDICTORS, HighwaySettings, highway_available, highway_config
 
@@ -88,7 +89,17 @@ def add_highway_parser(bench_subparsers):
     )
     h.add_argument("--dt", type=_pos_float, default=0.5, help="replan period δ (s, default 0.5)")
     h.add_argument("--samples", type=_pos_int, default=20, help="predictor samples per car")
-    h.add_argument("--executor", choices=("local", "ray"), default="local")
+    h.add_argument(
+        "--executor",
+        choices=EXECUTORS,
+        default="local",
+        help="local process pool (default) or ray (pip install 'mmdopt[ray]')",
+    )
+    h.add_argument(
+        "--address",
+        default=None,
+        help="with --executor ray: address of an existing Ray cluster (default: a local one)",
+    )
     h.add_argument("--jobs", type=_pos_int, default=1, help="parallel episodes (default 1)")
     h.add_argument(
         "--video",
@@ -155,6 +166,7 @@ def cmd_highway(args) -> int:
             config_overrides=overrides,
             executor=args.executor,
             jobs=args.jobs,
+            address=args.address,
             progress=not args.no_progress,
         )
     except ValueError as e:
@@ -198,7 +210,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     import argparse
     import sys
 
-    p = argparse.ArgumentParser(prog="python -m mmdopt.bench")
+    p = argparse.ArgumentParser(prog="python -m mmdopt.bench.highway")
     add_highway_parser(p.add_subparsers(dest="experiment", required=True))
     args = p.parse_args(["highway", *(sys.argv[1:] if argv is None else argv)])
     return cmd_highway(args)

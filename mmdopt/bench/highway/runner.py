@@ -5,7 +5,6 @@ from __future__ import annotations
 import csv
 import json
 import math
-import os
 import time
 from collections.abc import Sequence
 from dataclasses import asdict
@@ -17,6 +16,8 @@ import numpy as np
 import mmdopt
 from mmdopt.receding import RecedingConfig, run_receding, warm_up
 
+from ..executors import EXECUTORS, check_manifest, run_tasks
+from ..results import write_json
 from .adapter import HighwaySource
 from .settings import METHODS, HighwaySettings, highway_config
 
@@ -133,23 +134,21 @@ def _episode_path(out: Path, episode: int, method: str) -> Path:
 
 
 def _manifest(settings: HighwaySettings, config_overrides: dict, seed: int) -> dict:
-    return {"settings": asdict(settings), "config": config_overrides, "seed": int(seed)}
+    return json.loads(
+        json.dumps({"settings": asdict(settings), "config": config_overrides, "seed": int(seed)})
+    )
 
 
-def _task(args) -> dict:
-    episode, seed, method, settings_d, overrides, out = args
+def _task(args) -> str:
+    episode, seed, method, settings_d, overrides, out, progress = args
     settings = HighwaySettings(**settings_d)
     config = highway_config(overrides)
     rec = run_episode(episode, seed, method, settings, config)
-    path = _episode_path(Path(out), episode, method)
-    tmp = path.with_suffix(".tmp")
-    tmp.write_text(json.dumps(rec))
-    os.replace(tmp, path)
-    return rec
-
-
-def _worker_init() -> None:  # pragma: no cover - runs in worker processes
-    os.environ.setdefault("XLA_FLAGS", "--xla_cpu_multi_thread_eigen=false")
+    write_json(_episode_path(Path(out), episode, method), rec)
+    line = _progress_line(rec)
+    if progress:
+        print(line, flush=True)
+    return line
 
 
 def write_csv(rows: Sequence[dict], path: Path) -> None:
@@ -195,6 +194,7 @@ def run_highway(
     config_overrides: dict | None = None,
     executor: str = "local",
     jobs: int = 1,
+    address: str | None = None,
     progress: bool = True,
 ) -> list[dict]:
     """Resumable benchmark: episode ``i`` uses seed ``seed + i``; each finished (episode, method)
@@ -208,55 +208,27 @@ def run_highway(
     bad = [m for m in methods if m not in METHODS]
     if bad or not methods:
         raise ValueError(f"methods must be among {METHODS}, got {list(methods)}")
-    if executor not in ("local", "ray"):
-        raise ValueError(f"executor must be 'local' or 'ray', got {executor!r}")
+    if executor not in EXECUTORS:
+        raise ValueError(f"executor must be one of {EXECUTORS}, got {executor!r}")
     out = Path(out)
     (out / "episodes").mkdir(parents=True, exist_ok=True)
-    man = _manifest(settings, overrides, seed)
-    mpath = out / "manifest.json"
-    if mpath.exists():
-        old = json.loads(mpath.read_text())
-        if old != json.loads(json.dumps(man)):
-            raise ValueError(
-                f"{out} holds results with other settings ({mpath}); use another --out folder"
-            )
-    else:
-        mpath.write_text(json.dumps(man, indent=1))
+    check_manifest(out, _manifest(settings, overrides, seed))
     todo = [
-        (i, seed + i, m, asdict(settings), overrides, str(out))
+        (i, seed + i, m, asdict(settings), overrides, str(out), progress)
         for i in range(episodes)
         for m in methods
         if not _episode_path(out, i, m).exists()
     ]
-    if todo:
-        if executor == "ray":
-            import ray
-
-            if not ray.is_initialized():
-                ray.init(num_cpus=jobs, include_dashboard=False, log_to_driver=False)
-            remote = ray.remote(_task)
-            pending = [remote.remote(a) for a in todo]
-            for k, ref in enumerate(pending):
-                ray.get(ref)
-                if progress:
-                    print(f"  [{k + 1}/{len(todo)}] done", flush=True)
-        elif jobs > 1:
-            import concurrent.futures as cf
-            import multiprocessing as mp
-
-            with cf.ProcessPoolExecutor(
-                max_workers=jobs, mp_context=mp.get_context("spawn"), initializer=_worker_init
-            ) as ex:
-                futs = {ex.submit(_task, a): a for a in todo}
-                for k, f in enumerate(cf.as_completed(futs)):
-                    r = f.result()
-                    if progress:
-                        print(_progress_line(k, len(todo), r), flush=True)
-        else:
-            for k, a in enumerate(todo):
-                r = _task(a)
-                if progress:
-                    print(_progress_line(k, len(todo), r), flush=True)
+    run_tasks(
+        _task,
+        todo,
+        jobs=jobs,
+        executor=executor,
+        address=address,
+        progress=False,
+        desc="episodes",
+        unit="episode",
+    )
     rows = []
     for i in range(episodes):
         for m in methods:
@@ -268,9 +240,9 @@ def run_highway(
     return rows
 
 
-def _progress_line(k, n, r) -> str:
+def _progress_line(r) -> str:
     return (
-        f"  [{k + 1}/{n}] episode {r['episode']} seed {r['seed']} {r['method']}: "
+        f"  episode {r['episode']} seed {r['seed']} {r['method']}: "
         f"crashed={r['crashed']} mean_speed={r['mean_speed']:.2f} m/s "
         f"median_plan={r['median_plan_s']:.3f} s predict={r['mean_predict_s']:.3f} s"
     )

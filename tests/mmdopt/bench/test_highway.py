@@ -200,7 +200,7 @@ def test_short_episode_writes_every_csv_column_and_resumes(tmp_path):
     rec = json.loads(p.read_text())
     assert len(rec["plan_times"]) == 2 and len(rec["predict_times"]) == 2
     # other settings in the same folder are refused
-    with pytest.raises(ValueError, match="other settings"):
+    with pytest.raises(ValueError, match="different settings"):
         hw.run_highway(tmp_path, episodes=1, seed=4, settings=SETTINGS, config_overrides=TINY)
 
 
@@ -247,6 +247,8 @@ def test_bad_runner_arguments_are_rejected(tmp_path):
         hw.run_highway(tmp_path, episodes=0, settings=SETTINGS)
     with pytest.raises(ValueError, match="executor"):
         hw.run_highway(tmp_path, episodes=1, executor="slurm", settings=SETTINGS)
+    with pytest.raises(ValueError, match="jobs"):
+        hw.run_highway(tmp_path / "j", episodes=1, jobs=0, settings=SETTINGS)
     with pytest.raises(ValueError, match="method"):
         hw.HighwaySource(SETTINGS, 0, hw.highway_config(TINY), method="rl")
 
@@ -268,6 +270,13 @@ def test_cli_parser_and_bad_options(tmp_path, capsys):
     args = p.parse_args(["highway", "--out", str(tmp_path / "o"), "--config", str(bad)])
     assert hw.cmd_highway(args) == 2
     assert "no_such_field" in capsys.readouterr().err
+
+
+def test_wired_into_the_package_cli(tmp_path):
+    from mmdopt.bench.cli import build_parser
+
+    a = build_parser().parse_args(["bench", "highway", "--out", str(tmp_path), "--seed", "4"])
+    assert a.experiment == "highway" and a.seed == 4 and a.func is hw.cmd_highway
 
 
 def test_merge_env_uses_its_main_road_and_the_exact_clone_rollouts():
