@@ -10,6 +10,7 @@
     mmdopt bench timing      --out DIR [--sizes 10,20,30,40,50] [--samples 50,100,200]
     mmdopt bench figure      --scene I --out DIR                        (paper Fig. 3)
     mmdopt bench qp-backends [ARGS...]                                  QP backend comparison
+    mmdopt bench highway     --episodes N --seed S --duration T --out DIR   (closed loop)
 
 Bad options exit with status 2 and a message naming the option (argparse).
 """
@@ -153,7 +154,7 @@ def build_parser() -> argparse.ArgumentParser:
     bs = b.add_subparsers(
         dest="experiment",
         required=True,
-        metavar="{synthetic,reduced-set,timing,figure,qp-backends}",
+        metavar="{synthetic,reduced-set,timing,figure,qp-backends,highway}",
     )
 
     def common(q, scenes_default):
@@ -275,6 +276,10 @@ def build_parser() -> argparse.ArgumentParser:
         "qp-backends", help="QP backend comparison (benchmarks/qp_backends.py)", add_help=False
     )
     q.add_argument("args", nargs=argparse.REMAINDER, help="arguments passed to the benchmark")
+
+    from .highway.cli import add_highway_parser
+
+    add_highway_parser(bs)
     return p
 
 
@@ -612,6 +617,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         "timing": cmd_timing,
         "figure": cmd_figure,
         "qp-backends": cmd_qp_backends,
+        "highway": lambda a, _: a.func(a),
     }[args.experiment]
     return cmd(args, parser)
 
