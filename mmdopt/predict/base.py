@@ -150,6 +150,16 @@ def check_history(history, context: PredictionContext, min_len: int = 2) -> np.n
     return h
 
 
+def pad_rows(a: np.ndarray, bucket: int = 16) -> np.ndarray:
+    """``a`` with its leading axis padded (repeating row 0) to a multiple of ``bucket``, so that
+    jitted samplers compile once per bucket instead of once per obstacle count."""
+    O = a.shape[0]
+    P = -(-O // bucket) * bucket
+    if P == O:
+        return a
+    return np.concatenate([a, np.repeat(a[:1], P - O, axis=0)], axis=0)
+
+
 def check_n(n) -> int:
     if isinstance(n, bool) or not isinstance(n, int | np.integer) or n < 1:
         raise ValueError(f"n must be a positive int, got {n!r}")

@@ -16,6 +16,7 @@ from .base import (
     check_key,
     check_n,
     lane_to_cartesian,
+    pad_rows,
 )
 
 __all__ = ["ConstantVelocity", "LaneAware", "lane_state", "velocity_from_history"]
@@ -152,13 +153,14 @@ class LaneAware:
         check_key(key)
         sd, s0, vs, vd = lane_state(h, context)
         logits = self.mode_logits(context, vd)
+        O = h.shape[0]
         s, d = _lane_aware_jit(
             key,
-            jnp.asarray(logits),
-            jnp.asarray(s0),
-            jnp.asarray(np.maximum(vs, 0.0)),
-            jnp.asarray(sd[:, -1, 1]),
-            jnp.asarray(context.lane_width),
+            jnp.asarray(pad_rows(logits)),
+            jnp.asarray(pad_rows(s0)),
+            jnp.asarray(pad_rows(np.maximum(vs, 0.0))),
+            jnp.asarray(pad_rows(sd[:, -1, 1])),
+            jnp.asarray(pad_rows(context.lane_width)),
             jnp.asarray(context.times),
             n,
             float(self.speed_std),
@@ -166,7 +168,8 @@ class LaneAware:
             float(self.lc_min),
             float(self.lc_max),
         )
-        return _to_cartesian(context, np.asarray(s, np.float64), np.asarray(d, np.float64))
+        s, d = np.asarray(s[:O], np.float64), np.asarray(d[:O], np.float64)
+        return _to_cartesian(context, s, d)
 
 
 def _lane_aware_sample(key, logits, s0, vs, d0, w, t, n, speed_std, accel_std, lc_min, lc_max):

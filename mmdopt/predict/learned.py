@@ -3,9 +3,10 @@
 Model.  For each obstacle, in its lane frame ``(s, d)`` (:mod:`mmdopt.predict.base`), the future
 relative to constant-speed lane following is expanded in a polynomial basis::
 
-    s(t) − s₀ − ṡ₀·t = Σ_b c^s_b φ_b(t),   d(t) − d₀ = Σ_b c^d_b φ_b(t),   φ_b(t) = (t/T)^(b+1)
+    s(t) − s₀ − ṡ₀·t = Σ_b c^s_b φ_b(t),   d(t) − d₀ = Σ_b c^d_b φ_b(t)
 
-(``b = 0 … B−1``, ``T`` the trained horizon), and the 2B coefficients get a mixture of M
+(``φ_b`` the monomials ``(t/T)^(b+1)``, ``b = 0 … B−1``, orthonormalised on the grid; ``T`` the
+trained horizon), and the 2B coefficients get a mixture of M
 diagonal Gaussians, ``p(c | x) = Σ_m π_m(x) N(c; μ_m(x), diag σ_m(x)²)``, whose parameters are an
 MLP of the features ``x``: the history in the lane frame (arc length relative to now, offset),
 ``ṡ₀, ḋ₀, d₀``, lane width, whether left/right lanes exist, and the six neighbour gaps and relative
@@ -29,7 +30,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from .base import GAP_NONE, PredictionContext, check_history, check_key, check_n
+from .base import GAP_NONE, PredictionContext, check_history, check_key, check_n, pad_rows
 from .baselines import _to_cartesian, lane_state
 
 __all__ = ["MDNConfig", "MDN", "Learned", "encode", "poly_basis", "DEFAULT_WEIGHTS"]
@@ -82,9 +83,13 @@ class MDN(eqx.Module):
 
 
 def poly_basis(times, horizon: float, n_basis: int) -> np.ndarray:
-    """(K, B) basis ``φ_b(t) = (t/T)^(b+1)``."""
+    """(K, B) basis: the monomials ``(t/T)^(b+1)``, b = 0 … B−1, orthonormalised (QR) on a
+    uniform 51-point grid of ``[0, T]`` — so independent coefficient noise is white noise in
+    trajectory space instead of the large cancelling terms of a raw monomial basis."""
+    ref = np.linspace(0.0, 1.0, 51)[:, None] ** np.arange(1, n_basis + 1)[None, :]
+    _, r = np.linalg.qr(ref)
     u = np.asarray(times, np.float64)[:, None] / float(horizon)
-    return u ** np.arange(1, n_basis + 1)[None, :]
+    return (u ** np.arange(1, n_basis + 1)[None, :]) @ np.linalg.inv(r)
 
 
 def encode(history, context: PredictionContext, config: MDNConfig):
@@ -178,8 +183,9 @@ class Learned:
                 f"{cfg.horizon:g} s ahead (use a planner horizon ≤ {cfg.horizon:g} s)"
             )
         x = (feats - self.norm["feat_mean"]) / self.norm["feat_std"]
-        z = _sample_coef(self.model, jnp.asarray(x, jnp.float32), key, jnp.zeros(n))
-        c = np.asarray(z, np.float64) * self.norm["coef_std"] + self.norm["coef_mean"]
+        O = x.shape[0]
+        z = _sample_coef(self.model, jnp.asarray(pad_rows(x), jnp.float32), key, jnp.zeros(n))
+        c = np.asarray(z[:O], np.float64) * self.norm["coef_std"] + self.norm["coef_mean"]
         B = cfg.n_basis
         phi = poly_basis(t, cfg.horizon, B)  # (K, B)
         ds = c[..., :B] @ phi.T  # (O, n, K)
