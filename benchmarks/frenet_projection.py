@@ -80,15 +80,20 @@ def bench_planner(num: int) -> None:
                 first = time.perf_counter() - t
                 steady = timeit(lambda fn=fn, dd=dd, ss=ss: jax.block_until_ready(fn(dd, ss)), 20)
             name = basis.name + (f" deg {basis.degree}" if hasattr(basis, "degree") else "")
-            print(f"| {name} | {basis.nvar} | {np.dtype(dt).name} | {first:.3f} | "
-                  f"{1e3 * steady:.2f} |")
+            print(
+                f"| {name} | {basis.nvar} | {np.dtype(dt).name} | {first:.3f} | "
+                f"{1e3 * steady:.2f} |"
+            )
 
 
 def bench_basis(num: int) -> None:
-    print(f"\n### Basis fidelity: Bernstein plans vs the exact triple-integrator plans "
-          f"({num} d's)\n")
-    print("| degree | nvar | max abs x (m) | median max abs x (m) | max abs vx (m/s) "
-          "| max abs y (m) | median max abs y (m) | max abs vy (m/s) |")
+    print(
+        f"\n### Basis fidelity: Bernstein plans vs the exact triple-integrator plans ({num} d's)\n"
+    )
+    print(
+        "| degree | nvar | max abs x (m) | median max abs x (m) | max abs vx (m/s) "
+        "| max abs y (m) | median max abs y (m) | max abs vy (m/s) |"
+    )
     print("|---|---|---|---|---|---|---|---|")
     d = reference_d(num)
     ref = BehaviouralPlanner(TripleIntegratorBasis(GRID))
@@ -97,9 +102,11 @@ def bench_basis(num: int) -> None:
         pl = BehaviouralPlanner(BernsteinBasis(GRID, deg))
         tr = pl.trajectories(*pl.closed_form(d, STATE))
         ex, ey = np.abs(tr.x - tr0.x), np.abs(tr.y - tr0.y)
-        print(f"| {deg} | {deg + 1} | {ex.max():.3f} | {np.median(ex.max(1)):.3f} | "
-              f"{np.abs(tr.vx - tr0.vx).max():.3f} | {ey.max():.3f} | {np.median(ey.max(1)):.3f} | "
-              f"{np.abs(tr.vy - tr0.vy).max():.3f} |")
+        print(
+            f"| {deg} | {deg + 1} | {ex.max():.3f} | {np.median(ex.max(1)):.3f} | "
+            f"{np.abs(tr.vx - tr0.vx).max():.3f} | {ey.max():.3f} | {np.median(ey.max(1)):.3f} | "
+            f"{np.abs(tr.vy - tr0.vy).max():.3f} |"
+        )
 
 
 def _caps(backend: str, num: int, quick: bool) -> int:
@@ -112,16 +119,22 @@ def _caps(backend: str, num: int, quick: bool) -> int:
 
 def bench_projection(num: int, quick: bool, backends: list[str]) -> None:
     print(f"\n### Projection QP through `solvers`, up to {num} samples per backend\n")
-    print("Time per 1000 is extrapolated linearly where fewer problems were run (column n).  "
-          "Gap = objective − Clarabel's on the same samples (½‖P(c − c̄)‖², m²); violation = "
-          "max over samples of the max constraint violation at the grid steps.\n")
-    print("| basis | rows | backend | n | s per 1000 | statuses | max violation | "
-          "median gap | max abs gap |")
+    print(
+        "Time per 1000 is extrapolated linearly where fewer problems were run (column n).  "
+        "Gap = objective − Clarabel's on the same samples (½‖P(c − c̄)‖², m²); violation = "
+        "max over samples of the max constraint violation at the grid steps.\n"
+    )
+    print(
+        "| basis | rows | backend | n | s per 1000 | statuses | max violation | "
+        "median gap | max abs gap |"
+    )
     print("|---|---|---|---|---|---|---|---|---|")
     d = reference_d(num, seed=1)
-    cases = [("bernstein deg 10", BernsteinBasis(GRID, 10), "grid"),
-             ("bernstein deg 10", BernsteinBasis(GRID, 10), "hull"),
-             ("triple integrator", TripleIntegratorBasis(GRID), "grid")]
+    cases = [
+        ("bernstein deg 10", BernsteinBasis(GRID, 10), "grid"),
+        ("bernstein deg 10", BernsteinBasis(GRID, 10), "hull"),
+        ("triple integrator", TripleIntegratorBasis(GRID), "grid"),
+    ]
     for name, basis, rows in cases:
         planner = BehaviouralPlanner(basis)
         cx, cy = map(np.asarray, planner.closed_form(d, STATE))
@@ -141,16 +154,20 @@ def bench_projection(num: int, quick: bool, backends: list[str]) -> None:
                 res = prob.project(cx[:n], cy[:n], STATE, backend=be, **kw)
                 dt = time.perf_counter() - t
             except Exception as exc:  # a backend failing is a result, not a crash
-                print(f"| {name} | {rows} | {be} | {n} | – | error: {type(exc).__name__}: "
-                      f"{str(exc)[:60]} | | | |")
+                print(
+                    f"| {name} | {rows} | {be} | {n} | – | error: {type(exc).__name__}: "
+                    f"{str(exc)[:60]} | | | |"
+                )
                 continue
             m = min(n, n_ref)
             gap = res.distance[:m] - ref.distance[:m]
             counts = res.solution.status_counts()
             st = ", ".join(f"{k} {v}" for k, v in counts.items())
-            print(f"| {name} | {rows} ({prob.num_rows}) | {be} | {n} | {dt * 1000 / n:.2f} | "
-                  f"{st} | "
-                  f"{res.residual.max():.1e} | {np.median(gap):.1e} | {np.abs(gap).max():.1e} |")
+            print(
+                f"| {name} | {rows} ({prob.num_rows}) | {be} | {n} | {dt * 1000 / n:.2f} | "
+                f"{st} | "
+                f"{res.residual.max():.1e} | {np.median(gap):.1e} | {np.abs(gap).max():.1e} |"
+            )
         sys.stdout.flush()
 
 
@@ -161,8 +178,10 @@ def bench_jax_projector(num: int) -> None:
         print("\n(jittable projector skipped: solvers.admm functional core not available)")
         return
     print(f"\n### Jittable projector (ADMM, fixed iterations, float32, no polish), {num} samples\n")
-    print("| basis | rows | iterations | compile (s) | steady per batch (ms) | median residual | "
-          "max residual | median gap to Clarabel (m²) |")
+    print(
+        "| basis | rows | iterations | compile (s) | steady per batch (ms) | median residual | "
+        "max residual | median gap to Clarabel (m²) |"
+    )
     print("|---|---|---|---|---|---|---|---|")
     d = reference_d(num, seed=2)
     basis = BernsteinBasis(GRID, 10)
@@ -179,26 +198,40 @@ def bench_jax_projector(num: int) -> None:
             first = time.perf_counter() - t
             steady = timeit(lambda fn=fn: jax.block_until_ready(fn(cx, cy, st)), 3)
             r = np.asarray(out.residual)
-            gap = prob.distance(np.asarray(out.cx[:200], float), np.asarray(out.cy[:200], float),
-                                cx[:200], cy[:200]) - ref.distance
-            print(f"| deg 10 | {rows} ({prob.num_rows}) | {iters} | {first:.1f} | "
-                  f"{1e3 * steady:.0f} | {np.median(r):.1e} | {r.max():.1e} | "
-                  f"{np.median(gap):.2g} |")
+            gap = (
+                prob.distance(
+                    np.asarray(out.cx[:200], float),
+                    np.asarray(out.cy[:200], float),
+                    cx[:200],
+                    cy[:200],
+                )
+                - ref.distance
+            )
+            print(
+                f"| deg 10 | {rows} ({prob.num_rows}) | {iters} | {first:.1f} | "
+                f"{1e3 * steady:.0f} | {np.median(r):.1e} | {r.max():.1e} | "
+                f"{np.median(gap):.2g} |"
+            )
             sys.stdout.flush()
 
 
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     ap.add_argument("--quick", action="store_true", help="smaller batches")
-    ap.add_argument("--only", default="planner,basis,projection,jax",
-                    help="comma-separated subset of planner,basis,projection,jax")
+    ap.add_argument(
+        "--only",
+        default="planner,basis,projection,jax",
+        help="comma-separated subset of planner,basis,projection,jax",
+    )
     ap.add_argument("--backends", default=None, help="comma-separated backends (default: all)")
     args = ap.parse_args()
     only = set(args.only.split(","))
     num = 200 if args.quick else 1000
     backends = args.backends.split(",") if args.backends else solvers.available_backends()
-    print(f"jax {jax.__version__}, devices {jax.devices()}, cpu count {os.cpu_count()}, "
-          f"load average {os.getloadavg()[0]:.1f}")
+    print(
+        f"jax {jax.__version__}, devices {jax.devices()}, cpu count {os.cpu_count()}, "
+        f"load average {os.getloadavg()[0]:.1f}"
+    )
     if "planner" in only:
         bench_planner(num)
     if "basis" in only:

@@ -1,7 +1,7 @@
 """Planning time at the paper's sizes (paper Table II) and the distance to the FLOP bound.
 
 For each reduced-set size m (10 … 50): reduced-set selection ("mmd") and Algorithm 1
-(``mmdopt.plan``, admm backend, one jit) at the paper's sizes: n̄_cem = 1000 behavioural samples,
+(``mmdopt.plan``, admm-fixed, one jit) at the paper's sizes: n̄_cem = 1000 behavioural samples,
 N = 20 iterations, n = 100 obstacle samples, K = 100 steps.  Reported per m:
 
 * first call (trace + XLA compile + run; m is a static shape, so every m compiles once),
@@ -34,7 +34,7 @@ import numpy as np
 
 import mmdopt
 from mmdopt import algorithm as alg
-from mmdopt.scenarios import demo_scene
+from mmdopt.bench.scenes import demo_scene
 
 REF = dict(
     reduced_set=0.12, alg1_best=4.6, alg1_other=13.4, baseline=24.6, first_lo=52.0, first_hi=396.0
@@ -132,7 +132,7 @@ def time_reduced_set(obs, m, cfg, repeats):
 
 def profile_stages(cfg, scene, repeats=10):
     """Median time of each stage of one CEM iteration, jitted separately (m = the config's)."""
-    from mmdopt import api, baselines
+    from mmdopt import collision
 
     road = scene.road()
     prob = alg.build_problem(cfg, road.bounds())
@@ -155,21 +155,21 @@ def profile_stages(cfg, scene, repeats=10):
     w = jnp.full((1, m), 1.0 / m, dt)
     nt = alg.n_taylor_terms(cfg)
     fns = {
-        "planner": (jax.jit(lambda d: alg._plan(prob, d, st, dt)), (d,)),
+        "planner": (jax.jit(lambda d: alg.planner_output(prob, d, st, dt)), (d,)),
     }
     cxb, cyb = fns["planner"][0](d)
     fns["projection+residual"] = (
-        jax.jit(lambda a, b: alg._project_jax(prob, a, b, st)),
+        jax.jit(lambda a, b: alg.project_fixed(prob, a, b, st)),
         (cxb, cyb),
     )
     s150 = cxb[: cfg.n_cem] @ jnp.asarray(prob.P.T, dt)
     fns[f"collision f (150×{m})"] = (
-        jax.jit(lambda s: baselines.ellipse_values(s, s * 0, cen, 6.5, 3.5)),
+        jax.jit(lambda s: collision.ellipse_values(s, s * 0, cen, 6.5, 3.5)),
         (s150,),
     )
     f = fns[f"collision f (150×{m})"][0](s150)
     fns[f"mmd (150×{m})"] = (
-        jax.jit(lambda f: baselines.mmd_cost(f, w, cfg.bandwidth, cfg.f_scale, nt)),
+        jax.jit(lambda f: collision.mmd_cost(f, w, cfg.bandwidth, cfg.f_scale, nt)),
         (f,),
     )
     out = {}
@@ -181,7 +181,6 @@ def profile_stages(cfg, scene, repeats=10):
             jax.block_until_ready(fn(*args))
             ts.append(time.perf_counter() - t0)
         out[name] = float(np.median(ts))
-    del api
     return out
 
 

@@ -13,7 +13,7 @@ issue's bars.  Numbers and commands: ``docs/benchmarks.md``, section "Experiment
 
 import sys
 
-from mmdopt.cli import main
+from mmdopt.bench.cli import main
 
 if __name__ == "__main__":
     sys.exit(main(["bench", "synthetic", *sys.argv[1:]]))

@@ -355,8 +355,10 @@ class ProjectionProblem:
             groups.append(_Group(name, slice(start, start + M.shape[0]), lo, hi))
 
         def xy(Mx_, My_):
-            return np.hstack([Mx_, np.zeros((Mx_.shape[0], n))]) if My_ is None else np.hstack(
-                [np.zeros((My_.shape[0], n)), My_]
+            return (
+                np.hstack([Mx_, np.zeros((Mx_.shape[0], n))])
+                if My_ is None
+                else np.hstack([np.zeros((My_.shape[0], n)), My_])
             )
 
         Aex, Aey = self._Aex, self._Aey
@@ -722,9 +724,15 @@ def _jax_projector(problem: ProjectionProblem, num_iters: int, dtype: str, setti
     # Start at a large step, rho = 62.5 (the backend's default 0.1 stalls at these budgets),
     # with OSQP's adaptive rule over a ladder extended upwards: measured best for residual and
     # distance at 25-500 iterations (docs/benchmarks.md).
-    base = dict(max_iter=int(num_iters), check_every=min(25, int(num_iters)), dtype=dtype,
-                polish=False, rho=62.5, adaptive_rho=True,
-                rho_ladder=(0.1 / 125, 0.1 / 25, 0.1 / 5, 0.1, 0.5, 2.5, 12.5, 62.5, 312.5))
+    base = dict(
+        max_iter=int(num_iters),
+        check_every=min(25, int(num_iters)),
+        dtype=dtype,
+        polish=False,
+        rho=62.5,
+        adaptive_rho=True,
+        rho_ladder=(0.1 / 125, 0.1 / 25, 0.1 / 5, 0.1, 0.5, 2.5, 12.5, 62.5, 312.5),
+    )
     base.update(settings or {})
     s = ADMMSettings.from_kwargs(**base)
     n, m = problem.nvar, problem.num_rows
@@ -771,8 +779,13 @@ def _jax_projector(problem: ProjectionProblem, num_iters: int, dtype: str, setti
         if final_lat:
             by = jnp.concatenate([by, jnp.zeros((B, 1), dt)], axis=1)
         Hj = jnp.asarray(H, dt)
-        q = -jnp.concatenate([cx_bar @ Hj + rho * bx @ jnp.asarray(Aex, dt),
-                              cy_bar @ Hj + rho * by @ jnp.asarray(Aey, dt)], axis=1)
+        q = -jnp.concatenate(
+            [
+                cx_bar @ Hj + rho * bx @ jnp.asarray(Aex, dt),
+                cy_bar @ Hj + rho * by @ jnp.asarray(Aey, dt),
+            ],
+            axis=1,
+        )
         beq = jnp.concatenate([bx, by], axis=1)
         l = jnp.broadcast_to(jnp.asarray(l0, dt), (B, m))
         u = jnp.broadcast_to(jnp.asarray(u0, dt), (B, m))

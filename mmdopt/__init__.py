@@ -1,15 +1,39 @@
-"""MMD-Opt: kernels, reduced-set selection, the MMD collision surrogate (and, later, Algorithm 1).
+"""MMD-Opt: motion planning under multi-modal obstacle predictions (IROS 2023), the method only.
 
-Importing this package enables float64 in JAX (``jax_enable_x64``): reduced-set weights and the
-MMD surrogate are compared at magnitudes far below float32 resolution.
+Modules: :mod:`~mmdopt.kernels` (Gaussian kernels, MMD²), :mod:`~mmdopt.reduced_set` (reduced-set
+selection), :mod:`~mmdopt.collision` (footprints, the ellipse, f̄, the MMD and scenario costs, the
+collision-free count), :mod:`~mmdopt.algorithm` (Algorithm 1: config, state, init/update/run/shift),
+:mod:`~mmdopt.baselines` (which samples and which collision term each method uses),
+:mod:`~mmdopt.api` (:func:`plan`), :mod:`~mmdopt.predict` (predictors).  Experiments live in
+:mod:`mmdopt.bench`, which this package never imports.
+
+``import mmdopt`` does not change JAX's global configuration: the public functions that need
+float64 ask for it locally (``jax.enable_x64`` inside the call).
 """
 
-import jax
-
-jax.config.update("jax_enable_x64", True)
-
-from .geometry import EGO_FOOTPRINT, OBSTACLE_FOOTPRINT, CircleFootprint, circle_centres, headings  # noqa: E402
-from .kernels import (  # noqa: E402
+from . import algorithm
+from .algorithm import MMDOptConfig
+from .api import Plan, Road, plan, plan_frenet
+from .baselines import METHODS as PLAN_METHODS
+from .collision import (
+    EGO_FOOTPRINT,
+    ELLIPSE_A,
+    ELLIPSE_B,
+    OBSTACLE_FOOTPRINT,
+    CircleFootprint,
+    CollisionCounts,
+    ReducedObstacles,
+    SurrogateConfig,
+    circle_centres,
+    collision_free_count,
+    ellipse_f,
+    f_bar,
+    headings,
+    mmd_surrogate,
+    mmd_surrogate_terms,
+    reduced_obstacles,
+)
+from .kernels import (
     gaussian_gram,
     median_heuristic,
     mmd2_to_dirac,
@@ -17,7 +41,7 @@ from .kernels import (  # noqa: E402
     one_minus_gaussian_gram,
     sq_distances,
 )
-from .reduced_set import (  # noqa: E402
+from .reduced_set import (
     METHODS,
     ReducedSet,
     ReducedSetConfig,
@@ -28,22 +52,17 @@ from .reduced_set import (  # noqa: E402
     select_reduced_set_unchecked,
     select_reduced_sets,
 )
-from .surrogate import (  # noqa: E402
-    CollisionCounts,
-    ReducedObstacles,
-    SurrogateConfig,
-    collision_free_count,
-    ellipse_f,
-    f_bar,
-    mmd_surrogate,
-    mmd_surrogate_terms,
-    reduced_obstacles,
-)
+
+__version__ = "0.2.0"
 
 __all__ = [
+    "__version__",
+    "algorithm",
     "CircleFootprint",
     "EGO_FOOTPRINT",
     "OBSTACLE_FOOTPRINT",
+    "ELLIPSE_A",
+    "ELLIPSE_B",
     "circle_centres",
     "headings",
     "gaussian_gram",
@@ -70,11 +89,10 @@ __all__ = [
     "mmd_surrogate",
     "mmd_surrogate_terms",
     "reduced_obstacles",
+    "MMDOptConfig",
+    "Road",
+    "Plan",
+    "plan",
+    "plan_frenet",
+    "PLAN_METHODS",
 ]
-
-# Algorithm 1, the baselines and the public planning API (issue 6)
-from .algorithm import MMDOptConfig  # noqa: E402
-from .api import Plan, Road, plan, plan_frenet  # noqa: E402
-from .baselines import METHODS as PLAN_METHODS  # noqa: E402
-
-__all__ += ["MMDOptConfig", "Road", "Plan", "plan", "plan_frenet", "PLAN_METHODS"]

@@ -1,5 +1,18 @@
 """Algorithm 1 (paper): sampling-based MMD-augmented trajectory optimisation in the Frenet frame.
 
+A pure step API in the optax/jaxopt manner::
+
+    from mmdopt import algorithm as alg
+    problem = alg.Problem.create(config, ego, bounds)       # ego state, sampling prior, bounds
+    obstacles = alg.ObstacleSet.create(config, centres, weights, method="mmd")
+    state = alg.init(config, problem, key)                  # CEMState (a pytree)
+    for _ in range(config.iterations):
+        state = alg.update(state, obstacles)                # one CEM iteration
+    state = alg.run(config, problem, obstacles, key)        # the same, one jitted scan
+    state.best, state.least_violating, state.cost_trace
+    warm = alg.shift(state, dt=0.1)                         # receding horizon: shifted in time
+    state = alg.run(config, problem_next, obstacles_next, key, warm_start=warm)
+
 One CEM/MPPI iteration ``l`` (paper Alg. 1 lines 4–14, SPEC §g, with the reference's bugs fixed)::
 
     d_r ~ N(μ_l, Σ_l), r = 1 … n̄_cem           behavioural inputs (speed, lateral set-points)
@@ -18,31 +31,27 @@ One CEM/MPPI iteration ``l`` (paper Alg. 1 lines 4–14, SPEC §g, with the refe
     μ ← (1−η)μ + η Σ s_r d_r/Σ s_r                                    eq. (mean_update)
     Σ ← (1−η)Σ + η Σ s_r (d_r − μ)(d_r − μ)ᵀ/Σ s_r + ε I              eq. (cov_update)
 
-**What is returned: the lowest-cost elite over all iterations** (best-so-far, tracked in the scan
-carry), not the lowest-residual sample (the reference's bug, SPEC §g).  Best-so-far rather than
-"best of the last iteration" because the cost of a given behavioural input is deterministic, so the
-best sample ever evaluated is a valid plan and never worse; elites are carried to the next batch,
-so the two coincide unless the distribution drifts away from a good sample.  The cost trace is
-the best-so-far cost per iteration (non-increasing); the per-iteration minimum is in the
-diagnostics.
+**What is returned: the lowest-cost elite over all iterations** (best-so-far, tracked in the
+state), not the lowest-residual sample (the reference's bug, SPEC §g).  The cost trace is the
+best-so-far cost per iteration (non-increasing); the per-iteration minimum is kept too.
 
 Fixes of the reference (SPEC §8): a fresh PRNG key every iteration; lateral set-points sampled
-with a spread matched to the lane bounds (not σ ≈ 4.8 m against ±0.3 m); "brake in lane" rows
-as a ladder of constant speed set-points from ``v_min`` (not below it) to the current speed;
-multipliers are not carried across iterations with misaligned rows (each projection is
-warm-started from its own planner output ``c̄_r`` with zero duals); every constant in
-:class:`MMDOptConfig`.
+with a spread matched to the lane bounds; "brake in lane" rows as a ladder of constant speed
+set-points from ``v_min`` to the current speed; each projection warm-started from its own planner
+output with zero duals; every constant in :class:`MMDOptConfig`.
 
-The ``admm`` backend runs the whole loop as one ``jit`` (``lax.scan`` over the iterations, the
-projection by :meth:`frenet.ProjectionProblem.jax_projector`, a fixed ADMM iteration budget); any
-other :mod:`solvers` backend runs the projection on the host per iteration via
-:meth:`frenet.ProjectionProblem.project` (a Python loop over iterations, not samples), with the
-sampling and the cost evaluation still jitted.  The public entry point is :func:`mmdopt.plan`.
+**Projection backends.**  :data:`PLANNER_BACKEND` = ``"admm-fixed"`` (default): the projection
+is :meth:`frenet.ProjectionProblem.jax_projector` (a fixed ADMM iteration budget, warm-started,
+boundary rows corrected exactly) inside the jitted step, so :func:`run` is one ``jit``
+(``lax.scan`` over the iterations).  Any :mod:`solvers` backend name (``"admm"``, ``"clarabel"``,
+``"osqp"``, ...) projects on the host each iteration through the registry
+(:meth:`frenet.ProjectionProblem.project`), with sampling and cost still jitted.
 """
 
 from __future__ import annotations
 
 import dataclasses
+import math
 from dataclasses import dataclass, field
 from typing import Any, NamedTuple
 
@@ -53,8 +62,10 @@ from jax import lax
 
 import frenet
 
-from .baselines import (
-    COST_MODE,
+from ._x64 import x64
+from .collision import (
+    ELLIPSE_A,
+    ELLIPSE_B,
     ellipse_values,
     mmd_cost,
     saa_cost,
@@ -63,7 +74,26 @@ from .baselines import (
 )
 from .reduced_set import ReducedSetConfig
 
-__all__ = ["MMDOptConfig", "CEMResult", "CEMProblem", "build_problem", "run_cem"]
+__all__ = [
+    "PLANNER_BACKEND",
+    "MMDOptConfig",
+    "Problem",
+    "ObstacleSet",
+    "Best",
+    "CEMState",
+    "CEMProblem",
+    "build_problem",
+    "init",
+    "update",
+    "run",
+    "shift",
+    "planning_semi_axis",
+    "n_taylor_terms",
+    "check_backend",
+]
+
+#: the planner's default projection: the jitted fixed-budget ADMM projector inside the CEM step
+PLANNER_BACKEND = "admm-fixed"
 
 
 def _static(default):
@@ -142,8 +172,8 @@ class MMDOptConfig:
     w_saa: float = 100.0
     bandwidth: float = 0.5
     f_scale: float = 1.0
-    a: float = 4.5
-    b: float = 3.5
+    a: float = ELLIPSE_A
+    b: float = ELLIPSE_B
     margin_long: float = 2.5
     margin_rate: float = 1.9
     rs_lateral_scale: float = 10.0
@@ -206,6 +236,19 @@ class MMDOptConfig:
             v = getattr(self, name)
             if _concrete(v) and not float(v) > 0:
                 raise ValueError(f"MMDOptConfig.{name} must be > 0, got {v}")
+        for f in dataclasses.fields(self):
+            v = getattr(self, f.name)
+            if not f.metadata.get("static") and _concrete(v) and not math.isfinite(float(v)):
+                raise ValueError(f"MMDOptConfig.{f.name} must be finite, got {v}")
+        if self.admm_rho is not None and not (
+            _concrete(self.admm_rho) and math.isfinite(float(self.admm_rho)) and self.admm_rho > 0
+        ):
+            raise ValueError(f"MMDOptConfig.admm_rho must be None or > 0, got {self.admm_rho!r}")
+        if not isinstance(self.reduced_set, ReducedSetConfig):
+            raise ValueError(
+                "MMDOptConfig.reduced_set must be a ReducedSetConfig, "
+                f"got {type(self.reduced_set).__name__}"
+            )
         v = self.baseline_margin_scale
         if _concrete(v) and not float(v) >= 0:
             raise ValueError(f"MMDOptConfig.baseline_margin_scale must be >= 0, got {v}")
@@ -257,7 +300,6 @@ class CEMProblem:
         self.P = np.asarray(self.basis.P)
         self.Pdot = np.asarray(self.basis.Pdot)
         self.Pddot = np.asarray(self.basis.Pddot)
-        self._jit: dict[Any, Any] = {}
 
     def t(self) -> np.ndarray:
         return self.basis.grid.t
@@ -267,13 +309,8 @@ def _statics(cfg: MMDOptConfig) -> tuple:
     return tuple(getattr(cfg, f.name) for f in dataclasses.fields(cfg) if f.metadata.get("static"))
 
 
-def build_problem(cfg: MMDOptConfig, bounds: frenet.ProjectionBounds) -> CEMProblem:
-    """The cached :class:`CEMProblem` for ``cfg``'s static fields and the projection ``bounds``."""
-    key = (_statics(cfg), _bounds_key(bounds))
-    return _build_problem_cached(key, cfg, bounds)
-
-
-def _bounds_key(b: frenet.ProjectionBounds) -> tuple:
+def bounds_key(b: frenet.ProjectionBounds) -> tuple:
+    """A hashable description of projection bounds (static data of :class:`Problem`)."""
     return tuple(
         (
             f.name,
@@ -286,9 +323,18 @@ def _bounds_key(b: frenet.ProjectionBounds) -> tuple:
 
 
 _PROBLEMS: dict[tuple, CEMProblem] = {}
+_BOUNDS: dict[tuple, frenet.ProjectionBounds] = {}
 
 
-def _build_problem_cached(key, cfg, bounds) -> CEMProblem:
+def build_problem(cfg: MMDOptConfig, bounds: frenet.ProjectionBounds | tuple) -> CEMProblem:
+    """The cached :class:`CEMProblem` for ``cfg``'s static fields and the projection ``bounds``
+    (a :class:`frenet.ProjectionBounds` or its :func:`bounds_key`)."""
+    if isinstance(bounds, tuple):
+        bkey, bounds = bounds, _BOUNDS[bounds]
+    else:
+        bkey = bounds_key(bounds)
+        _BOUNDS.setdefault(bkey, bounds)
+    key = (_statics(cfg), bkey)
     hit = _PROBLEMS.get(key)
     if hit is None:
         hit = CEMProblem(cfg, bounds)
@@ -298,44 +344,128 @@ def _build_problem_cached(key, cfg, bounds) -> CEMProblem:
     return hit
 
 
-# ------------------------------------------------------------------------------------- the loop
+# ------------------------------------------------------------------------------ inputs and state
+@jax.tree_util.register_dataclass
+@dataclass(frozen=True)
+class Problem:
+    """One planning problem: the ego state, the sampling prior and the bounds (a pytree).
+
+    state : (6,) Frenet ego state ``(s, d, ṡ, ḋ, s̈, d̈)``;  mu0, cov0 : (D,), (D, D) initial
+    sampling distribution of the behavioural input ``d`` (speed set-points, then lateral
+    set-points);  lo, hi : (D,) clip bounds of ``d``;  brake : (n_brake, D) "brake in lane"
+    inputs (constant speed set-points ``v_min … v₀``);  bounds : static, the projection bounds
+    (:func:`bounds_key` of a :class:`frenet.ProjectionBounds`).
+    """
+
+    state: Any
+    mu0: Any
+    cov0: Any
+    lo: Any
+    hi: Any
+    brake: Any
+    bounds: tuple = field(metadata=dict(static=True))
+
+    @staticmethod
+    def create(cfg: MMDOptConfig, ego: frenet.EgoState, bounds: frenet.ProjectionBounds) -> Problem:
+        """The problem of planning from ``ego`` (Frenet) within ``bounds``: the sampling prior is
+        centred on the ego's speed and lateral offset (clipped to the bounds), with spreads
+        ``speed_std0`` and ``lateral_std_scale`` × half the lane width."""
+        S = cfg.num_segments
+        b = bounds.per_step(1)
+        v_min, v_max = float(b["vx_min"][0]), float(b["vx_max"][0])
+        y_lb, y_ub = float(b["y_lb"][0]), float(b["y_ub"][0])
+        v0 = float(np.clip(ego.vs, v_min, v_max))
+        y0 = float(np.clip(ego.d, y_lb, y_ub))
+        half = 0.5 * (y_ub - y_lb)
+        lat_std = float(cfg.lateral_std_scale) * (half if np.isfinite(half) else 1.75)
+        lat_std = max(lat_std, 1e-3)
+        mu0 = np.array([v0] * S + [y0] * S)
+        cov0 = np.diag([float(cfg.speed_std0) ** 2] * S + [lat_std**2] * S)
+        lo = np.array([v_min] * S + [y_lb] * S)
+        hi = np.array([v_max] * S + [y_ub] * S)
+        vlo = v_min if np.isfinite(v_min) else 0.0
+        ladder = np.linspace(vlo, max(v0, vlo), cfg.n_brake)
+        brake = np.concatenate([np.repeat(ladder[:, None], S, 1), np.full((cfg.n_brake, S), y0)], 1)
+        bkey = bounds_key(bounds)
+        _BOUNDS.setdefault(bkey, bounds)
+        with jax.enable_x64(True):
+            arr = lambda x: jnp.asarray(np.asarray(x, np.float64))  # noqa: E731
+            return Problem(
+                arr(ego.as_array()), arr(mu0), arr(cov0), arr(lo), arr(hi), arr(brake), bkey
+            )
+
+
+@jax.tree_util.register_dataclass
+@dataclass(frozen=True)
+class ObstacleSet:
+    """What the collision term plans against (a pytree).
+
+    centres : (O, J, C, K, 2) obstacle circle centres in the planning (Frenet) frame, J samples
+    per obstacle (a reduced set, or all samples);  weights : (O, J) ᾱ;  mask : (O, J) bool;
+    mode : static, the collision term — "mmd" (eq. l_dist), "scenario" (deterministic scenario
+    cost) or "saa" (sample-average chance constraint), :mod:`mmdopt.collision`;  n_terms :
+    static, Taylor features of the MMD cost (:func:`n_taylor_terms`).
+    """
+
+    centres: Any
+    weights: Any
+    mask: Any
+    mode: str = field(metadata=dict(static=True))
+    n_terms: int = field(default=0, metadata=dict(static=True))
+
+    @staticmethod
+    def create(cfg: MMDOptConfig, centres, weights, mode: str, mask=None) -> ObstacleSet:
+        """Build (and validate) an obstacle set for ``cfg``; ``mode`` as above."""
+        if mode not in ("mmd", "scenario", "saa"):
+            raise ValueError(f"mode must be 'mmd', 'scenario' or 'saa', got {mode!r}")
+        c = np.asarray(centres, np.float64)
+        w = np.asarray(weights, np.float64)
+        if c.ndim != 5 or c.shape[-1] != 2 or c.shape[-2] != cfg.num_steps:
+            raise ValueError(
+                f"centres must have shape (O, J, C, K, 2) with K = {cfg.num_steps}, got {c.shape}"
+            )
+        if w.shape != c.shape[:2]:
+            raise ValueError(f"weights must have shape {c.shape[:2]}, got {w.shape}")
+        if not (np.all(np.isfinite(c)) and np.all(np.isfinite(w))):
+            raise ValueError("centres and weights must be finite")
+        if np.any(w < 0):
+            raise ValueError("weights must be >= 0")
+        m = np.ones(w.shape, bool) if mask is None else np.asarray(mask, bool)
+        if m.shape != w.shape:
+            raise ValueError(f"mask must have shape {w.shape}, got {m.shape}")
+        n_terms = n_taylor_terms(cfg) if mode == "mmd" else 0
+        with jax.enable_x64(True):
+            return ObstacleSet(jnp.asarray(c), jnp.asarray(w), jnp.asarray(m), mode, n_terms)
+
+
 class Best(NamedTuple):
-    """Best-so-far sample (lowest cost), tracked in the carry."""
+    """One evaluated sample: the best-so-far (lowest cost) or the least violating."""
 
     cost: Any  # ()
-    d: Any  # (D,)
-    cx: Any  # (nvar,)
-    cy: Any  # (nvar,)
-    res: Any  # ()
+    d: Any  # (D,) behavioural input
+    cx: Any  # (nvar,) projected coefficients, longitudinal
+    cy: Any  # (nvar,) lateral
+    res: Any  # () constraint residual
     coll: Any  # () collision term (unweighted)
-    iteration: Any  # () int
+    iteration: Any  # () int, the iteration it was found in (-1: none yet)
 
 
-class CEMResult(NamedTuple):
-    """Output of :func:`run_cem` (JAX or NumPy arrays)."""
+class CEMState(NamedTuple):
+    """The state of Algorithm 1 between iterations (a pytree; see :func:`init`)."""
 
-    best: Best  # lowest cost over all iterations
-    least_violating: Best  # lowest residual over all iterations (fallback)
+    config: MMDOptConfig
+    problem: Problem
+    mu: Any  # (D,) sampling mean
+    cov: Any  # (D, D) sampling covariance
+    elites: Any  # (n_elite, D) elites carried into the next batch
+    best: Best  # lowest cost so far
+    least_violating: Best  # lowest residual so far (fallback)
+    iteration: Any  # () int32, iterations done
+    keys: Any  # (N, ...) one PRNG key per iteration
     cost_trace: Any  # (N,) best-so-far cost after each iteration
     iter_min_cost: Any  # (N,) lowest cost of each iteration's ConstraintEliteSet
     iter_mean_elite_cost: Any  # (N,)
     n_feasible: Any  # (N,) samples with residual ≤ res_tol per iteration
-    mu: Any  # (D,) final sampling mean
-    cov: Any  # (D, D) final sampling covariance
-
-
-class Data(NamedTuple):
-    """Per-call inputs of the loop (all arrays)."""
-
-    state: Any  # (6,) Frenet ego state
-    mu0: Any  # (D,)
-    cov0: Any  # (D, D)
-    lo: Any  # (D,) clip bounds of d
-    hi: Any  # (D,)
-    brake: Any  # (n_brake, D) "brake in lane" inputs (constant speed set-points v_min … v₀)
-    centres: Any  # (O, J, C, K, 2) obstacle circles, Frenet
-    weights: Any  # (O, J)
-    mask: Any  # (O, J) bool
 
 
 def _empty_best(D, n, dt) -> Best:
@@ -350,7 +480,14 @@ def _empty_best(D, n, dt) -> Best:
     )
 
 
-def _sample(cfg: MMDOptConfig, key, mu, cov, elites, data: Data):
+def _cast(tree, dt):
+    return jax.tree_util.tree_map(
+        lambda x: x.astype(dt) if jnp.issubdtype(jnp.asarray(x).dtype, jnp.floating) else x, tree
+    )
+
+
+# ------------------------------------------------------------------------------------ one step
+def _sample(cfg: MMDOptConfig, key, mu, cov, elites, problem: Problem):
     """Batch of behavioural inputs: [elites; brake rows; fresh draws], clipped to the bounds."""
     n_new = cfg.n_samples - cfg.n_elite - cfg.n_brake
     D = mu.shape[0]
@@ -360,27 +497,37 @@ def _sample(cfg: MMDOptConfig, key, mu, cov, elites, data: Data):
     # order matters: residuals within res_tol tie and ties go to the lower index, so the previous
     # elites and the brake rows always reach the ConstraintEliteSet when feasible, and the fresh
     # draws fill it in (random) draw order
-    d = jnp.concatenate([elites, data.brake.reshape(cfg.n_brake, D), new], axis=0)
-    return jnp.clip(d, data.lo, data.hi)
+    d = jnp.concatenate([elites, problem.brake.reshape(cfg.n_brake, D), new], axis=0)
+    return jnp.clip(d, problem.lo, problem.hi)
 
 
-def _evaluate(
-    cfg: MMDOptConfig,
-    prob: CEMProblem,
-    mode: str,
-    n_terms: int,
-    it,
-    d,
-    cx,
-    cy,
-    res,
-    data: Data,
-    mu,
-    cov,
-    best: Best,
-    lv: Best,
-):
+def _collision_term(cfg: MMDOptConfig, prob: CEMProblem, s, dd, obstacles: ObstacleSet, dt):
+    """The method's collision term and its weight (eq. c_aug), per ego sample (B,)."""
+    mode = obstacles.mode
+    scale = 1.0 if mode == "mmd" else cfg.baseline_margin_scale
+    f = ellipse_values(
+        s,
+        dd,
+        obstacles.centres.astype(dt),
+        planning_semi_axis(cfg, prob.t(), dt, scale),
+        cfg.b + scale * cfg.margin_lat,
+    )
+    if mode == "mmd":
+        coll = mmd_cost(
+            f, obstacles.weights.astype(dt), cfg.bandwidth, cfg.f_scale, obstacles.n_terms
+        )
+        return coll, cfg.w_mmd
+    if mode == "scenario":
+        return scenario_cost(f, obstacles.mask), cfg.w_coll
+    coll, _ = saa_cost(f, obstacles.mask, cfg.saa_eps, cfg.saa_temperature)
+    return coll, cfg.w_saa
+
+
+def _evaluate(state: CEMState, prob: CEMProblem, obstacles: ObstacleSet, d, cx, cy, res):
     """ConstraintEliteSet, cost, EliteSet, distribution update, best-so-far (one iteration)."""
+    cfg = state.config
+    it = state.iteration
+    mu, cov, best, lv = state.mu, state.cov, state.best, state.least_violating
     dt = cx.dtype
     res = jnp.where(jnp.isfinite(res), res, jnp.asarray(1e30, dt))
     n_feas = jnp.sum(res <= cfg.res_tol)
@@ -394,25 +541,7 @@ def _evaluate(
     # --- cost, eq. (c_aug) + residual
     j_speed = jnp.mean((vs - cfg.v_des) ** 2, axis=1)
     j_acc = jnp.mean(as_ * as_ + ad * ad, axis=1)
-    scale = 1.0 if mode == "mmd" else cfg.baseline_margin_scale
-    f = ellipse_values(
-        s,
-        dd,
-        data.centres.astype(dt),
-        planning_semi_axis(cfg, prob.t(), dt, scale),
-        cfg.b + scale * cfg.margin_lat,
-    )
-    if mode == "mmd":
-        coll = mmd_cost(f, data.weights.astype(dt), cfg.bandwidth, cfg.f_scale, n_terms)
-        w = cfg.w_mmd
-    elif mode == "scenario":
-        coll = scenario_cost(f, data.mask)
-        w = cfg.w_coll
-    elif mode == "saa":
-        coll, _ = saa_cost(f, data.mask, cfg.saa_eps, cfg.saa_temperature)
-        w = cfg.w_saa
-    else:  # pragma: no cover
-        raise ValueError(mode)
+    coll, w = _collision_term(cfg, prob, s, dd, obstacles, dt)
     cost = cfg.w_speed * j_speed + cfg.w_accel * j_acc + w * coll + cfg.w_res * res_c
     cost = jnp.where(jnp.isfinite(cost), cost, jnp.asarray(1e30, dt))
     # --- EliteSet and the MPPI-weighted update, eqs. (mean_update), (cov_update), (s_formula)
@@ -427,7 +556,7 @@ def _evaluate(
     cov_new = 0.5 * (cov_new + cov_new.T) + cfg.cov_reg * jnp.eye(cov.shape[0], dtype=dt)
     # --- best so far (lowest cost) and least violating (lowest residual)
     i0 = ces[el[0]]
-    cand = Best(cost_e[0], d[i0], cx[i0], cy[i0], res[i0], coll[el[0]], jnp.asarray(it, jnp.int32))
+    cand = Best(cost_e[0], d[i0], cx[i0], cy[i0], res[i0], coll[el[0]], it.astype(jnp.int32))
     take = cand.cost < best.cost
     best = jax.tree_util.tree_map(lambda a, b: jnp.where(take, a, b), cand, best)
     j = jnp.argmin(res)
@@ -440,12 +569,22 @@ def _evaluate(
         cy[j],
         res[j],
         jnp.where(in_ces, coll[jc], 0.0),
-        jnp.asarray(it, jnp.int32),
+        it.astype(jnp.int32),
     )
     take_lv = lv_cand.res < lv.res
     lv = jax.tree_util.tree_map(lambda a, b: jnp.where(take_lv, a, b), lv_cand, lv)
-    info = (best.cost, cost_e[0], jnp.mean(cost_e), n_feas)
-    return mu_new, cov_new, d_e, best, lv, info
+    return state._replace(
+        mu=mu_new,
+        cov=cov_new,
+        elites=d_e,
+        best=best,
+        least_violating=lv,
+        iteration=it + 1,
+        cost_trace=state.cost_trace.at[it].set(best.cost),
+        iter_min_cost=state.iter_min_cost.at[it].set(cost_e[0]),
+        iter_mean_elite_cost=state.iter_mean_elite_cost.at[it].set(jnp.mean(cost_e)),
+        n_feasible=state.n_feasible.at[it].set(n_feas.astype(state.n_feasible.dtype)),
+    )
 
 
 def planning_semi_axis(cfg: MMDOptConfig, t, dt=None, scale=1.0):
@@ -456,7 +595,8 @@ def planning_semi_axis(cfg: MMDOptConfig, t, dt=None, scale=1.0):
     return cfg.a + scale * (cfg.margin_long + cfg.margin_rate * t)
 
 
-def _plan(prob: CEMProblem, d, state, dt):
+def planner_output(prob: CEMProblem, d, state, dt):
+    """Frenet planner, closed form: behavioural inputs (B, D) -> coefficients c̄x, c̄y (B, nvar)."""
     W = jnp.asarray(prob.W, dt)
     n = prob.nvar
     st = jnp.broadcast_to(state[None], (d.shape[0], 6))
@@ -469,8 +609,9 @@ class _WarmStart(NamedTuple):
     y: Any
 
 
-def _project_jax(prob: CEMProblem, cx_bar, cy_bar, state):
-    """The jitted projection, warm-started from the planner output with zero duals."""
+def project_fixed(prob: CEMProblem, cx_bar, cy_bar, state):
+    """The ``admm-fixed`` projection, warm-started from the planner output with zero duals:
+    ``(cx, cy, residual)``."""
     m = prob.problem.num_rows
     ws = _WarmStart(
         jnp.concatenate([cx_bar, cy_bar], axis=1), jnp.zeros((cx_bar.shape[0], m), cx_bar.dtype)
@@ -479,82 +620,216 @@ def _project_jax(prob: CEMProblem, cx_bar, cy_bar, state):
     return out.cx, out.cy, out.residual
 
 
-def _init(cfg: MMDOptConfig, prob: CEMProblem, key, data: Data, dt):
+def _step(state: CEMState, obstacles: ObstacleSet) -> CEMState:
+    """One iteration with the ``admm-fixed`` projection (traceable)."""
+    cfg = state.config
+    prob = build_problem(cfg, state.problem.bounds)
+    dt = jnp.dtype(cfg.dtype)
+    k = state.keys[state.iteration]
+    d = _sample(cfg, k, state.mu, state.cov, state.elites, state.problem)
+    cx_bar, cy_bar = planner_output(prob, d, state.problem.state, dt)
+    cx, cy, res = project_fixed(prob, cx_bar, cy_bar, state.problem.state)
+    return _evaluate(state, prob, obstacles, d, cx, cy, res.astype(dt))
+
+
+def _init(cfg: MMDOptConfig, problem: Problem, key, warm_start: CEMState | None) -> CEMState:
+    dt = jnp.dtype(cfg.dtype)
+    problem = _cast(problem, dt)
     D = cfg.d_dim
+    prob = build_problem(cfg, problem.bounds)
     k_init, k_loop = jax.random.split(key)
-    L0 = jnp.linalg.cholesky(data.cov0)
-    z = jax.random.normal(k_init, (cfg.n_elite, D), dt)
-    elites = jnp.clip(data.mu0 + z @ L0.T, data.lo, data.hi)
+    if warm_start is None:
+        L0 = jnp.linalg.cholesky(problem.cov0)
+        z = jax.random.normal(k_init, (cfg.n_elite, D), dt)
+        elites = jnp.clip(problem.mu0 + z @ L0.T, problem.lo, problem.hi)
+        mu, cov = problem.mu0, problem.cov0
+    else:
+        mu = jnp.clip(warm_start.mu.astype(dt), problem.lo, problem.hi)
+        cov = warm_start.cov.astype(dt)
+        elites = jnp.clip(warm_start.elites.astype(dt), problem.lo, problem.hi)
     keys = jax.random.split(k_loop, cfg.iterations)
     empty = _empty_best(D, prob.nvar, dt)
-    return elites, keys, empty
+    N = cfg.iterations
+    return CEMState(
+        config=cfg,
+        problem=problem,
+        mu=mu,
+        cov=cov,
+        elites=elites,
+        best=empty,
+        least_violating=empty,
+        iteration=jnp.asarray(0, jnp.int32),
+        keys=keys,
+        cost_trace=jnp.full((N,), jnp.inf, dt),
+        iter_min_cost=jnp.full((N,), jnp.inf, dt),
+        iter_mean_elite_cost=jnp.full((N,), jnp.inf, dt),
+        n_feasible=jnp.zeros((N,), jnp.int32),
+    )
 
 
-def _cast(data: Data, dt) -> Data:
-    return Data(*(x.astype(dt) if jnp.issubdtype(x.dtype, jnp.floating) else x for x in data))
+_init_jit = jax.jit(_init)
+_step_jit = jax.jit(_step)
 
 
-def _make_scan_solver(prob: CEMProblem, mode: str, n_terms: int):
+@jax.jit
+def _run_fixed(cfg: MMDOptConfig, problem: Problem, obstacles: ObstacleSet, key, warm_start):
     """The whole of Algorithm 1 as one jitted function (``lax.scan`` over the iterations)."""
-
-    def solve(cfg: MMDOptConfig, key, data: Data) -> CEMResult:
-        dt = jnp.dtype(cfg.dtype)
-        data = _cast(data, dt)
-        elites, keys, empty = _init(cfg, prob, key, data, dt)
-
-        def body(carry, xs):
-            mu, cov, elites, best, lv = carry
-            it, k = xs
-            d = _sample(cfg, k, mu, cov, elites, data)
-            cx_bar, cy_bar = _plan(prob, d, data.state, dt)
-            cx, cy, res = _project_jax(prob, cx_bar, cy_bar, data.state)
-            mu, cov, elites, best, lv, info = _evaluate(
-                cfg, prob, mode, n_terms, it, d, cx, cy, res.astype(dt), data, mu, cov, best, lv
-            )
-            return (mu, cov, elites, best, lv), info
-
-        carry0 = (data.mu0, data.cov0, elites, empty, empty)
-        xs = (jnp.arange(cfg.iterations), keys)
-        (mu, cov, _, best, lv), (trace, it_min, it_mean, n_feas) = lax.scan(body, carry0, xs)
-        return CEMResult(best, lv, trace, it_min, it_mean, n_feas, mu, cov)
-
-    return jax.jit(solve)
+    state = _init(cfg, problem, key, warm_start)
+    state, _ = lax.scan(lambda s, _: (_step(s, obstacles), None), state, None, cfg.iterations)
+    return state
 
 
-def _make_host_parts(prob: CEMProblem, mode: str, n_terms: int):
-    @jax.jit
-    def sample_plan(cfg, k, mu, cov, elites, data):
-        dt = jnp.dtype(cfg.dtype)
-        d = _sample(cfg, k, mu, cov, elites, data)
-        cx_bar, cy_bar = _plan(prob, d, data.state, dt)
-        return d, cx_bar, cy_bar
+@jax.jit
+def _sample_plan(state: CEMState):
+    cfg = state.config
+    prob = build_problem(cfg, state.problem.bounds)
+    dt = jnp.dtype(cfg.dtype)
+    d = _sample(cfg, state.keys[state.iteration], state.mu, state.cov, state.elites, state.problem)
+    cx_bar, cy_bar = planner_output(prob, d, state.problem.state, dt)
+    return d, cx_bar, cy_bar
 
-    @jax.jit
-    def evaluate(cfg, it, d, cx, cy, res, data, mu, cov, best, lv):
-        dt = jnp.dtype(cfg.dtype)
-        return _evaluate(
-            cfg,
-            prob,
-            mode,
-            n_terms,
-            it,
-            d,
-            cx.astype(dt),
-            cy.astype(dt),
-            res.astype(dt),
-            data,
-            mu,
-            cov,
-            best,
-            lv,
+
+@jax.jit
+def _evaluate_host(state: CEMState, obstacles: ObstacleSet, d, cx, cy, res):
+    prob = build_problem(state.config, state.problem.bounds)
+    dt = jnp.dtype(state.config.dtype)
+    return _evaluate(state, prob, obstacles, d, cx.astype(dt), cy.astype(dt), res.astype(dt))
+
+
+# ------------------------------------------------------------------------------------ public API
+def check_backend(backend: str, settings: dict) -> None:
+    """Raise ``ValueError`` for a non-string backend or settings given to ``admm-fixed``."""
+    if not isinstance(backend, str):
+        raise ValueError(f"backend must be a string, got {type(backend).__name__}")
+    if backend == PLANNER_BACKEND and settings:
+        raise ValueError(
+            f"backend {PLANNER_BACKEND!r} takes no solver settings (got {sorted(settings)}): its "
+            "budget and step size are MMDOptConfig.admm_iters / admm_rho; pass backend='admm' "
+            "for the registry's ADMM with settings"
         )
 
-    @jax.jit
-    def init(cfg, key, data):
-        dt = jnp.dtype(cfg.dtype)
-        return _init(cfg, prob, key, _cast(data, dt), dt)
 
-    return sample_plan, evaluate, init
+@x64
+def init(
+    config: MMDOptConfig, problem: Problem, key: Any, warm_start: CEMState | None = None
+) -> CEMState:
+    """Initial state: the sampling prior of ``problem`` (or ``warm_start``'s distribution and
+    elites, e.g. from :func:`shift`), ``config.iterations`` PRNG keys, empty best-so-far."""
+    if not isinstance(config, MMDOptConfig):
+        raise ValueError(f"config must be an MMDOptConfig, got {type(config).__name__}")
+    if not isinstance(problem, Problem):
+        raise ValueError(f"problem must be an algorithm.Problem, got {type(problem).__name__}")
+    if warm_start is not None and not isinstance(warm_start, CEMState):
+        raise ValueError(f"warm_start must be a CEMState, got {type(warm_start).__name__}")
+    return _init_jit(config, problem, key, warm_start)
+
+
+@x64
+def update(
+    state: CEMState,
+    obstacles: ObstacleSet,
+    backend: str = PLANNER_BACKEND,
+    **backend_settings: Any,
+) -> CEMState:
+    """One CEM iteration (sample, plan, project, score, update).  Raises ``ValueError`` once the
+    state has done ``config.iterations`` iterations (its keys are used up: :func:`shift` or
+    :func:`init` a new state)."""
+    check_backend(backend, backend_settings)
+    if not isinstance(state, CEMState):
+        raise ValueError(f"state must be a CEMState, got {type(state).__name__}")
+    if not isinstance(obstacles, ObstacleSet):
+        raise ValueError(f"obstacles must be an ObstacleSet, got {type(obstacles).__name__}")
+    if int(state.iteration) >= state.config.iterations:
+        raise ValueError(
+            f"state has done all config.iterations = {state.config.iterations} iterations"
+        )
+    if backend == PLANNER_BACKEND:
+        return _step_jit(state, obstacles)
+    prob = build_problem(state.config, state.problem.bounds)
+    d, cx_bar, cy_bar = _sample_plan(state)
+    pr = prob.problem.project(
+        np.asarray(cx_bar, np.float64),
+        np.asarray(cy_bar, np.float64),
+        np.asarray(state.problem.state, np.float64),
+        backend=backend,
+        **backend_settings,
+    )
+    return _evaluate_host(state, obstacles, d, pr.cx, pr.cy, pr.residual)
+
+
+@x64
+def run(
+    config: MMDOptConfig,
+    problem: Problem,
+    obstacles: ObstacleSet,
+    key: Any,
+    backend: str = PLANNER_BACKEND,
+    warm_start: CEMState | None = None,
+    **backend_settings: Any,
+) -> CEMState:
+    """:func:`init` then ``config.iterations`` × :func:`update`; with ``admm-fixed`` one jitted
+    ``lax.scan``.  Returns the final :class:`CEMState` (``best``, ``least_violating``, traces)."""
+    check_backend(backend, backend_settings)
+    if backend == PLANNER_BACKEND:
+        if not isinstance(config, MMDOptConfig):
+            raise ValueError(f"config must be an MMDOptConfig, got {type(config).__name__}")
+        return _run_fixed(config, problem, obstacles, key, warm_start)
+    state = init(config, problem, key, warm_start)
+    for _ in range(config.iterations):
+        state = update(state, obstacles, backend, **backend_settings)
+    return state
+
+
+def _shift_setpoints(v, frac):
+    """Piecewise-constant set-points (…, S) moved ``frac`` segments earlier, last one held."""
+    S = v.shape[-1]
+    pos = jnp.arange(S, dtype=v.dtype) + frac
+    i0 = jnp.clip(jnp.floor(pos).astype(jnp.int32), 0, S - 1)
+    i1 = jnp.clip(i0 + 1, 0, S - 1)
+    w = jnp.clip(pos - jnp.floor(pos), 0.0, 1.0)
+    return jnp.take(v, i0, axis=-1) * (1 - w) + jnp.take(v, i1, axis=-1) * w
+
+
+@x64
+def shift(state: CEMState, dt: float) -> CEMState:
+    """Warm start for receding horizon: the sampling distribution and the elites moved ``dt``
+    seconds forward in time (each of the ``S`` speed and lateral set-point sequences is
+    re-sampled at ``t + dt``, the last set-point held), the covariance kept (plus ``cov_reg``);
+    best-so-far, traces and iteration count reset, fresh keys derived from the old ones.  Pass
+    it as ``warm_start`` to :func:`init` / :func:`run` with the new :class:`Problem`."""
+    if not isinstance(state, CEMState):
+        raise ValueError(f"state must be a CEMState, got {type(state).__name__}")
+    dt = float(dt)
+    if not (math.isfinite(dt) and dt >= 0):
+        raise ValueError(f"dt must be finite and >= 0, got {dt}")
+    cfg = state.config
+    S = cfg.num_segments
+    frac = dt / (cfg.horizon / S)
+
+    def sh(x):
+        return jnp.concatenate(
+            [_shift_setpoints(x[..., :S], frac), _shift_setpoints(x[..., S:], frac)], axis=-1
+        )
+
+    D = cfg.d_dim
+    dtype = state.mu.dtype
+    prob = build_problem(cfg, state.problem.bounds)
+    empty = _empty_best(D, prob.nvar, dtype)
+    key = jax.random.fold_in(state.keys[-1], 0x5F17)
+    N = cfg.iterations
+    return state._replace(
+        mu=sh(state.mu),
+        cov=state.cov + cfg.cov_reg * jnp.eye(D, dtype=dtype),
+        elites=sh(state.elites),
+        best=empty,
+        least_violating=empty,
+        iteration=jnp.asarray(0, jnp.int32),
+        keys=jax.random.split(key, N),
+        cost_trace=jnp.full((N,), jnp.inf, dtype),
+        iter_min_cost=jnp.full((N,), jnp.inf, dtype),
+        iter_mean_elite_cost=jnp.full((N,), jnp.inf, dtype),
+        n_feasible=jnp.zeros((N,), jnp.int32),
+    )
 
 
 def n_taylor_terms(cfg: MMDOptConfig) -> int:
@@ -563,49 +838,3 @@ def n_taylor_terms(cfg: MMDOptConfig) -> int:
     defaults instead of 21 for 1e-9; 1e-12 in float64)."""
     rel = 1e-7 if cfg.dtype == "float32" else 1e-12
     return taylor_terms(float(cfg.f_scale) / float(cfg.bandwidth), rel)
-
-
-def run_cem(
-    cfg: MMDOptConfig,
-    prob: CEMProblem,
-    key,
-    data: Data,
-    method: str,
-    backend: str = "admm",
-    **backend_settings,
-) -> CEMResult:
-    """Run Algorithm 1 for ``method`` with the projection on ``backend`` (see module docstring)."""
-    mode = COST_MODE[method]
-    n_terms = n_taylor_terms(cfg) if mode == "mmd" else 0
-    if backend == "admm" and not backend_settings:
-        jk = ("scan", mode, n_terms)
-        fn = prob._jit.get(jk)
-        if fn is None:
-            fn = prob._jit[jk] = _make_scan_solver(prob, mode, n_terms)
-        return fn(cfg, key, data)
-    jk = ("host", mode, n_terms)
-    parts = prob._jit.get(jk)
-    if parts is None:
-        parts = prob._jit[jk] = _make_host_parts(prob, mode, n_terms)
-    sample_plan, evaluate, init = parts
-    dt = np.dtype(cfg.dtype)
-    data = _cast(data, dt)
-    elites, keys, empty = init(cfg, key, data)
-    mu, cov, best, lv = data.mu0, data.cov0, empty, empty
-    state = np.asarray(data.state, np.float64)
-    infos = []
-    for it in range(cfg.iterations):
-        d, cx_bar, cy_bar = sample_plan(cfg, keys[it], mu, cov, elites, data)
-        pr = prob.problem.project(
-            np.asarray(cx_bar, np.float64),
-            np.asarray(cy_bar, np.float64),
-            state,
-            backend=backend,
-            **backend_settings,
-        )
-        mu, cov, elites, best, lv, info = evaluate(
-            cfg, it, d, pr.cx, pr.cy, pr.residual, data, mu, cov, best, lv
-        )
-        infos.append(info)
-    trace, it_min, it_mean, n_feas = (jnp.stack(v) for v in zip(*infos, strict=True))
-    return CEMResult(best, lv, trace, it_min, it_mean, n_feas, mu, cov)

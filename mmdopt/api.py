@@ -15,6 +15,7 @@ Cartesian ``(x, y)`` on the planner's time grid (``K = config.num_steps``).
 from __future__ import annotations
 
 import dataclasses
+import math
 import time
 from dataclasses import dataclass, field
 from typing import Any
@@ -26,21 +27,23 @@ import numpy as np
 import frenet
 import solvers
 
-from .algorithm import (
-    CEMResult,
-    Data,
-    MMDOptConfig,
-    build_problem,
-    n_taylor_terms,
-    planning_semi_axis,
-    run_cem,
+from . import algorithm as alg
+from ._x64 import x64
+from .algorithm import PLANNER_BACKEND, MMDOptConfig, n_taylor_terms, planning_semi_axis
+from .baselines import COST_MODE, METHODS, SELECTION, select_for_method
+from .collision import (
+    OBSTACLE_FOOTPRINT,
+    circle_centres,
+    collision_free_count,
+    ellipse_values,
+    mmd_cost,
 )
-from .baselines import COST_MODE, METHODS, ellipse_values, mmd_cost
-from .geometry import OBSTACLE_FOOTPRINT, circle_centres
-from .reduced_set import ReducedSet, select_reduced_sets
-from .surrogate import collision_free_count
+from .reduced_set import ReducedSet
 
 __all__ = ["Road", "Plan", "plan", "plan_frenet", "METHODS"]
+
+#: largest accepted |coordinate| of obstacle samples (m): beyond it positions are not a scene
+MAX_COORD = 1e7
 
 
 def _straight_path() -> frenet.ReferencePath:
@@ -114,7 +117,14 @@ class Plan:
     ``reduced_set``: the obstacle samples used by the cost (a :class:`ReducedSet` with leading
     axis O; all n samples for "saa"/"scenario_all"); ``plan_time_s``: wall time of the call;
     ``diagnostics``: timings, per-iteration traces, the behavioural input ``d``, collision term,
-    progress, residual groups, collision-free count against the planning samples.
+    progress, residual groups, collision-free count against the planning samples; ``state``: the
+    final :class:`mmdopt.algorithm.CEMState` (``None`` for a braking fallback), to warm-start the
+    next plan with ``plan(..., warm_start=mmdopt.algorithm.shift(p.state, dt))``.
+
+    ``status`` is ``"ok"``; or starts with ``"fallback:"`` (``fallback`` is True: no feasible
+    sample, an infeasible initial state or a non-finite cost; a braking or least-violating plan
+    is returned); or with ``"unsafe:"`` (the plan is feasible but collides with every planning
+    sample of some obstacle: no collision-free plan was found).
     """
 
     x: np.ndarray
@@ -140,6 +150,7 @@ class Plan:
     reduced_set: Any
     plan_time_s: float
     diagnostics: dict = field(repr=False, default_factory=dict)
+    state: Any = field(repr=False, default=None)
 
     @property
     def xy(self) -> np.ndarray:
@@ -162,9 +173,12 @@ def _check_common(ego, road, method, config, backend, key):
         raise ValueError(f"method must be one of {METHODS}, got {method!r}")
     if not isinstance(config, MMDOptConfig):
         raise ValueError(f"config must be an mmdopt.MMDOptConfig, got {type(config).__name__}")
-    if not isinstance(backend, str) or backend not in solvers.available_backends():
+    if not isinstance(backend, str) or (
+        backend != PLANNER_BACKEND and backend not in solvers.available_backends()
+    ):
         raise ValueError(
-            f"backend {backend!r} is not available; available: {solvers.available_backends()}"
+            f"backend {backend!r} is not available; available: "
+            f"{[PLANNER_BACKEND, *solvers.available_backends()]}"
         )
     try:
         k = jnp.asarray(key)
@@ -201,8 +215,12 @@ def _check_obstacles(obstacles, config: MMDOptConfig, method: str, name="obstacl
         )
     if not np.all(np.isfinite(arr)):
         raise ValueError(f"{name} contains NaN or inf")
+    if np.max(np.abs(arr)) > MAX_COORD:
+        raise ValueError(
+            f"{name} has coordinates beyond {MAX_COORD:g} m (max |value| {np.max(np.abs(arr)):.3g})"
+        )
     m = config.reduced_set_size
-    if COST_MODE[method] != "saa" and method in ("mmd", "random", "degroot") and n < m:
+    if SELECTION[method] is not None and n < m:
         raise ValueError(
             f"{name} has n = {n} samples per obstacle, fewer than config.reduced_set_size = {m}"
         )
@@ -210,16 +228,19 @@ def _check_obstacles(obstacles, config: MMDOptConfig, method: str, name="obstacl
 
 
 # ------------------------------------------------------------------------------------------ API
+@x64
 def plan(
     ego: frenet.EgoState,
     road: Road,
-    obstacles,
+    obstacles: Any,
     *,
     method: str = "mmd",
     config: MMDOptConfig | None = None,
-    backend: str = "admm",
-    key=None,
-    **backend_settings,
+    backend: str = PLANNER_BACKEND,
+    key: Any = None,
+    reduced_set: ReducedSet | None = None,
+    warm_start: alg.CEMState | None = None,
+    **backend_settings: Any,
 ) -> Plan:
     """Plan with Algorithm 1 against Cartesian obstacle-trajectory samples.
 
@@ -231,55 +252,60 @@ def plan(
     method : "mmd" (MMD-Opt) | "degroot" | "random" | "saa" | "scenario_all"
         (:mod:`mmdopt.baselines`)
     config : :class:`MMDOptConfig` (default: the paper's sizes and the tuned cost)
-    backend : projection backend; "admm" runs the whole algorithm in one jit, any other
-        :mod:`solvers` backend projects on the host each iteration (``backend_settings`` go to it)
+    backend : projection backend: ``"admm-fixed"`` (default) runs the whole algorithm in one jit
+        with the fixed-budget ADMM projector; any :mod:`solvers` backend (``"admm"``,
+        ``"clarabel"``, ``"osqp"``, ...) projects on the host each iteration
+        (``backend_settings`` go to it)
     key : jax PRNG key (default ``PRNGKey(0)``); the same key gives the same plan
+    reduced_set : optional precomputed :class:`ReducedSet` with leading axis O (indices into the
+        n samples, weights ᾱ ≥ 0 summing to 1 per obstacle) used instead of the method's own
+        selection (methods whose cost uses a reduced set: "mmd", "random", "degroot")
+    warm_start : optional :class:`mmdopt.algorithm.CEMState` (e.g. ``algorithm.shift`` of the
+        previous plan's ``state``): the sampling distribution and elites start from it
 
     Returns
     -------
     :class:`Plan`.  Never raises for an infeasible situation: if the initial state violates the
-    bounds (e.g. speed above ``v_max``) a braking profile is returned, and if no sample satisfies
-    the constraints the least-violating one, both with ``fallback=True`` and a ``status`` that says
-    why.
+    bounds (e.g. speed above ``v_max``) or the cost is not finite, a braking profile is returned,
+    and if no sample satisfies the constraints the least-violating one, all with
+    ``fallback=True`` and a ``status`` that says why.
 
     Raises
     ------
     ValueError naming the argument for bad inputs (wrong shapes or horizon, NaN, zero obstacles,
-    fewer samples than the reduced-set size, unknown method or backend).
+    fewer samples than the reduced-set size, unknown method or backend, a malformed reduced set).
     """
     t0 = time.perf_counter()
     config = MMDOptConfig() if config is None else config
     key = jax.random.PRNGKey(0) if key is None else key
     _check_common(ego, road, method, config, backend, key)
+    alg.check_backend(backend, backend_settings)
     arr = _check_obstacles(obstacles, config, method)
     t1 = time.perf_counter()
     s, d = road.path.to_frenet(arr[..., 0], arr[..., 1])
     obs_fr = np.stack([s, d], axis=-1)
-    t_conv = time.perf_counter() - t1
+    if not np.all(np.isfinite(obs_fr)):
+        raise ValueError("obstacles could not be converted to the road's Frenet frame (non-finite)")
+    diag = {"frenet_conversion_s": time.perf_counter() - t1}
     return _plan_impl(
-        ego,
-        road,
-        obs_fr,
-        method,
-        config,
-        backend,
-        key,
-        backend_settings,
-        t0,
-        {"frenet_conversion_s": t_conv},
-    )
+        ego, road, obs_fr, method, config, backend, key, backend_settings, t0, diag,
+        reduced_set, warm_start,
+    )  # fmt: skip
 
 
+@x64
 def plan_frenet(
     ego: frenet.EgoState,
     road: Road,
-    obstacles_frenet,
+    obstacles_frenet: Any,
     *,
     method: str = "mmd",
     config: MMDOptConfig | None = None,
-    backend: str = "admm",
-    key=None,
-    **backend_settings,
+    backend: str = PLANNER_BACKEND,
+    key: Any = None,
+    reduced_set: ReducedSet | None = None,
+    warm_start: alg.CEMState | None = None,
+    **backend_settings: Any,
 ) -> Plan:
     """:func:`plan` with obstacle samples already in the Frenet frame of ``road.path``:
     ``obstacles_frenet`` (O, n, K, 2) as ``(s, d)``.  On a straight path starting at the origin
@@ -288,67 +314,64 @@ def plan_frenet(
     config = MMDOptConfig() if config is None else config
     key = jax.random.PRNGKey(0) if key is None else key
     _check_common(ego, road, method, config, backend, key)
+    alg.check_backend(backend, backend_settings)
     arr = _check_obstacles(obstacles_frenet, config, method, name="obstacles_frenet")
+    diag = {"frenet_conversion_s": 0.0}
     return _plan_impl(
-        ego,
-        road,
-        arr,
-        method,
-        config,
-        backend,
-        key,
-        backend_settings,
-        t0,
-        {"frenet_conversion_s": 0.0},
-    )
+        ego, road, arr, method, config, backend, key, backend_settings, t0, diag,
+        reduced_set, warm_start,
+    )  # fmt: skip
 
 
-#: the plan's own MMD value for the diagnostics (jitted: eagerly, the Taylor-feature scan would be
-#: compiled again on every call)
-_mmd_cost_jit = jax.jit(mmd_cost, static_argnums=(4,))
+def _check_reduced_set(rs: Any, O: int, n: int, method: str) -> ReducedSet:
+    if SELECTION[method] is None:
+        raise ValueError(f"reduced_set is not used by method {method!r} (it plans on all samples)")
+    if not isinstance(rs, ReducedSet):
+        raise ValueError(f"reduced_set must be an mmdopt.ReducedSet, got {type(rs).__name__}")
+    idx = np.asarray(rs.indices)
+    w = np.asarray(rs.weights, np.float64)
+    if idx.ndim != 2 or idx.shape[0] != O:
+        raise ValueError(
+            f"reduced_set.indices must have shape (O, m) = ({O}, m) (leading obstacle axis), "
+            f"got {idx.shape}"
+        )
+    if w.shape != idx.shape:
+        raise ValueError(f"reduced_set.weights must have shape {idx.shape}, got {w.shape}")
+    if not np.issubdtype(idx.dtype, np.integer):
+        raise ValueError(f"reduced_set.indices must be integers, got {idx.dtype}")
+    if idx.size and (idx.min() < 0 or idx.max() >= n):
+        raise ValueError(
+            f"reduced_set.indices must lie in [0, {n}) (n samples), got {idx.min()}…{idx.max()}"
+        )
+    if not np.all(np.isfinite(w)):
+        raise ValueError("reduced_set.weights contains NaN or inf")
+    if np.any(w < 0):
+        raise ValueError("reduced_set.weights must be >= 0")
+    if not np.allclose(w.sum(axis=1), 1.0, atol=1e-6):
+        raise ValueError(f"reduced_set.weights must sum to 1 per obstacle, got {w.sum(axis=1)}")
+    return rs
 
 
-def _all_samples_set(n: int, O: int) -> ReducedSet:
-    idx = jnp.broadcast_to(jnp.arange(n, dtype=jnp.int32), (O, n))
-    w = jnp.full((O, n), 1.0 / n)
-    return ReducedSet(
-        indices=idx,
-        weights=w,
-        alpha=w,
-        mmd2=jnp.zeros((O,)),
-        bandwidth=jnp.full((O,), jnp.nan),
-        method="all",
-    )
+@dataclass
+class _Ctx:
+    """What one plan() call carries from the selection to the assembled :class:`Plan`."""
+
+    ego: frenet.EgoState
+    road: Road
+    config: MMDOptConfig
+    prob: alg.CEMProblem
+    method: str
+    backend: str
+    rs: Any
+    t0: float
+    diag: dict
+    obs_fr: np.ndarray
+    obstacles: alg.ObstacleSet | None = None
 
 
-def _data(ego, road, config, centres, weights, mask) -> Data:
-    S = config.num_segments
-    v0 = float(np.clip(ego.vs, road.v_min, road.v_max))
-    y0 = float(np.clip(ego.d, road.y_lb, road.y_ub))
-    half = 0.5 * (road.y_ub - road.y_lb)
-    lat_std = float(config.lateral_std_scale) * (half if np.isfinite(half) else 1.75)
-    lat_std = max(lat_std, 1e-3)
-    mu0 = np.array([v0] * S + [y0] * S)
-    cov0 = np.diag([float(config.speed_std0) ** 2] * S + [lat_std**2] * S)
-    lo = np.array([road.v_min] * S + [road.y_lb] * S)
-    hi = np.array([road.v_max] * S + [road.y_ub] * S)
-    vlo = road.v_min if np.isfinite(road.v_min) else 0.0
-    ladder = np.linspace(vlo, max(v0, vlo), config.n_brake)
-    brake = np.concatenate([np.repeat(ladder[:, None], S, 1), np.full((config.n_brake, S), y0)], 1)
-    return Data(
-        state=jnp.asarray(ego.as_array()),
-        mu0=jnp.asarray(mu0),
-        cov0=jnp.asarray(cov0),
-        lo=jnp.asarray(lo),
-        hi=jnp.asarray(hi),
-        brake=jnp.asarray(brake),
-        centres=jnp.asarray(centres),
-        weights=jnp.asarray(weights),
-        mask=jnp.asarray(mask),
-    )
-
-
-def _plan_impl(ego, road, obs_fr, method, config, backend, key, backend_settings, t0, diag):
+def _plan_impl(
+    ego, road, obs_fr, method, config, backend, key, backend_settings, t0, diag, rs, warm_start
+):
     # plan in arc length relative to the ego (float32 keeps ~1e-6 relative precision: absolute
     # arc lengths of kilometres would cost millimetres); shifted back in _assemble
     s_off = float(ego.s)
@@ -357,46 +380,59 @@ def _plan_impl(ego, road, obs_fr, method, config, backend, key, backend_settings
     obs_fr[..., 0] -= s_off
     O, n, K, _ = obs_fr.shape
     diag["s_offset"] = s_off
-    prob = build_problem(config, road.bounds())
+    if warm_start is not None and not isinstance(warm_start, alg.CEMState):
+        raise ValueError(
+            f"warm_start must be an algorithm.CEMState, got {type(warm_start).__name__}"
+        )
+    prob = alg.build_problem(config, road.bounds())
     k_rs, k_cem = jax.random.split(key)
     # --- obstacle samples used by the cost
     t1 = time.perf_counter()
-    m = config.reduced_set_size
-    if method in ("mmd", "random", "degroot"):
+    if rs is not None:
+        rs = _check_reduced_set(rs, O, n, method)
+    else:
         ego_guess = None
         if method == "degroot":
             t = prob.t()
             ego_guess = np.stack([ego.s + ego.vs * t, np.full(K, ego.d)], axis=-1)
-        feats = obs_fr
-        lam = float(config.rs_lateral_scale)
-        if method != "degroot" and lam != 1.0:
-            # anisotropic kernel for the selection: lateral offsets (the intent) weigh lam× more
-            feats = obs_fr * np.array([1.0, lam])
-        rs = select_reduced_sets(k_rs, feats, m, method, config.reduced_set, ego_guess)
-        sel = np.take_along_axis(obs_fr, np.asarray(rs.indices)[:, :, None, None], axis=1)
-    else:
-        rs = _all_samples_set(n, O)
-        sel = obs_fr
-    rs = jax.block_until_ready(rs)
+        rs = select_for_method(
+            method,
+            k_rs,
+            obs_fr,
+            config.reduced_set_size,
+            config.reduced_set,
+            lateral_scale=float(config.rs_lateral_scale),
+            ego_guess=ego_guess,
+        )
     diag["reduced_set_s"] = time.perf_counter() - t1
+    sel = np.take_along_axis(obs_fr, np.asarray(rs.indices)[:, :, None, None], axis=1)
     centres = circle_centres(jnp.asarray(sel), OBSTACLE_FOOTPRINT)  # (O, J, C, K, 2)
-    weights = np.asarray(rs.weights, np.float64)
-    mask = np.ones(weights.shape, bool)
-    data = _data(ego, road, config, centres, weights, mask)
+    obstacles = alg.ObstacleSet.create(
+        config, centres, np.asarray(rs.weights, np.float64), COST_MODE[method]
+    )
+    ctx = _Ctx(ego, road, config, prob, method, backend, rs, t0, diag, obs_fr, obstacles)
 
     # --- infeasible initial state: braking profile, flagged
     try:
         prob.problem.check_state(ego)
     except ValueError as exc:
-        return _braking_fallback(
-            ego, road, config, prob, method, backend, rs, t0, diag, f"fallback: {exc}"
-        )
+        return _braking_fallback(ctx, f"fallback: {exc}")
 
     t2 = time.perf_counter()
-    res: CEMResult = run_cem(config, prob, k_cem, data, method, backend, **backend_settings)
-    res = jax.block_until_ready(res)
+    problem = alg.Problem.create(config, ego, road.bounds())
+    state = alg.run(
+        config, problem, obstacles, k_cem, backend, warm_start=warm_start, **backend_settings
+    )
+    state = jax.block_until_ready(state)
     diag["cem_s"] = time.perf_counter() - t2
-    best, lv = res.best, res.least_violating
+    best, lv = state.best, state.least_violating
+    if not math.isfinite(float(best.cost)) or float(best.cost) >= 1e29:
+        return _braking_fallback(
+            ctx,
+            f"fallback: the cost is not finite (best {float(best.cost):.3g}: NaN/inf in the "
+            "cost terms); braking plan returned",
+            state,
+        )
     fallback = False
     status = "ok"
     chosen = best
@@ -407,96 +443,43 @@ def _plan_impl(ego, road, obs_fr, method, config, backend, key, backend_settings
             f"fallback: no sample met the constraints (least residual {float(lv.res):.3g} "
             f"> res_tol {float(config.res_tol):g}); least-violating plan returned"
         )
-    cx = np.asarray(chosen.cx, np.float64)
-    cy = np.asarray(chosen.cy, np.float64)
-    trace = np.asarray(res.cost_trace, np.float64)
     return _assemble(
-        ego,
-        road,
-        config,
-        prob,
-        method,
-        backend,
-        rs,
-        cx,
-        cy,
+        ctx,
+        np.asarray(chosen.cx, np.float64),
+        np.asarray(chosen.cy, np.float64),
+        np.asarray(chosen.d),
         float(chosen.cost),
-        trace,
+        int(chosen.iteration),
         fallback,
         status,
-        t0,
-        diag,
-        res,
-        centres,
-        weights,
-        obs_fr,
-        np.asarray(chosen.d),
-        int(chosen.iteration),
+        state,
     )
 
 
-def _braking_fallback(ego, road, config, prob, method, backend, rs, t0, diag, status):
-    S = config.num_segments
+def _braking_fallback(ctx: _Ctx, status: str, state=None) -> Plan:
+    S = ctx.config.num_segments
+    road, ego = ctx.road, ctx.ego
     v = float(np.clip(ego.vs, max(road.v_min, 0.0), road.v_max))
     y = float(np.clip(ego.d, road.y_lb, road.y_ub))
     dvec = np.array([[v] * S + [y] * S])
-    cx, cy = prob.planner.closed_form(dvec, ego)
+    cx, cy = ctx.prob.planner.closed_form(dvec, ego)
     cx, cy = np.asarray(cx)[0], np.asarray(cy)[0]
-    trace = np.full(config.iterations, np.nan)
-    return _assemble(
-        ego,
-        road,
-        config,
-        prob,
-        method,
-        backend,
-        rs,
-        cx,
-        cy,
-        float("nan"),
-        trace,
-        True,
-        status,
-        t0,
-        diag,
-        None,
-        None,
-        None,
-        None,
-        dvec[0],
-        -1,
-    )
+    return _assemble(ctx, cx, cy, dvec[0], float("nan"), -1, True, status, state)
 
 
-def _assemble(
-    ego,
-    road,
-    config,
-    prob,
-    method,
-    backend,
-    rs,
-    cx,
-    cy,
-    cost,
-    trace,
-    fallback,
-    status,
-    t0,
-    diag,
-    res,
-    centres,
-    weights,
-    obs_fr,
-    dvec,
-    best_iter,
-) -> Plan:
+#: the plan's own MMD value for the diagnostics (jitted: eagerly, the Taylor-feature scan would be
+#: compiled again on every call)
+_mmd_cost_jit = jax.jit(mmd_cost, static_argnums=(4,))
+
+
+def _assemble(ctx: _Ctx, cx, cy, dvec, cost, best_iter, fallback, status, state) -> Plan:
+    config, prob, ego, diag = ctx.config, ctx.prob, ctx.ego, ctx.diag
     B = prob.basis
     s, vs, as_ = B.P @ cx, B.Pdot @ cx, B.Pddot @ cx
     d, vd, ad = B.P @ cy, B.Pdot @ cy, B.Pddot @ cy
     residual, groups = prob.grid_problem.residuals(cx, cy, ego.as_array())  # ego at s = 0
     s_off = float(diag.get("s_offset", 0.0))
-    x, y, heading, speed = road.path.trajectory_to_cartesian(s + s_off, d, vs, vd)
+    x, y, heading, speed = ctx.road.path.trajectory_to_cartesian(s + s_off, d, vs, vd)
     residual = float(residual[0])
     feasible = residual <= float(config.res_tol) + 1e-9
     if not fallback and not feasible:
@@ -504,23 +487,25 @@ def _assemble(
             f"ok, but the returned plan's grid residual {residual:.3g} exceeds res_tol "
             f"{float(config.res_tol):g}"
         )
-    mmd_val = float("nan")
-    cf_plan = None
-    if centres is not None:
-        f = ellipse_values(
-            jnp.asarray(s[None]),
-            jnp.asarray(d[None]),
-            centres,
-            planning_semi_axis(config, prob.t()),
-            config.b + config.margin_lat,
+    ob = ctx.obstacles
+    f = ellipse_values(
+        jnp.asarray(s[None]),
+        jnp.asarray(d[None]),
+        ob.centres,
+        planning_semi_axis(config, prob.t()),
+        config.b + config.margin_lat,
+    )
+    mmd_val = float(
+        _mmd_cost_jit(f, ob.weights, config.bandwidth, config.f_scale, n_taylor_terms(config))[0]
+    )
+    cnt = collision_free_count(np.stack([s, d], -1), ctx.obs_fr, a=config.a, b=config.b)
+    cf_plan = np.asarray(cnt.per_obstacle)
+    if not fallback and np.any(cf_plan == 0):
+        hit = [int(o) for o in np.flatnonzero(cf_plan == 0)]
+        status = (
+            f"unsafe: the plan collides with every planning sample of obstacle(s) {hit}; "
+            "no collision-free plan was found"
         )
-        mmd_val = float(
-            _mmd_cost_jit(
-                f, jnp.asarray(weights), config.bandwidth, config.f_scale, n_taylor_terms(config)
-            )[0]
-        )
-        cnt = collision_free_count(np.stack([s, d], -1), obs_fr, a=config.a, b=config.b)
-        cf_plan = np.asarray(cnt.per_obstacle)
     s = s + s_off
     diag = dict(diag)
     diag.update(
@@ -532,19 +517,24 @@ def _assemble(
         j_speed=float(np.mean((vs - float(config.v_des)) ** 2)),
         j_accel=float(np.mean(as_**2 + ad**2)),
         collision_free_planning=cf_plan,
-        n_planning_samples=None if obs_fr is None else int(obs_fr.shape[1]),
+        n_planning_samples=int(ctx.obs_fr.shape[1]),
     )
-    if res is not None:
+    if state is not None:
         diag.update(
-            iteration_min_cost=np.asarray(res.iter_min_cost, np.float64),
-            iteration_mean_elite_cost=np.asarray(res.iter_mean_elite_cost, np.float64),
-            n_feasible=np.asarray(res.n_feasible),
-            collision_term=float(res.best.coll)
+            iteration_min_cost=np.asarray(state.iter_min_cost, np.float64),
+            iteration_mean_elite_cost=np.asarray(state.iter_mean_elite_cost, np.float64),
+            n_feasible=np.asarray(state.n_feasible),
+            collision_term=float(state.best.coll)
             if not fallback
-            else float(res.least_violating.coll),
-            final_mu=np.asarray(res.mu, np.float64),
-            final_cov=np.asarray(res.cov, np.float64),
+            else float(state.least_violating.coll),
+            final_mu=np.asarray(state.mu, np.float64),
+            final_cov=np.asarray(state.cov, np.float64),
         )
+    trace = (
+        np.asarray(state.cost_trace, np.float64)
+        if state is not None
+        else np.full(config.iterations, np.nan)
+    )
     return Plan(
         x=x,
         y=y,
@@ -564,9 +554,10 @@ def _assemble(
         feasible=bool(feasible),
         fallback=bool(fallback),
         status=status,
-        method=method,
-        backend=backend,
-        reduced_set=rs,
-        plan_time_s=time.perf_counter() - t0,
+        method=ctx.method,
+        backend=ctx.backend,
+        reduced_set=ctx.rs,
+        plan_time_s=time.perf_counter() - ctx.t0,
         diagnostics=diag,
+        state=state,
     )

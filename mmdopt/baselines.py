@@ -1,9 +1,9 @@
-"""Collision terms of Algorithm 1's cost and the obstacle sets each method plans against.
+"""The planning methods: which obstacle samples each one plans against, with which collision term.
 
 Every method runs the *same* optimiser (:mod:`mmdopt.algorithm`: sampling, Frenet planner,
 projection, ConstraintEliteSet, EliteSet, MPPI update); they differ only in which obstacle samples
 enter the cost and in the collision term (paper, "Baselines": "we just replace our MMD cost with a
-deterministic collision cost").
+deterministic collision cost").  The collision terms live in :mod:`mmdopt.collision`.
 
 ==================  ==========================================  ===============================
 method              obstacle samples in the cost                collision term
@@ -21,38 +21,28 @@ collision constraints into its non-convex polar-form projection): here collision
 *deterministic collision cost* on the scenario samples, as the paper's Baselines paragraph says.
 Linearised half-planes as projection rows were not chosen: the normal of each half-plane depends on
 the sample's own trajectory, so the constraint matrix would differ per sample and the batched
-projection (one factorisation shared by the batch) would no longer apply.  The deterministic cost
-with a large weight makes any collision with any scenario sample cost more than every progress
-difference, so the lowest-cost plan avoids all of them when it can.
+projection (one factorisation shared by the batch) would no longer apply.
 
-**SAA** (sample-average approximation of ``P(collision) ≤ ε``): per obstacle, the fraction of its n
-samples the plan collides with, smoothed: ``π̂ = (1/n) Σ_j sigmoid(g_j/τ)`` with
-``g_j = max_{c,k} f_jck`` (unhinged), penalised by the hinge ``max(0, π̂ − ε)/ε``.
-
-All collision functions take Frenet-frame ego positions ``(B, K)`` and obstacle circle centres in
-the Frenet frame, and use the planning ellipse ``a + margin_long, b + margin_lat``.
+To add a method: a row in :data:`SELECTION` (which samples: a reduced-set method of
+:mod:`mmdopt.reduced_set`, or ``None`` for all samples) and in :data:`COST_MODE` (which collision
+term of :mod:`mmdopt.collision`).
 """
 
 from __future__ import annotations
 
-import math
+from typing import Any
 
 import jax
 import jax.numpy as jnp
+import numpy as np
 
-__all__ = [
-    "METHODS",
-    "COST_MODE",
-    "ellipse_values",
-    "scenario_cost",
-    "saa_cost",
-    "mmd_cost",
-    "taylor_terms",
-]
+from .reduced_set import ReducedSet, ReducedSetConfig, select_reduced_sets
 
-#: the planning methods, in the order of the public API
+__all__ = ["METHODS", "COST_MODE", "SELECTION", "all_samples_set", "select_for_method"]
+
+#: the planning methods, in the order of the public API (the first is MMD-Opt)
 METHODS = ("mmd", "degroot", "random", "saa", "scenario_all")
-#: collision term used by each method
+#: collision term used by each method (:mod:`mmdopt.collision`)
 COST_MODE = {
     "mmd": "mmd",
     "random": "mmd",
@@ -60,106 +50,53 @@ COST_MODE = {
     "scenario_all": "scenario",
     "saa": "saa",
 }
+#: reduced-set method of each method (``None``: plan against all n samples)
+SELECTION: dict[str, str | None] = {
+    "mmd": "mmd",
+    "random": "random",
+    "degroot": "degroot",
+    "scenario_all": None,
+    "saa": None,
+}
 
 
-def ellipse_values(s, d, centres, a, b):
-    """Collision function ``f = 1 − Δs²/a² − Δd²/b²`` of ego points against circle centres.
+def all_samples_set(n: int, O: int) -> ReducedSet:
+    """The "reduced set" of all ``n`` samples of ``O`` obstacles, uniform weights."""
+    idx = jnp.broadcast_to(jnp.arange(n, dtype=jnp.int32), (O, n))
+    w = jnp.full((O, n), 1.0 / n)
+    return ReducedSet(
+        indices=idx,
+        weights=w,
+        alpha=w,
+        mmd2=jnp.zeros((O,)),
+        bandwidth=jnp.full((O,), jnp.nan),
+        method="all",
+    )
 
-    Parameters
-    ----------
-    s, d : (B, K) ego Frenet positions (m)
-    centres : (O, J, C, K, 2) obstacle circle centres (m)
-    a, b : ellipse semi-axes (m)
 
-    Returns
-    -------
-    (B, O, J, C, K)
+def select_for_method(
+    method: str,
+    key: Any,
+    obstacles_frenet: np.ndarray,
+    m: int,
+    config: ReducedSetConfig,
+    *,
+    lateral_scale: float = 1.0,
+    ego_guess: np.ndarray | None = None,
+) -> ReducedSet:
+    """The obstacle samples ``method`` plans against, as a :class:`ReducedSet` (leading axis O).
+
+    ``obstacles_frenet`` (O, n, K, 2) in the planning frame; ``lateral_scale`` multiplies the
+    lateral offsets in the selection's kernel features (an anisotropic kernel: lateral intents
+    count more than longitudinal spread; not for "degroot", which scores conflicts in metres);
+    ``ego_guess`` (K, 2) is the constant-velocity ego guess "degroot" scores against.
     """
-    ds = s[:, None, None, None, :] - centres[None, ..., 0]
-    dd = d[:, None, None, None, :] - centres[None, ..., 1]
-    return 1.0 - ds * ds / (a * a) - dd * dd / (b * b)
-
-
-def scenario_cost(f, mask):
-    """Deterministic scenario cost ``Σ_o Σ_j Σ_k max_c f̄`` over the samples with ``mask`` (O, J).
-
-    ``f`` (B, O, J, C, K) from :func:`ellipse_values`; returns (B,).
-    """
-    fb = jnp.max(jnp.maximum(f, 0.0), axis=3)  # (B, O, J, K)
-    return jnp.sum(jnp.where(mask[None, :, :, None], fb, 0.0), axis=(1, 2, 3))
-
-
-def saa_cost(f, mask, eps, temperature):
-    """SAA chance-constraint penalty ``Σ_o max(0, π̂_o − ε)/ε`` and the estimates ``π̂`` (B, O).
-
-    ``π̂_o = Σ_j mask_oj sigmoid(max_{c,k} f_ojck / τ) / Σ_j mask_oj``.
-    """
-    g = jnp.max(f, axis=(3, 4))  # (B, O, J)
-    ind = jax.nn.sigmoid(g / temperature)
-    cnt = jnp.maximum(jnp.sum(mask, axis=1), 1)
-    pi = jnp.sum(jnp.where(mask[None], ind, 0.0), axis=2) / cnt[None]
-    return jnp.sum(jnp.maximum(pi - eps, 0.0), axis=1) / eps, pi
-
-
-def taylor_terms(max_ratio: float, rel_tol: float = 1e-9) -> int:
-    """Number of Taylor features so that ``exp(x) − 1`` with ``0 ≤ x ≤ max_ratio²`` is truncated
-    below ``rel_tol`` relative error (used by :func:`mmd_cost`)."""
-    x = max(float(max_ratio) ** 2, 1e-12)
-    term, total, n = 1.0, math.expm1(x), 0
-    while True:
-        n += 1
-        term *= x / n
-        # remainder after n terms ≤ term·x/(n+1) / (1 − x/(n+2)) once n + 2 > x
-        if n + 2 > 2 * x and term * x / (n + 1) / (1 - x / (n + 2)) <= rel_tol * total:
-            return n
-        if n > 400:
-            return n
-
-
-def mmd_cost(f, weights, bandwidth, f_scale, n_terms: int):
-    """eq. (l_dist) per ego sample: ``Σ_o Σ_k MMD²(Σ_j ᾱ_j φ(s·f̄_j), (Σ_j ᾱ_j) δ_0)`` (B,).
-
-    One kernel sample per obstacle sample ``j``: its penetration ``f̄_j = max_c max(0, f_jc)``
-    over the circles of its footprint (the footprint is the union of the circles, so this is the
-    sample's collision depth).  The reference instead stacks the circles as separate samples with
-    replicated weights (``mmdopt.surrogate.mmd_surrogate(stack_circles=True)``), which triples
-    the mass and counts a two-circle overlap twice; per-sample depth is also 3× cheaper.
-
-    Evaluated cancellation-free (the identity of :func:`mmdopt.kernels.mmd2_to_dirac`),
-    ``(Σ_j w_j D_j)² + Σ_ij w_i w_j κ_i κ_j expm1(t_i t_j)`` with ``t = s f̄/σ``, the Gram part
-    through the exact Taylor feature map of the 1-D Gaussian kernel,
-    ``expm1(t_i t_j) = Σ_{n≥1} φ_n(t_i) φ_n(t_j)``, ``φ_n(t) = tⁿ/√n!``: O(J·n_terms) per step
-    instead of O(J²) transcendental evaluations (measured 6× faster than the pairwise form).
-    With ``n_terms`` from :func:`taylor_terms` for ``max t = s/σ`` (f̄ ≤ 1) the truncation error
-    is below 1e-9 relative.
-
-    Parameters
-    ----------
-    f : (B, O, J, C, K) collision-function values
-    weights : (O, J) ᾱ (zero for padding)
-    bandwidth, f_scale : kernel σ and the scale s of f̄
-    n_terms : static number of Taylor features
-    """
-    t = jnp.maximum(jnp.max(f, axis=3), 0.0) * (f_scale / bandwidth)  # (B, O, J, K)
-    # materialise t once: otherwise XLA fuses the collision function into each of t's consumers
-    # and evaluates it (B·O·J·C·K values) several times
-    t = jax.lax.optimization_barrier(t)
-    h = 0.5 * t * t
-    w = weights[None, :, :, None]
-    first = jnp.sum(w * (-jnp.expm1(-h)), axis=2) ** 2  # (B, O, K)
-    # φ_n(t) = tⁿ/√n! by running products in a scan over n: one pass per term, no (…, N) array
-    # (an unrolled Python loop lets XLA re-fuse the whole product chain into every term's
-    # reduction, O(n_terms²) work: measured 1.45× slower at B = 150, J = 20, K = 100)
-    g = w * jnp.exp(-h)
-    if n_terms < 1:
-        return jnp.sum(first, axis=(1, 2))
-    c = jnp.asarray([1.0 / math.sqrt(n) for n in range(1, n_terms + 1)], t.dtype)
-
-    def term(carry, cn):
-        g, acc = carry
-        g = g * t * cn
-        proj = jnp.sum(g, axis=2)  # (B, O, K)
-        return (g, acc + proj * proj), None
-
-    (_, second), _ = jax.lax.scan(term, (g, jnp.zeros(first.shape, first.dtype)), c)
-    return jnp.sum(first + second, axis=(1, 2))
+    O, n = obstacles_frenet.shape[:2]
+    sel = SELECTION[method]
+    if sel is None:
+        return all_samples_set(n, O)
+    feats = obstacles_frenet
+    if sel != "degroot" and float(lateral_scale) != 1.0:
+        feats = obstacles_frenet * np.array([1.0, float(lateral_scale)])
+    rs = select_reduced_sets(key, feats, m, sel, config, ego_guess if sel == "degroot" else None)
+    return jax.block_until_ready(rs)

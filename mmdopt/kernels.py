@@ -19,6 +19,8 @@ from __future__ import annotations
 import jax
 import jax.numpy as jnp
 
+from ._x64 import x64
+
 __all__ = [
     "sq_distances",
     "gaussian_gram",
@@ -29,6 +31,7 @@ __all__ = [
 ]
 
 
+@x64
 def sq_distances(x: jax.Array, y: jax.Array | None = None) -> jax.Array:
     """Pairwise squared Euclidean distances, batched over leading axes.
 
@@ -61,6 +64,7 @@ def sq_distances(x: jax.Array, y: jax.Array | None = None) -> jax.Array:
     return jnp.where(equal, 0.0, d2)
 
 
+@x64
 def gaussian_gram(x: jax.Array, y: jax.Array | None = None, bandwidth=1.0) -> jax.Array:
     """Gaussian Gram matrix ``K_ij = exp(−‖x_i − y_j‖²/(2σ²))``, shapes as :func:`sq_distances`.
 
@@ -70,6 +74,7 @@ def gaussian_gram(x: jax.Array, y: jax.Array | None = None, bandwidth=1.0) -> ja
     return jnp.exp(-sq_distances(x, y) / (2.0 * s * s))
 
 
+@x64
 def one_minus_gaussian_gram(x: jax.Array, y: jax.Array | None = None, bandwidth=1.0) -> jax.Array:
     """``1 − K`` computed as ``−expm1(−d²/(2σ²))`` (relative accuracy kept for small distances)."""
     s = jnp.asarray(bandwidth)[..., None, None]
@@ -98,6 +103,7 @@ def _kth_smallest_nonneg(v: jax.Array, ks: jax.Array) -> jax.Array:
     return jax.lax.bitcast_convert_type(ans, v.dtype)
 
 
+@x64
 @jax.jit
 def median_heuristic(x: jax.Array) -> jax.Array:
     """Data-driven bandwidth: the median pairwise Euclidean distance (Gretton et al., 2012).
@@ -130,6 +136,7 @@ def median_heuristic(x: jax.Array) -> jax.Array:
     return jnp.where(out > 0, out, 1.0)
 
 
+@x64
 @jax.jit
 def mmd2_weighted(x, wx, y, wy, bandwidth) -> jax.Array:
     """Squared MMD between ``Σ_i wx_i φ(x_i)`` and ``Σ_j wy_j φ(y_j)`` (Gaussian kernel).
@@ -166,6 +173,7 @@ def mmd2_weighted(x, wx, y, wy, bandwidth) -> jax.Array:
     return jnp.maximum(mass * mass + (qxy - qxx) + (qxy - qyy), 0.0)
 
 
+@x64
 @jax.jit
 def mmd2_to_dirac(a: jax.Array, w: jax.Array, bandwidth) -> jax.Array:
     """Squared MMD between ``Σ_p w_p φ(a_p)`` and a Dirac at 0 of the **same total mass** Σw.

@@ -70,6 +70,8 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from ._x64 import x64
+from .collision import ELLIPSE_A, ELLIPSE_B
 from .kernels import gaussian_gram, median_heuristic, one_minus_gaussian_gram
 
 __all__ = [
@@ -120,8 +122,8 @@ class ReducedSetConfig:
     smoothing: float = 0.5  # μ, Σ ← (1−s)·new + s·old (reference: 0)
     ratio_eps: float = 1e-6  # relative guard of the ratio's denominator
     ridge: float = 0.01  # ρ in the refinement QP (reference: 0.01)
-    a: float = 4.5  # "degroot" ellipse semi-axes (m)
-    b: float = 3.5
+    a: float = ELLIPSE_A  # "degroot" ellipse semi-axes (m)
+    b: float = ELLIPSE_B
 
     def replace(self, **kw) -> ReducedSetConfig:
         return dataclasses.replace(self, **kw)
@@ -171,6 +173,7 @@ class ReducedSet:
 # building blocks
 
 
+@x64
 def project_simplex(v: jax.Array) -> jax.Array:
     """Euclidean projection of ``v`` (..., m) onto the probability simplex (Duchi et al., 2008).
 
@@ -219,6 +222,7 @@ def _simplex_qp(A: jax.Array, b: jax.Array, x0: jax.Array, iterations: int) -> j
     return x
 
 
+@x64
 def refine_weights(K: jax.Array, idx: jax.Array, config: ReducedSetConfig) -> jax.Array:
     """Weights ᾱ of the reduced set ``idx`` (eq. red_set_opt_proposed_2 with ridge ρ).
 
@@ -310,6 +314,7 @@ def _smallest(c: jax.Array, k: int) -> jax.Array:
     return out.at[jnp.where(rank < k, rank, k)].set(idx.astype(jnp.int32), mode="drop")
 
 
+@x64
 def reduced_set_objective(alpha: jax.Array, K: jax.Array, m: int, beta=1.0, ratio_eps=1e-6):
     """eq. (red_set_opt_proposed) for a population ``alpha`` (p, n) -> (p,).
 
@@ -500,6 +505,7 @@ def _validate(key, samples, m, method, config, ego_guess, batched: bool):
     return m
 
 
+@x64
 def select_reduced_set(
     key: jax.Array,
     samples,
@@ -540,6 +546,7 @@ def _select_many(keys, samples, m, method, config, ego_guess):
     )
 
 
+@x64
 def select_reduced_sets(
     key: jax.Array,
     samples,

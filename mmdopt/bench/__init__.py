@@ -1,4 +1,4 @@
-"""Experiments on top of the method: scene sources, the metric, runners, executors, plots and the CLI.
+"""Experiments on the method: scene sources, the metric, runners, executors, plots and the CLI.
 
 The method (:mod:`mmdopt`) never imports this package.
 """

@@ -231,8 +231,13 @@ def test_jax_projector_matches_clarabel_inside_jit_and_warm_starts():
     gap = prob.distance(np.asarray(out.cx, float), np.asarray(out.cy, float), cx, cy) - ref.distance
     assert np.median(np.abs(gap)) < 0.1 and np.percentile(np.abs(gap), 90) < 1.0, gap
     # warm start from the previous state, bounds given per sample: stays near the solution
-    again = proj(cx, cy, st.as_array(), extra_bounds=[(-np.inf, np.full((64, K - 60), 7.0))],
-                 warm_start=out.admm)
+    again = proj(
+        cx,
+        cy,
+        st.as_array(),
+        extra_bounds=[(-np.inf, np.full((64, K - 60), 7.0))],
+        warm_start=out.admm,
+    )
     assert again.groups["zone"].shape == (64,)
     assert float(np.median(again.residual)) <= 2 * np.median(res) + 1e-4
 

@@ -8,10 +8,13 @@ import numpy as np
 import pytest
 
 import mmdopt
-from mmdopt import baselines
+from mmdopt import collision as baselines
 from mmdopt.kernels import mmd2_to_dirac
 
 from .test_algorithm import EGO, SMALL, _obstacle
+
+# the float64 numerics of these functions (the public entry points run them under x64)
+pytestmark = pytest.mark.usefixtures("x64")
 
 
 @pytest.fixture(scope="module")
@@ -26,8 +29,9 @@ def scene():
 
 @pytest.mark.parametrize("method", mmdopt.PLAN_METHODS)
 def test_every_method_returns_a_feasible_plan(scene, method):
-    p = mmdopt.plan(EGO, mmdopt.Road(), scene, method=method, config=SMALL,
-                    key=jax.random.PRNGKey(0))
+    p = mmdopt.plan(
+        EGO, mmdopt.Road(), scene, method=method, config=SMALL, key=jax.random.PRNGKey(0)
+    )
     assert p.method == method
     assert np.isfinite(p.cost) and p.feasible and not p.fallback
     J = SMALL.reduced_set_size if method in ("mmd", "random", "degroot") else scene.shape[1]
@@ -50,8 +54,9 @@ def test_mmd_cost_matches_the_pairwise_kernel_formula():
         got = baselines.mmd_cost(f, w, bw, sc, baselines.taylor_terms(sc / bw))
         fb = jnp.maximum(jnp.max(f, axis=3), 0.0) * sc  # (B, O, J, K)
         a = jnp.moveaxis(fb, 2, -1)  # (B, O, K, J)
-        ref = jnp.sum(mmd2_to_dirac(a, jnp.broadcast_to(w[None, :, None], a.shape), bw),
-                      axis=(1, 2))
+        ref = jnp.sum(
+            mmd2_to_dirac(a, jnp.broadcast_to(w[None, :, None], a.shape), bw), axis=(1, 2)
+        )
         np.testing.assert_allclose(got, ref, rtol=1e-7, atol=1e-14)
 
 
@@ -81,10 +86,22 @@ def test_baseline_margin_scale_inflates_only_the_baselines_ellipse(scene):
     np.testing.assert_allclose(mmdopt.algorithm.planning_semi_axis(SMALL, t, scale=0.0), SMALL.a)
     key = jax.random.PRNGKey(0)
     nominal = mmdopt.plan(EGO, mmdopt.Road(), scene, method="degroot", config=SMALL, key=key)
-    inflated = mmdopt.plan(EGO, mmdopt.Road(), scene, method="degroot", key=key,
-                           config=SMALL.replace(baseline_margin_scale=1.0))
+    inflated = mmdopt.plan(
+        EGO,
+        mmdopt.Road(),
+        scene,
+        method="degroot",
+        key=key,
+        config=SMALL.replace(baseline_margin_scale=1.0),
+    )
     assert inflated.progress < nominal.progress - 5.0, (inflated.progress, nominal.progress)
     m0 = mmdopt.plan(EGO, mmdopt.Road(), scene, method="mmd", config=SMALL, key=key)
-    m1 = mmdopt.plan(EGO, mmdopt.Road(), scene, method="mmd", key=key,
-                     config=SMALL.replace(baseline_margin_scale=1.0))
+    m1 = mmdopt.plan(
+        EGO,
+        mmdopt.Road(),
+        scene,
+        method="mmd",
+        key=key,
+        config=SMALL.replace(baseline_margin_scale=1.0),
+    )
     np.testing.assert_array_equal(m0.x, m1.x)

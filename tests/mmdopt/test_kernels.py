@@ -9,7 +9,7 @@ from hypothesis import given, settings
 from hypothesis import strategies as st
 from hypothesis.extra.numpy import arrays
 
-import mmdopt  # noqa: F401  (enables x64)
+import mmdopt  # noqa: F401
 from mmdopt.kernels import (
     gaussian_gram,
     median_heuristic,
@@ -18,6 +18,9 @@ from mmdopt.kernels import (
     one_minus_gaussian_gram,
     sq_distances,
 )
+
+# the float64 numerics of these functions (the public entry points run them under x64)
+pytestmark = pytest.mark.usefixtures("x64")
 
 N, P, D = 6, 5, 3
 coords = st.floats(-5.0, 5.0, allow_nan=False, allow_infinity=False)

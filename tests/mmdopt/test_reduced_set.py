@@ -7,7 +7,7 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-import mmdopt  # noqa: F401  (enables x64)
+import mmdopt  # noqa: F401
 from mmdopt.kernels import gaussian_gram
 from mmdopt.reduced_set import (
     METHODS,
@@ -19,6 +19,9 @@ from mmdopt.reduced_set import (
     select_reduced_set_unchecked,
     select_reduced_sets,
 )
+
+# the float64 numerics of these functions (the public entry points run them under x64)
+pytestmark = pytest.mark.usefixtures("x64")
 
 K_STEPS, DT = 100, 0.1
 

@@ -6,8 +6,8 @@ import json
 import numpy as np
 import pytest
 
-from mmdopt import scenarios
-from mmdopt.scenarios import SceneParams, load_scene_params, make_scene, make_scenes
+from mmdopt.bench import scenes as scenarios
+from mmdopt.bench.scenes import SceneParams, load_scene_params, make_scene, make_scenes
 
 SMALL = SceneParams(n_samples=40, n_validation=200)
 

@@ -9,7 +9,7 @@
     mmdopt bench reduced-set --scenes N --random-sets R --out DIR       (paper Fig. 4)
     mmdopt bench timing      --out DIR [--sizes 10,20,30,40,50] [--samples 50,100,200]
     mmdopt bench figure      --scene I --out DIR                        (paper Fig. 3)
-    mmdopt bench qp-backends [ARGS...]                                  (benchmarks/qp_backends.py)
+    mmdopt bench qp-backends [ARGS...]                                  QP backend comparison
 
 Bad options exit with status 2 and a message naming the option (argparse).
 """
@@ -26,7 +26,11 @@ from pathlib import Path
 
 __all__ = ["main", "build_parser"]
 
-PLAN_METHODS = ("mmd", "degroot", "random", "saa", "scenario_all")
+from mmdopt.algorithm import PLANNER_BACKEND
+from mmdopt.baselines import METHODS as PLAN_METHODS
+
+from .executors import EXECUTORS
+
 REDUCED_SET_METHODS = ("mmd", "herding", "degroot", "random")
 
 
@@ -87,9 +91,11 @@ def _existing_file(s: str) -> Path:
 
 
 def _backend(s: str) -> str:
+    if s == PLANNER_BACKEND:
+        return s
     import solvers
 
-    avail = list(solvers.available_backends())
+    avail = [PLANNER_BACKEND, *solvers.available_backends()]
     if s not in avail:
         raise argparse.ArgumentTypeError(
             f"backend {s!r} is not available; available: {', '.join(avail)}"
@@ -97,8 +103,22 @@ def _backend(s: str) -> str:
     return s
 
 
+def _add_executor(q) -> None:
+    q.add_argument(
+        "--executor",
+        choices=EXECUTORS,
+        default="local",
+        help="local process pool (default) or ray (pip install 'mmdopt[ray]')",
+    )
+    q.add_argument(
+        "--address",
+        default=None,
+        help="with --executor ray: address of an existing Ray cluster (default: a local one)",
+    )
+
+
 def _presets() -> list[str]:
-    from .scenarios import PRESETS
+    from .scenes import PRESETS
 
     return sorted(PRESETS)
 
@@ -125,7 +145,9 @@ def build_parser() -> argparse.ArgumentParser:
         default=["mmd", "degroot"],
         help="comma-separated planning methods (default: mmd,degroot)",
     )
-    d.add_argument("--backend", type=_backend, default="admm", help="projection QP backend")
+    d.add_argument(
+        "--backend", type=_backend, default=PLANNER_BACKEND, help="projection QP backend"
+    )
 
     b = sub.add_parser("bench", help="the paper's experiments")
     bs = b.add_subparsers(
@@ -155,7 +177,9 @@ def build_parser() -> argparse.ArgumentParser:
             metavar="FILE.json",
             help="JSON object overriding scene-generator parameters (see README)",
         )
-        q.add_argument("--backend", type=_backend, default="admm", help="projection QP backend")
+        q.add_argument(
+            "--backend", type=_backend, default=PLANNER_BACKEND, help="projection QP backend"
+        )
         q.add_argument(
             "--config",
             type=_existing_file,
@@ -171,6 +195,7 @@ def build_parser() -> argparse.ArgumentParser:
             help="parallel worker processes (default: number of cores)",
         )
         q.add_argument("--no-progress", action="store_true", help="no progress bar")
+        _add_executor(q)
 
     s = bs.add_parser("synthetic", help="MMD-Opt vs baselines on synthetic scenes (paper Fig. 5)")
     common(s, None)
@@ -220,7 +245,9 @@ def build_parser() -> argparse.ArgumentParser:
         default=5,
         help="timed calls per setting; the median is reported (default 5)",
     )
-    t.add_argument("--backend", type=_backend, default="admm", help="projection QP backend")
+    t.add_argument(
+        "--backend", type=_backend, default=PLANNER_BACKEND, help="projection QP backend"
+    )
     t.add_argument("--no-progress", action="store_true", help="no progress bar")
 
     f = bs.add_parser("figure", help="qualitative scene figure (paper Fig. 3)")
@@ -234,7 +261,7 @@ def build_parser() -> argparse.ArgumentParser:
     f.add_argument("--preset", choices=_presets(), default="reference36")
     f.add_argument("--scene-params", type=_existing_file, default=None, metavar="FILE.json")
     f.add_argument("--methods", type=_methods(PLAN_METHODS), default=["degroot", "mmd"])
-    f.add_argument("--backend", type=_backend, default="admm")
+    f.add_argument("--backend", type=_backend, default=PLANNER_BACKEND)
     f.add_argument("--out", required=True, help="output folder")
 
     q = bs.add_parser(
@@ -249,7 +276,7 @@ def build_parser() -> argparse.ArgumentParser:
 
 
 def _scene_params(args, parser):
-    from .scenarios import load_scene_params, preset
+    from .scenes import load_scene_params, preset
 
     try:
         base = preset(args.preset)
@@ -286,8 +313,8 @@ def load_planner_config_from_dict(raw):
     """:func:`load_planner_config` from an already parsed JSON value."""
     import dataclasses
 
-    from .algorithm import MMDOptConfig
-    from .reduced_set import ReducedSetConfig
+    from mmdopt.algorithm import MMDOptConfig
+    from mmdopt.reduced_set import ReducedSetConfig
 
     if not isinstance(raw, dict):
         raise ValueError("the config must be a JSON object of MMDOptConfig fields")
@@ -390,8 +417,8 @@ def _print_summary(summary: dict, bars: dict | None = None) -> None:
 
 def cmd_demo(args, parser) -> int:
     from . import plots
-    from .evaluate import run_scene
-    from .scenarios import demo_scene
+    from .scenes import demo_scene
+    from .synthetic import run_scene
 
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
@@ -432,7 +459,7 @@ def cmd_demo(args, parser) -> int:
 
 def cmd_synthetic(args, parser) -> int:
     from . import plots
-    from .evaluate import run_synthetic
+    from .synthetic import run_synthetic
 
     params = _scene_params(args, parser)
     try:
@@ -446,6 +473,8 @@ def cmd_synthetic(args, parser) -> int:
             backend=args.backend,
             jobs=args.jobs,
             progress=not args.no_progress,
+            executor=args.executor,
+            address=args.address,
         )
     except ValueError as e:
         parser.error(str(e))
@@ -467,7 +496,7 @@ def cmd_synthetic(args, parser) -> int:
 
 
 def cmd_reduced_set(args, parser) -> int:
-    from .evaluate import run_reduced_set
+    from .reduced_set import run_reduced_set
 
     params = _scene_params(args, parser)
     try:
@@ -482,6 +511,8 @@ def cmd_reduced_set(args, parser) -> int:
             backend=args.backend,
             jobs=args.jobs,
             progress=not args.no_progress,
+            executor=args.executor,
+            address=args.address,
         )
     except ValueError as e:
         parser.error(str(e))
@@ -491,7 +522,7 @@ def cmd_reduced_set(args, parser) -> int:
 
 
 def cmd_timing(args, parser) -> int:
-    from .evaluate import run_timing
+    from .timing import run_timing
 
     res = run_timing(
         args.out,
@@ -521,8 +552,8 @@ def cmd_timing(args, parser) -> int:
 
 def cmd_figure(args, parser) -> int:
     from . import plots
-    from .evaluate import run_scene
-    from .scenarios import demo_scene, make_scene, num_scenes
+    from .scenes import demo_scene, make_scene, num_scenes
+    from .synthetic import run_scene
 
     params = _scene_params(args, parser)
     if args.scene is None and args.scene_params is None and args.preset == "reference36":
@@ -544,26 +575,10 @@ def cmd_figure(args, parser) -> int:
 
 
 def cmd_qp_backends(args, parser) -> int:
-    from .evaluate import load_qp_backends_benchmark
+    from . import qp_backends
 
-    try:
-        mod = load_qp_backends_benchmark()
-    except ImportError as e:
-        parser.error(f"qp-backends: {e}")
     rest = [a for a in args.args if a != "--"]
-    fn = getattr(mod, "main", None) or getattr(mod, "run", None)
-    if fn is None:
-        parser.error("qp-backends: benchmarks/qp_backends.py has neither main() nor run()")
-    try:
-        rc = fn(rest)
-    except TypeError:
-        saved = sys.argv
-        sys.argv = ["qp_backends.py", *rest]
-        try:
-            rc = fn()
-        finally:
-            sys.argv = saved
-    return int(rc or 0) if isinstance(rc, (int, type(None))) else 0
+    return int(qp_backends.main(rest) or 0)
 
 
 def main(argv: Sequence[str] | None = None) -> int:

@@ -9,7 +9,7 @@ import sys
 
 import pytest
 
-from mmdopt import cli
+from mmdopt.bench import cli
 
 CONTRACT = (
     "scene",

@@ -7,17 +7,23 @@ import jax.numpy as jnp
 import numpy as np
 import pytest
 
-import mmdopt  # noqa: F401  (enables x64)
-from mmdopt.geometry import OBSTACLE_FOOTPRINT, CircleFootprint, circle_centres, headings
-from mmdopt.surrogate import (
+import mmdopt  # noqa: F401
+from mmdopt.collision import (
+    OBSTACLE_FOOTPRINT,
+    CircleFootprint,
     ReducedObstacles,
     SurrogateConfig,
+    circle_centres,
     collision_free_count,
     f_bar,
+    headings,
     mmd_surrogate,
     mmd_surrogate_terms,
     reduced_obstacles,
 )
+
+# the float64 numerics of these functions (the public entry points run them under x64)
+pytestmark = pytest.mark.usefixtures("x64")
 
 K, DT = 50, 0.1
 T = np.arange(K) * DT

@@ -9,9 +9,10 @@ import numpy as np
 import pytest
 
 import mmdopt
-from mmdopt import evaluate
-from mmdopt.evaluate import collision_free, kinematic_violation, summarize
-from mmdopt.scenarios import SceneParams
+from mmdopt.bench import metric, synthetic, timing
+from mmdopt.bench.metric import collision_free, kinematic_violation
+from mmdopt.bench.results import check_bars, summarize
+from mmdopt.bench.scenes import SceneParams
 
 K = 100
 T = np.linspace(0.0, 15.0, K)
@@ -103,7 +104,7 @@ def test_kinematic_check_flags_violations():
     assert kinematic_violation(_fake_plan(v=31.0), road) == pytest.approx(1.0)
     assert kinematic_violation(_fake_plan(as_=np.full(K, 20.0)), road) == pytest.approx(2.0)
     assert kinematic_violation(_fake_plan(d=np.full(K, np.nan)), road) == np.inf
-    assert evaluate.progress(_fake_plan(v=8.0)) == pytest.approx(120.0)
+    assert metric.progress(_fake_plan(v=8.0)) == pytest.approx(120.0)
 
 
 def test_summary_statistics_and_ties_count_as_success():
@@ -140,7 +141,7 @@ def test_summary_statistics_and_ties_count_as_success():
     vs = summ["vs"]["degroot"]
     assert vs["share_ge"] == pytest.approx(0.75) and vs["share_gt"] == pytest.approx(0.5)
     assert vs["progress_ratio"] == pytest.approx(0.8)
-    bars = evaluate.check_bars(summ)
+    bars = check_bars(summ)
     assert bars["mean"]["ok"] and not bars["q1"]["ok"] and bars["progress_ratio_vs_degroot"]["ok"]
 
 
@@ -161,7 +162,9 @@ class _Cfg:
 def fake_planner(monkeypatch):
     calls = []
 
-    def plan(ego, road, obstacles, *, method="mmd", config=None, backend="admm", key=None):
+    def plan(
+        ego, road, obstacles, *, method="mmd", config=None, backend="admm-fixed", key=None, **kw
+    ):
         calls.append(method)
         return _fake_plan(v=6.0 if method == "mmd" else 9.0)
 
@@ -174,7 +177,7 @@ def fake_planner(monkeypatch):
 def test_sweep_writes_contract_columns_and_resumes(tmp_path, fake_planner):
     params = SceneParams(n_samples=20, n_validation=50)
     kw = dict(scenes=3, params=params, methods=["mmd", "degroot"], jobs=1, progress=False)
-    res = evaluate.run_synthetic(tmp_path, **kw)
+    res = synthetic.run_synthetic(tmp_path, **kw)
     assert res["computed"] == 6 and res["reused"] == 0 and len(fake_planner) == 6
     with open(tmp_path / "results.csv") as f:
         reader = csv.DictReader(f)
@@ -195,12 +198,12 @@ def test_sweep_writes_contract_columns_and_resumes(tmp_path, fake_planner):
     assert len(files) == 6
     mtimes = {f: f.stat().st_mtime_ns for f in files}
     # rerun: nothing recomputed, files untouched
-    res2 = evaluate.run_synthetic(tmp_path, **kw)
+    res2 = synthetic.run_synthetic(tmp_path, **kw)
     assert res2["computed"] == 0 and res2["reused"] == 6 and len(fake_planner) == 6
     assert {f: f.stat().st_mtime_ns for f in files} == mtimes
     # a lost file is recomputed alone; a larger sweep adds only the new scenes
     files[0].unlink()
-    res3 = evaluate.run_synthetic(tmp_path, **{**kw, "scenes": 4})
+    res3 = synthetic.run_synthetic(tmp_path, **{**kw, "scenes": 4})
     assert res3["computed"] == 3 and len(fake_planner) == 9
     summary = json.loads((tmp_path / "summary.json").read_text())
     assert summary["summary"]["methods"]["mmd"]["scenes"] == 4
@@ -208,13 +211,13 @@ def test_sweep_writes_contract_columns_and_resumes(tmp_path, fake_planner):
 
 def test_sweep_refuses_to_mix_settings(tmp_path, fake_planner):
     params = SceneParams(n_samples=20, n_validation=50)
-    evaluate.run_synthetic(tmp_path, scenes=1, params=params, methods=["mmd"], progress=False)
+    synthetic.run_synthetic(tmp_path, scenes=1, params=params, methods=["mmd"], progress=False)
     with pytest.raises(ValueError, match="different settings.*seed"):
-        evaluate.run_synthetic(
+        synthetic.run_synthetic(
             tmp_path, scenes=1, seed=1, params=params, methods=["mmd"], progress=False
         )
     with pytest.raises(ValueError, match="different settings.*params"):
-        evaluate.run_synthetic(
+        synthetic.run_synthetic(
             tmp_path,
             scenes=1,
             params=params.replace(n_validation=60),
@@ -227,14 +230,12 @@ def test_timing_table_has_the_contract_columns_and_algorithm1_inside_plan(tmp_pa
     """``run_timing`` (``mmdopt bench timing``) writes the contract columns; Algorithm 1 (the CEM
     alone) takes no longer than the whole ``plan()`` call that contains it."""
     cfg = mmdopt.MMDOptConfig(n_samples=200, n_cem=40, n_elite=15, iterations=3, n_brake=5)
-    rows = evaluate.run_timing(
-        tmp_path, sizes=[5], samples=[], repeats=2, config=cfg, progress=False
-    )
+    rows = timing.run_timing(tmp_path, sizes=[5], samples=[], repeats=2, config=cfg, progress=False)
     with open(tmp_path / "timing.csv") as f:
         got = list(csv.DictReader(f))
     assert len(got) == len(rows) == 1
-    assert set(evaluate.TIMING_COLUMNS) <= set(got[0])
+    assert set(timing.TIMING_COLUMNS) <= set(got[0])
     r = rows[0]
-    assert r["reduced_set_size"] == 5 and r["n_samples"] == 100 and r["backend"] == "admm"
+    assert r["reduced_set_size"] == 5 and r["n_samples"] == 100 and r["backend"] == "admm-fixed"
     assert 0 < r["algorithm1_s"] <= r["plan_s"] and r["reduced_set_s"] > 0
     assert r["compile_s"] >= 0 and (tmp_path / "timing.png").exists()

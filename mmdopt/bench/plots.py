@@ -125,8 +125,7 @@ def scene_figure(
     the method's reduced set (coloured), its plan (ego positions every 1.5 s) and the validation
     samples it collides with (red), plus one validation sample with its positions at the plan's
     time steps (black dashed)."""
-    from .evaluate import collision_free
-    from .surrogate import collision_free_count
+    from mmdopt.collision import collision_free_count
 
     plt = _plt()
     n = len(plans)
@@ -162,7 +161,7 @@ def scene_figure(
         ax.plot(v[::10, 0], v[::10, 1], "ks", ms=3)
         ax.plot(xy[:, 0], xy[:, 1], color="tab:blue" if m == "mmd" else "k", lw=2)
         ax.plot(xy[::10, 0], xy[::10, 1], "o", color="tab:blue" if m == "mmd" else "k", ms=4)
-        cf_ = collision_free(xy, val[None])
+        cf_ = int(counts.joint)
         prog = float(np.asarray(plan.s)[-1] - np.asarray(plan.s)[0])
         ax.set_title(
             f"{_label(m)}: {cf_}/{val.shape[0]} validation samples collision-free, "

@@ -1,0 +1,137 @@
+"""Executors for sweeps: run independent tasks sequentially, on a local process pool, or on Ray.
+
+Every runner (synthetic, reduced set, frontier, ngsim, highway, ...) cuts its sweep into tasks
+(module-level functions of one picklable argument) that each write their own result file into the
+sweep folder as soon as they finish, so a sweep is resumable whichever executor ran it: a task whose
+file exists is skipped before submission (:func:`check_manifest` refuses a folder made with
+other settings).
+
+``executor="local"`` (default): ``jobs`` spawned worker processes (``concurrent.futures``), each
+with one XLA thread (the workers, not XLA, use the cores); each worker compiles once and reuses its
+jit caches for all its tasks.  ``executor="ray"``: the tasks as Ray remote functions
+(``pip install mmdopt[ray]``), on a local Ray instance with ``jobs`` CPUs or on an existing
+cluster at ``address`` (e.g. ``"ray://head:10001"`` or ``"auto"``).
+"""
+
+from __future__ import annotations
+
+import concurrent.futures as cf
+import json
+import multiprocessing as mp
+import os
+from collections.abc import Callable, Iterable, Sequence
+from pathlib import Path
+from typing import Any
+
+from .results import write_json
+
+__all__ = ["EXECUTORS", "run_tasks", "check_manifest"]
+
+#: executor names accepted by :func:`run_tasks` and the CLI's ``--executor``
+EXECUTORS = ("local", "ray")
+
+_ONE_XLA_THREAD = "--xla_cpu_multi_thread_eigen=false"
+
+
+def check_manifest(out: str | Path, manifest: dict[str, Any], name: str = "run.json") -> None:
+    """Write ``out/name`` on the first run; on a resumed run raise ``ValueError`` if the folder
+    was made with other settings (the keys that differ are named)."""
+    path = Path(out) / name
+    if path.exists():
+        try:
+            old = json.loads(path.read_text())
+        except (json.JSONDecodeError, UnicodeDecodeError) as e:
+            raise ValueError(f"{path} is not valid JSON ({e}); delete it to start afresh") from None
+        if not isinstance(old, dict):
+            raise ValueError(f"{path} does not hold a JSON object; delete it to start afresh")
+        diff = [k for k in manifest if old.get(k) != manifest[k]]
+        if diff:
+            raise ValueError(
+                f"{out} holds results made with different settings ({', '.join(diff)}); "
+                "use another --out folder (or delete it) to start a fresh sweep"
+            )
+    else:
+        write_json(path, manifest)
+
+
+def run_tasks(
+    fn: Callable[[Any], Any],
+    tasks: Sequence[Any],
+    *,
+    jobs: int = 1,
+    executor: str = "local",
+    address: str | None = None,
+    progress: bool = True,
+    desc: str = "tasks",
+    unit: str = "task",
+) -> list[Any]:
+    """Run ``fn(task)`` for every task; returns the results in completion order.
+
+    ``fn`` must be a module-level function (picklable); results should be small (the tasks write
+    their own files).  Raises ``ValueError`` for an unknown executor or ``jobs < 1``.
+    """
+    from tqdm.auto import tqdm
+
+    if executor not in EXECUTORS:
+        raise ValueError(f"executor must be one of {EXECUTORS}, got {executor!r}")
+    if isinstance(jobs, bool) or not isinstance(jobs, int) or jobs < 1:
+        raise ValueError(f"jobs must be an integer >= 1, got {jobs!r}")
+    tasks = list(tasks)
+    bar = tqdm(total=len(tasks), desc=desc, unit=unit, disable=not progress or not tasks)
+    try:
+        if executor == "ray":
+            return list(_run_ray(fn, tasks, jobs, address, bar))
+        if jobs <= 1 or len(tasks) <= 1:
+            out = []
+            for t in tasks:
+                out.append(fn(t))
+                bar.update(1)
+            return out
+        return list(_run_pool(fn, tasks, jobs, bar))
+    finally:
+        bar.close()
+
+
+def _run_pool(fn, tasks, jobs, bar) -> Iterable[Any]:
+    env_old = os.environ.get("XLA_FLAGS")
+    os.environ["XLA_FLAGS"] = (env_old + " " if env_old else "") + _ONE_XLA_THREAD
+    try:
+        ctx = mp.get_context("spawn")
+        with cf.ProcessPoolExecutor(max_workers=min(jobs, len(tasks)), mp_context=ctx) as ex:
+            futs = [ex.submit(fn, t) for t in tasks]
+            for f in cf.as_completed(futs):
+                yield f.result()
+                bar.update(1)
+    finally:
+        if env_old is None:
+            os.environ.pop("XLA_FLAGS", None)
+        else:
+            os.environ["XLA_FLAGS"] = env_old
+
+
+def _run_ray(fn, tasks, jobs, address, bar) -> Iterable[Any]:
+    try:
+        import ray
+    except ImportError:
+        raise ValueError("executor 'ray' needs Ray: pip install 'mmdopt[ray]'") from None
+    started = False
+    if not ray.is_initialized():
+        kw: dict[str, Any] = dict(ignore_reinit_error=True, log_to_driver=False)
+        if address is None:
+            kw.update(num_cpus=jobs, include_dashboard=False)
+            kw["runtime_env"] = {"env_vars": {"XLA_FLAGS": _ONE_XLA_THREAD}}
+        else:
+            kw["address"] = address
+        ray.init(**kw)
+        started = True
+    try:
+        remote = ray.remote(num_cpus=1)(fn)
+        pending = [remote.remote(t) for t in tasks]
+        while pending:
+            done, pending = ray.wait(pending, num_returns=1)
+            for ref in done:
+                yield ray.get(ref)
+                bar.update(1)
+    finally:
+        if started and address is None:
+            ray.shutdown()

@@ -1,0 +1,192 @@
+"""Result files and summaries: ``results.csv`` rows, JSON records, per-method statistics."""
+
+from __future__ import annotations
+
+import csv
+import json
+import math
+import os
+from collections.abc import Iterable, Sequence
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+__all__ = [
+    "RESULT_COLUMNS",
+    "BARS",
+    "write_json",
+    "write_results",
+    "read_results",
+    "summarize",
+    "check_bars",
+]
+
+#: Columns of ``results.csv`` (the first seven are the outside contract).
+RESULT_COLUMNS = (
+    "scene",
+    "method",
+    "collision_free",
+    "n_validation",
+    "progress_m",
+    "feasible",
+    "plan_time_s",
+    "collision_free_planning",
+    "n_samples",
+    "mean_speed",
+    "final_speed",
+    "kinematic_violation",
+    "planner_feasible",
+    "fallback",
+    "status",
+    "cost",
+    "mmd",
+    "residual",
+    "wall_s",
+    "x0",
+    "y0",
+    "p",
+    "seed",
+    "backend",
+)
+
+#: The paper-protocol bars (issue 4): MMD-Opt on 100 scenes × 1000 validation samples.
+BARS = dict(mean=972.0, q1=967.0, share_vs_degroot=0.80, progress_ratio_vs_degroot=0.80)
+
+
+def write_json(path: str | Path, obj: Any) -> None:
+    """Write ``obj`` as JSON atomically (a temporary file in the same folder, then rename)."""
+    path = Path(path)
+    tmp = path.with_suffix(path.suffix + f".tmp{os.getpid()}")
+    tmp.write_text(json.dumps(obj, indent=1, default=_json_default))
+    os.replace(tmp, path)
+
+
+def _json_default(o):
+    if isinstance(o, np.generic):
+        return o.item()
+    if isinstance(o, np.ndarray):
+        return o.tolist()
+    raise TypeError(f"not JSON serialisable: {type(o)}")
+
+
+def write_results(
+    rows: Iterable[dict[str, Any]], path: str | Path, columns: Sequence[str] = RESULT_COLUMNS
+) -> None:
+    """Write rows to CSV atomically with ``columns`` first (extra keys appended, sorted)."""
+    rows = list(rows)
+    extra = sorted({k for r in rows for k in r} - set(columns))
+    cols = list(columns) + extra
+    path = Path(path)
+    tmp = path.with_suffix(path.suffix + f".tmp{os.getpid()}")
+    with open(tmp, "w", newline="") as f:
+        w = csv.DictWriter(f, fieldnames=cols, extrasaction="ignore")
+        w.writeheader()
+        for r in rows:
+            w.writerow({k: r.get(k, "") for k in cols})
+    os.replace(tmp, path)
+
+
+def read_results(path: str | Path) -> list[dict[str, Any]]:
+    """Read a ``results.csv`` back (numbers parsed, booleans as bool)."""
+    out = []
+    with open(path, newline="") as f:
+        for r in csv.DictReader(f):
+            out.append({k: _parse(v) for k, v in r.items()})
+    return out
+
+
+def _parse(v: str):
+    if v in ("True", "False"):
+        return v == "True"
+    try:
+        i = int(v)
+        return i
+    except ValueError:
+        pass
+    try:
+        return float(v)
+    except ValueError:
+        return v
+
+
+# ---------------------------------------------------------------------------------------------
+# summary
+
+
+def _stats(x: np.ndarray) -> dict[str, float]:
+    x = np.asarray(x, dtype=np.float64)
+    if x.size == 0:
+        return {}
+    q1, med, q3 = np.percentile(x, [25, 50, 75])
+    return dict(
+        mean=float(x.mean()),
+        std=float(x.std()),
+        min=float(x.min()),
+        q1=float(q1),
+        median=float(med),
+        q3=float(q3),
+        max=float(x.max()),
+    )
+
+
+def summarize(rows: Sequence[dict[str, Any]], reference: str = "mmd") -> dict[str, Any]:
+    """Per-method statistics over scenes and the pairwise comparison with ``reference``.
+
+    Returns ``{"methods": {m: {...}}, "vs": {baseline: {...}}}``: collision-free mean / std /
+    min / quartiles, feasible share, progress and plan time per method; for every baseline the
+    share of scenes where ``reference ≥ baseline`` (ties count as success, SPEC §h), on the
+    scenes both completed, and the ratio of mean progress.
+    """
+    by: dict[str, dict[int, dict[str, Any]]] = {}
+    for r in rows:
+        by.setdefault(str(r["method"]), {})[int(r["scene"])] = r
+    out: dict[str, Any] = {"methods": {}, "vs": {}}
+    for m, d in by.items():
+        rs = list(d.values())
+        cf_ = np.array([r["collision_free"] for r in rs], dtype=float)
+        nv = np.array([r["n_validation"] for r in rs], dtype=float)
+        out["methods"][m] = dict(
+            scenes=len(rs),
+            collision_free=_stats(cf_),
+            collision_free_pct=float(np.mean(cf_ / nv) * 100),
+            feasible_share=float(np.mean([bool(r["feasible"]) for r in rs])),
+            fallback_share=float(np.mean([bool(r.get("fallback", False)) for r in rs])),
+            progress_m=_stats([r["progress_m"] for r in rs]),
+            mean_speed=float(np.mean([r["mean_speed"] for r in rs])),
+            plan_time_s=_stats([r["plan_time_s"] for r in rs]),
+        )
+    if reference in by:
+        ref = by[reference]
+        for m, d in by.items():
+            if m == reference:
+                continue
+            common = sorted(set(ref) & set(d))
+            if not common:
+                continue
+            a = np.array([ref[s]["collision_free"] for s in common], dtype=float)
+            b = np.array([d[s]["collision_free"] for s in common], dtype=float)
+            pa = np.mean([ref[s]["progress_m"] for s in common])
+            pb = np.mean([d[s]["progress_m"] for s in common])
+            out["vs"][m] = dict(
+                scenes=len(common),
+                share_ge=float(np.mean(a >= b)),
+                share_gt=float(np.mean(a > b)),
+                mean_diff=float(np.mean(a - b)),
+                progress_ratio=float(pa / pb) if pb > 0 else math.nan,
+            )
+    return out
+
+
+def check_bars(summary: dict[str, Any], reference: str = "mmd", baseline: str = "degroot"):
+    """The issue's bars against a summary: ``{bar: {"value", "target", "ok"}}``."""
+    res = {}
+    m = summary["methods"].get(reference)
+    if m:
+        res["mean"] = (m["collision_free"]["mean"], BARS["mean"])
+        res["q1"] = (m["collision_free"]["q1"], BARS["q1"])
+    v = summary["vs"].get(baseline)
+    if v:
+        res["share_vs_degroot"] = (v["share_ge"], BARS["share_vs_degroot"])
+        res["progress_ratio_vs_degroot"] = (v["progress_ratio"], BARS["progress_ratio_vs_degroot"])
+    return {k: dict(value=a, target=b, ok=bool(a >= b)) for k, (a, b) in res.items()}

@@ -1,0 +1,127 @@
+"""Computation time (paper Table II): reduced-set selection, Algorithm 1 and the plan() call."""
+
+from __future__ import annotations
+
+import time
+from collections.abc import Sequence
+from pathlib import Path
+from typing import Any
+
+import jax
+import numpy as np
+
+import mmdopt
+from mmdopt.algorithm import PLANNER_BACKEND
+from mmdopt.reduced_set import ReducedSetConfig, select_reduced_set
+
+from . import plots
+from .results import write_results
+from .scenes import Scene, demo_scene, make_scene
+from .synthetic import scene_config
+
+__all__ = ["TIMING_COLUMNS", "run_timing"]
+
+
+def _time_calls(fn, key, repeats: int) -> tuple[float, float]:
+    """``(first call, median of repeats)`` wall time (s) of ``fn(key)`` (a fresh key each call)."""
+    t0 = time.perf_counter()
+    np.asarray(fn(key))
+    first = time.perf_counter() - t0
+    ts = []
+    for r in range(repeats):
+        k = jax.random.fold_in(key, r + 1)
+        t0 = time.perf_counter()
+        np.asarray(fn(k))
+        ts.append(time.perf_counter() - t0)
+    return first, float(np.median(ts))
+
+
+TIMING_COLUMNS = (
+    "reduced_set_size",
+    "reduced_set_s",
+    "algorithm1_s",
+    "compile_s",
+    "n_samples",
+    "backend",
+)
+
+
+def run_timing(
+    out: str | Path,
+    *,
+    sizes: Sequence[int] = (10, 20, 30, 40, 50),
+    samples: Sequence[int] = (50, 100, 200),
+    repeats: int = 5,
+    backend: str = PLANNER_BACKEND,
+    config=None,
+    progress: bool = True,
+) -> list[dict[str, Any]]:
+    """Median wall time of reduced-set selection, of Algorithm 1 (the CEM loop,
+    ``plan.diagnostics["cem_s"]``) and of the whole ``mmdopt.plan`` call (``plan_s``) per
+    reduced-set size ``m`` (at n = 100 samples) and per sample count n (at the smallest m), on
+    the demo scene; ``compile_s`` is Algorithm 1's first-call extra time (jit compilation).
+    Writes ``out/timing.csv`` (:data:`TIMING_COLUMNS` + first-call and plan times) and
+    ``out/timing.png``.
+    """
+    from tqdm.auto import tqdm
+
+    out = Path(out)
+    out.mkdir(parents=True, exist_ok=True)
+    base = demo_scene()
+    n_def = 100
+    pairs = [(int(m), n_def) for m in sizes] + [(min(sizes), int(n)) for n in samples]
+    pairs = [p for p in dict.fromkeys(pairs) if p[0] <= p[1]]
+    cfg0 = scene_config(base, config)
+    rows = []
+    scenes: dict[int, Scene] = {}
+    for m, n in tqdm(pairs, desc="timing", disable=not progress):
+        if n not in scenes:
+            scenes[n] = make_scene(base.index, base.seed, base.params.replace(n_samples=n))
+        sc = scenes[n]
+        key = sc.key()
+        obs = jax.numpy.asarray(sc.obstacles[0])
+        rs_cfg = ReducedSetConfig()
+        rs_first, rs_med = _time_calls(
+            lambda k, obs=obs, m=m, c=rs_cfg: select_reduced_set(k, obs, m, "mmd", c).weights,
+            key,
+            repeats,
+        )
+        cfg = cfg0.replace(reduced_set_size=int(m))
+        cem_times: list[float] = []
+
+        def one_plan(k, sc=sc, cfg=cfg, sink=cem_times):
+            p = mmdopt.plan(
+                sc.ego(), sc.road(), sc.obstacles, method="mmd", config=cfg, backend=backend, key=k
+            )
+            sink.append(float(p.diagnostics["cem_s"]))
+            return p.x
+
+        p_first, p_med = _time_calls(one_plan, key, repeats)
+        # Algorithm 1 = the CEM loop alone (plan.diagnostics["cem_s"]); the whole plan() call
+        # (+ Frenet conversion, its own reduced-set selection, assembling the plan) is plan_s
+        a_first, a_med = cem_times[0], float(np.median(cem_times[1:]))
+        rows.append(
+            dict(
+                reduced_set_size=m,
+                reduced_set_s=rs_med,
+                algorithm1_s=a_med,
+                compile_s=max(0.0, a_first - a_med),
+                n_samples=n,
+                backend=backend,
+                reduced_set_first_s=rs_first,
+                algorithm1_first_s=a_first,
+                plan_s=p_med,
+                plan_first_s=p_first,
+                repeats=repeats,
+            )
+        )
+    cols = list(TIMING_COLUMNS) + [
+        "reduced_set_first_s",
+        "algorithm1_first_s",
+        "plan_s",
+        "plan_first_s",
+        "repeats",
+    ]
+    write_results(rows, out / "timing.csv", cols)
+    plots.timing_figure(rows, out / "timing.png")
+    return rows

@@ -1,0 +1,134 @@
+"""Algorithm 1's step API (init / update / run / shift), plan(reduced_set=..., warm_start=...),
+and the package's global hygiene (no JAX x64 flag on import, import layering)."""
+
+from __future__ import annotations
+
+import subprocess
+import sys
+
+import jax
+import numpy as np
+import pytest
+
+import mmdopt
+from mmdopt import algorithm as alg
+from mmdopt.collision import OBSTACLE_FOOTPRINT, circle_centres
+
+from .test_algorithm import EGO, SMALL, _obstacle
+
+
+def _inputs(method_mode="mmd"):
+    road = mmdopt.Road()
+    obs = _obstacle(jitter=0.5)[0]  # (n, K, 2), Frenet = Cartesian on the default road
+    centres = np.asarray(circle_centres(obs[None], OBSTACLE_FOOTPRINT))
+    w = np.full((1, obs.shape[0]), 1.0 / obs.shape[0])
+    problem = alg.Problem.create(SMALL, EGO, road.bounds())
+    obstacles = alg.ObstacleSet.create(SMALL, centres, w, method_mode)
+    return problem, obstacles
+
+
+@pytest.mark.parametrize("mode", ["mmd", "scenario"])
+def test_init_update_loop_equals_run(mode):
+    problem, obstacles = _inputs(mode)
+    key = jax.random.PRNGKey(4)
+    ran = alg.run(SMALL, problem, obstacles, key)
+    state = alg.init(SMALL, problem, key)
+    for _ in range(SMALL.iterations):
+        state = alg.update(state, obstacles)
+    assert int(state.iteration) == int(ran.iteration) == SMALL.iterations
+    # the same samples are drawn and scored: the same best sample (float32 loop: equal costs to
+    # float32 resolution; XLA may fuse the scan and the separate steps differently)
+    np.testing.assert_allclose(state.cost_trace, ran.cost_trace, rtol=1e-5)
+    np.testing.assert_allclose(state.best.d, ran.best.d, rtol=1e-5, atol=1e-5)
+    with pytest.raises(ValueError, match="iterations"):
+        alg.update(state, obstacles)
+
+
+def test_shift_then_run_is_deterministic_and_moves_set_points():
+    problem, obstacles = _inputs()
+    st = alg.run(SMALL, problem, obstacles, jax.random.PRNGKey(0))
+    sh = alg.shift(st, dt=SMALL.horizon / SMALL.num_segments)  # one whole segment
+    S = SMALL.num_segments
+    np.testing.assert_allclose(sh.mu[: S - 1], st.mu[1:S], rtol=1e-6)  # speeds move one earlier
+    np.testing.assert_allclose(sh.mu[S - 1], st.mu[S - 1], rtol=1e-6)  # last held
+    assert int(sh.iteration) == 0 and not np.isfinite(float(sh.best.cost))
+    a = alg.run(SMALL, problem, obstacles, jax.random.PRNGKey(1), warm_start=sh)
+    b = alg.run(SMALL, problem, obstacles, jax.random.PRNGKey(1), warm_start=sh)
+    np.testing.assert_array_equal(np.asarray(a.best.cx), np.asarray(b.best.cx))
+    assert float(a.best.cost) == float(b.best.cost)
+    with pytest.raises(ValueError, match="dt"):
+        alg.shift(st, dt=float("nan"))
+
+
+def test_plan_warm_start_and_state_round_trip():
+    road = mmdopt.Road()
+    obs = _obstacle()
+    p = mmdopt.plan(EGO, road, obs, config=SMALL, key=jax.random.PRNGKey(0))
+    assert isinstance(p.state, alg.CEMState)
+    warm = alg.shift(p.state, 0.5)
+    q1 = mmdopt.plan(EGO, road, obs, config=SMALL, key=jax.random.PRNGKey(2), warm_start=warm)
+    q2 = mmdopt.plan(EGO, road, obs, config=SMALL, key=jax.random.PRNGKey(2), warm_start=warm)
+    np.testing.assert_array_equal(q1.x, q2.x)
+    assert q1.feasible
+    with pytest.raises(ValueError, match="warm_start"):
+        mmdopt.plan(EGO, road, obs, config=SMALL, warm_start="no")
+
+
+def test_plan_with_a_given_reduced_set_uses_it_and_validates_it():
+    road = mmdopt.Road()
+    obs = _obstacle(jitter=0.5)
+    rs = mmdopt.select_reduced_sets(jax.random.PRNGKey(0), obs, 5, "random")
+    p = mmdopt.plan(EGO, road, obs, config=SMALL, reduced_set=rs)
+    np.testing.assert_array_equal(np.asarray(p.reduced_set.indices), np.asarray(rs.indices))
+    bad = rs.__class__(rs.indices, rs.weights * 2, rs.alpha, rs.mmd2, rs.bandwidth, rs.method)
+    with pytest.raises(ValueError, match="reduced_set.weights"):
+        mmdopt.plan(EGO, road, obs, config=SMALL, reduced_set=bad)
+    big = rs.__class__(rs.indices + 100, rs.weights, rs.alpha, rs.mmd2, rs.bandwidth, rs.method)
+    with pytest.raises(ValueError, match="reduced_set.indices"):
+        mmdopt.plan(EGO, road, obs, config=SMALL, reduced_set=big)
+    with pytest.raises(ValueError, match="reduced_set"):
+        mmdopt.plan(EGO, road, obs, config=SMALL, method="saa", reduced_set=rs)
+
+
+def test_demo_plan_is_unchanged_by_the_restructure():
+    """The demo scene's MMD-Opt plan, as computed before the restructure (commit a722a0c)."""
+    from mmdopt.bench.scenes import demo_scene
+    from mmdopt.bench.synthetic import scene_config
+
+    sc = demo_scene()
+    p = mmdopt.plan(sc.ego(), sc.road(), sc.obstacles, config=scene_config(sc), key=sc.key())
+    assert p.cost == pytest.approx(25.484128952026367, rel=1e-6)
+    assert p.progress == pytest.approx(78.05859374999413, rel=1e-6)
+
+
+def _run(code: str) -> str:
+    out = subprocess.run(
+        [sys.executable, "-c", code], capture_output=True, text=True, check=True, timeout=300
+    )
+    return out.stdout.strip()
+
+
+def test_import_mmdopt_leaves_jax_x64_as_it_was():
+    code = (
+        "import jax\n"
+        "a = jax.config.read('jax_enable_x64')\n"
+        "import mmdopt, mmdopt.bench.cli\n"
+        "print(a, jax.config.read('jax_enable_x64'))\n"
+    )
+    assert _run(code) == "False False"
+    assert not jax.config.read("jax_enable_x64")
+    # and a user's JAX code keeps float32 after a plan
+    mmdopt.plan(EGO, mmdopt.Road(), _obstacle(), config=SMALL)
+    assert jax.numpy.asarray(1.0).dtype == np.float32
+
+
+def test_layers_import_nothing_above_them():
+    code = (
+        "import sys\n"
+        "import solvers, frenet\n"
+        "bad = [m for m in ('mmdopt', 'cvxpy', 'osqp', 'qpsolvers') if m in sys.modules]\n"
+        "import mmdopt\n"
+        "bad += [m for m in sys.modules if m.startswith('mmdopt.bench')]\n"
+        "print(bad)\n"
+    )
+    assert _run(code) == "[]"
