@@ -9,7 +9,6 @@ import jax.numpy as jnp
 import numpy as np
 
 from .base import (
-    GAP_NONE,
     PredictionContext,
     cartesian_to_lane,
     check_history,
@@ -124,7 +123,9 @@ class LaneAware:
             if not (np.isfinite(v) and v >= 0):
                 raise ValueError(f"LaneAware.{f} must be finite and >= 0, got {v}")
         if not (0 < self.lc_min <= self.lc_max):
-            raise ValueError(f"LaneAware needs 0 < lc_min <= lc_max, got {self.lc_min, self.lc_max}")
+            raise ValueError(
+                f"LaneAware needs 0 < lc_min <= lc_max, got {self.lc_min, self.lc_max}"
+            )
 
     def mode_logits(self, context: PredictionContext, vd: np.ndarray) -> np.ndarray:
         """(O, 3) logits of [keep, left, right] (−inf for a missing lane)."""
@@ -184,7 +185,9 @@ def _lane_aware_sample(key, logits, s0, vs, d0, w, t, n, speed_std, accel_std, l
     target = jnp.where(mode == 1, w[:, None], jnp.where(mode == 2, -w[:, None], 0.0))
     start = jax.random.uniform(ks, (O, n), maxval=1.0)
     dur_lc = jax.random.uniform(kd, (O, n), minval=lc_min, maxval=lc_max)
-    dur = jnp.where(mode == 0, 2.0 + (dur_lc - lc_min) / jnp.maximum(lc_max - lc_min, 1e-9) * 2.0, dur_lc)
+    dur = jnp.where(
+        mode == 0, 2.0 + (dur_lc - lc_min) / jnp.maximum(lc_max - lc_min, 1e-9) * 2.0, dur_lc
+    )
     u = (t[None, None, :] - start[..., None]) / dur[..., None]
     d = d0[:, None, None] + (target - d0[:, None])[..., None] * _smoothstep(u)
     return s, d

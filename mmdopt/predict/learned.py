@@ -40,14 +40,18 @@ DEFAULT_WEIGHTS = Path(__file__).parent / "weights" / "mdn_ngsim_us101"
 
 @dataclass(frozen=True)
 class MDNConfig:
-    """Sizes of the model and the data it was trained on (stored with the weights)."""
+    """Sizes of the model and the data it was trained on (stored with the weights).
+
+    Chosen on a validation split of the training scenes (recordings N % 5 == 1): hidden 128 with
+    6 modes and 4 basis functions overfitted (validation minADE@20 0.94 m); 32 hidden units,
+    8 modes, 3 basis functions: 0.76 m (the lane-aware baseline: 0.84 m)."""
 
     history_len: int = 10
     dt_history: float = 0.1
     horizon: float = 5.0
-    n_modes: int = 6
-    n_basis: int = 4
-    hidden: int = 128
+    n_modes: int = 8
+    n_basis: int = 3
+    hidden: int = 32
     depth: int = 2
 
     @property
@@ -93,7 +97,7 @@ def poly_basis(times, horizon: float, n_basis: int) -> np.ndarray:
 
 
 def encode(history, context: PredictionContext, config: MDNConfig):
-    """Raw (unnormalised) features ``(O, F)`` and the lane state ``(s0, vs, d0)`` of each obstacle."""
+    """Raw (unnormalised) features ``(O, F)`` and each obstacle's lane state ``(s0, vs, d0)``."""
     h = check_history(history, context, min_len=config.history_len)
     if h.shape[1] != config.history_len:
         raise ValueError(
@@ -121,7 +125,7 @@ def encode(history, context: PredictionContext, config: MDNConfig):
 
 
 def mixture_nll(model: MDN, x, z):
-    """Mean negative log-likelihood of coefficients ``z`` (N, C) under the mixture at ``x`` (N, F)."""
+    """Mean NLL of coefficients ``z`` (N, C) under the mixture at features ``x`` (N, F)."""
     logits, mean, log_std = jax.vmap(model)(x)
     logp = jax.nn.log_softmax(logits, axis=-1)
     r = (z[:, None, :] - mean) * jnp.exp(-log_std)

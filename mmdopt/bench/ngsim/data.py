@@ -48,7 +48,9 @@ def scene_windows(
     out = []
     k0 = history - 1 if first_step is None else first_step
     for k in range(k0, sc.num_steps - K, stride):
-        idx = np.flatnonzero(present(sc, k - history + 1, k + K) & np.all(sc.lane_of[:, [k]] >= 0, 1))
+        idx = np.flatnonzero(
+            present(sc, k - history + 1, k + K) & np.all(sc.lane_of[:, [k]] >= 0, 1)
+        )
         if len(idx) == 0:
             continue
         ctx = context_at(sc, idx, k, times)

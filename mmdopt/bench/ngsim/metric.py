@@ -9,7 +9,7 @@ class                     condition (checked in this order, at the first contact
 ``stopped_ego``           ego speed < 0.05 m/s                                        if braking
 ``stopped_track``         the other vehicle's speed < 0.05 m/s                        yes
 ``front``                 the ego's front edge touches the other footprint            yes
-``rear``                  the other vehicle's centre is behind the ego's centre       if braking
+``rear``                  the other vehicle's centre is behind the ego's rear bumper  if braking
 ``lateral``               anything else (side contact)                                if the ego
                                                                                       changes lane
 ========================  =========================================================  =========
@@ -45,7 +45,9 @@ COLLISION_CLASSES = ("stopped_ego", "stopped_track", "front", "rear", "lateral")
 
 def rect_corners(x, y, heading, length, width) -> np.ndarray:
     """(…, 4, 2) corners [front-left, front-right, rear-right, rear-left] of oriented rectangles."""
-    x, y, h, L, W = np.broadcast_arrays(*(np.asarray(a, np.float64) for a in (x, y, heading, length, width)))
+    x, y, h, L, W = np.broadcast_arrays(
+        *(np.asarray(a, np.float64) for a in (x, y, heading, length, width))
+    )
     c, s = np.cos(h), np.sin(h)
     lo = np.array([0.5, 0.5, -0.5, -0.5])
     la = np.array([0.5, -0.5, -0.5, 0.5])
@@ -83,7 +85,9 @@ def rect_distance(a: np.ndarray, b: np.ndarray) -> np.ndarray:
     for p, q in ((a, b), (b, a)):
         for i in range(4):
             for j in range(4):
-                best = np.minimum(best, _point_segment(p[..., i, :], q[..., j, :], q[..., (j + 1) % 4, :]))
+                best = np.minimum(
+                    best, _point_segment(p[..., i, :], q[..., j, :], q[..., (j + 1) % 4, :])
+                )
     return np.where(rects_overlap(a, b), 0.0, best)
 
 
@@ -94,13 +98,15 @@ def classify_collision(ego_rect, ego_heading, ego_speed, other_rect, other_xy, o
     if other_speed < STOPPED_SPEED:
         return "stopped_track"
     front = ego_rect[:2]  # front-left, front-right
-    depth = 0.05 * (ego_rect[0] - ego_rect[3]) / max(np.linalg.norm(ego_rect[0] - ego_rect[3]), 1e-9)
+    depth = (
+        0.05 * (ego_rect[0] - ego_rect[3]) / max(np.linalg.norm(ego_rect[0] - ego_rect[3]), 1e-9)
+    )
     front_strip = np.stack([front[0], front[1], front[1] - depth, front[0] - depth])
     if bool(rects_overlap(front_strip, other_rect)):
         return "front"
-    centre = ego_rect.mean(0)
+    rear_mid = 0.5 * (ego_rect[2] + ego_rect[3])
     u = np.array([np.cos(ego_heading), np.sin(ego_heading)])
-    if float(np.dot(np.asarray(other_xy) - centre, u)) < 0.0:
+    if float(np.dot(np.asarray(other_xy) - rear_mid, u)) < 0.0:
         return "rear"
     return "lateral"
 

@@ -26,10 +26,10 @@ skipped; ``OUT/results.csv`` is rebuilt from all of them at the end.
 from __future__ import annotations
 
 import csv
-import zlib
 import dataclasses
 import json
 import time
+import zlib
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -37,8 +37,8 @@ from typing import Any
 import jax
 import numpy as np
 
-import frenet
 import mmdopt
+from mmdopt.algorithm import PLANNER_BACKEND
 from mmdopt.predict import PREDICTORS, make_predictor
 
 from .metric import (
@@ -186,7 +186,9 @@ def select_tasks(paths, params: NgsimParams | None = None, config=None) -> list[
             if k - p.history + 1 >= 0:
                 cands = sorted(_candidates(sc, k, K, p), key=lambda c: (-c[0], sc.ids[c[1]]))
                 for _, v in cands[: p.egos_per_time]:
-                    tasks.append(dict(scenario=str(f), ego_id=int(sc.ids[v]), k=k, t0=round(k * sc.dt, 3)))
+                    tasks.append(
+                        dict(scenario=str(f), ego_id=int(sc.ids[v]), k=k, t0=round(k * sc.dt, 3))
+                    )
             t0 += p.every
     return tasks
 
@@ -205,7 +207,10 @@ def build_task(task: dict, params: NgsimParams, config: mmdopt.MMDOptConfig) -> 
     path, off_l, off_r = ego_road_geometry(sc, v, k)
     x, y = sc.xy[v, k]
     ego = path.ego_state(
-        float(x), float(y), float(sc.speed[v, k]), float(sc.heading[v, k]),
+        float(x),
+        float(y),
+        float(sc.speed[v, k]),
+        float(sc.heading[v, k]),
         accel=float(np.clip(sc.accel[v, k], -3.0, 3.0)),
     )
     ego = dataclasses.replace(ego, ad=0.0, vd=float(np.clip(ego.vd, -1.0, 1.0)))
@@ -227,8 +232,18 @@ def build_task(task: dict, params: NgsimParams, config: mmdopt.MMDOptConfig) -> 
     hist = history_at(sc, obs, k, params.history)
     lane_w = sc.lanes[int(sc.lane_of[v, k])].width
     return dict(
-        scene=sc, v=v, k=k, times=times, ego=ego, road=road, obs=obs, ctx=ctx, hist=hist,
-        lane_w=lane_w, off_l=off_l, off_r=off_r,
+        scene=sc,
+        v=v,
+        k=k,
+        times=times,
+        ego=ego,
+        road=road,
+        obs=obs,
+        ctx=ctx,
+        hist=hist,
+        lane_w=lane_w,
+        off_l=off_l,
+        off_r=off_r,
     )
 
 
@@ -243,7 +258,9 @@ def _score_recorded(b: dict, plan, params: NgsimParams) -> dict:
     ok = np.all(np.isfinite(fut), -1) & np.isfinite(hd)
     ego_rect = rect_corners(plan.x, plan.y, plan.heading, sc.length[v], sc.width[v])  # (K, 4, 2)
     fx, fy = np.where(ok, fut[..., 0], 0.0), np.where(ok, fut[..., 1], 0.0)
-    o_rect = rect_corners(fx, fy, np.where(ok, hd, 0.0), sc.length[others][:, None], sc.width[others][:, None])
+    o_rect = rect_corners(
+        fx, fy, np.where(ok, hd, 0.0), sc.length[others][:, None], sc.width[others][:, None]
+    )
     dist = rect_distance(ego_rect[None], o_rect)  # (N, K)
     dist = np.where(ok, dist, np.inf)
     overlap = ok & rects_overlap(ego_rect[None], o_rect)
@@ -257,7 +274,9 @@ def _score_recorded(b: dict, plan, params: NgsimParams) -> dict:
     fault, classes = False, []
     for i in np.flatnonzero(overlap.any(1)):
         j = int(np.flatnonzero(overlap[i])[0])
-        cls = classify_collision(ego_rect[j], plan.heading[j], plan.speed[j], o_rect[i, j], fut[i, j], spd[i, j])
+        cls = classify_collision(
+            ego_rect[j], plan.heading[j], plan.speed[j], o_rect[i, j], fut[i, j], spd[i, j]
+        )
         dec = float(np.max(decel[max(0, j - win) : j + 1]))
         f = at_fault(cls, dec, bool(changing[j]), params.brake_threshold)
         classes.append(cls + ("*" if f else ""))
@@ -270,7 +289,9 @@ def _score_recorded(b: dict, plan, params: NgsimParams) -> dict:
     )
 
 
-def run_task(task: dict, methods, predictor: str, params: NgsimParams, config, backend="admm") -> list[dict]:
+def run_task(
+    task: dict, methods, predictor: str, params: NgsimParams, config, backend: str = PLANNER_BACKEND
+) -> list[dict]:
     """Plan one task with every method; one result row per method."""
     b = build_task(task, params, config)
     pred = _predictor(predictor)
@@ -287,7 +308,9 @@ def run_task(task: dict, methods, predictor: str, params: NgsimParams, config, b
     s_rec, _ = b["road"].path.to_frenet(rec[:, 0], rec[:, 1])
     rows = []
     for m in methods:
-        plan = mmdopt.plan(b["ego"], b["road"], planned, method=m, config=cfg, backend=backend, key=k_plan)
+        plan = mmdopt.plan(
+            b["ego"], b["road"], planned, method=m, config=cfg, backend=backend, key=k_plan
+        )
         score = _score_recorded(b, plan, params)
         # the paper's metric (SPEC §h): validation draws clear of every obstacle
         cf = int(mmdopt.collision_free_count(plan.xy, val, a=float(cfg.a), b=float(cfg.b)).joint)
@@ -365,23 +388,42 @@ def timing_vs_obstacles(
     if p.v_des is not None:
         cfg = cfg.replace(v_des=float(p.v_des))
     b = build_task(task, p, cfg)
-    samples = _predictor(predictor).sample(b["hist"], b["ctx"], p.n_samples, jax.random.PRNGKey(p.seed))
+    samples = _predictor(predictor).sample(
+        b["hist"], b["ctx"], p.n_samples, jax.random.PRNGKey(p.seed)
+    )
     rows = []
     for c in counts:
         if c > samples.shape[0]:
             continue
         ts = []
         for r in range(repeats + 1):
-            pl = mmdopt.plan(b["ego"], b["road"], samples[:c], method=method, config=cfg, key=jax.random.PRNGKey(r))
+            pl = mmdopt.plan(
+                b["ego"],
+                b["road"],
+                samples[:c],
+                method=method,
+                config=cfg,
+                key=jax.random.PRNGKey(r),
+            )
             ts.append(pl.plan_time_s)
-        rows.append(dict(n_obstacles=c, method=method, first_s=ts[0], median_s=float(np.median(ts[1:])),
-                         cem_s=float(pl.diagnostics.get("cem_s", np.nan)), feasible=bool(pl.feasible)))
+        rows.append(
+            dict(
+                n_obstacles=c,
+                method=method,
+                first_s=ts[0],
+                median_s=float(np.median(ts[1:])),
+                cem_s=float(pl.diagnostics.get("cem_s", np.nan)),
+                feasible=bool(pl.feasible),
+            )
+        )
     return rows
 
 
 def _task_seed(task: dict) -> int:
     """A stable (process-independent) integer of the task, for its PRNG key."""
-    return zlib.crc32(f"{Path(task['scenario']).stem}/{task['ego_id']}/{task['k']}".encode()) % (2**31)
+    return zlib.crc32(f"{Path(task['scenario']).stem}/{task['ego_id']}/{task['k']}".encode()) % (
+        2**31
+    )
 
 
 def _task_name(task: dict, method: str, predictor: str) -> str:
@@ -396,15 +438,25 @@ def _json_default(o):
 
 def _group_job(args) -> list[dict]:
     task, methods, predictor, params, config, out = args
-    todo = [m for m in methods if not (out / "tasks" / (_task_name(task, m, predictor) + ".json")).exists()]
+    todo = [
+        m
+        for m in methods
+        if not (out / "tasks" / (_task_name(task, m, predictor) + ".json")).exists()
+    ]
     if not todo:
         return []
     try:
         rows = run_task(task, todo, predictor, params, config)
     except Exception as exc:  # a bad scene is reported, never crashes the sweep
         rows = [
-            dict(scenario=Path(task["scenario"]).stem, ego_id=task["ego_id"], t0=task["t0"],
-                 method=m, predictor=predictor, status=f"error: {type(exc).__name__}: {exc}")
+            dict(
+                scenario=Path(task["scenario"]).stem,
+                ego_id=task["ego_id"],
+                t0=task["t0"],
+                method=m,
+                predictor=predictor,
+                status=f"error: {type(exc).__name__}: {exc}",
+            )
             for m in todo
         ]
     for r in rows:
@@ -437,7 +489,9 @@ def _as_config(config) -> tuple[mmdopt.MMDOptConfig, NgsimParams]:
     if isinstance(config, str | Path):
         config = json.loads(Path(config).read_text())
     if not isinstance(config, dict):
-        raise ValueError(f"config must be None, an MMDOptConfig, a dict or a JSON path, got {config!r}")
+        raise ValueError(
+            f"config must be None, an MMDOptConfig, a dict or a JSON path, got {config!r}"
+        )
     d = dict(config)
     bench = NgsimParams.from_dict(d.pop("bench", {}))
     names = {f.name for f in dataclasses.fields(mmdopt.MMDOptConfig)}
@@ -457,49 +511,66 @@ def run_ngsim(
     jobs: int = 1,
     params: NgsimParams | None = None,
     max_tasks: int | None = None,
+    address: str | None = None,
     progress: bool = False,
 ) -> list[dict]:
     """Run the benchmark on the scenario files/folders ``scenarios``; write ``OUT/results.csv``.
 
-    ``config``: see :func:`_as_config` (a ``"bench"`` sub-dict sets :class:`NgsimParams`);
-    ``params`` overrides those.  ``executor``: "local" (sequential, or ``jobs`` processes);
-    ``max_tasks``: the first tasks only (smoke runs).  Returns the rows of ``results.csv``.
+    ``config``: None (:func:`ngsim_config`), an :class:`mmdopt.MMDOptConfig`, or a dict / JSON
+    file of MMDOptConfig fields (on top of :func:`ngsim_config`) with an optional ``"bench"``
+    sub-dict of :class:`NgsimParams` fields; ``params`` overrides that sub-dict.  ``executor``:
+    "local" (``jobs`` processes) or "ray" (:func:`mmdopt.bench.executors.run_tasks`);
+    ``max_tasks``: the first tasks only (smoke runs).  Resumable: finished (task, method) files
+    in ``OUT/tasks`` are skipped; ``OUT/run.json`` must match the settings.  Returns the rows.
     """
+    from mmdopt.bench.executors import check_manifest, run_tasks
+
     cfg, p = _as_config(config)
     p = params if params is not None else p
     methods = tuple(methods)
+    if not methods:
+        raise ValueError("methods is empty")
     for m in methods:
         if m not in mmdopt.PLAN_METHODS:
             raise ValueError(f"method must be one of {mmdopt.PLAN_METHODS}, got {m!r}")
     if predictor not in PREDICTORS:
         raise ValueError(f"predictor must be one of {PREDICTORS}, got {predictor!r}")
-    if executor not in ("local",):
-        raise ValueError(f"executor must be 'local', got {executor!r}")
     out = Path(out)
     (out / "tasks").mkdir(parents=True, exist_ok=True)
     tasks = select_tasks(scenarios, p, cfg)
     if max_tasks is not None:
         tasks = tasks[:max_tasks]
-    (out / "manifest.json").write_text(json.dumps(dict(
-        scenarios=[str(s) for s in (scenarios if not isinstance(scenarios, str | Path) else [scenarios])],
-        methods=methods, predictor=predictor, n_tasks=len(tasks),
-        params=dataclasses.asdict(p),
-        config={f.name: getattr(cfg, f.name) for f in dataclasses.fields(cfg) if f.name != "reduced_set"},
-    ), indent=1, default=str))
-    jobs_args = [(t, methods, predictor, p, cfg, out) for t in tasks]
-    if jobs <= 1:
-        for i, a in enumerate(jobs_args):
-            rows = _group_job(a)
-            if progress and rows:
-                print(f"[{i + 1}/{len(tasks)}] " + ", ".join(
-                    f"{r['method']}: fault={r.get('at_fault_collision')} prog={r.get('progress_m', float('nan')):.1f}"
-                    f"/{r.get('recorded_progress_m', float('nan')):.1f} t={r.get('plan_time_s', float('nan')):.2f}s"
-                    for r in rows), flush=True)
-    else:
-        import concurrent.futures as cf
-        import multiprocessing as mp
-
-        with cf.ProcessPoolExecutor(jobs, mp_context=mp.get_context("spawn")) as ex:
-            for _ in ex.map(_group_job, jobs_args):
-                pass
+    cfg_d = {
+        f.name: getattr(cfg, f.name) for f in dataclasses.fields(cfg) if f.name != "reduced_set"
+    }
+    check_manifest(
+        out,
+        json.loads(
+            json.dumps(
+                dict(
+                    predictor=predictor,
+                    params=dataclasses.asdict(p),
+                    config=cfg_d,
+                ),
+                default=str,
+            )
+        ),
+    )
+    args = [
+        (t, methods, predictor, p, cfg, out)
+        for t in tasks
+        if not all(
+            (out / "tasks" / (_task_name(t, m, predictor) + ".json")).exists() for m in methods
+        )
+    ]
+    run_tasks(
+        _group_job,
+        args,
+        jobs=jobs,
+        executor=executor,
+        address=address,
+        progress=progress,
+        desc="ngsim",
+        unit="task",
+    )
     return write_results(out)

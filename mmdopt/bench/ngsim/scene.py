@@ -139,9 +139,7 @@ def load_scenario(path: str | Path) -> NgsimScene:
             right_id=int(ll.adj_right) if ll.adj_right and ll.adj_right_same_direction else None,
         )
     obs = list(scenario.dynamic_obstacles)
-    T = 1 + max(
-        [o.prediction.final_time_step for o in obs if o.prediction is not None] + [0]
-    )
+    T = 1 + max([o.prediction.final_time_step for o in obs if o.prediction is not None] + [0])
     V = len(obs)
     xy = np.full((V, T, 2), np.nan)
     hd, sp, ac = (np.full((V, T), np.nan) for _ in range(3))
@@ -166,7 +164,9 @@ def load_scenario(path: str | Path) -> NgsimScene:
     pts = xy[mask]
     if len(pts):
         found = net.find_lanelet_by_position([p for p in pts])
-        lane_ids = [_pick_lane(lanes, p, h, c) for p, h, c in zip(pts, hd[mask], found, strict=True)]
+        lane_ids = [
+            _pick_lane(lanes, p, h, c) for p, h, c in zip(pts, hd[mask], found, strict=True)
+        ]
         lane_of[mask] = lane_ids
     return NgsimScene(
         name=path.stem,
@@ -245,7 +245,9 @@ def vehicle_centerline(
     lid = int(scene.lane_of[v, k])
     p = scene.xy[v, k]
     if lid < 0:  # off the map: the nearest lanelet's chain
-        lid = min(scene.lanes, key=lambda i: np.min(np.linalg.norm(scene.lanes[i].center - p, axis=-1)))
+        lid = min(
+            scene.lanes, key=lambda i: np.min(np.linalg.norm(scene.lanes[i].center - p, axis=-1))
+        )
     route = set(int(x) for x in scene.lane_of[v, k:] if x >= 0)
     chain = lane_chain(scene, lid, prefer=route)
     s0, _ = cartesian_to_lane(chain, p[None])
@@ -358,7 +360,9 @@ def context_at(
 
 
 # --------------------------------------------------------------------------- ego road
-def ego_road_geometry(scene: NgsimScene, v: int, k: int, behind: float = 30.0, ahead: float = 260.0):
+def ego_road_geometry(
+    scene: NgsimScene, v: int, k: int, behind: float = 30.0, ahead: float = 260.0
+):
     """The ego's reference path (its lane's chain, ``frenet.ReferencePath``) and the offsets (m)
     of the same-direction neighbour lanes' centres in that path's frame (``None`` if absent),
     measured as the median over the 100 m ahead of the ego."""
