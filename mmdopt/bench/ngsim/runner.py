@@ -115,6 +115,10 @@ class NgsimParams:
     lane_keep_margin : lateral freedom (m) on a side without a same-direction lane
     v_des : desired speed (m/s) of the cost (None: the config's)
     bound_step : lane bounds are rounded to this step (m) so few projection problems compile
+    obstacle_bucket : obstacle counts are padded with ghosts to a multiple of this (default:
+        ``max_obstacles``, i.e. every plan sees the same O and Algorithm 1 compiles once per
+        lane-bound pair; plan times in ``results.csv`` are then for O = max_obstacles — the
+        timing against the real count is :func:`timing_vs_obstacles`)
     """
 
     history: int = 10
@@ -128,7 +132,8 @@ class NgsimParams:
     n_validation: int = 1000
     lane_keep_margin: float = 0.5
     v_des: float | None = 25.0
-    bound_step: float = 0.25
+    bound_step: float = 0.5
+    obstacle_bucket: int | None = None
     brake_threshold: float = BRAKE_THRESHOLD
     seed: int = 0
 
@@ -214,11 +219,13 @@ def build_task(task: dict, params: NgsimParams, config: mmdopt.MMDOptConfig) -> 
         accel=float(np.clip(sc.accel[v, k], -3.0, 3.0)),
     )
     ego = dataclasses.replace(ego, ad=0.0, vd=float(np.clip(ego.vd, -1.0, 1.0)))
+    # neighbour lane centres rounded to the nearest bound_step, widened (outwards) to contain
+    # the ego's own offset: few distinct bounds, so few compiled projection problems
     st = params.bound_step
-    y_ub = off_l if off_l is not None else params.lane_keep_margin
-    y_lb = off_r if off_r is not None else -params.lane_keep_margin
-    y_ub = _quantise(max(y_ub, ego.d + 0.1), st, up=True)
-    y_lb = _quantise(min(y_lb, ego.d - 0.1), st, up=False)
+    y_ub = round(off_l / st) * st if off_l is not None else params.lane_keep_margin
+    y_lb = round(off_r / st) * st if off_r is not None else -params.lane_keep_margin
+    y_ub = max(y_ub, _quantise(ego.d + 0.1, st, up=True))
+    y_lb = min(y_lb, _quantise(ego.d - 0.1, st, up=False))
     road = mmdopt.Road(path=path, y_lb=y_lb, y_ub=y_ub)
     here = np.isfinite(sc.xy[:, k, 0]) & np.isfinite(sc.xy[:, k - 1, 0])
     here[v] = False
@@ -302,7 +309,9 @@ def run_task(
     predict_s = time.perf_counter() - t1
     val = pred.sample(b["hist"], b["ctx"], params.n_validation, k_val)
     cfg = config if params.v_des is None else config.replace(v_des=float(params.v_des))
-    planned = _pad_ghosts(samples, b["road"], b["ego"], params.max_obstacles)
+    planned = _pad_ghosts(
+        samples, b["road"], b["ego"], params.max_obstacles, params.obstacle_bucket
+    )
     sc, v, k, times = b["scene"], b["v"], b["k"], b["times"]
     rec = future_at(sc, [v], k, times)[0]
     s_rec, _ = b["road"].path.to_frenet(rec[:, 0], rec[:, 1])
@@ -354,16 +363,14 @@ def _predictor(name: str):
     return _PRED_CACHE[name]
 
 
-#: obstacle counts are padded up to a multiple of this (see :func:`_pad_ghosts`)
-OBSTACLE_BUCKET = 5
-
-
-def _pad_ghosts(samples: np.ndarray, road, ego, max_obstacles: int) -> np.ndarray:
+def _pad_ghosts(samples: np.ndarray, road, ego, max_obstacles: int, bucket: int | None = None):
     """Pad (O, n, K, 2) with *ghost* obstacles 500 m behind the ego on its path (their collision
-    term is exactly zero) up to a multiple of :data:`OBSTACLE_BUCKET`, so Algorithm 1 compiles
-    once per bucket instead of once per obstacle count.  The metric uses the real obstacles."""
+    term is exactly zero) up to a multiple of ``bucket`` (default ``max_obstacles``), so
+    Algorithm 1 compiles once per bucket instead of once per obstacle count.  The metric uses
+    the real obstacles only."""
     O, n, K, _ = samples.shape
-    target = min(-(-O // OBSTACLE_BUCKET) * OBSTACLE_BUCKET, max(max_obstacles, O))
+    bucket = max_obstacles if bucket is None else bucket
+    target = min(-(-O // bucket) * bucket, max(max_obstacles, O))
     if target <= O:
         return samples
     s = ego.s - 500.0 - 0.1 * np.arange(n)  # spread: the kernel bandwidth stays positive
@@ -494,6 +501,8 @@ def _as_config(config) -> tuple[mmdopt.MMDOptConfig, NgsimParams]:
         )
     d = dict(config)
     bench = NgsimParams.from_dict(d.pop("bench", {}))
+    if isinstance(d.get("reduced_set"), dict):
+        d["reduced_set"] = mmdopt.ReducedSetConfig(**d["reduced_set"])
     names = {f.name for f in dataclasses.fields(mmdopt.MMDOptConfig)}
     bad = set(d) - names
     if bad:

@@ -167,3 +167,15 @@ def test_metrics_prefer_the_predictor_that_contains_the_truth():
     assert np.all(kde_nll(good, truth) < kde_nll(bad, truth))
     r = evaluate_predictor(ConstantVelocity(), [Window(hist, ctx, truth)], jax.random.PRNGKey(0))
     assert r["n_vehicles"] == 2 and r["min_ade"] < 0.5
+
+
+def test_predict_does_not_import_the_benchmarks_or_commonroad():
+    import subprocess
+    import sys
+
+    code = (
+        "import sys, mmdopt.predict, mmdopt.predict.learned, mmdopt.predict.train; "
+        "bad = [m for m in sys.modules if m.startswith(('mmdopt.bench', 'commonroad'))]; "
+        "assert not bad, bad"
+    )
+    subprocess.run([sys.executable, "-c", code], check=True)
