@@ -170,3 +170,38 @@ def test_two_scenario_smoke_run_writes_the_csv_and_resumes(ngsim_dir, tmp_path):
     mtimes = sorted(p_.stat().st_mtime_ns for p_ in (tmp_path / "tasks").glob("*.json"))
     run_ngsim(files, tmp_path, methods=("mmd",), predictor="cv", config=cfg, params=p)
     assert sorted(p_.stat().st_mtime_ns for p_ in (tmp_path / "tasks").glob("*.json")) == mtimes
+
+
+@pytest.mark.parametrize(
+    "argv, option",
+    [
+        (["bench", "ngsim", "--scenarios", "nowhere.xml", "--out", "x"], "--scenarios"),
+        (
+            ["bench", "ngsim", "--scenarios", ".", "--out", "x", "--predictor", "oracle"],
+            "--predictor",
+        ),
+        (["bench", "ngsim", "--scenarios", ".", "--out", "x", "--methods", "mpc"], "--methods"),
+        (["bench", "ngsim", "--scenarios", ".", "--out", "x", "--jobs", "0"], "--jobs"),
+        (["predictor", "train", "--steps", "-1"], "--steps"),
+    ],
+)
+def test_ngsim_cli_bad_options_exit_2_naming_the_option(argv, option, capsys):
+    from mmdopt.bench.cli import main
+
+    with pytest.raises(SystemExit) as e:
+        main(argv)
+    assert e.value.code == 2
+    assert option in capsys.readouterr().err
+
+
+def test_run_ngsim_rejects_bad_arguments(tmp_path):
+    from mmdopt.bench.ngsim import run_ngsim
+
+    with pytest.raises(ValueError, match="method"):
+        run_ngsim([tmp_path], tmp_path, methods=("mpc",))
+    with pytest.raises(ValueError, match="predictor"):
+        run_ngsim([tmp_path], tmp_path, predictor="oracle")
+    with pytest.raises(ValueError, match="no .xml"):
+        run_ngsim([tmp_path], tmp_path / "out", predictor="cv")
+    with pytest.raises(ValueError, match="unknown NgsimParams"):
+        run_ngsim([tmp_path], tmp_path / "out", config={"bench": {"egos": 3}})
