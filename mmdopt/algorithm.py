@@ -63,15 +63,7 @@ from jax import lax
 import frenet
 
 from ._x64 import x64
-from .collision import (
-    ELLIPSE_A,
-    ELLIPSE_B,
-    ellipse_values,
-    mmd_cost,
-    saa_cost,
-    scenario_cost,
-    taylor_terms,
-)
+from .collision import ELLIPSE_A, ELLIPSE_B, collision_cost, taylor_terms
 from .reduced_set import ReducedSetConfig
 
 __all__ = [
@@ -505,22 +497,23 @@ def _collision_term(cfg: MMDOptConfig, prob: CEMProblem, s, dd, obstacles: Obsta
     """The method's collision term and its weight (eq. c_aug), per ego sample (B,)."""
     mode = obstacles.mode
     scale = 1.0 if mode == "mmd" else cfg.baseline_margin_scale
-    f = ellipse_values(
+    coll = collision_cost(
+        mode,
         s,
         dd,
         obstacles.centres.astype(dt),
+        obstacles.weights.astype(dt),
+        obstacles.mask,
         planning_semi_axis(cfg, prob.t(), dt, scale),
         cfg.b + scale * cfg.margin_lat,
+        bandwidth=cfg.bandwidth,
+        f_scale=cfg.f_scale,
+        n_terms=obstacles.n_terms,
+        saa_eps=cfg.saa_eps,
+        saa_temperature=cfg.saa_temperature,
     )
-    if mode == "mmd":
-        coll = mmd_cost(
-            f, obstacles.weights.astype(dt), cfg.bandwidth, cfg.f_scale, obstacles.n_terms
-        )
-        return coll, cfg.w_mmd
-    if mode == "scenario":
-        return scenario_cost(f, obstacles.mask), cfg.w_coll
-    coll, _ = saa_cost(f, obstacles.mask, cfg.saa_eps, cfg.saa_temperature)
-    return coll, cfg.w_saa
+    w = {"mmd": cfg.w_mmd, "scenario": cfg.w_coll, "saa": cfg.w_saa}[mode]
+    return coll, w
 
 
 def _evaluate(state: CEMState, prob: CEMProblem, obstacles: ObstacleSet, d, cx, cy, res):

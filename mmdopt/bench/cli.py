@@ -250,6 +250,13 @@ def build_parser() -> argparse.ArgumentParser:
     t.add_argument(
         "--backend", type=_backend, default=PLANNER_BACKEND, help="projection QP backend"
     )
+    t.add_argument(
+        "--obstacles",
+        type=_int_list,
+        default=None,
+        help="also time plan() against these numbers of obstacles, e.g. 1,5,10,20 "
+        "(timing_obstacles.csv)",
+    )
     t.add_argument("--no-progress", action="store_true", help="no progress bar")
 
     f = bs.add_parser("figure", help="qualitative scene figure (paper Fig. 3)")
@@ -554,6 +561,18 @@ def cmd_timing(args, parser) -> int:
         )
     )
     print(f"wrote {Path(args.out) / 'timing.csv'} and timing.png")
+    if args.obstacles:
+        from .timing import OBSTACLE_TIMING_COLUMNS, run_obstacle_timing
+
+        rows = run_obstacle_timing(
+            args.out,
+            counts=args.obstacles,
+            repeats=args.repeats,
+            backend=args.backend,
+            progress=not args.no_progress,
+        )
+        print(_table(rows, list(OBSTACLE_TIMING_COLUMNS)))
+        print(f"wrote {Path(args.out) / 'timing_obstacles.csv'}")
     return 0
 
 
