@@ -39,7 +39,7 @@ def ngsim_scene_figure(
     key = jax.random.PRNGKey(p.seed)
     samples = _predictor(predictor).sample(b["hist"], b["ctx"], p.n_samples, key)
     planned = _pad_ghosts(samples, b["road"], b["ego"], p.max_obstacles)
-    fig, ax = plt.subplots(figsize=(12, 5.5))
+    fig, ax = plt.subplots(figsize=(8, 8))
     for lane in sc.lanes.values():
         for side in (lane.left, lane.right):
             ax.plot(side[:, 0], side[:, 1], color="0.6", lw=0.8, zorder=1)
@@ -79,13 +79,15 @@ def ngsim_scene_figure(
         pl = mmdopt.plan(b["ego"], b["road"], planned, method=m, config=cfg, key=key)
         col = METHOD_COLOURS.get(m, "tab:blue")
         ax.plot(pl.x, pl.y, color=col, lw=2.2, label=f"plan: {METHOD_LABELS.get(m, m)}", zorder=5)
+        pts.append(pl.xy)
         for t_mark in (0.0, 2.5, 5.0):
             j = int(np.argmin(np.abs(times - t_mark)))
             c = rect_corners(pl.x[j], pl.y[j], pl.heading[j], sc.length[v], sc.width[v])
             ax.fill(c[:, 0], c[:, 1], facecolor="none", edgecolor=col, lw=1.2, zorder=5)
-    x0, y0 = sc.xy[v, k]
-    ax.set_xlim(x0 - 40, x0 + 110)
-    ax.set_ylim(y0 - 35, y0 + 35)
+    allp = np.concatenate(pts, 0)
+    lo, hi = allp.min(0) - 25.0, allp.max(0) + 25.0
+    ax.set_xlim(lo[0], hi[0])
+    ax.set_ylim(lo[1], hi[1])
     ax.set_aspect("equal")
     ax.set_xlabel("x (m)")
     ax.set_ylabel("y (m)")
