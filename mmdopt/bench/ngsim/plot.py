@@ -71,10 +71,11 @@ def ngsim_scene_figure(
         rec[:, 1],
         "--",
         color="tab:green",
-        lw=2,
+        lw=1.6,
         label="recorded human (ego car)",
-        zorder=4,
+        zorder=6,
     )
+    pts = [rec]
     for m in methods:
         pl = mmdopt.plan(b["ego"], b["road"], planned, method=m, config=cfg, key=key)
         col = METHOD_COLOURS.get(m, "tab:blue")
