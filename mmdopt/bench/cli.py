@@ -11,6 +11,8 @@
     mmdopt bench figure      --scene I --out DIR                        (paper Fig. 3)
     mmdopt bench qp-backends [ARGS...]                                  QP backend comparison
     mmdopt bench highway     --episodes N --seed S --duration T --out DIR   (closed loop)
+    mmdopt bench ngsim --scenarios PATH [PATH ...] --out DIR            recorded US-101 traffic
+    mmdopt predictor train|eval [--data DIR]                            the learned predictor
 
 Bad options exit with status 2 and a message naming the option (argparse).
 """
@@ -134,7 +136,7 @@ def build_parser() -> argparse.ArgumentParser:
         description="MMD-Opt: planning under multi-modal obstacle predictions - demo and "
         "the paper's experiments.",
     )
-    sub = p.add_subparsers(dest="command", required=True, metavar="{demo,bench}")
+    sub = p.add_subparsers(dest="command", required=True, metavar="{demo,bench,predictor}")
 
     d = sub.add_parser(
         "demo", help="plan one built-in multi-modal scene; print a table, write a PNG"
@@ -154,7 +156,7 @@ def build_parser() -> argparse.ArgumentParser:
     bs = b.add_subparsers(
         dest="experiment",
         required=True,
-        metavar="{synthetic,reduced-set,timing,figure,qp-backends,highway}",
+        metavar="{synthetic,reduced-set,timing,figure,qp-backends,highway,ngsim}",
     )
 
     def common(q, scenes_default):
@@ -280,6 +282,11 @@ def build_parser() -> argparse.ArgumentParser:
     from .highway.cli import add_highway_parser
 
     add_highway_parser(bs)
+
+    from .ngsim.cli import add_ngsim_parser, add_train_parser
+
+    add_ngsim_parser(bs)
+    add_train_parser(sub)
     return p
 
 
@@ -605,12 +612,22 @@ def cmd_qp_backends(args, parser) -> int:
     return int(qp_backends.main(rest) or 0)
 
 
+def _cmd_ngsim(args) -> int:
+    from .ngsim.cli import cmd_ngsim
+
+    return cmd_ngsim(args)
+
+
 def main(argv: Sequence[str] | None = None) -> int:
     """Entry point of the ``mmdopt`` console script; returns the exit status."""
     parser = build_parser()
     args = parser.parse_args(argv)
     if args.command == "demo":
         return cmd_demo(args, parser)
+    if args.command == "predictor":
+        from .ngsim.cli import cmd_predictor
+
+        return cmd_predictor(args)
     cmd = {
         "synthetic": cmd_synthetic,
         "reduced-set": cmd_reduced_set,
@@ -618,6 +635,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         "figure": cmd_figure,
         "qp-backends": cmd_qp_backends,
         "highway": lambda a, _: a.func(a),
+        "ngsim": lambda a, _: _cmd_ngsim(a),
     }[args.experiment]
     return cmd(args, parser)
 
