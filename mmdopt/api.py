@@ -162,6 +162,77 @@ class Plan:
         """Arc length travelled over the horizon (m)."""
         return float(self.s[-1] - self.s[0])
 
+    def to_dict(self, diagnostics: bool = True) -> dict[str, Any]:
+        """The plan as plain JSON-able data (``json.dumps(plan.to_dict())`` works).
+
+        Keys: the trajectory arrays ``t, x, y, heading, speed, s, d, vs, vd, as_, ad`` as lists
+        of floats (SI units, as on the :class:`Plan`); the scalars ``cost, residual, mmd,
+        progress, plan_time_s`` (floats; a NaN cost, as in a braking fallback, is ``None``),
+        ``cost_trace`` (list), ``feasible, fallback`` (bool), ``status, method, backend`` (str);
+        ``reduced_set``: ``{"method", "indices": [[int]] (O, m), "weights": [[float]] (O, m),
+        "mmd2": [float] (O,)}`` (``None`` if the plan has none); and, with ``diagnostics=True``,
+        ``diagnostics`` with every array as (nested) lists.  The final ``state``
+        (:class:`~mmdopt.algorithm.CEMState`) is left out: it is for warm starts, not records.
+        """
+        out: dict[str, Any] = {
+            k: _jsonable(getattr(self, k))
+            for k in ("t", "x", "y", "heading", "speed", "s", "d", "vs", "vd", "as_", "ad")
+        }
+        out.update(
+            cost=_jsonable(self.cost),
+            cost_trace=_jsonable(self.cost_trace),
+            residual=_jsonable(self.residual),
+            mmd=_jsonable(self.mmd),
+            progress=_jsonable(self.progress),
+            plan_time_s=_jsonable(self.plan_time_s),
+            feasible=bool(self.feasible),
+            fallback=bool(self.fallback),
+            status=str(self.status),
+            method=str(self.method),
+            backend=str(self.backend),
+        )
+        rs = self.reduced_set
+        if rs is None:
+            out["reduced_set"] = None
+        else:
+            out["reduced_set"] = dict(
+                method=str(getattr(rs, "method", self.method)),
+                indices=np.asarray(rs.indices).astype(int).tolist(),
+                weights=_jsonable(np.asarray(rs.weights, np.float64)),
+                mmd2=_jsonable(np.asarray(getattr(rs, "mmd2", np.nan), np.float64)),
+            )
+        if diagnostics:
+            out["diagnostics"] = _jsonable(self.diagnostics)
+        return out
+
+
+def _jsonable(v: Any) -> Any:
+    """Arrays to (nested) lists, NumPy/JAX scalars to Python numbers, NaN/inf floats to None."""
+    if isinstance(v, dict):
+        return {str(k): _jsonable(x) for k, x in v.items()}
+    if isinstance(v, list | tuple):
+        return [_jsonable(x) for x in v]
+    if isinstance(v, bool | np.bool_):
+        return bool(v)
+    if isinstance(v, str) or v is None:
+        return v
+    if isinstance(v, int | np.integer) and not isinstance(v, bool):
+        return int(v)
+    if hasattr(v, "shape") or isinstance(v, float | np.floating):
+        a = np.asarray(v)
+        if a.dtype == bool:
+            return a.tolist()
+        if np.issubdtype(a.dtype, np.integer):
+            return a.tolist()
+        if np.issubdtype(a.dtype, np.number):
+            a = a.astype(np.float64)
+            return (
+                np.where(np.isfinite(a), a, None).tolist()
+                if a.ndim
+                else (float(a) if np.isfinite(a) else None)
+            )
+    return repr(v)
+
 
 # ------------------------------------------------------------------------------------- validation
 def _check_common(ego, road, method, config, backend, key):
