@@ -23,6 +23,7 @@ from typing import Any
 import jax
 import jax.numpy as jnp
 import numpy as np
+from numpy.typing import ArrayLike, NDArray
 
 import frenet
 import solvers
@@ -127,19 +128,19 @@ class Plan:
     sample of some obstacle: no collision-free plan was found).
     """
 
-    x: np.ndarray
-    y: np.ndarray
-    heading: np.ndarray
-    speed: np.ndarray
-    s: np.ndarray
-    d: np.ndarray
-    vs: np.ndarray
-    vd: np.ndarray
-    as_: np.ndarray
-    ad: np.ndarray
-    t: np.ndarray
+    x: NDArray[np.float64]
+    y: NDArray[np.float64]
+    heading: NDArray[np.float64]
+    speed: NDArray[np.float64]
+    s: NDArray[np.float64]
+    d: NDArray[np.float64]
+    vs: NDArray[np.float64]
+    vd: NDArray[np.float64]
+    as_: NDArray[np.float64]
+    ad: NDArray[np.float64]
+    t: NDArray[np.float64]
     cost: float
-    cost_trace: np.ndarray
+    cost_trace: NDArray[np.float64]
     residual: float
     mmd: float
     feasible: bool
@@ -147,13 +148,13 @@ class Plan:
     status: str
     method: str
     backend: str
-    reduced_set: Any
+    reduced_set: ReducedSet | None
     plan_time_s: float
-    diagnostics: dict = field(repr=False, default_factory=dict)
-    state: Any = field(repr=False, default=None)
+    diagnostics: dict[str, Any] = field(repr=False, default_factory=dict)
+    state: alg.CEMState | None = field(repr=False, default=None)
 
     @property
-    def xy(self) -> np.ndarray:
+    def xy(self) -> NDArray[np.float64]:
         """(K, 2) Cartesian waypoints."""
         return np.stack([self.x, self.y], axis=-1)
 
@@ -303,12 +304,12 @@ def _check_obstacles(obstacles, config: MMDOptConfig, method: str, name="obstacl
 def plan(
     ego: frenet.EgoState,
     road: Road,
-    obstacles: Any,
+    obstacles: ArrayLike,
     *,
     method: str = "mmd",
     config: MMDOptConfig | None = None,
     backend: str = PLANNER_BACKEND,
-    key: Any = None,
+    key: ArrayLike | None = None,
     reduced_set: ReducedSet | None = None,
     warm_start: alg.CEMState | None = None,
     **backend_settings: Any,
@@ -368,12 +369,12 @@ def plan(
 def plan_frenet(
     ego: frenet.EgoState,
     road: Road,
-    obstacles_frenet: Any,
+    obstacles_frenet: ArrayLike,
     *,
     method: str = "mmd",
     config: MMDOptConfig | None = None,
     backend: str = PLANNER_BACKEND,
-    key: Any = None,
+    key: ArrayLike | None = None,
     reduced_set: ReducedSet | None = None,
     warm_start: alg.CEMState | None = None,
     **backend_settings: Any,
