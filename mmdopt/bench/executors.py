@@ -101,7 +101,7 @@ def run_tasks(
 
 def _tick(bar) -> None:
     """One task done: advance the bar and clear the first-task note."""
-    if bar.postfix:
+    if getattr(bar, "postfix", None):  # a disabled bar has no postfix
         bar.set_postfix_str("", refresh=False)
     bar.update(1)
 
