@@ -55,3 +55,12 @@ def test_summary_headers_have_units_and_no_acceptance_targets(capsys):
     for h in ("collision-free (of 1000): mean", "progress (m)", "plan time (s)"):
         assert h in header
     assert "bars" not in out and "target" not in out and ">=" not in out.split("\n", 2)[2]
+
+
+def test_progress_bar_says_the_first_task_is_compiling(capsys):
+    from mmdopt.bench.executors import run_tasks
+
+    note = "compiling Algorithm 1 (first scene of each worker, ~30 s)…"
+    assert run_tasks(abs, [-1, -2], first_note=note, progress=True) == [1, 2]
+    assert note in capsys.readouterr().err
+    assert run_tasks(abs, [-3], first_note=note, progress=False) == [3]  # no bar, no note
