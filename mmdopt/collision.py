@@ -29,15 +29,21 @@ from __future__ import annotations
 
 import dataclasses
 import math
+from collections.abc import Sequence
 from dataclasses import dataclass, field
+from typing import TYPE_CHECKING
 
 import jax
 import jax.numpy as jnp
 import numpy as np
 from jax import lax
+from numpy.typing import ArrayLike
 
 from ._x64 import x64
 from .kernels import mmd2_to_dirac
+
+if TYPE_CHECKING:  # reduced_set imports this module
+    from .reduced_set import ReducedSet
 
 __all__ = [
     "ELLIPSE_A",
@@ -95,7 +101,7 @@ OBSTACLE_FOOTPRINT = CircleFootprint(offsets=(0.0, 2.5, -2.5))
 EGO_FOOTPRINT = CircleFootprint(offsets=(0.0,))
 
 
-def headings(xy: jax.Array) -> jax.Array:
+def headings(xy: ArrayLike) -> jax.Array:
     """Heading of each waypoint by forward differences, last value repeated.
 
     Parameters
@@ -114,7 +120,9 @@ def headings(xy: jax.Array) -> jax.Array:
     return jnp.concatenate([psi, psi[..., -1:]], axis=-1)
 
 
-def circle_centres(xy: jax.Array, footprint: CircleFootprint, heading: jax.Array | None = None):
+def circle_centres(
+    xy: ArrayLike, footprint: CircleFootprint, heading: ArrayLike | None = None
+) -> jax.Array:
     """Centres of the footprint circles along a trajectory.
 
     Parameters
@@ -279,7 +287,10 @@ class ReducedObstacles:
 
 
 def reduced_obstacles(
-    samples, reduced, footprint: CircleFootprint = OBSTACLE_FOOTPRINT, heading=None
+    samples: ArrayLike | Sequence[ArrayLike],
+    reduced: ReducedSet | Sequence[ReducedSet],
+    footprint: CircleFootprint = OBSTACLE_FOOTPRINT,
+    heading: ArrayLike | None = None,
 ) -> ReducedObstacles:
     """Build :class:`ReducedObstacles` from samples and reduced sets.
 
@@ -310,13 +321,13 @@ def reduced_obstacles(
     return ReducedObstacles(centres=circle_centres(sel, footprint, h), weights=reduced.weights)
 
 
-def ellipse_f(ego: jax.Array, obs: jax.Array, a, b) -> jax.Array:
+def ellipse_f(ego: ArrayLike, obs: ArrayLike, a: ArrayLike, b: ArrayLike) -> jax.Array:
     """eq. (coll_constraints): f = 1 − Δx²/a² − Δy²/b² (> 0 inside the ellipse), broadcasting."""
     d = jnp.asarray(ego) - jnp.asarray(obs)
     return 1.0 - d[..., 0] ** 2 / a**2 - d[..., 1] ** 2 / b**2
 
 
-def f_bar(ego: jax.Array, obs: jax.Array, a, b) -> jax.Array:
+def f_bar(ego: ArrayLike, obs: ArrayLike, a: ArrayLike, b: ArrayLike) -> jax.Array:
     """eq. (f_bar): f̄ = max(0, f)."""
     return jnp.maximum(ellipse_f(ego, obs, a, b), 0.0)
 
@@ -344,7 +355,10 @@ def _ego_centres(ego_xy, cfg, ego_heading):
 @x64
 @jax.jit
 def mmd_surrogate_terms(
-    ego_xy, obstacles: ReducedObstacles, config: SurrogateConfig, ego_heading=None
+    ego_xy: ArrayLike,
+    obstacles: ReducedObstacles,
+    config: SurrogateConfig,
+    ego_heading: ArrayLike | None = None,
 ) -> jax.Array:
     """Per-step terms of :func:`mmd_surrogate`: (B, K, 2) -> (B, O, K)."""
     ego_xy = jnp.asarray(ego_xy)
@@ -367,10 +381,10 @@ def mmd_surrogate_terms(
 @x64
 @jax.jit
 def mmd_surrogate(
-    ego_xy,
+    ego_xy: ArrayLike,
     obstacles: ReducedObstacles,
     config: SurrogateConfig = SurrogateConfig(),  # noqa: B008
-    ego_heading=None,
+    ego_heading: ArrayLike | None = None,
 ) -> jax.Array:
     """eq. (l_dist) summed over time steps and obstacles, for a batch of ego trajectories.
 
@@ -422,13 +436,13 @@ def _count(ego_xy, samples, obstacle_footprint, ego_footprint, a, b, ego_heading
 
 @x64
 def collision_free_count(
-    ego_xy,
-    validation_samples,
+    ego_xy: ArrayLike,
+    validation_samples: ArrayLike,
     obstacle_footprint: CircleFootprint = OBSTACLE_FOOTPRINT,
     ego_footprint: CircleFootprint = EGO_FOOTPRINT,
     a: float = ELLIPSE_A,
     b: float = ELLIPSE_B,
-    ego_heading=None,
+    ego_heading: ArrayLike | None = None,
 ) -> CollisionCounts:
     """Count validation samples the ego plan(s) avoid (SPEC §h: any f̄ > 0, any circle, any step).
 

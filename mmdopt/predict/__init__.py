@@ -18,6 +18,7 @@ from .base import (
 )
 from .baselines import ConstantVelocity, LaneAware
 from .metrics import evaluate_predictor, kde_nll, min_ade_fde
+from .resample import resample_prediction
 
 __all__ = [
     "GAP_NONE",
@@ -33,6 +34,7 @@ __all__ = [
     "evaluate_predictor",
     "kde_nll",
     "min_ade_fde",
+    "resample_prediction",
 ]
 
 #: Predictor names accepted by :func:`make_predictor` (and ``--predictor``).
