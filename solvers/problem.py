@@ -198,17 +198,19 @@ class QP:
         :class:`~solvers.errors.NonConvexError` (a Cholesky of ``P + εI``); ``False`` skips the
         check on large problems, at the caller's risk.
 
+    Notes
+    -----
     Every argument is validated on construction: wrong shapes, non-numeric or complex data,
     NaN/inf in the matrices or in ``q``, NaN in the bounds, ``l > u``, ``l = +inf``, ``u = −inf``
     raise :class:`ValueError` naming the argument.
 
-    Example::
-
-        >>> import numpy as np
-        >>> from solvers import QP, solve
-        >>> qp = QP(np.eye(2), [1.0, -1.0], np.eye(2), [-0.5, -0.5], [1.0, 1.0])
-        >>> solve(qp, backend="clarabel").x.round(6)
-        array([-0.5,  1. ])
+    Examples
+    --------
+    >>> import numpy as np
+    >>> from solvers import QP, solve
+    >>> qp = QP(np.eye(2), [1.0, -1.0], np.eye(2), [-0.5, -0.5], [1.0, 1.0])
+    >>> solve(qp, backend="clarabel").x.round(6)
+    array([-0.5,  1. ])
     """
 
     P: Matrix
