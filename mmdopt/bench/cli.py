@@ -29,7 +29,7 @@ __all__ = ["main", "build_parser"]
 from mmdopt.algorithm import PLANNER_BACKEND
 from mmdopt.baselines import METHODS as PLAN_METHODS
 
-from .executors import EXECUTORS
+from .executors import EXECUTORS, Interrupted, stop_on_signals
 
 REDUCED_SET_METHODS = ("mmd", "herding", "degroot", "random")
 
@@ -301,54 +301,96 @@ def _planner_config(args, parser):
 def load_planner_config(path):
     """``MMDOptConfig().replace(**overrides)`` from a JSON object of field names; the nested
     ``reduced_set`` takes a JSON object of ``ReducedSetConfig`` fields.  Unknown keys, wrong
-    types or invalid values raise ``ValueError`` naming the key."""
+    types, NaN/Infinity or invalid values raise ``ValueError`` naming the key."""
     try:
         raw = json.loads(Path(path).read_text())
     except json.JSONDecodeError as e:
         raise ValueError(f"{path} is not valid JSON: {e}") from None
+    except (OSError, UnicodeDecodeError) as e:
+        raise ValueError(f"{path} cannot be read: {e}") from None
     return load_planner_config_from_dict(raw)
+
+
+def _non_finite_key(obj, prefix: str = "") -> str | None:
+    """The key path of the first NaN/Infinity number in a parsed JSON value, else ``None``."""
+    import math
+
+    if isinstance(obj, float) and not math.isfinite(obj):
+        return prefix or "(top level)"
+    if isinstance(obj, dict):
+        for k, v in obj.items():
+            hit = _non_finite_key(v, f"{prefix}.{k}" if prefix else str(k))
+            if hit:
+                return hit
+    if isinstance(obj, list):
+        for i, v in enumerate(obj):
+            hit = _non_finite_key(v, f"{prefix}[{i}]")
+            if hit:
+                return hit
+    return None
+
+
+def _typed_overrides(cls, raw: dict, prefix: str = "") -> dict:
+    """Check ``raw`` against the fields of the dataclass ``cls`` by their defaults' types:
+    integers, numbers (ints accepted, converted to float), strings, and ``None``-default fields
+    as numbers or ``null``.  Raises ``ValueError`` naming the key."""
+    import dataclasses
+
+    fields = {f.name: f for f in dataclasses.fields(cls)}
+    bad = sorted(set(raw) - set(fields))
+    if bad:
+        raise ValueError(
+            f"unknown {cls.__name__} field(s) {', '.join(prefix + b for b in bad)}; "
+            f"known: {', '.join(sorted(fields))}"
+        )
+    base = cls()
+    kw = {}
+    for k, v in raw.items():
+        name = prefix + k
+        default = getattr(base, k)
+        number = isinstance(v, int | float) and not isinstance(v, bool)
+        if isinstance(default, bool):
+            if not isinstance(v, bool):
+                raise ValueError(f"{name} must be true or false, got {v!r}")
+        elif default is None:
+            if v is not None and not number:
+                raise ValueError(f"{name} must be a number or null, got {v!r}")
+            v = None if v is None else float(v)
+        elif isinstance(default, int):
+            if not (isinstance(v, int) and not isinstance(v, bool)):
+                raise ValueError(f"{name} must be an integer, got {v!r}")
+        elif isinstance(default, float):
+            if not number:
+                raise ValueError(f"{name} must be a number, got {v!r}")
+            v = float(v)
+        elif isinstance(default, str):
+            if not isinstance(v, str):
+                raise ValueError(f"{name} must be a string, got {v!r}")
+        kw[k] = v
+    return kw
 
 
 def load_planner_config_from_dict(raw):
     """:func:`load_planner_config` from an already parsed JSON value."""
-    import dataclasses
-
     from mmdopt.algorithm import MMDOptConfig
     from mmdopt.reduced_set import ReducedSetConfig
 
     if not isinstance(raw, dict):
         raise ValueError("the config must be a JSON object of MMDOptConfig fields")
-    fields = {f.name: f for f in dataclasses.fields(MMDOptConfig)}
-    bad = sorted(set(raw) - set(fields))
-    if bad:
-        raise ValueError(
-            f"unknown MMDOptConfig field(s) {', '.join(bad)}; known: {', '.join(sorted(fields))}"
-        )
-    kw = dict(raw)
-    if "reduced_set" in kw:
-        rs = kw["reduced_set"]
-        if not isinstance(rs, dict):
+    hit = _non_finite_key(raw)
+    if hit:
+        raise ValueError(f"{hit} is NaN or Infinity; every value must be a finite number")
+    rs_raw = raw.get("reduced_set")
+    kw = _typed_overrides(MMDOptConfig, {k: v for k, v in raw.items() if k != "reduced_set"})
+    if "reduced_set" in raw:
+        if not isinstance(rs_raw, dict):
             raise ValueError("reduced_set must be a JSON object of ReducedSetConfig fields")
+        rs_kw = _typed_overrides(ReducedSetConfig, rs_raw, "reduced_set.")
         try:
-            kw["reduced_set"] = ReducedSetConfig(**rs)
-        except TypeError as e:
+            kw["reduced_set"] = ReducedSetConfig(**rs_kw)
+        except (TypeError, ValueError) as e:
             raise ValueError(f"reduced_set: {e}") from None
-    base = MMDOptConfig()
-    for k, v in kw.items():
-        if k == "reduced_set":
-            continue
-        default = getattr(base, k)
-        if isinstance(default, bool) or default is None:
-            continue
-        if isinstance(default, int) and not (isinstance(v, int) and not isinstance(v, bool)):
-            raise ValueError(f"{k} must be an integer, got {v!r}")
-        if isinstance(default, float) and not (
-            isinstance(v, int | float) and not isinstance(v, bool)
-        ):
-            raise ValueError(f"{k} must be a number, got {v!r}")
-        if isinstance(default, float):
-            kw[k] = float(v)
-    return base.replace(**kw)
+    return MMDOptConfig().replace(**kw)
 
 
 def _table(rows: Sequence[dict], cols: Sequence[str]) -> str:
@@ -475,6 +517,7 @@ def cmd_synthetic(args, parser) -> int:
             progress=not args.no_progress,
             executor=args.executor,
             address=args.address,
+            isolate=True,
         )
     except ValueError as e:
         parser.error(str(e))
@@ -513,6 +556,7 @@ def cmd_reduced_set(args, parser) -> int:
             progress=not args.no_progress,
             executor=args.executor,
             address=args.address,
+            isolate=True,
         )
     except ValueError as e:
         parser.error(str(e))
@@ -524,6 +568,19 @@ def cmd_reduced_set(args, parser) -> int:
 def cmd_timing(args, parser) -> int:
     from .timing import run_timing
 
+    low = [n for n in args.samples if n < min(args.sizes)]
+    if low:
+        parser.error(
+            f"argument --samples: {','.join(map(str, low))} below the smallest reduced-set size "
+            f"{min(args.sizes)} (--sizes): the sample sweep runs at the smallest size, which "
+            "needs n >= m"
+        )
+    big = [m for m in args.sizes if m > 100]
+    if big:
+        parser.error(
+            f"argument --sizes: {','.join(map(str, big))} above 100, the number of samples the "
+            "size sweep uses"
+        )
     res = run_timing(
         args.out,
         sizes=args.sizes,
@@ -581,20 +638,52 @@ def cmd_qp_backends(args, parser) -> int:
     return int(qp_backends.main(rest) or 0)
 
 
+def _check_out(args, parser) -> None:
+    """``--out`` must be a folder this process can create and write into (exit 2 otherwise)."""
+    out = getattr(args, "out", None)
+    if out is None:
+        return
+    p = Path(out)
+    if p.exists() and not p.is_dir():
+        parser.error(f"argument --out: {out!r} exists and is not a folder")
+    try:
+        p.mkdir(parents=True, exist_ok=True)
+    except OSError as e:
+        parser.error(f"argument --out: cannot create folder {out!r}: {e.strerror or e}")
+    probe = p / f".write_test{os.getpid()}"
+    try:
+        probe.write_text("")
+        probe.unlink()
+    except OSError as e:
+        parser.error(f"argument --out: folder {out!r} is not writable: {e.strerror or e}")
+
+
 def main(argv: Sequence[str] | None = None) -> int:
-    """Entry point of the ``mmdopt`` console script; returns the exit status."""
+    """Entry point of the ``mmdopt`` console script; returns the exit status.
+
+    SIGINT and SIGTERM stop a run cleanly: every worker is terminated, finished result files are
+    kept (writes are atomic), one line goes to stderr and the status is 130 / 143."""
     parser = build_parser()
     args = parser.parse_args(argv)
     if args.command == "demo":
-        return cmd_demo(args, parser)
-    cmd = {
-        "synthetic": cmd_synthetic,
-        "reduced-set": cmd_reduced_set,
-        "timing": cmd_timing,
-        "figure": cmd_figure,
-        "qp-backends": cmd_qp_backends,
-    }[args.experiment]
-    return cmd(args, parser)
+        cmd = cmd_demo
+    else:
+        cmd = {
+            "synthetic": cmd_synthetic,
+            "reduced-set": cmd_reduced_set,
+            "timing": cmd_timing,
+            "figure": cmd_figure,
+            "qp-backends": cmd_qp_backends,
+        }[args.experiment]
+    try:
+        with stop_on_signals():
+            _check_out(args, parser)
+            return cmd(args, parser)
+    except Interrupted as e:
+        where = getattr(args, "out", None)
+        kept = f"; finished results are kept in {where} (run the same command to resume)"
+        print(f"mmdopt: stopped by {e.name}{kept if where else ''}", file=sys.stderr)
+        return e.exit_status
 
 
 if __name__ == "__main__":  # pragma: no cover
