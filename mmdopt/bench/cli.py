@@ -298,6 +298,23 @@ def _planner_config(args, parser):
         parser.error(f"argument --config: {e}")
 
 
+def _checked_config(args, parser, methods):
+    """``--config`` parsed and checked against the scenes and methods (the planning problem is
+    built once) before anything is written into ``--out``; errors name the option."""
+    from .synthetic import check_sweep_config
+
+    params = _scene_params(args, parser)
+    config = _planner_config(args, parser)
+    try:
+        check_sweep_config(params, config, methods, args.backend, args.seed)
+    except ValueError as e:
+        opt = "--config" if args.config is not None else "--scene-params"
+        if args.config is not None and args.scene_params is not None:
+            opt = "--config/--scene-params"
+        parser.error(f"argument {opt}: {e}")
+    return params, config
+
+
 def load_planner_config(path):
     """``MMDOptConfig().replace(**overrides)`` from a JSON object of field names; the nested
     ``reduced_set`` takes a JSON object of ``ReducedSetConfig`` fields.  Unknown keys, wrong
@@ -503,11 +520,11 @@ def cmd_synthetic(args, parser) -> int:
     from . import plots
     from .synthetic import run_synthetic
 
-    params = _scene_params(args, parser)
+    params, config = _checked_config(args, parser, args.methods)
     try:
         res = run_synthetic(
             args.out,
-            config=_planner_config(args, parser),
+            config=config,
             scenes=args.scenes,
             seed=args.seed,
             params=params,
@@ -541,11 +558,11 @@ def cmd_synthetic(args, parser) -> int:
 def cmd_reduced_set(args, parser) -> int:
     from .reduced_set import run_reduced_set
 
-    params = _scene_params(args, parser)
+    params, config = _checked_config(args, parser, ["mmd"])
     try:
         res = run_reduced_set(
             args.out,
-            config=_planner_config(args, parser),
+            config=config,
             scenes=args.scenes,
             seed=args.seed,
             params=params,

@@ -154,6 +154,7 @@ def check_sweep_config(
     ``ValueError``; the runners call it before writing anything into the sweep folder."""
     from mmdopt import algorithm as alg
     from mmdopt.api import _check_obstacles
+    from mmdopt.baselines import METHODS
 
     if config is not None and not isinstance(config, mmdopt.MMDOptConfig):
         raise ValueError(f"config must be an mmdopt.MMDOptConfig, got {type(config).__name__}")
@@ -161,8 +162,8 @@ def check_sweep_config(
     cfg = scene_config(scene, config)
     alg.check_backend(backend, {})
     for m in methods:
-        if m not in mmdopt.METHODS:
-            raise ValueError(f"method must be one of {mmdopt.METHODS}, got {m!r}")
+        if m not in METHODS:
+            raise ValueError(f"method must be one of {METHODS}, got {m!r}")
         _check_obstacles(scene.obstacles, cfg, m, name="the scene's obstacle samples")
     road = scene.road()
     alg.build_problem(cfg, road.bounds())
