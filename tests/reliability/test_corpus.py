@@ -658,3 +658,21 @@ def test_given_reduced_set_plan_is_ok():
     p = _plan(reduced_set=GOOD_RS)
     assert _status_ok(p) == "ok", p.status
     assert np.allclose(np.asarray(p.reduced_set.weights), GOOD_W)
+
+
+# ------------------------------------------------------------------------ bench timing (library)
+@pytest.mark.parametrize(
+    "kw,pattern",
+    [
+        (dict(sizes=[10, 20], samples=[5, 50]), "samples"),
+        (dict(sizes=[10, 200], samples=[50]), "sizes"),
+        (dict(sizes=[0], samples=[50]), "sizes"),
+        (dict(sizes=[], samples=[50]), "sizes"),
+    ],
+    ids=["samples-below-sizes", "size-above-100", "size-0", "no-sizes"],
+)
+def test_timing_refuses_instead_of_dropping(tmp_path, kw, pattern):
+    from mmdopt.bench.timing import run_timing
+
+    check(lambda: run_timing(tmp_path, progress=False, **kw), ValueError, pattern)
+    assert not (tmp_path / "timing.csv").exists()
