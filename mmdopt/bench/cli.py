@@ -656,23 +656,24 @@ def cmd_qp_backends(args, parser) -> int:
 
 
 def _check_out(args, parser) -> None:
-    """``--out`` must be a folder this process can create and write into (exit 2 otherwise)."""
+    """``--out`` must be a folder, or a path where one can be created, that this process can
+    write into (exit 2 otherwise).  Nothing is created here."""
     out = getattr(args, "out", None)
     if out is None:
         return
     p = Path(out)
     if p.exists() and not p.is_dir():
         parser.error(f"argument --out: {out!r} exists and is not a folder")
-    try:
-        p.mkdir(parents=True, exist_ok=True)
-    except OSError as e:
-        parser.error(f"argument --out: cannot create folder {out!r}: {e.strerror or e}")
-    probe = p / f".write_test{os.getpid()}"
-    try:
-        probe.write_text("")
-        probe.unlink()
-    except OSError as e:
-        parser.error(f"argument --out: folder {out!r} is not writable: {e.strerror or e}")
+    parent = p
+    while not parent.exists():
+        if parent.parent == parent:
+            break
+        parent = parent.parent
+    if parent.exists() and not parent.is_dir():
+        parser.error(f"argument --out: cannot create folder {out!r}: {str(parent)!r} is a file")
+    if not os.access(parent, os.W_OK | os.X_OK):
+        what = "is not writable" if parent == p else f"cannot be created in {str(parent)!r}"
+        parser.error(f"argument --out: folder {out!r} {what} (permission denied)")
 
 
 def main(argv: Sequence[str] | None = None) -> int:
