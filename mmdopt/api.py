@@ -240,6 +240,7 @@ def plan(
     key: Any = None,
     reduced_set: ReducedSet | None = None,
     warm_start: alg.CEMState | None = None,
+    risk: float | None = None,
     **backend_settings: Any,
 ) -> Plan:
     """Plan with Algorithm 1 against Cartesian obstacle-trajectory samples.
@@ -262,6 +263,9 @@ def plan(
         selection (methods whose cost uses a reduced set: "mmd", "random", "degroot")
     warm_start : optional :class:`mmdopt.algorithm.CEMState` (e.g. ``algorithm.shift`` of the
         previous plan's ``state``): the sampling distribution and elites start from it
+    risk : optional target collision probability ε in (0, 0.5), the method's risk knob: the
+        method's margins and chance level follow from it (:func:`mmdopt.risk.config_for_risk`,
+        applied to ``config``); ``None``: ``config`` as given
 
     Returns
     -------
@@ -279,6 +283,7 @@ def plan(
     config = MMDOptConfig() if config is None else config
     key = jax.random.PRNGKey(0) if key is None else key
     _check_common(ego, road, method, config, backend, key)
+    config = _apply_risk(method, risk, config)
     alg.check_backend(backend, backend_settings)
     arr = _check_obstacles(obstacles, config, method)
     t1 = time.perf_counter()
@@ -305,6 +310,7 @@ def plan_frenet(
     key: Any = None,
     reduced_set: ReducedSet | None = None,
     warm_start: alg.CEMState | None = None,
+    risk: float | None = None,
     **backend_settings: Any,
 ) -> Plan:
     """:func:`plan` with obstacle samples already in the Frenet frame of ``road.path``:
@@ -314,6 +320,7 @@ def plan_frenet(
     config = MMDOptConfig() if config is None else config
     key = jax.random.PRNGKey(0) if key is None else key
     _check_common(ego, road, method, config, backend, key)
+    config = _apply_risk(method, risk, config)
     alg.check_backend(backend, backend_settings)
     arr = _check_obstacles(obstacles_frenet, config, method, name="obstacles_frenet")
     diag = {"frenet_conversion_s": 0.0}
@@ -321,6 +328,14 @@ def plan_frenet(
         ego, road, arr, method, config, backend, key, backend_settings, t0, diag,
         reduced_set, warm_start,
     )  # fmt: skip
+
+
+def _apply_risk(method: str, risk: Any, config: MMDOptConfig) -> MMDOptConfig:
+    if risk is None:
+        return config
+    from .risk import config_for_risk
+
+    return config_for_risk(method, risk, config)
 
 
 def _check_reduced_set(rs: Any, O: int, n: int, method: str) -> ReducedSet:
@@ -407,8 +422,25 @@ def _plan_impl(
     diag["reduced_set_s"] = time.perf_counter() - t1
     sel = np.take_along_axis(obs_fr, np.asarray(rs.indices)[:, :, None, None], axis=1)
     centres = circle_centres(jnp.asarray(sel), OBSTACLE_FOOTPRINT)  # (O, J, C, K, 2)
+    margins = None
+    if config.margin_mode == "samples":
+        from .risk import coverage_margins
+
+        t3 = time.perf_counter()
+        knn = 0
+        if SELECTION[method] is None:
+            knn = config.coverage_knn or max(2, n // config.reduced_set_size)
+        margins = coverage_margins(
+            obs_fr,
+            np.asarray(rs.indices),
+            float(config.risk_eps),
+            lateral_scale=float(config.rs_lateral_scale),
+            prior=float(config.coverage_prior),
+            knn=knn,
+        )
+        diag["margins_s"] = time.perf_counter() - t3
     obstacles = alg.ObstacleSet.create(
-        config, centres, np.asarray(rs.weights, np.float64), COST_MODE[method]
+        config, centres, np.asarray(rs.weights, np.float64), COST_MODE[method], margins=margins
     )
     ctx = _Ctx(ego, road, config, prob, method, backend, rs, t0, diag, obs_fr, obstacles)
 
@@ -488,13 +520,18 @@ def _assemble(ctx: _Ctx, cx, cy, dvec, cost, best_iter, fallback, status, state)
             f"{float(config.res_tol):g}"
         )
     ob = ctx.obstacles
-    f = ellipse_values(
-        jnp.asarray(s[None]),
-        jnp.asarray(d[None]),
-        ob.centres,
-        planning_semi_axis(config, prob.t()),
-        config.b + config.margin_lat,
-    )
+    if ob.margins is not None:
+        f = alg.margin_ellipse_values(
+            config, jnp.asarray(s[None]), jnp.asarray(d[None]), ob.centres, ob.margins
+        )
+    else:
+        f = ellipse_values(
+            jnp.asarray(s[None]),
+            jnp.asarray(d[None]),
+            ob.centres,
+            planning_semi_axis(config, prob.t()),
+            config.b + config.margin_lat,
+        )
     mmd_val = float(
         _mmd_cost_jit(f, ob.weights, config.bandwidth, config.f_scale, n_taylor_terms(config))[0]
     )

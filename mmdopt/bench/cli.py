@@ -6,6 +6,8 @@
     mmdopt bench synthetic   --scenes N --seed S --out DIR [--methods mmd,degroot,random,saa]
                              [--scene-params FILE.json] [--backend NAME] [--config FILE.json]
                              [--preset paper100|reference36|lanechange] [--jobs J]
+    mmdopt bench frontier    --out DIR [--knobs 'mmd=0.001,0.005;saa=0.02'] [--methods ...]
+                             (safety-progress frontier: every method's risk knob swept)
     mmdopt bench reduced-set --scenes N --random-sets R --out DIR       (paper Fig. 4)
     mmdopt bench timing      --out DIR [--sizes 10,20,30,40,50] [--samples 50,100,200]
     mmdopt bench figure      --scene I --out DIR                        (paper Fig. 3)
@@ -153,7 +155,7 @@ def build_parser() -> argparse.ArgumentParser:
     bs = b.add_subparsers(
         dest="experiment",
         required=True,
-        metavar="{synthetic,reduced-set,timing,figure,qp-backends}",
+        metavar="{synthetic,frontier,reduced-set,timing,figure,qp-backends}",
     )
 
     def common(q, scenes_default):
@@ -205,6 +207,22 @@ def build_parser() -> argparse.ArgumentParser:
         type=_methods(PLAN_METHODS),
         default=["mmd", "degroot", "random", "saa"],
         help="comma-separated methods (default: mmd,degroot,random,saa)",
+    )
+
+    fr = bs.add_parser("frontier", help="safety-progress frontier: each method's risk knob swept")
+    common(fr, None)
+    fr.add_argument("--out", required=True, help="output folder (resumable)")
+    fr.add_argument(
+        "--methods",
+        type=_methods(PLAN_METHODS),
+        default=list(PLAN_METHODS),
+        help="comma-separated methods (default: all five)",
+    )
+    fr.add_argument(
+        "--knobs",
+        default=None,
+        help="knob grids (target collision probability) per method, e.g. "
+        "'mmd=0.001,0.005,0.02;saa=0.005,0.02' (default: mmdopt.bench.frontier.DEFAULT_KNOBS)",
     )
 
     r = bs.add_parser(
@@ -495,6 +513,48 @@ def cmd_synthetic(args, parser) -> int:
     return 0
 
 
+def cmd_frontier(args, parser) -> int:
+    from .frontier import TARGET_LEVELS, parse_knobs, run_frontier
+
+    params = _scene_params(args, parser)
+    try:
+        knobs = parse_knobs(args.knobs, args.methods)
+    except ValueError as e:
+        parser.error(f"argument --knobs: {e}")
+    try:
+        res = run_frontier(
+            args.out,
+            knobs=knobs,
+            methods=args.methods,
+            config=_planner_config(args, parser),
+            scenes=args.scenes,
+            seed=args.seed,
+            params=params,
+            backend=args.backend,
+            jobs=args.jobs,
+            progress=not args.no_progress,
+            executor=args.executor,
+            address=args.address,
+        )
+    except ValueError as e:
+        parser.error(str(e))
+    cols = ["method", "knob", "scenes", "mean", "q1", "min", "progress_m", "plan_time_s"]
+    print(_table(res["points"], cols))
+    lv = [f"{x:g}" for x in TARGET_LEVELS]
+    rows = [
+        {"method": m, **{f"progress_m@{k}": v[k] for k in lv}}
+        for m, v in res["interpolated"].items()
+    ]
+    print("interpolated mean progress (m) at mean collision-free level (of 1000); nan: not reached")
+    print(_table(rows, ["method", *[f"progress_m@{k}" for k in lv]]))
+    out = Path(args.out)
+    print(
+        f"{res['computed']} plans computed, {res['reused']} reused, {res['wall_s']:.1f} s; wrote "
+        f"{out / 'frontier.csv'}, {out / 'frontier_summary.json'}, {out / 'frontier.png'}"
+    )
+    return 0
+
+
 def cmd_reduced_set(args, parser) -> int:
     from .reduced_set import run_reduced_set
 
@@ -589,6 +649,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         return cmd_demo(args, parser)
     cmd = {
         "synthetic": cmd_synthetic,
+        "frontier": cmd_frontier,
         "reduced-set": cmd_reduced_set,
         "timing": cmd_timing,
         "figure": cmd_figure,

@@ -109,6 +109,19 @@ def _run_pool(fn, tasks, jobs, bar) -> Iterable[Any]:
             os.environ["XLA_FLAGS"] = env_old
 
 
+def _code_root() -> str:
+    """The folder holding the ``mmdopt``, ``frenet`` and ``solvers`` packages this process runs."""
+    return str(Path(__file__).resolve().parents[2])
+
+
+def _worker_env() -> dict[str, str]:
+    """Environment of local Ray workers: one XLA thread each (as the local pool's workers, so
+    both executors compute the same numbers) and this process's code first on the path (an
+    installed ``mmdopt`` elsewhere, e.g. an editable install of another checkout, must not win)."""
+    path = [_code_root()] + [p for p in os.environ.get("PYTHONPATH", "").split(os.pathsep) if p]
+    return {"XLA_FLAGS": _ONE_XLA_THREAD, "PYTHONPATH": os.pathsep.join(path)}
+
+
 def _run_ray(fn, tasks, jobs, address, bar) -> Iterable[Any]:
     try:
         import ray
@@ -119,7 +132,7 @@ def _run_ray(fn, tasks, jobs, address, bar) -> Iterable[Any]:
         kw: dict[str, Any] = dict(ignore_reinit_error=True, log_to_driver=False)
         if address is None:
             kw.update(num_cpus=jobs, include_dashboard=False)
-            kw["runtime_env"] = {"env_vars": {"XLA_FLAGS": _ONE_XLA_THREAD}}
+            kw["runtime_env"] = {"env_vars": _worker_env()}
         else:
             kw["address"] = address
         ray.init(**kw)
