@@ -146,6 +146,8 @@ class MMDOptConfig:
     a small cluster is shrunk towards; ``coverage_knn`` (0: ``n // reduced_set_size``) the
     neighbourhood size that stands for a sample's cluster when a method plans on all samples.
     The margins are computed in :func:`mmdopt.plan` and travel in the :class:`ObstacleSet`;
+    ``w_cover`` weighs the coverage term ``Σ_j Σ_k f̄_jk`` on these inflated ellipses that
+    MMD-Opt adds to ``l_dist`` in this mode (any entry costs, whatever the point's weight ᾱ).
     ``margin_mode = "linear"`` keeps the constants above.  ``reduced_set`` configures the
     reduced-set selection; ``rs_lateral_scale``
     multiplies the samples' lateral offsets in the selection's kernel features (an anisotropic
@@ -197,6 +199,7 @@ class MMDOptConfig:
     saa_eps: float = 0.02
     saa_temperature: float = 0.05
     risk_eps: float = 0.005
+    w_cover: float = 0.0
     coverage_prior: float = 2.0
     reduced_set: ReducedSetConfig = field(default_factory=ReducedSetConfig)
 
@@ -569,6 +572,12 @@ def _collision_term(cfg: MMDOptConfig, prob: CEMProblem, s, dd, obstacles: Obsta
         coll = mmd_cost(
             f, obstacles.weights.astype(dt), cfg.bandwidth, cfg.f_scale, obstacles.n_terms
         )
+        if obstacles.margins is not None:
+            # coverage term (issue 11): every penetration of a point's coverage ellipse costs
+            # w_cover·f̄ whatever the point's weight ᾱ (the 1 − ε coverage holds only if no
+            # ellipse is entered); returned weighted (the term's weight is then 1)
+            cover = scenario_cost(f, obstacles.mask)
+            return cfg.w_mmd * coll + cfg.w_cover * cover, jnp.asarray(1.0, dt)
         return coll, cfg.w_mmd
     if mode == "scenario":
         return scenario_cost(f, obstacles.mask), cfg.w_coll

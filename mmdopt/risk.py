@@ -12,7 +12,9 @@ method              what ε sets
 ``"random"``        point's ellipse is inflated, per time step, to contain the planning
 ``"degroot"``       samples of its cluster (the samples nearer to it than to any other
                     point) with probability 1 − ε under a Gaussian fit (z = Φ⁻¹(1 − ε));
-                    the weights ᾱ and w_mmd / w_coll are unchanged
+                    the weights ᾱ and w_mmd / w_coll are unchanged; the MMD cost
+                    ("mmd", "random") adds ``w_cover`` = 100 × Σ f̄ on the inflated
+                    ellipses (entering any costs, whatever ᾱ)
 ``"scenario_all"``  the same margins, each sample's cluster being its ``n // m`` nearest
                     samples (it plans against every sample already: the margin covers
                     the tail beyond the n samples)
@@ -49,8 +51,10 @@ DEFAULT_RISK: dict[str, float] = {
     "random": 0.005,
     "degroot": 0.005,
     "scenario_all": 0.005,
-    "saa": 0.02,
+    "saa": 0.005,
 }
+#: weight of the coverage term of the MMD cost in the "samples" margin mode (``w_cover``)
+W_COVER = 100.0
 
 
 def check_risk(risk: float, name: str = "risk") -> float:
@@ -87,6 +91,8 @@ def config_for_risk(
     if not isinstance(cfg, MMDOptConfig):
         raise ValueError(f"config must be an MMDOptConfig, got {type(cfg).__name__}")
     kw: dict = dict(margin_mode="samples", risk_eps=eps)
+    if method in ("mmd", "random"):
+        kw["w_cover"] = W_COVER
     if method == "saa":
         kw["saa_eps"] = eps
     return cfg.replace(**kw)

@@ -25,6 +25,7 @@ def test_every_method_has_a_knob_with_a_default():
     for m in mmdopt.PLAN_METHODS:
         cfg = config_for_risk(m)
         assert cfg.margin_mode == "samples" and cfg.risk_eps == DEFAULT_RISK[m]
+        assert cfg.w_cover == (100.0 if m in ("mmd", "random") else 0.0)
     assert config_for_risk("saa", 0.03).saa_eps == 0.03
     # the knob only changes what it maps to: the rest of the caller's config is kept
     assert config_for_risk("mmd", 0.01, SMALL).n_samples == SMALL.n_samples

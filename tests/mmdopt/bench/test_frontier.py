@@ -59,24 +59,22 @@ def test_frontier_cli_contract_and_resume(tmp_path, capsys):
     )
     out = tmp_path / "f"
     argv = ["bench", "frontier", "--scenes", "1", "--seed", "3", "--out", str(out),
-            "--methods", "mmd,saa", "--knobs", "mmd=0.002,0.1;saa=0.05", "--jobs", "1",
+            "--methods", "mmd", "--knobs", "mmd=0.002,0.1", "--jobs", "1",
             "--scene-params", str(small), "--config", str(tiny), "--no-progress"]  # fmt: skip
     assert cli.main(argv) == 0
     text = capsys.readouterr().out
-    assert "3 plans computed, 0 reused" in text and "progress_m@995" in text
+    assert "2 plans computed, 0 reused" in text and "progress_m@995" in text
     with open(out / "frontier.csv") as f:
         reader = csv.DictReader(f)
         rows = list(reader)
     assert reader.fieldnames[: len(CONTRACT)] == list(CONTRACT)
-    assert sorted((r["method"], float(r["knob"])) for r in rows) == [
-        ("mmd", 0.002), ("mmd", 0.1), ("saa", 0.05)
-    ]  # fmt: skip
+    assert sorted((r["method"], float(r["knob"])) for r in rows) == [("mmd", 0.002), ("mmd", 0.1)]
     assert all(0 <= int(r["collision_free"]) <= int(r["n_validation"]) == 200 for r in rows)
     assert (out / "frontier.png").stat().st_size > 0
     summary = json.loads((out / "frontier_summary.json").read_text())
-    assert set(summary["interpolated"]) == {"mmd", "saa"}
+    assert set(summary["interpolated"]) == {"mmd"}
     assert cli.main(argv) == 0
-    assert "0 plans computed, 3 reused" in capsys.readouterr().out
+    assert "0 plans computed, 2 reused" in capsys.readouterr().out
     with pytest.raises(SystemExit) as e:
         cli.main(argv[:-2] + ["--knobs", "mmd=0.9", "--no-progress"])
     assert e.value.code == 2 and "--knobs" in capsys.readouterr().err
