@@ -31,6 +31,15 @@ __all__ = ["EXECUTORS", "run_tasks", "check_manifest"]
 EXECUTORS = ("local", "ray")
 
 _ONE_XLA_THREAD = "--xla_cpu_multi_thread_eigen=false"
+#: the environment of every worker process (local pool and local Ray): one XLA / BLAS / OpenMP
+#: thread each, so that both executors compute bit-identical numbers (Ray sets
+#: OMP_NUM_THREADS=1 in its workers; multi-threaded BLAS sums in another order)
+_WORKER_ENV = {
+    "XLA_FLAGS": _ONE_XLA_THREAD,
+    "OMP_NUM_THREADS": "1",
+    "OPENBLAS_NUM_THREADS": "1",
+    "MKL_NUM_THREADS": "1",
+}
 
 
 def check_manifest(out: str | Path, manifest: dict[str, Any], name: str = "run.json") -> None:
@@ -93,8 +102,10 @@ def run_tasks(
 
 
 def _run_pool(fn, tasks, jobs, bar) -> Iterable[Any]:
-    env_old = os.environ.get("XLA_FLAGS")
-    os.environ["XLA_FLAGS"] = (env_old + " " if env_old else "") + _ONE_XLA_THREAD
+    saved = {k: os.environ.get(k) for k in _WORKER_ENV}
+    for k, v in _WORKER_ENV.items():
+        old = saved[k]
+        os.environ[k] = (old + " " + v) if (k == "XLA_FLAGS" and old) else v
     try:
         ctx = mp.get_context("spawn")
         with cf.ProcessPoolExecutor(max_workers=min(jobs, len(tasks)), mp_context=ctx) as ex:
@@ -103,10 +114,11 @@ def _run_pool(fn, tasks, jobs, bar) -> Iterable[Any]:
                 yield f.result()
                 bar.update(1)
     finally:
-        if env_old is None:
-            os.environ.pop("XLA_FLAGS", None)
-        else:
-            os.environ["XLA_FLAGS"] = env_old
+        for k, old in saved.items():
+            if old is None:
+                os.environ.pop(k, None)
+            else:
+                os.environ[k] = old
 
 
 def _code_root() -> str:
@@ -115,11 +127,14 @@ def _code_root() -> str:
 
 
 def _worker_env() -> dict[str, str]:
-    """Environment of local Ray workers: one XLA thread each (as the local pool's workers, so
+    """Environment of local Ray workers: :data:`_WORKER_ENV` (as the local pool's workers, so
     both executors compute the same numbers) and this process's code first on the path (an
     installed ``mmdopt`` elsewhere, e.g. an editable install of another checkout, must not win)."""
     path = [_code_root()] + [p for p in os.environ.get("PYTHONPATH", "").split(os.pathsep) if p]
-    return {"XLA_FLAGS": _ONE_XLA_THREAD, "PYTHONPATH": os.pathsep.join(path)}
+    env = {**_WORKER_ENV, "PYTHONPATH": os.pathsep.join(path)}
+    if os.environ.get("XLA_FLAGS"):
+        env["XLA_FLAGS"] = os.environ["XLA_FLAGS"] + " " + _ONE_XLA_THREAD
+    return env
 
 
 def _run_ray(fn, tasks, jobs, address, bar) -> Iterable[Any]:

@@ -45,13 +45,14 @@ def test_ray_sweep_equals_local_sweep(tmp_path):
     pool (same one-XLA-thread workers), row by row; and a Ray folder resumes locally."""
     cfg = load_planner_config_from_dict(TINY)
     params = SceneParams(n_samples=40, n_validation=200)
-    kw = dict(scenes=4, seed=5, params=params, methods=("mmd", "degroot"), config=cfg, jobs=2)
+    kw = dict(scenes=4, seed=5, params=params, methods=("mmd",), config=cfg, jobs=2)
     run_synthetic(tmp_path / "local", executor="local", progress=False, **kw)
     run_synthetic(tmp_path / "ray", executor="ray", progress=False, **kw)
     a, b = _rows(tmp_path / "local" / "results.csv"), _rows(tmp_path / "ray" / "results.csv")
-    assert len(a) == len(b) == 8
-    assert a == b
+    assert len(a) == len(b) == 4
+    for x, y in zip(a, b, strict=True):
+        assert x == y, {k: (x[k], y[k]) for k in x if x[k] != y.get(k)}
     # interchangeable caches: the Ray folder resumes under the local executor, nothing recomputed
     res = run_synthetic(tmp_path / "ray", executor="local", progress=False, **kw)
-    assert res["computed"] == 0 and res["reused"] == 8
+    assert res["computed"] == 0 and res["reused"] == 4
     assert json.loads((tmp_path / "ray" / "run.json").read_text())["seed"] == 5
