@@ -146,6 +146,9 @@ class MMDOptConfig:
     a small cluster is shrunk towards; ``coverage_knn`` (0: ``n // reduced_set_size``) the
     neighbourhood size that stands for a sample's cluster when a method plans on all samples.
     The margins are computed in :func:`mmdopt.plan` and travel in the :class:`ObstacleSet`;
+    ``reselect`` (0: off) > 0 runs Algorithm 1 a second time, warm-started, with the
+    ``reselect`` samples in deepest conflict with the first plan added to a reduced set (weight
+    1/n each; the re-selection conditioned on the CEM solution of issue 11).
     ``w_cover`` weighs the coverage term ``Σ_j Σ_k f̄_jk`` on these inflated ellipses that
     MMD-Opt adds to ``l_dist`` in this mode (any entry costs, whatever the point's weight ᾱ).
     ``margin_mode = "linear"`` keeps the constants above.  ``reduced_set`` configures the
@@ -172,6 +175,7 @@ class MMDOptConfig:
     admm_rho: float | None = _static(None)
     margin_mode: str = _static("linear")
     coverage_knn: int = _static(0)
+    reselect: int = _static(0)
     # leaves: optimiser
     gamma: float = 0.9
     eta: float = 0.6
@@ -220,6 +224,7 @@ class MMDOptConfig:
             "admm_iters",
             "admm_check_every",
             "coverage_knn",
+            "reselect",
         )
         for name in ints:
             v = getattr(self, name)
@@ -243,6 +248,8 @@ class MMDOptConfig:
             )
         if self.margin_mode not in ("linear", "samples"):
             raise ValueError(f"margin_mode must be 'linear' or 'samples', got {self.margin_mode!r}")
+        if self.reselect < 0:
+            raise ValueError(f"MMDOptConfig.reselect must be >= 0, got {self.reselect}")
         if self.coverage_knn < 0:
             raise ValueError(f"MMDOptConfig.coverage_knn must be >= 0, got {self.coverage_knn}")
         v = self.risk_eps

@@ -456,6 +456,8 @@ def _plan_impl(
         config, problem, obstacles, k_cem, backend, warm_start=warm_start, **backend_settings
     )
     state = jax.block_until_ready(state)
+    if config.reselect > 0 and SELECTION[method] is not None and config.margin_mode == "samples":
+        state = _reselect_pass(ctx, state, problem, k_cem, backend, backend_settings)
     diag["cem_s"] = time.perf_counter() - t2
     best, lv = state.best, state.least_violating
     if not math.isfinite(float(best.cost)) or float(best.cost) >= 1e29:
@@ -486,6 +488,53 @@ def _plan_impl(
         status,
         state,
     )
+
+
+def _reselect_pass(ctx: _Ctx, state, problem, key, backend, backend_settings):
+    """Second pass of Algorithm 1 (``config.reselect`` > 0): the reduced set plus the
+    ``reselect`` samples in deepest conflict with the first pass's plan (weight 1/n each), new
+    coverage margins, warm-started from the first pass; ``ctx`` is updated in place."""
+    from .risk import coverage_margins
+
+    config, prob, obs_fr = ctx.config, ctx.prob, ctx.obs_fr
+    O, n = obs_fr.shape[:2]
+    P = np.asarray(prob.P)
+    s1 = P @ np.asarray(state.best.cx, np.float64)
+    d1 = P @ np.asarray(state.best.cy, np.float64)
+    centres = circle_centres(jnp.asarray(obs_fr), OBSTACLE_FOOTPRINT)  # (O, n, C, K, 2)
+    f = ellipse_values(jnp.asarray(s1[None]), jnp.asarray(d1[None]), centres, config.a, config.b)
+    depth = np.asarray(jnp.max(f[0], axis=(2, 3)))  # (O, n) deepest conflict over time
+    idx0 = np.asarray(ctx.rs.indices)
+    r = min(int(config.reselect), n - idx0.shape[1])
+    if r <= 0:
+        return state
+    extra = np.empty((O, r), idx0.dtype)
+    for o in range(O):
+        d = depth[o].copy()
+        d[idx0[o]] = -np.inf
+        extra[o] = np.argsort(-d, kind="stable")[:r]
+    idx = np.concatenate([idx0, extra], axis=1)
+    w = np.concatenate(
+        [np.asarray(ctx.rs.weights, np.float64) * (1.0 - r / n), np.full((O, r), 1.0 / n)], 1
+    )
+    sel = np.take_along_axis(obs_fr, idx[:, :, None, None], axis=1)
+    cen = circle_centres(jnp.asarray(sel), OBSTACLE_FOOTPRINT)
+    margins = coverage_margins(
+        obs_fr,
+        idx,
+        float(config.risk_eps),
+        lateral_scale=float(config.rs_lateral_scale),
+        prior=float(config.coverage_prior),
+    )
+    obstacles = alg.ObstacleSet.create(config, cen, w, COST_MODE[ctx.method], margins=margins)
+    ctx.obstacles = obstacles
+    ctx.diag["reselected"] = extra
+    warm = alg.shift(state, 0.0)
+    out = alg.run(
+        config, problem, obstacles, jax.random.fold_in(key, 1), backend, warm_start=warm,
+        **backend_settings,
+    )  # fmt: skip
+    return jax.block_until_ready(out)
 
 
 def _braking_fallback(ctx: _Ctx, status: str, state=None) -> Plan:

@@ -8,7 +8,10 @@ margins, weights and chance level from ε; :func:`mmdopt.plan` does it for ``pla
 ==================  =====================================================================
 method              what ε sets
 ==================  =====================================================================
-``"mmd"``           sample-driven margins (``margin_mode="samples"``): every reduced-set
+``"mmd"``           (also: a second, warm-started pass of Algorithm 1 with the m/2
+                    samples in deepest conflict with the first plan added to the reduced
+                    set, ``reselect``)
+                    sample-driven margins (``margin_mode="samples"``): every reduced-set
 ``"random"``        point's ellipse is inflated, per time step, to contain the planning
 ``"degroot"``       samples of its cluster (the samples nearer to it than to any other
                     point) with probability 1 − ε under a Gaussian fit (z = Φ⁻¹(1 − ε));
@@ -93,6 +96,8 @@ def config_for_risk(
     kw: dict = dict(margin_mode="samples", risk_eps=eps)
     if method in ("mmd", "random"):
         kw["w_cover"] = W_COVER
+    if method == "mmd":
+        kw["reselect"] = max(1, cfg.reduced_set_size // 2)
     if method == "saa":
         kw["saa_eps"] = eps
     return cfg.replace(**kw)

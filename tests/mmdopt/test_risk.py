@@ -26,6 +26,7 @@ def test_every_method_has_a_knob_with_a_default():
         cfg = config_for_risk(m)
         assert cfg.margin_mode == "samples" and cfg.risk_eps == DEFAULT_RISK[m]
         assert cfg.w_cover == (100.0 if m in ("mmd", "random") else 0.0)
+        assert cfg.reselect == (cfg.reduced_set_size // 2 if m == "mmd" else 0)
     assert config_for_risk("saa", 0.03).saa_eps == 0.03
     # the knob only changes what it maps to: the rest of the caller's config is kept
     assert config_for_risk("mmd", 0.01, SMALL).n_samples == SMALL.n_samples
@@ -86,5 +87,9 @@ def test_plan_risk_knob_trades_progress_for_safety():
     assert tight.progress <= loose.progress + 1e-6
     # the tight plan keeps every planning sample clear
     assert np.all(tight.diagnostics["collision_free_planning"] == X.shape[1])
+    # the second pass added the samples in deepest conflict with the first plan to the set
+    extra = tight.diagnostics["reselected"]
+    assert extra.shape == (1, SMALL.reduced_set_size // 2)
+    assert not set(extra[0].tolist()) & set(np.asarray(tight.reduced_set.indices)[0].tolist())
     with pytest.raises(ValueError, match="risk"):
         mmdopt.plan(EGO, road, X, method="mmd", config=SMALL, key=key, risk=0.7)
