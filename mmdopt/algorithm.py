@@ -66,7 +66,7 @@ from ._x64 import x64
 from .collision import (
     ELLIPSE_A,
     ELLIPSE_B,
-    ellipse_values,
+    collision_cost,
     mmd_cost,
     saa_cost,
     scenario_cost,
@@ -565,31 +565,39 @@ def _collision_term(cfg: MMDOptConfig, prob: CEMProblem, s, dd, obstacles: Obsta
     """The method's collision term and its weight (eq. c_aug), per ego sample (B,)."""
     mode = obstacles.mode
     if obstacles.margins is not None:
+        # sample-driven coverage margins (issue 11, mmdopt.risk): per-point ellipses
         f = margin_ellipse_values(cfg, s, dd, obstacles.centres.astype(dt), obstacles.margins)
-    else:
-        scale = 1.0 if mode == "mmd" else cfg.baseline_margin_scale
-        f = ellipse_values(
-            s,
-            dd,
-            obstacles.centres.astype(dt),
-            planning_semi_axis(cfg, prob.t(), dt, scale),
-            cfg.b + scale * cfg.margin_lat,
-        )
-    if mode == "mmd":
-        coll = mmd_cost(
-            f, obstacles.weights.astype(dt), cfg.bandwidth, cfg.f_scale, obstacles.n_terms
-        )
-        if obstacles.margins is not None:
+        if mode == "mmd":
+            coll = mmd_cost(
+                f, obstacles.weights.astype(dt), cfg.bandwidth, cfg.f_scale, obstacles.n_terms
+            )
             # coverage term (issue 11): every penetration of a point's coverage ellipse costs
             # w_cover·f̄ whatever the point's weight ᾱ (the 1 − ε coverage holds only if no
             # ellipse is entered); returned weighted (the term's weight is then 1)
             cover = scenario_cost(f, obstacles.mask)
             return cfg.w_mmd * coll + cfg.w_cover * cover, jnp.asarray(1.0, dt)
-        return coll, cfg.w_mmd
-    if mode == "scenario":
-        return scenario_cost(f, obstacles.mask), cfg.w_coll
-    coll, _ = saa_cost(f, obstacles.mask, cfg.saa_eps, cfg.saa_temperature)
-    return coll, cfg.w_saa
+        if mode == "scenario":
+            return scenario_cost(f, obstacles.mask), cfg.w_coll
+        coll, _ = saa_cost(f, obstacles.mask, cfg.saa_eps, cfg.saa_temperature)
+        return coll, cfg.w_saa
+    scale = 1.0 if mode == "mmd" else cfg.baseline_margin_scale
+    coll = collision_cost(
+        mode,
+        s,
+        dd,
+        obstacles.centres.astype(dt),
+        obstacles.weights.astype(dt),
+        obstacles.mask,
+        planning_semi_axis(cfg, prob.t(), dt, scale),
+        cfg.b + scale * cfg.margin_lat,
+        bandwidth=cfg.bandwidth,
+        f_scale=cfg.f_scale,
+        n_terms=obstacles.n_terms,
+        saa_eps=cfg.saa_eps,
+        saa_temperature=cfg.saa_temperature,
+    )
+    w = {"mmd": cfg.w_mmd, "scenario": cfg.w_coll, "saa": cfg.w_saa}[mode]
+    return coll, w
 
 
 def _evaluate(state: CEMState, prob: CEMProblem, obstacles: ObstacleSet, d, cx, cy, res):

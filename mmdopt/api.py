@@ -23,6 +23,7 @@ from typing import Any
 import jax
 import jax.numpy as jnp
 import numpy as np
+from numpy.typing import ArrayLike, NDArray
 
 import frenet
 import solvers
@@ -127,19 +128,19 @@ class Plan:
     sample of some obstacle: no collision-free plan was found).
     """
 
-    x: np.ndarray
-    y: np.ndarray
-    heading: np.ndarray
-    speed: np.ndarray
-    s: np.ndarray
-    d: np.ndarray
-    vs: np.ndarray
-    vd: np.ndarray
-    as_: np.ndarray
-    ad: np.ndarray
-    t: np.ndarray
+    x: NDArray[np.float64]
+    y: NDArray[np.float64]
+    heading: NDArray[np.float64]
+    speed: NDArray[np.float64]
+    s: NDArray[np.float64]
+    d: NDArray[np.float64]
+    vs: NDArray[np.float64]
+    vd: NDArray[np.float64]
+    as_: NDArray[np.float64]
+    ad: NDArray[np.float64]
+    t: NDArray[np.float64]
     cost: float
-    cost_trace: np.ndarray
+    cost_trace: NDArray[np.float64]
     residual: float
     mmd: float
     feasible: bool
@@ -147,13 +148,13 @@ class Plan:
     status: str
     method: str
     backend: str
-    reduced_set: Any
+    reduced_set: ReducedSet | None
     plan_time_s: float
-    diagnostics: dict = field(repr=False, default_factory=dict)
-    state: Any = field(repr=False, default=None)
+    diagnostics: dict[str, Any] = field(repr=False, default_factory=dict)
+    state: alg.CEMState | None = field(repr=False, default=None)
 
     @property
-    def xy(self) -> np.ndarray:
+    def xy(self) -> NDArray[np.float64]:
         """(K, 2) Cartesian waypoints."""
         return np.stack([self.x, self.y], axis=-1)
 
@@ -161,6 +162,77 @@ class Plan:
     def progress(self) -> float:
         """Arc length travelled over the horizon (m)."""
         return float(self.s[-1] - self.s[0])
+
+    def to_dict(self, diagnostics: bool = True) -> dict[str, Any]:
+        """The plan as plain JSON-able data (``json.dumps(plan.to_dict())`` works).
+
+        Keys: the trajectory arrays ``t, x, y, heading, speed, s, d, vs, vd, as_, ad`` as lists
+        of floats (SI units, as on the :class:`Plan`); the scalars ``cost, residual, mmd,
+        progress, plan_time_s`` (floats; a NaN cost, as in a braking fallback, is ``None``),
+        ``cost_trace`` (list), ``feasible, fallback`` (bool), ``status, method, backend`` (str);
+        ``reduced_set``: ``{"method", "indices": [[int]] (O, m), "weights": [[float]] (O, m),
+        "mmd2": [float] (O,)}`` (``None`` if the plan has none); and, with ``diagnostics=True``,
+        ``diagnostics`` with every array as (nested) lists.  The final ``state``
+        (:class:`~mmdopt.algorithm.CEMState`) is left out: it is for warm starts, not records.
+        """
+        out: dict[str, Any] = {
+            k: _jsonable(getattr(self, k))
+            for k in ("t", "x", "y", "heading", "speed", "s", "d", "vs", "vd", "as_", "ad")
+        }
+        out.update(
+            cost=_jsonable(self.cost),
+            cost_trace=_jsonable(self.cost_trace),
+            residual=_jsonable(self.residual),
+            mmd=_jsonable(self.mmd),
+            progress=_jsonable(self.progress),
+            plan_time_s=_jsonable(self.plan_time_s),
+            feasible=bool(self.feasible),
+            fallback=bool(self.fallback),
+            status=str(self.status),
+            method=str(self.method),
+            backend=str(self.backend),
+        )
+        rs = self.reduced_set
+        if rs is None:
+            out["reduced_set"] = None
+        else:
+            out["reduced_set"] = dict(
+                method=str(getattr(rs, "method", self.method)),
+                indices=np.asarray(rs.indices).astype(int).tolist(),
+                weights=_jsonable(np.asarray(rs.weights, np.float64)),
+                mmd2=_jsonable(np.asarray(getattr(rs, "mmd2", np.nan), np.float64)),
+            )
+        if diagnostics:
+            out["diagnostics"] = _jsonable(self.diagnostics)
+        return out
+
+
+def _jsonable(v: Any) -> Any:
+    """Arrays to (nested) lists, NumPy/JAX scalars to Python numbers, NaN/inf floats to None."""
+    if isinstance(v, dict):
+        return {str(k): _jsonable(x) for k, x in v.items()}
+    if isinstance(v, list | tuple):
+        return [_jsonable(x) for x in v]
+    if isinstance(v, bool | np.bool_):
+        return bool(v)
+    if isinstance(v, str) or v is None:
+        return v
+    if isinstance(v, int | np.integer) and not isinstance(v, bool):
+        return int(v)
+    if hasattr(v, "shape") or isinstance(v, float | np.floating):
+        a = np.asarray(v)
+        if a.dtype == bool:
+            return a.tolist()
+        if np.issubdtype(a.dtype, np.integer):
+            return a.tolist()
+        if np.issubdtype(a.dtype, np.number):
+            a = a.astype(np.float64)
+            return (
+                np.where(np.isfinite(a), a, None).tolist()
+                if a.ndim
+                else (float(a) if np.isfinite(a) else None)
+            )
+    return repr(v)
 
 
 # ------------------------------------------------------------------------------------- validation
@@ -232,12 +304,12 @@ def _check_obstacles(obstacles, config: MMDOptConfig, method: str, name="obstacl
 def plan(
     ego: frenet.EgoState,
     road: Road,
-    obstacles: Any,
+    obstacles: ArrayLike,
     *,
     method: str = "mmd",
     config: MMDOptConfig | None = None,
     backend: str = PLANNER_BACKEND,
-    key: Any = None,
+    key: ArrayLike | None = None,
     reduced_set: ReducedSet | None = None,
     warm_start: alg.CEMState | None = None,
     risk: float | None = None,
@@ -302,12 +374,12 @@ def plan(
 def plan_frenet(
     ego: frenet.EgoState,
     road: Road,
-    obstacles_frenet: Any,
+    obstacles_frenet: ArrayLike,
     *,
     method: str = "mmd",
     config: MMDOptConfig | None = None,
     backend: str = PLANNER_BACKEND,
-    key: Any = None,
+    key: ArrayLike | None = None,
     reduced_set: ReducedSet | None = None,
     warm_start: alg.CEMState | None = None,
     risk: float | None = None,

@@ -73,8 +73,13 @@ def run_tasks(
     progress: bool = True,
     desc: str = "tasks",
     unit: str = "task",
+    first_note: str | None = None,
 ) -> list[Any]:
     """Run ``fn(task)`` for every task; returns the results in completion order.
+
+    ``first_note`` (e.g. ``"compiling Algorithm 1 (first scene, ~30 s)…"``) is shown beside the
+    progress bar until the first task finishes, so a first task that JIT-compiles does not look
+    like a stuck bar.
 
     ``fn`` must be a module-level function (picklable); results should be small (the tasks write
     their own files).  Raises ``ValueError`` for an unknown executor or ``jobs < 1``.
@@ -87,6 +92,8 @@ def run_tasks(
         raise ValueError(f"jobs must be an integer >= 1, got {jobs!r}")
     tasks = list(tasks)
     bar = tqdm(total=len(tasks), desc=desc, unit=unit, disable=not progress or not tasks)
+    if first_note and not bar.disable:
+        bar.set_postfix_str(first_note)
     try:
         if executor == "ray":
             return list(_run_ray(fn, tasks, jobs, address, bar))
@@ -94,11 +101,18 @@ def run_tasks(
             out = []
             for t in tasks:
                 out.append(fn(t))
-                bar.update(1)
+                _tick(bar)
             return out
         return list(_run_pool(fn, tasks, jobs, bar))
     finally:
         bar.close()
+
+
+def _tick(bar) -> None:
+    """One task done: advance the bar and clear the first-task note."""
+    if getattr(bar, "postfix", None):  # a disabled bar has no postfix
+        bar.set_postfix_str("", refresh=False)
+    bar.update(1)
 
 
 def _run_pool(fn, tasks, jobs, bar) -> Iterable[Any]:
@@ -112,7 +126,7 @@ def _run_pool(fn, tasks, jobs, bar) -> Iterable[Any]:
             futs = [ex.submit(fn, t) for t in tasks]
             for f in cf.as_completed(futs):
                 yield f.result()
-                bar.update(1)
+                _tick(bar)
     finally:
         for k, old in saved.items():
             if old is None:
@@ -159,7 +173,7 @@ def _run_ray(fn, tasks, jobs, address, bar) -> Iterable[Any]:
             done, pending = ray.wait(pending, num_returns=1)
             for ref in done:
                 yield ray.get(ref)
-                bar.update(1)
+                _tick(bar)
     finally:
         if started and address is None:
             ray.shutdown()

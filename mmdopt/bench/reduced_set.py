@@ -132,6 +132,7 @@ def run_reduced_set(
         progress=progress,
         desc="scenes",
         unit="scene",
+        first_note="compiling Algorithm 1 (first scene of each worker, ~30 s)…",
     )
     rows = []
     for i in range(n):
