@@ -160,7 +160,7 @@ class TripleIntegratorBasis(Basis):
         self._freeze()
 
     def evaluate(self, t: np.ndarray) -> tuple[np.ndarray, ...]:
-        """``(P, Pdot, Pddot)`` rows at arbitrary times ``t`` in ``[0, horizon]`` (piecewise cubic)."""
+        """``(P, Pdot, Pddot)`` rows at times ``t`` in ``[0, horizon]`` (piecewise cubic)."""
         t = np.atleast_1d(np.asarray(t, dtype=np.float64))
         dt, K = self.grid.dt, self.grid.num_steps
         k = np.clip(np.floor(t / dt).astype(int), 0, K - 2)

@@ -16,17 +16,22 @@ brute-force scan.  Round trips are exact to ~1e-9 m wherever the nearest point i
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import TYPE_CHECKING
 
 import numpy as np
+from numpy.typing import ArrayLike, NDArray
 from scipy.interpolate import CubicSpline
 from scipy.spatial import cKDTree
+
+if TYPE_CHECKING:  # planner imports nothing from here, but keep the import lazy
+    from .planner import EgoState
 
 __all__ = ["ReferencePath", "wrap_angle"]
 
 _GAUSS_X, _GAUSS_W = np.polynomial.legendre.leggauss(6)
 
 
-def wrap_angle(a: np.ndarray) -> np.ndarray:
+def wrap_angle(a: ArrayLike) -> NDArray[np.float64]:
     """Angles wrapped to ``[−π, π)``."""
     return (np.asarray(a, dtype=np.float64) + np.pi) % (2 * np.pi) - np.pi
 
@@ -79,7 +84,7 @@ class ReferencePath:
 
     # ------------------------------------------------------------------ construction
     @classmethod
-    def from_waypoints(cls, xy: np.ndarray, *, spacing: float = 0.5) -> ReferencePath:
+    def from_waypoints(cls, xy: ArrayLike, *, spacing: float = 0.5) -> ReferencePath:
         """Cubic spline (natural end conditions) through way-points ``xy`` (N, 2), N ≥ 2, then
         re-parameterised by arc length.
 
@@ -173,21 +178,21 @@ class ReferencePath:
             ddx, ddy = np.where(out, 0.0, ddx), np.where(out, 0.0, ddy)
         return x, y, dx, dy, ddx, ddy
 
-    def point(self, s) -> tuple[np.ndarray, np.ndarray]:
+    def point(self, s: ArrayLike) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
         """Cartesian ``(x, y)`` of the path at arc length ``s`` (any shape)."""
         s = _as_float("s", s)
         _check_finite("s", s)
         x, y, *_ = self._eval(s.ravel())
         return x.reshape(s.shape), y.reshape(s.shape)
 
-    def heading(self, s) -> np.ndarray:
+    def heading(self, s: ArrayLike) -> NDArray[np.float64]:
         """Path heading ``θ(s)`` (rad, wrapped to [−π, π))."""
         s = _as_float("s", s)
         _check_finite("s", s)
         _, _, dx, dy, _, _ = self._eval(s.ravel())
         return np.arctan2(dy, dx).reshape(s.shape)
 
-    def curvature(self, s) -> np.ndarray:
+    def curvature(self, s: ArrayLike) -> NDArray[np.float64]:
         """Signed curvature ``κ(s)`` (1/m, positive turning left); zero beyond the ends."""
         s = _as_float("s", s)
         _check_finite("s", s)
@@ -196,7 +201,15 @@ class ReferencePath:
         return k.reshape(s.shape)
 
     # ------------------------------------------------------------------ conversions
-    def to_frenet(self, x, y, heading=None, *, max_iter: int = 30, tol: float = 1e-12):
+    def to_frenet(
+        self,
+        x: ArrayLike,
+        y: ArrayLike,
+        heading: ArrayLike | None = None,
+        *,
+        max_iter: int = 30,
+        tol: float = 1e-12,
+    ) -> tuple[NDArray[np.float64], ...]:
         """Cartesian → Frenet for arrays of any (matching/broadcastable) shape.
 
         Parameters
@@ -267,7 +280,9 @@ class ReferencePath:
             best_d = np.where(better, dist, best_d)
         return best_s
 
-    def to_cartesian(self, s, d, heading=None):
+    def to_cartesian(
+        self, s: ArrayLike, d: ArrayLike, heading: ArrayLike | None = None
+    ) -> tuple[NDArray[np.float64], ...]:
         """Frenet → Cartesian for arrays of any broadcastable shape.
 
         Returns ``(x, y)`` or ``(x, y, heading_abs)`` when a path-relative ``heading`` is given.
@@ -297,7 +312,9 @@ class ReferencePath:
             wrap_angle(heading + np.arctan2(dy, dx).reshape(shape)),
         )
 
-    def trajectory_to_cartesian(self, s, d, vs, vd):
+    def trajectory_to_cartesian(
+        self, s: ArrayLike, d: ArrayLike, vs: ArrayLike, vd: ArrayLike
+    ) -> tuple[NDArray[np.float64], NDArray[np.float64], NDArray[np.float64], NDArray[np.float64]]:
         """Frenet trajectories (…, K) with Frenet velocities → Cartesian ``(x, y, heading, speed)``.
 
         Uses ``ẋ_cart = (1 − dκ) ṡ t + ḋ n``: the heading is ``θ(s) + atan2(ḋ, (1 − dκ) ṡ)``.
@@ -318,7 +335,7 @@ class ReferencePath:
         heading: float,
         accel: float = 0.0,
         yaw_rate: float = 0.0,
-    ):
+    ) -> EgoState:
         """The Frenet :class:`~frenet.planner.EgoState` of a vehicle at Cartesian pose/speed.
 
         ``ṡ = v cos Δψ /(1 − dκ)``, ``ḋ = v sin Δψ``, accelerations from the body-frame

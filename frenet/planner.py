@@ -25,13 +25,17 @@ from __future__ import annotations
 
 import functools
 from dataclasses import dataclass, fields
-from typing import NamedTuple
+from typing import TYPE_CHECKING, Any, NamedTuple
 
 import numpy as np
+from numpy.typing import ArrayLike, DTypeLike, NDArray
 
 import solvers
 
 from .basis import Basis
+
+if TYPE_CHECKING:
+    import jax
 
 __all__ = ["EgoState", "PlannerConfig", "BehaviouralPlanner", "Trajectories", "state_array"]
 
@@ -236,7 +240,9 @@ class BehaviouralPlanner:
         return bx, by
 
     # ------------------------------------------------------------------ QP form
-    def qp_batch(self, d, state) -> tuple[solvers.QPBatch, solvers.QPBatch]:
+    def qp_batch(
+        self, d: ArrayLike, state: EgoState | ArrayLike
+    ) -> tuple[solvers.QPBatch, solvers.QPBatch]:
         """The planner as two :class:`solvers.QPBatch` (x then y), one problem per row of ``d``.
 
         The QP objective carries the exact penalty ``½ρ‖A_eq c − b‖²`` (zero on the feasible set),
@@ -254,7 +260,7 @@ class BehaviouralPlanner:
             solvers.QPBatch(self.Hy_qp, self.Aeq_y, qy, by, by),
         )
 
-    def qp(self, d, state) -> tuple[solvers.QP, solvers.QP]:
+    def qp(self, d: ArrayLike, state: EgoState | ArrayLike) -> tuple[solvers.QP, solvers.QP]:
         """The planner for one behavioural input ``d`` (2S,) as two QPs ``(x, y)``."""
         d = self._check_d(d)
         if d.shape[0] != 1:
@@ -263,8 +269,8 @@ class BehaviouralPlanner:
         return bx_[0], by_[0]
 
     def solve(
-        self, d, state, backend: str = "clarabel", **settings
-    ) -> tuple[np.ndarray, np.ndarray]:
+        self, d: ArrayLike, state: EgoState | ArrayLike, backend: str = "clarabel", **settings: Any
+    ) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
         """Solve the planner QPs with a :mod:`solvers` backend: ``(cx (B, nvar), cy (B, nvar))``.
 
         Raises ``RuntimeError`` if the backend does not report ``SOLVED`` for every problem.
@@ -289,7 +295,9 @@ class BehaviouralPlanner:
         """
         return _closed_form_fn(self, None if dtype is None else _check_dtype(dtype))
 
-    def closed_form(self, d_batch, state, dtype=np.float64):
+    def closed_form(
+        self, d_batch: ArrayLike, state: EgoState | ArrayLike, dtype: DTypeLike = np.float64
+    ) -> tuple[jax.Array, jax.Array]:
         """Batched closed-form plans: ``(cx (B, nvar), cy (B, nvar))`` as JAX arrays of ``dtype``.
 
         One matrix product per batch.  Validates its inputs (use :meth:`closed_form_fn` inside
@@ -307,7 +315,7 @@ class BehaviouralPlanner:
         with jax.enable_x64(dt == np.float64):
             return fn(d.astype(dt), st.astype(dt))
 
-    def trajectories(self, cx, cy) -> Trajectories:
+    def trajectories(self, cx: ArrayLike, cy: ArrayLike) -> Trajectories:
         """Positions/velocities/accelerations ``(B, K)`` of coefficient batches (numpy float64)."""
         cx = np.atleast_2d(np.asarray(cx, dtype=np.float64))
         cy = np.atleast_2d(np.asarray(cy, dtype=np.float64))

@@ -30,16 +30,20 @@ User constraints (e.g. linearised collision half-planes, a speed-limit zone) are
 from __future__ import annotations
 
 import time
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
-from typing import Any, NamedTuple
+from typing import TYPE_CHECKING, Any, NamedTuple
 
 import numpy as np
+from numpy.typing import ArrayLike, NDArray
 
 import solvers
 
 from .basis import Basis
 from .planner import state_array
+
+if TYPE_CHECKING:
+    from .planner import EgoState
 
 __all__ = [
     "ProjectionBounds",
@@ -452,7 +456,7 @@ class ProjectionProblem:
             out.append((res[0], res[1]))
         return out
 
-    def check_state(self, state) -> np.ndarray:
+    def check_state(self, state: EgoState | ArrayLike) -> NDArray[np.float64]:
         """Validate boundary states against the bounds at step 0; returns ``(B, 6)``.
 
         Raises ``ValueError`` when an initial state violates a bound (e.g. initial speed above
@@ -514,7 +518,13 @@ class ProjectionProblem:
         return l, u
 
     # ------------------------------------------------------------------ QP
-    def batch(self, cx_bar, cy_bar, state, extra_bounds=None) -> solvers.QPBatch:
+    def batch(
+        self,
+        cx_bar: ArrayLike,
+        cy_bar: ArrayLike,
+        state: EgoState | ArrayLike,
+        extra_bounds: Any = None,
+    ) -> solvers.QPBatch:
         """The projection of every sample as one :class:`solvers.QPBatch` (shared ``P``, ``A``).
 
         ``state`` is an :class:`~frenet.planner.EgoState`, ``(6,)`` or ``(B, 6)``; ``extra_bounds``
@@ -561,7 +571,13 @@ class ProjectionProblem:
                     "brk,bk->br", e.Gy, cy @ M.T
                 )
 
-    def qps(self, cx_bar, cy_bar, state, extra_bounds=None) -> list[solvers.QP]:
+    def qps(
+        self,
+        cx_bar: ArrayLike,
+        cy_bar: ArrayLike,
+        state: EgoState | ArrayLike,
+        extra_bounds: Any = None,
+    ) -> list[solvers.QP]:
         """The projection of each sample as its own :class:`solvers.QP` (allows per-sample rows)."""
         q, l, u = self._qlu(cx_bar, cy_bar, state, extra_bounds)
         out = []
@@ -591,14 +607,14 @@ class ProjectionProblem:
 
     def project(
         self,
-        cx_bar,
-        cy_bar,
-        state,
+        cx_bar: ArrayLike,
+        cy_bar: ArrayLike,
+        state: EgoState | ArrayLike,
         backend: str | None = None,
         *,
-        extra_bounds=None,
-        warm_start=None,
-        **settings,
+        extra_bounds: LinearConstraints | Sequence[LinearConstraints] | None = None,
+        warm_start: Any = None,
+        **settings: Any,
     ) -> ProjectionResult:
         """Project a batch of samples with a :mod:`solvers` backend.
 
@@ -630,7 +646,9 @@ class ProjectionProblem:
             cx, cy, total, groups, status, self.distance(cx, cy, cx_bar, cy_bar), sol
         )
 
-    def jax_projector(self, num_iters: int = 100, dtype: str = "float32", **settings):
+    def jax_projector(
+        self, num_iters: int = 100, dtype: str = "float32", **settings: Any
+    ) -> Callable[..., JaxProjection]:
         """A pure-JAX batched projector for use inside jitted code (Algorithm 1's inner loop).
 
         Built on :func:`solvers.admm.admm_factor` / :func:`solvers.admm.admm_iterate`: ``P`` and
@@ -650,15 +668,21 @@ class ProjectionProblem:
         """
         return _jax_projector(self, num_iters, dtype, settings)
 
-    def distance(self, cx, cy, cx_bar, cy_bar) -> np.ndarray:
+    def distance(
+        self, cx: ArrayLike, cy: ArrayLike, cx_bar: ArrayLike, cy_bar: ArrayLike
+    ) -> NDArray[np.float64]:
         """(B,) projection objective ``½‖M(c − c̄)‖²`` summed over both axes."""
         H = self.metric_matrix
         dx, dy = np.asarray(cx) - cx_bar, np.asarray(cy) - cy_bar
         return 0.5 * (np.einsum("bi,ij,bj->b", dx, H, dx) + np.einsum("bi,ij,bj->b", dy, H, dy))
 
     def residuals(
-        self, cx, cy, state, extra_bounds=None
-    ) -> tuple[np.ndarray, dict[str, np.ndarray]]:
+        self,
+        cx: ArrayLike,
+        cy: ArrayLike,
+        state: EgoState | ArrayLike,
+        extra_bounds: Any = None,
+    ) -> tuple[NDArray[np.float64], dict[str, NDArray[np.float64]]]:
         """Constraint violation of coefficient batches: ``(total (B,), {group: (B,)})``.
 
         Each group's value is its largest violation (m, m/s or m/s², ≥ 0); ``total`` is the max

@@ -23,6 +23,7 @@ from typing import Any
 import jax
 import jax.numpy as jnp
 import numpy as np
+from numpy.typing import ArrayLike, NDArray
 
 import frenet
 import solvers
@@ -127,19 +128,19 @@ class Plan:
     sample of some obstacle: no collision-free plan was found).
     """
 
-    x: np.ndarray
-    y: np.ndarray
-    heading: np.ndarray
-    speed: np.ndarray
-    s: np.ndarray
-    d: np.ndarray
-    vs: np.ndarray
-    vd: np.ndarray
-    as_: np.ndarray
-    ad: np.ndarray
-    t: np.ndarray
+    x: NDArray[np.float64]
+    y: NDArray[np.float64]
+    heading: NDArray[np.float64]
+    speed: NDArray[np.float64]
+    s: NDArray[np.float64]
+    d: NDArray[np.float64]
+    vs: NDArray[np.float64]
+    vd: NDArray[np.float64]
+    as_: NDArray[np.float64]
+    ad: NDArray[np.float64]
+    t: NDArray[np.float64]
     cost: float
-    cost_trace: np.ndarray
+    cost_trace: NDArray[np.float64]
     residual: float
     mmd: float
     feasible: bool
@@ -147,13 +148,13 @@ class Plan:
     status: str
     method: str
     backend: str
-    reduced_set: Any
+    reduced_set: ReducedSet | None
     plan_time_s: float
-    diagnostics: dict = field(repr=False, default_factory=dict)
-    state: Any = field(repr=False, default=None)
+    diagnostics: dict[str, Any] = field(repr=False, default_factory=dict)
+    state: alg.CEMState | None = field(repr=False, default=None)
 
     @property
-    def xy(self) -> np.ndarray:
+    def xy(self) -> NDArray[np.float64]:
         """(K, 2) Cartesian waypoints."""
         return np.stack([self.x, self.y], axis=-1)
 
@@ -161,6 +162,77 @@ class Plan:
     def progress(self) -> float:
         """Arc length travelled over the horizon (m)."""
         return float(self.s[-1] - self.s[0])
+
+    def to_dict(self, diagnostics: bool = True) -> dict[str, Any]:
+        """The plan as plain JSON-able data (``json.dumps(plan.to_dict())`` works).
+
+        Keys: the trajectory arrays ``t, x, y, heading, speed, s, d, vs, vd, as_, ad`` as lists
+        of floats (SI units, as on the :class:`Plan`); the scalars ``cost, residual, mmd,
+        progress, plan_time_s`` (floats; a NaN cost, as in a braking fallback, is ``None``),
+        ``cost_trace`` (list), ``feasible, fallback`` (bool), ``status, method, backend`` (str);
+        ``reduced_set``: ``{"method", "indices": [[int]] (O, m), "weights": [[float]] (O, m),
+        "mmd2": [float] (O,)}`` (``None`` if the plan has none); and, with ``diagnostics=True``,
+        ``diagnostics`` with every array as (nested) lists.  The final ``state``
+        (:class:`~mmdopt.algorithm.CEMState`) is left out: it is for warm starts, not records.
+        """
+        out: dict[str, Any] = {
+            k: _jsonable(getattr(self, k))
+            for k in ("t", "x", "y", "heading", "speed", "s", "d", "vs", "vd", "as_", "ad")
+        }
+        out.update(
+            cost=_jsonable(self.cost),
+            cost_trace=_jsonable(self.cost_trace),
+            residual=_jsonable(self.residual),
+            mmd=_jsonable(self.mmd),
+            progress=_jsonable(self.progress),
+            plan_time_s=_jsonable(self.plan_time_s),
+            feasible=bool(self.feasible),
+            fallback=bool(self.fallback),
+            status=str(self.status),
+            method=str(self.method),
+            backend=str(self.backend),
+        )
+        rs = self.reduced_set
+        if rs is None:
+            out["reduced_set"] = None
+        else:
+            out["reduced_set"] = dict(
+                method=str(getattr(rs, "method", self.method)),
+                indices=np.asarray(rs.indices).astype(int).tolist(),
+                weights=_jsonable(np.asarray(rs.weights, np.float64)),
+                mmd2=_jsonable(np.asarray(getattr(rs, "mmd2", np.nan), np.float64)),
+            )
+        if diagnostics:
+            out["diagnostics"] = _jsonable(self.diagnostics)
+        return out
+
+
+def _jsonable(v: Any) -> Any:
+    """Arrays to (nested) lists, NumPy/JAX scalars to Python numbers, NaN/inf floats to None."""
+    if isinstance(v, dict):
+        return {str(k): _jsonable(x) for k, x in v.items()}
+    if isinstance(v, list | tuple):
+        return [_jsonable(x) for x in v]
+    if isinstance(v, bool | np.bool_):
+        return bool(v)
+    if isinstance(v, str) or v is None:
+        return v
+    if isinstance(v, int | np.integer) and not isinstance(v, bool):
+        return int(v)
+    if hasattr(v, "shape") or isinstance(v, float | np.floating):
+        a = np.asarray(v)
+        if a.dtype == bool:
+            return a.tolist()
+        if np.issubdtype(a.dtype, np.integer):
+            return a.tolist()
+        if np.issubdtype(a.dtype, np.number):
+            a = a.astype(np.float64)
+            return (
+                np.where(np.isfinite(a), a, None).tolist()
+                if a.ndim
+                else (float(a) if np.isfinite(a) else None)
+            )
+    return repr(v)
 
 
 # ------------------------------------------------------------------------------------- validation
@@ -232,14 +304,15 @@ def _check_obstacles(obstacles, config: MMDOptConfig, method: str, name="obstacl
 def plan(
     ego: frenet.EgoState,
     road: Road,
-    obstacles: Any,
+    obstacles: ArrayLike,
     *,
     method: str = "mmd",
     config: MMDOptConfig | None = None,
     backend: str = PLANNER_BACKEND,
-    key: Any = None,
+    key: ArrayLike | None = None,
     reduced_set: ReducedSet | None = None,
     warm_start: alg.CEMState | None = None,
+    risk: float | None = None,
     **backend_settings: Any,
 ) -> Plan:
     """Plan with Algorithm 1 against Cartesian obstacle-trajectory samples.
@@ -262,6 +335,9 @@ def plan(
         selection (methods whose cost uses a reduced set: "mmd", "random", "degroot")
     warm_start : optional :class:`mmdopt.algorithm.CEMState` (e.g. ``algorithm.shift`` of the
         previous plan's ``state``): the sampling distribution and elites start from it
+    risk : optional target collision probability ε in (0, 0.5), the method's risk knob: the
+        method's margins and chance level follow from it (:func:`mmdopt.risk.config_for_risk`,
+        applied to ``config``); ``None``: ``config`` as given
 
     Returns
     -------
@@ -279,6 +355,7 @@ def plan(
     config = MMDOptConfig() if config is None else config
     key = jax.random.PRNGKey(0) if key is None else key
     _check_common(ego, road, method, config, backend, key)
+    config = _apply_risk(method, risk, config)
     alg.check_backend(backend, backend_settings)
     arr = _check_obstacles(obstacles, config, method)
     t1 = time.perf_counter()
@@ -297,14 +374,15 @@ def plan(
 def plan_frenet(
     ego: frenet.EgoState,
     road: Road,
-    obstacles_frenet: Any,
+    obstacles_frenet: ArrayLike,
     *,
     method: str = "mmd",
     config: MMDOptConfig | None = None,
     backend: str = PLANNER_BACKEND,
-    key: Any = None,
+    key: ArrayLike | None = None,
     reduced_set: ReducedSet | None = None,
     warm_start: alg.CEMState | None = None,
+    risk: float | None = None,
     **backend_settings: Any,
 ) -> Plan:
     """:func:`plan` with obstacle samples already in the Frenet frame of ``road.path``:
@@ -314,6 +392,7 @@ def plan_frenet(
     config = MMDOptConfig() if config is None else config
     key = jax.random.PRNGKey(0) if key is None else key
     _check_common(ego, road, method, config, backend, key)
+    config = _apply_risk(method, risk, config)
     alg.check_backend(backend, backend_settings)
     arr = _check_obstacles(obstacles_frenet, config, method, name="obstacles_frenet")
     diag = {"frenet_conversion_s": 0.0}
@@ -321,6 +400,14 @@ def plan_frenet(
         ego, road, arr, method, config, backend, key, backend_settings, t0, diag,
         reduced_set, warm_start,
     )  # fmt: skip
+
+
+def _apply_risk(method: str, risk: Any, config: MMDOptConfig) -> MMDOptConfig:
+    if risk is None:
+        return config
+    from .risk import config_for_risk
+
+    return config_for_risk(method, risk, config)
 
 
 def _check_reduced_set(rs: Any, O: int, n: int, method: str) -> ReducedSet:
@@ -407,8 +494,25 @@ def _plan_impl(
     diag["reduced_set_s"] = time.perf_counter() - t1
     sel = np.take_along_axis(obs_fr, np.asarray(rs.indices)[:, :, None, None], axis=1)
     centres = circle_centres(jnp.asarray(sel), OBSTACLE_FOOTPRINT)  # (O, J, C, K, 2)
+    margins = None
+    if config.margin_mode == "samples":
+        from .risk import coverage_margins
+
+        t3 = time.perf_counter()
+        knn = 0
+        if SELECTION[method] is None:
+            knn = config.coverage_knn or max(2, n // config.reduced_set_size)
+        margins = coverage_margins(
+            obs_fr,
+            np.asarray(rs.indices),
+            float(config.risk_eps),
+            lateral_scale=float(config.rs_lateral_scale),
+            prior=float(config.coverage_prior),
+            knn=knn,
+        )
+        diag["margins_s"] = time.perf_counter() - t3
     obstacles = alg.ObstacleSet.create(
-        config, centres, np.asarray(rs.weights, np.float64), COST_MODE[method]
+        config, centres, np.asarray(rs.weights, np.float64), COST_MODE[method], margins=margins
     )
     ctx = _Ctx(ego, road, config, prob, method, backend, rs, t0, diag, obs_fr, obstacles)
 
@@ -424,6 +528,8 @@ def _plan_impl(
         config, problem, obstacles, k_cem, backend, warm_start=warm_start, **backend_settings
     )
     state = jax.block_until_ready(state)
+    if config.reselect > 0 and SELECTION[method] is not None and config.margin_mode == "samples":
+        state = _reselect_pass(ctx, state, problem, k_cem, backend, backend_settings)
     diag["cem_s"] = time.perf_counter() - t2
     best, lv = state.best, state.least_violating
     if not math.isfinite(float(best.cost)) or float(best.cost) >= 1e29:
@@ -454,6 +560,53 @@ def _plan_impl(
         status,
         state,
     )
+
+
+def _reselect_pass(ctx: _Ctx, state, problem, key, backend, backend_settings):
+    """Second pass of Algorithm 1 (``config.reselect`` > 0): the reduced set plus the
+    ``reselect`` samples in deepest conflict with the first pass's plan (weight 1/n each), new
+    coverage margins, warm-started from the first pass; ``ctx`` is updated in place."""
+    from .risk import coverage_margins
+
+    config, prob, obs_fr = ctx.config, ctx.prob, ctx.obs_fr
+    O, n = obs_fr.shape[:2]
+    P = np.asarray(prob.P)
+    s1 = P @ np.asarray(state.best.cx, np.float64)
+    d1 = P @ np.asarray(state.best.cy, np.float64)
+    centres = circle_centres(jnp.asarray(obs_fr), OBSTACLE_FOOTPRINT)  # (O, n, C, K, 2)
+    f = ellipse_values(jnp.asarray(s1[None]), jnp.asarray(d1[None]), centres, config.a, config.b)
+    depth = np.asarray(jnp.max(f[0], axis=(2, 3)))  # (O, n) deepest conflict over time
+    idx0 = np.asarray(ctx.rs.indices)
+    r = min(int(config.reselect), n - idx0.shape[1])
+    if r <= 0:
+        return state
+    extra = np.empty((O, r), idx0.dtype)
+    for o in range(O):
+        d = depth[o].copy()
+        d[idx0[o]] = -np.inf
+        extra[o] = np.argsort(-d, kind="stable")[:r]
+    idx = np.concatenate([idx0, extra], axis=1)
+    w = np.concatenate(
+        [np.asarray(ctx.rs.weights, np.float64) * (1.0 - r / n), np.full((O, r), 1.0 / n)], 1
+    )
+    sel = np.take_along_axis(obs_fr, idx[:, :, None, None], axis=1)
+    cen = circle_centres(jnp.asarray(sel), OBSTACLE_FOOTPRINT)
+    margins = coverage_margins(
+        obs_fr,
+        idx,
+        float(config.risk_eps),
+        lateral_scale=float(config.rs_lateral_scale),
+        prior=float(config.coverage_prior),
+    )
+    obstacles = alg.ObstacleSet.create(config, cen, w, COST_MODE[ctx.method], margins=margins)
+    ctx.obstacles = obstacles
+    ctx.diag["reselected"] = extra
+    warm = alg.shift(state, 0.0)
+    out = alg.run(
+        config, problem, obstacles, jax.random.fold_in(key, 1), backend, warm_start=warm,
+        **backend_settings,
+    )  # fmt: skip
+    return jax.block_until_ready(out)
 
 
 def _braking_fallback(ctx: _Ctx, status: str, state=None) -> Plan:
@@ -488,13 +641,18 @@ def _assemble(ctx: _Ctx, cx, cy, dvec, cost, best_iter, fallback, status, state)
             f"{float(config.res_tol):g}"
         )
     ob = ctx.obstacles
-    f = ellipse_values(
-        jnp.asarray(s[None]),
-        jnp.asarray(d[None]),
-        ob.centres,
-        planning_semi_axis(config, prob.t()),
-        config.b + config.margin_lat,
-    )
+    if ob.margins is not None:
+        f = alg.margin_ellipse_values(
+            config, jnp.asarray(s[None]), jnp.asarray(d[None]), ob.centres, ob.margins
+        )
+    else:
+        f = ellipse_values(
+            jnp.asarray(s[None]),
+            jnp.asarray(d[None]),
+            ob.centres,
+            planning_semi_axis(config, prob.t()),
+            config.b + config.margin_lat,
+        )
     mmd_val = float(
         _mmd_cost_jit(f, ob.weights, config.bandwidth, config.f_scale, n_taylor_terms(config))[0]
     )

@@ -29,14 +29,21 @@ from __future__ import annotations
 
 import dataclasses
 import math
+from collections.abc import Sequence
 from dataclasses import dataclass, field
+from typing import TYPE_CHECKING
 
 import jax
 import jax.numpy as jnp
 import numpy as np
+from jax import lax
+from numpy.typing import ArrayLike
 
 from ._x64 import x64
 from .kernels import mmd2_to_dirac
+
+if TYPE_CHECKING:  # reduced_set imports this module
+    from .reduced_set import ReducedSet
 
 __all__ = [
     "ELLIPSE_A",
@@ -61,6 +68,8 @@ __all__ = [
     "CollisionCounts",
     "collision_free_count",
     "check_weights",
+    "COLLISION_MODES",
+    "collision_cost",
 ]
 
 #: nominal collision ellipse semi-axes (m): longitudinal a, lateral b (reference values)
@@ -93,7 +102,7 @@ OBSTACLE_FOOTPRINT = CircleFootprint(offsets=(0.0, 2.5, -2.5))
 EGO_FOOTPRINT = CircleFootprint(offsets=(0.0,))
 
 
-def headings(xy: jax.Array) -> jax.Array:
+def headings(xy: ArrayLike) -> jax.Array:
     """Heading of each waypoint by forward differences, last value repeated.
 
     Parameters
@@ -112,7 +121,9 @@ def headings(xy: jax.Array) -> jax.Array:
     return jnp.concatenate([psi, psi[..., -1:]], axis=-1)
 
 
-def circle_centres(xy: jax.Array, footprint: CircleFootprint, heading: jax.Array | None = None):
+def circle_centres(
+    xy: ArrayLike, footprint: CircleFootprint, heading: ArrayLike | None = None
+) -> jax.Array:
     """Centres of the footprint circles along a trajectory.
 
     Parameters
@@ -277,7 +288,10 @@ class ReducedObstacles:
 
 
 def reduced_obstacles(
-    samples, reduced, footprint: CircleFootprint = OBSTACLE_FOOTPRINT, heading=None
+    samples: ArrayLike | Sequence[ArrayLike],
+    reduced: ReducedSet | Sequence[ReducedSet],
+    footprint: CircleFootprint = OBSTACLE_FOOTPRINT,
+    heading: ArrayLike | None = None,
 ) -> ReducedObstacles:
     """Build :class:`ReducedObstacles` from samples and reduced sets.
 
@@ -347,13 +361,13 @@ def _check_reduced_obstacles_inputs(samples, reduced) -> None:
                 )
 
 
-def ellipse_f(ego: jax.Array, obs: jax.Array, a, b) -> jax.Array:
+def ellipse_f(ego: ArrayLike, obs: ArrayLike, a: ArrayLike, b: ArrayLike) -> jax.Array:
     """eq. (coll_constraints): f = 1 − Δx²/a² − Δy²/b² (> 0 inside the ellipse), broadcasting."""
     d = jnp.asarray(ego) - jnp.asarray(obs)
     return 1.0 - d[..., 0] ** 2 / a**2 - d[..., 1] ** 2 / b**2
 
 
-def f_bar(ego: jax.Array, obs: jax.Array, a, b) -> jax.Array:
+def f_bar(ego: ArrayLike, obs: ArrayLike, a: ArrayLike, b: ArrayLike) -> jax.Array:
     """eq. (f_bar): f̄ = max(0, f)."""
     return jnp.maximum(ellipse_f(ego, obs, a, b), 0.0)
 
@@ -433,7 +447,10 @@ def _surrogate_terms(ego_xy, obstacles: ReducedObstacles, config: SurrogateConfi
 
 @x64
 def mmd_surrogate_terms(
-    ego_xy, obstacles: ReducedObstacles, config: SurrogateConfig, ego_heading=None
+    ego_xy: ArrayLike,
+    obstacles: ReducedObstacles,
+    config: SurrogateConfig,
+    ego_heading: ArrayLike | None = None,
 ) -> jax.Array:
     """Per-step terms of :func:`mmd_surrogate`: (B, K, 2) -> (B, O, K).  Inputs checked as
     there (``ValueError`` naming the argument)."""
@@ -443,10 +460,10 @@ def mmd_surrogate_terms(
 
 @x64
 def mmd_surrogate(
-    ego_xy,
+    ego_xy: ArrayLike,
     obstacles: ReducedObstacles,
     config: SurrogateConfig = SurrogateConfig(),  # noqa: B008
-    ego_heading=None,
+    ego_heading: ArrayLike | None = None,
 ) -> jax.Array:
     """eq. (l_dist) summed over time steps and obstacles, for a batch of ego trajectories.
 
@@ -509,13 +526,13 @@ def _count(ego_xy, samples, obstacle_footprint, ego_footprint, a, b, ego_heading
 
 @x64
 def collision_free_count(
-    ego_xy,
-    validation_samples,
+    ego_xy: ArrayLike,
+    validation_samples: ArrayLike,
     obstacle_footprint: CircleFootprint = OBSTACLE_FOOTPRINT,
     ego_footprint: CircleFootprint = EGO_FOOTPRINT,
     a: float = ELLIPSE_A,
     b: float = ELLIPSE_B,
-    ego_heading=None,
+    ego_heading: ArrayLike | None = None,
 ) -> CollisionCounts:
     """Count validation samples the ego plan(s) avoid (SPEC §h: any f̄ > 0, any circle, any step).
 
@@ -559,3 +576,65 @@ def collision_free_count(
     if single:
         out = jax.tree_util.tree_map(lambda x: x[0], out)
     return out
+
+
+# --------------------------------------------------------- the collision term, obstacle by obstacle
+COLLISION_MODES = ("mmd", "scenario", "saa")
+
+
+def _term(mode, f, weights, mask, bandwidth, f_scale, n_terms, saa_eps, saa_temperature):
+    if mode == "mmd":
+        return mmd_cost(f, weights, bandwidth, f_scale, n_terms)
+    if mode == "scenario":
+        return scenario_cost(f, mask)
+    return saa_cost(f, mask, saa_eps, saa_temperature)[0]
+
+
+def collision_cost(
+    mode: str,
+    s: jax.Array,
+    d: jax.Array,
+    centres: jax.Array,
+    weights: jax.Array,
+    mask: jax.Array,
+    a,
+    b,
+    *,
+    bandwidth=1.0,
+    f_scale=1.0,
+    n_terms: int = 0,
+    saa_eps=0.02,
+    saa_temperature=0.05,
+) -> jax.Array:
+    """A method's collision term (eq. l_dist / scenario / SAA) summed over obstacles, (B,).
+
+    ``s, d`` (B, K) ego Frenet positions; ``centres`` (O, J, C, K, 2); ``weights``, ``mask``
+    (O, J); ``a`` the longitudinal semi-axis (scalar or (K,)), ``b`` the lateral one (scalar).
+
+    Every term is a sum of per-obstacle terms that are exactly 0 when no ego point of the batch
+    enters the obstacle's ellipses (MMD and scenario: every f̄ = 0; SAA: every sample's smoothed
+    indicator below ε, so the hinge is 0).  With several obstacles the terms are evaluated one
+    obstacle at a time (``lax.map``), and the expensive part (the MMD's Taylor features, the
+    hinge) only for obstacles that some candidate reaches (``lax.cond``): far traffic costs one
+    ellipse evaluation, so the cost grows with the number of *interacting* obstacles.
+    """
+    if mode not in COLLISION_MODES:
+        raise ValueError(f"mode must be one of {COLLISION_MODES}, got {mode!r}")
+    kw = (bandwidth, f_scale, n_terms, saa_eps, saa_temperature)
+    if centres.shape[0] == 1:
+        return _term(mode, ellipse_values(s, d, centres, a, b), weights, mask, *kw)
+
+    def one(xs):
+        c, w, m = xs
+        f = ellipse_values(s, d, c[None], a, b)  # (B, 1, J, C, K)
+        if mode == "saa":
+            # π̂ ≤ sigmoid(max f / τ) < ε ⇒ max(0, π̂ − ε) = 0
+            live = jax.nn.sigmoid(jnp.max(f) / saa_temperature) >= saa_eps
+        else:
+            live = jnp.any(f > 0.0)
+        zero = jnp.zeros(s.shape[:1], f.dtype)
+        return lax.cond(
+            live, lambda: _term(mode, f, w[None], m[None], *kw).astype(f.dtype), lambda: zero
+        )
+
+    return jnp.sum(lax.map(one, (centres, weights, mask)), axis=0)

@@ -18,6 +18,7 @@ from __future__ import annotations
 
 import jax
 import jax.numpy as jnp
+from numpy.typing import ArrayLike
 
 from ._x64 import x64
 
@@ -32,7 +33,7 @@ __all__ = [
 
 
 @x64
-def sq_distances(x: jax.Array, y: jax.Array | None = None) -> jax.Array:
+def sq_distances(x: ArrayLike, y: ArrayLike | None = None) -> jax.Array:
     """Pairwise squared Euclidean distances, batched over leading axes.
 
     Parameters
@@ -70,7 +71,9 @@ def sq_distances(x: jax.Array, y: jax.Array | None = None) -> jax.Array:
 
 
 @x64
-def gaussian_gram(x: jax.Array, y: jax.Array | None = None, bandwidth=1.0) -> jax.Array:
+def gaussian_gram(
+    x: ArrayLike, y: ArrayLike | None = None, bandwidth: ArrayLike = 1.0
+) -> jax.Array:
     """Gaussian Gram matrix ``K_ij = exp(−‖x_i − y_j‖²/(2σ²))``, shapes as :func:`sq_distances`.
 
     ``bandwidth`` may be a scalar or broadcast against the batch axes (``(...,)``).
@@ -80,7 +83,9 @@ def gaussian_gram(x: jax.Array, y: jax.Array | None = None, bandwidth=1.0) -> ja
 
 
 @x64
-def one_minus_gaussian_gram(x: jax.Array, y: jax.Array | None = None, bandwidth=1.0) -> jax.Array:
+def one_minus_gaussian_gram(
+    x: ArrayLike, y: ArrayLike | None = None, bandwidth: ArrayLike = 1.0
+) -> jax.Array:
     """``1 − K`` computed as ``−expm1(−d²/(2σ²))`` (relative accuracy kept for small distances)."""
     s = jnp.asarray(bandwidth)[..., None, None]
     return -jnp.expm1(-sq_distances(x, y) / (2.0 * s * s))
@@ -110,7 +115,7 @@ def _kth_smallest_nonneg(v: jax.Array, ks: jax.Array) -> jax.Array:
 
 @x64
 @jax.jit
-def median_heuristic(x: jax.Array) -> jax.Array:
+def median_heuristic(x: ArrayLike) -> jax.Array:
     """Data-driven bandwidth: the median pairwise Euclidean distance (Gretton et al., 2012).
 
     Parameters
@@ -143,7 +148,9 @@ def median_heuristic(x: jax.Array) -> jax.Array:
 
 @x64
 @jax.jit
-def mmd2_weighted(x, wx, y, wy, bandwidth) -> jax.Array:
+def mmd2_weighted(
+    x: ArrayLike, wx: ArrayLike, y: ArrayLike, wy: ArrayLike, bandwidth: ArrayLike
+) -> jax.Array:
     """Squared MMD between ``Σ_i wx_i φ(x_i)`` and ``Σ_j wy_j φ(y_j)`` (Gaussian kernel).
 
     Parameters
@@ -189,7 +196,7 @@ def mmd2_weighted(x, wx, y, wy, bandwidth) -> jax.Array:
 
 @x64
 @jax.jit
-def mmd2_to_dirac(a: jax.Array, w: jax.Array, bandwidth) -> jax.Array:
+def mmd2_to_dirac(a: ArrayLike, w: ArrayLike, bandwidth: ArrayLike) -> jax.Array:
     """Squared MMD between ``Σ_p w_p φ(a_p)`` and a Dirac at 0 of the **same total mass** Σw.
 
     Parameters

@@ -69,6 +69,7 @@ from functools import partial
 import jax
 import jax.numpy as jnp
 import numpy as np
+from numpy.typing import ArrayLike
 
 from ._x64 import x64
 from .collision import ELLIPSE_A, ELLIPSE_B
@@ -206,7 +207,7 @@ class ReducedSet:
 
 
 @x64
-def project_simplex(v: jax.Array) -> jax.Array:
+def project_simplex(v: ArrayLike) -> jax.Array:
     """Euclidean projection of ``v`` (..., m) onto the probability simplex (Duchi et al., 2008).
 
     ``max(v − θ, 0)`` with ``θ = max_k (Σ_{i≤k} u_i − 1)/k`` over the prefixes of ``u`` = ``v``
@@ -255,7 +256,7 @@ def _simplex_qp(A: jax.Array, b: jax.Array, x0: jax.Array, iterations: int) -> j
 
 
 @x64
-def refine_weights(K: jax.Array, idx: jax.Array, config: ReducedSetConfig) -> jax.Array:
+def refine_weights(K: ArrayLike, idx: ArrayLike, config: ReducedSetConfig) -> jax.Array:
     """Weights ᾱ of the reduced set ``idx`` (eq. red_set_opt_proposed_2 with ridge ρ).
 
     ``min ½ᾱᵀ(K_RR + ρI)ᾱ − (1/n)1ᵀK_NR ᾱ  s.t. 1ᵀᾱ = 1`` (+ ᾱ ≥ 0 for ``weights="simplex"``);
@@ -347,7 +348,9 @@ def _smallest(c: jax.Array, k: int) -> jax.Array:
 
 
 @x64
-def reduced_set_objective(alpha: jax.Array, K: jax.Array, m: int, beta=1.0, ratio_eps=1e-6):
+def reduced_set_objective(
+    alpha: ArrayLike, K: ArrayLike, m: int, beta: float = 1.0, ratio_eps: float = 1e-6
+) -> jax.Array:
     """eq. (red_set_opt_proposed) for a population ``alpha`` (p, n) -> (p,).
 
     ``αᵀKα − (2/n)1ᵀKα + (1/n²)1ᵀK1`` (the exact MMD², ≥ 0, minimised at α = 1/n without the
@@ -433,12 +436,12 @@ def _cem_alpha(key, K: jax.Array, m: int, cfg: ReducedSetConfig) -> jax.Array:
 
 @partial(jax.jit, static_argnames=("m", "method"))
 def select_reduced_set_unchecked(
-    key: jax.Array,
-    samples: jax.Array,
+    key: ArrayLike,
+    samples: ArrayLike,
     m: int,
     method: str = "mmd",
     config: ReducedSetConfig = ReducedSetConfig(),  # noqa: B008 (frozen, hashable)
-    ego_guess: jax.Array | None = None,
+    ego_guess: ArrayLike | None = None,
 ) -> ReducedSet:
     """Jitted core of :func:`select_reduced_set`, without input validation (traceable)."""
     samples = jnp.asarray(samples)
@@ -539,12 +542,12 @@ def _validate(key, samples, m, method, config, ego_guess, batched: bool):
 
 @x64
 def select_reduced_set(
-    key: jax.Array,
-    samples,
+    key: ArrayLike,
+    samples: ArrayLike,
     m: int,
     method: str = "mmd",
     config: ReducedSetConfig | None = None,
-    ego_guess=None,
+    ego_guess: ArrayLike | None = None,
 ) -> ReducedSet:
     """Select a reduced set of ``m`` of the ``n`` obstacle-trajectory samples, with weights.
 
@@ -580,12 +583,12 @@ def _select_many(keys, samples, m, method, config, ego_guess):
 
 @x64
 def select_reduced_sets(
-    key: jax.Array,
-    samples,
+    key: ArrayLike,
+    samples: ArrayLike,
     m: int,
     method: str = "mmd",
     config: ReducedSetConfig | None = None,
-    ego_guess=None,
+    ego_guess: ArrayLike | None = None,
 ) -> ReducedSet:
     """:func:`select_reduced_set` for O obstacles at once (vmapped; one key per obstacle).
 

@@ -8,9 +8,20 @@ from typing import Any
 import numpy as np
 
 from .problem import QP, QPBatch
+from .settings import SettingsSpec, translate
 from .solution import BatchSolution, Solution, Status
 
-__all__ = ["Backend", "failed_solution"]
+__all__ = [
+    "Backend",
+    "RESIDUAL_FLAG_FACTOR",
+    "failed_solution",
+    "primal_tolerance",
+    "residual_check",
+]
+
+#: a SOLVED whose unscaled primal residual exceeds this many times the backend's stated tolerance
+#: is flagged in ``extras["residual_check"]`` ("orders of magnitude": rounding never gets there)
+RESIDUAL_FLAG_FACTOR = 100.0
 
 
 class Backend:
@@ -18,14 +29,39 @@ class Backend:
 
     Subclasses implement :meth:`solve`; backends that can exploit a shared ``P``/``A`` override
     :meth:`solve_batch` (the default loops over :meth:`solve`, warm-starting each problem from
-    ``warm_start`` when given).  Settings are passed straight through to the native solver; the
-    settings actually used (the solver's defaults merged with the caller's) are recorded on the
-    solution.  A backend never raises for a solver failure: it returns ``Status.ERROR``.
+    ``warm_start`` when given).  Settings: the common vocabulary of :mod:`solvers.settings` and
+    the solver's native names, translated by :meth:`native_settings` (override
+    :meth:`settings_spec`); the settings actually used (the solver's defaults merged with the
+    caller's) are recorded on the solution.  A backend never raises for a solver failure: it
+    returns ``Status.ERROR``.  ``warm_start`` is anything with ``.x`` and ``.y``.
+
+    A user backend that overrides nothing about settings passes them through unchecked.
     """
 
     name: str = "backend"
     #: whether the backend reports infeasibility certificates (tests rely on this flag)
     detects_infeasibility: bool = True
+    #: whether a warm start is used (else the solution records ``warm_start: "ignored"``)
+    honours_warm_start: bool = False
+
+    def settings_spec(self, settings: dict[str, Any] | None = None) -> SettingsSpec:
+        """How this backend reads the common settings (``settings``: for specs that depend on
+        a setting, e.g. cvxpy's ``solver``).  Default: common names passed through as-is."""
+        return SettingsSpec(
+            backend=self.name,
+            common={k: (k,) for k in ("eps_abs", "eps_rel", "max_iter", "time_limit", "verbose")},
+            native=None,
+        )
+
+    def native_settings(self, settings: dict[str, Any]) -> tuple[dict[str, Any], dict[str, Any]]:
+        """``(native keyword arguments, record of the common names)``; unknown names raise
+        :class:`~solvers.errors.InvalidSettingError`."""
+        return translate(self.settings_spec(settings), settings)
+
+    def stated_tolerance(self, used: dict[str, Any]) -> tuple[float, float]:
+        """``(eps_abs, eps_rel)`` the backend claims for a solve whose recorded settings are
+        ``used``: what the residual check holds a ``SOLVED`` to."""
+        return self.settings_spec(used).stated_tolerance(used)
 
     def solve(self, qp: QP, *, warm_start: Solution | None = None, **settings: Any) -> Solution:
         raise NotImplementedError
@@ -73,3 +109,51 @@ def failed_solution(
         settings=settings or {},
         extras={"message": message} if message else {},
     )
+
+
+def primal_tolerance(l: np.ndarray, u: np.ndarray, eps_abs: float, eps_rel: float) -> np.ndarray:
+    """``eps_abs + eps_rel·max(1, ‖finite l, u‖∞)`` per problem (``l, u`` of shape (m,) or (B, m)).
+
+    The relative part scales with the data's bounds, not with the iterate: a point whose
+    ``‖Ax‖`` blew up cannot loosen it (OSQP's ``max(‖Ax‖∞, ‖z‖∞)`` can).
+    """
+    l2, u2 = np.atleast_2d(l), np.atleast_2d(u)
+    fin = np.maximum(
+        np.where(np.isfinite(l2), np.abs(l2), 0.0).max(axis=1, initial=0.0),
+        np.where(np.isfinite(u2), np.abs(u2), 0.0).max(axis=1, initial=0.0),
+    )
+    tol = eps_abs + eps_rel * np.maximum(1.0, fin)
+    return tol if np.ndim(l) == 2 else tol[0]
+
+
+def residual_check(be: Backend, problem: QP | QPBatch, sol: Solution | BatchSolution) -> None:
+    """Check every ``SOLVED`` answer's unscaled primal residual (float64) against the backend's
+    stated tolerance; record the outcome in ``sol.extras["residual_check"]``.
+
+    The answer is kept as the solver gave it; where the residual exceeds
+    :data:`RESIDUAL_FLAG_FACTOR` times the tolerance, ``extras["residual_check"]["result"]`` is
+    ``"failed"`` (for a batch: a boolean array ``"failed"`` per problem).
+    """
+    try:
+        eps_abs, eps_rel = be.stated_tolerance(sol.settings)
+    except Exception:  # a user backend with odd settings: no stated tolerance to check against
+        return
+    tol = primal_tolerance(problem.l, problem.u, eps_abs, eps_rel)
+    prim = np.asarray(sol.primal_residual, dtype=np.float64)
+    solved = np.asarray(sol.status) == int(Status.SOLVED)
+    with np.errstate(invalid="ignore"):
+        failed = solved & ~(prim <= RESIDUAL_FLAG_FACTOR * tol)
+    info: dict[str, Any] = {
+        "eps_abs": eps_abs,
+        "eps_rel": eps_rel,
+        "tolerance": tol if np.ndim(tol) else float(tol),
+        "flag_factor": RESIDUAL_FLAG_FACTOR,
+    }
+    if isinstance(sol, BatchSolution):
+        info.update(failed=failed, primal_residual=prim, n_failed=int(failed.sum()))
+        info["result"] = "failed" if failed.any() else "passed"
+    else:
+        if not solved:
+            return
+        info.update(primal_residual=float(prim), result="failed" if bool(failed) else "passed")
+    sol.extras["residual_check"] = info

@@ -9,7 +9,9 @@ import clarabel
 import numpy as np
 
 from .base import Backend, failed_solution
+from .errors import InvalidSettingError
 from .problem import QP
+from .settings import SettingsSpec
 from .solution import Solution, Status
 
 _STATUS = {
@@ -24,12 +26,30 @@ _STATUS = {
 }
 
 
+#: Clarabel's own setting names
+NATIVE = frozenset(k for k in dir(clarabel.DefaultSettings()) if not k.startswith("_"))
+#: the common vocabulary in Clarabel's names (also used by cvxpy and qpsolvers with Clarabel)
+COMMON = {
+    "eps_abs": ("tol_gap_abs", "tol_feas"),
+    "eps_rel": ("tol_gap_rel",),
+    "max_iter": ("max_iter",),
+    "time_limit": ("time_limit",),
+    "verbose": ("verbose",),
+}
+SPEC = SettingsSpec(
+    backend="clarabel",
+    common=COMMON,
+    native=NATIVE,
+    warm_start=False,
+    tolerance=("tol_feas", "tol_feas"),
+    tolerance_defaults=(1e-8, 1e-8),
+)
+
+
 def _settings(user: dict[str, Any]) -> tuple[clarabel.DefaultSettings, dict[str, Any]]:
     s = clarabel.DefaultSettings()
     s.verbose = False  # quiet is the only default we change; everything else is Clarabel's
     for k, v in user.items():
-        if not hasattr(s, k):
-            raise ValueError(f"unknown Clarabel setting {k!r}")
         setattr(s, k, v)
     used = {
         k: getattr(s, k)
@@ -41,10 +61,18 @@ def _settings(user: dict[str, Any]) -> tuple[clarabel.DefaultSettings, dict[str,
 
 class ClarabelBackend(Backend):
     name = "clarabel"
+    honours_warm_start = False  # interior point: no warm start
 
-    def solve(self, qp: QP, *, warm_start: Solution | None = None, **settings: Any) -> Solution:
-        # Clarabel is an interior-point method: it has no warm start, so warm_start is ignored.
-        s, used = _settings(settings)
+    def settings_spec(self, settings: dict[str, Any] | None = None) -> SettingsSpec:
+        return SPEC
+
+    def solve(self, qp: QP, *, warm_start: Any = None, **settings: Any) -> Solution:
+        native, record = self.native_settings(settings)
+        try:
+            s, used = _settings(native)
+        except (TypeError, ValueError) as exc:  # a native name with a value of the wrong type
+            raise InvalidSettingError(f"invalid Clarabel setting value: {exc}") from None
+        used.update(record)
         P, q, A, b, cones = qp.to_clarabel()
         cone_objs = []
         for kind, size in cones:

@@ -6,8 +6,12 @@ parameter values.  Infinite bounds are never replaced by big numbers: only rows 
 finite get a constraint, so the built problem depends on the *pattern* of finite bounds too.  Built
 problems are cached by the content of ``P`` and ``A`` and that pattern (a small LRU).
 
-Settings: ``solver=`` picks cvxpy's solver (default ``"CLARABEL"``); every other keyword goes to
-``cp.Problem.solve`` and thus to that solver untouched.  cvxpy's own defaults are not changed.
+Settings: ``solver=`` picks cvxpy's solver (default ``"CLARABEL"``); the common vocabulary is
+mapped to that solver's names (Clarabel, OSQP, SCS, PIQP, ProxQP, DAQP); other keywords go to
+``cp.Problem.solve`` and thus to that solver, checked against its known names (an unknown one
+raises :class:`~solvers.errors.InvalidSettingError`; for a solver not in the table they pass
+unchecked).  cvxpy's own defaults are not changed.  ``warm_start`` is recorded as ignored (cvxpy
+warm-starts only from its own previous solve, not from a given point).
 """
 
 from __future__ import annotations
@@ -21,8 +25,11 @@ import cvxpy as cp
 import numpy as np
 import scipy.sparse as sp
 
+from . import clarabel_
 from .base import Backend, failed_solution
+from .errors import InvalidSettingError
 from .problem import QP
+from .settings import SettingsSpec
 from .solution import Solution, Status
 
 __all__ = ["CvxpyBackend", "make_backend", "DEFAULT_SOLVER"]
@@ -40,6 +47,108 @@ _STATUS = {
     cp.USER_LIMIT: Status.MAX_ITER,
     # SOLVER_ERROR, INFEASIBLE_OR_UNBOUNDED and anything else -> ERROR
 }
+
+
+#: keywords of ``cp.Problem.solve`` itself, valid with every solver
+_CVXPY_KW = frozenset({"solver", "verbose", "ignore_dpp", "canon_backend", "enforce_dpp"})
+_C = ("eps_abs", "eps_rel", "max_iter", "time_limit", "verbose")
+#: per cvxpy solver: (common -> native names, native names or None, stated tolerance keys, defaults)
+_SOLVER_SPECS: dict[str, tuple[dict, frozenset | None, tuple, tuple]] = {
+    "CLARABEL": (clarabel_.COMMON, clarabel_.NATIVE, ("tol_feas", "tol_feas"), (1e-8, 1e-8)),
+    "OSQP": (
+        {k: (k,) for k in _C},
+        None,  # filled lazily from solvers.osqp_ when osqp is installed
+        ("eps_abs", "eps_rel"),
+        (1e-5, 1e-5),  # cvxpy's own OSQP defaults
+    ),
+    "SCS": (
+        {
+            "eps_abs": ("eps_abs",),
+            "eps_rel": ("eps_rel",),
+            "max_iter": ("max_iters",),
+            "time_limit": ("time_limit_secs",),
+            "verbose": ("verbose",),
+        },
+        frozenset(
+            {
+                "normalize",
+                "scale",
+                "adaptive_scale",
+                "rho_x",
+                "max_iters",
+                "eps_abs",
+                "eps_rel",
+                "eps_infeas",
+                "alpha",
+                "time_limit_secs",
+                "verbose",
+                "warm_start",
+                "acceleration_lookback",
+                "acceleration_interval",
+                "write_data_filename",
+                "log_csv_filename",
+                "use_indirect",
+                "gpu",
+                "mkl",
+            }
+        ),
+        ("eps_abs", "eps_rel"),
+        (1e-5, 1e-5),
+    ),
+    "PIQP": (
+        {
+            "eps_abs": ("eps_abs",),
+            "eps_rel": ("eps_rel",),
+            "max_iter": ("max_iter",),
+            "verbose": ("verbose",),
+        },
+        None,
+        ("eps_abs", "eps_rel"),
+        (1e-8, 1e-9),
+    ),
+    "PROXQP": (
+        {
+            "eps_abs": ("eps_abs",),
+            "eps_rel": ("eps_rel",),
+            "max_iter": ("max_iter",),
+            "verbose": ("verbose",),
+        },
+        None,
+        ("eps_abs", "eps_rel"),
+        (1e-5, 0.0),
+    ),
+    "DAQP": (
+        {"eps_abs": ("primal_tol",), "max_iter": ("iter_limit",), "verbose": ("verbose",)},
+        None,
+        ("primal_tol", None),
+        (1e-6, 0.0),
+    ),
+}
+
+
+def _spec(solver: str) -> SettingsSpec:
+    common, native, tol, tol_def = _SOLVER_SPECS.get(
+        solver, ({k: (k,) for k in _C}, None, ("eps_abs", "eps_rel"), (1e-6, 1e-6))
+    )
+    if solver == "OSQP":
+        try:
+            from . import osqp_
+
+            native = osqp_.NATIVE
+        except ImportError:
+            native = None
+    if native is not None:
+        native = native | _CVXPY_KW
+    common = dict(common)
+    common.setdefault("verbose", ("verbose",))
+    return SettingsSpec(
+        backend=f"cvxpy (solver {solver})",
+        common=common,
+        native=native,
+        warm_start=False,
+        tolerance=tol,
+        tolerance_defaults=tol_def,
+    )
 
 
 def _same(M1: Any, M2: Any) -> bool:
@@ -105,6 +214,10 @@ def _build(qp: QP, eq: np.ndarray, up: np.ndarray, lo: np.ndarray, pattern: byte
 class CvxpyBackend(Backend):
     name = "cvxpy"
     detects_infeasibility = True
+    honours_warm_start = False
+
+    def settings_spec(self, settings: dict[str, Any] | None = None) -> SettingsSpec:
+        return _spec((settings or {}).get("solver", DEFAULT_SOLVER))
 
     def __init__(self) -> None:
         self._cache: OrderedDict[int, _Built] = OrderedDict()
@@ -124,13 +237,16 @@ class CvxpyBackend(Backend):
             self._cache.popitem(last=False)
         return built, eq, up, lo
 
-    def solve(self, qp: QP, *, warm_start: Solution | None = None, **settings: Any) -> Solution:
-        solver = settings.pop("solver", DEFAULT_SOLVER)
-        if solver not in cp.installed_solvers():
-            raise ValueError(
-                f"cvxpy solver {solver!r} is not installed; installed: {cp.installed_solvers()}"
+    def solve(self, qp: QP, *, warm_start: Any = None, **settings: Any) -> Solution:
+        solver = settings.get("solver", DEFAULT_SOLVER)
+        if not isinstance(solver, str) or solver not in cp.installed_solvers():
+            raise InvalidSettingError(
+                f"solver: cvxpy solver {solver!r} is not installed; installed: "
+                f"{cp.installed_solvers()}"
             )
-        used = {"solver": solver, **settings}
+        settings, record = self.native_settings(settings)
+        settings.pop("solver", None)
+        used = {"solver": solver, **settings, **record}
         t0 = time.perf_counter()
         built, eq, up, lo = self._get(qp)
         built.q.value = qp.q
@@ -140,12 +256,11 @@ class CvxpyBackend(Backend):
             built.u.value = qp.u[up]
         if built.l is not None:
             built.l.value = qp.l[lo]
-        if warm_start is not None and np.all(np.isfinite(warm_start.x)):
-            built.x.value = np.asarray(warm_start.x, dtype=np.float64)
-        else:
-            built.x.value = None
+        built.x.value = None
         try:
             built.problem.solve(solver=solver, **settings)
+        except TypeError as exc:  # a native name the solver's interface rejects
+            raise InvalidSettingError(f"invalid setting for cvxpy solver {solver}: {exc}") from None
         except cp.error.SolverError as exc:
             return failed_solution(
                 qp,

@@ -5,9 +5,14 @@ batch** (the factorisation of the KKT matrix depends only on ``P``, ``A`` and ``
 each problem calls ``update(q=, l=, u=)`` and warm-starts from the previous problem's solution (or
 from ``warm_start[i]`` when a :class:`~solvers.solution.BatchSolution` is given).
 
-Settings are OSQP's own (``eps_abs``, ``eps_rel``, ``max_iter``, ``polishing``, ...), passed
-straight through; the only default we change is ``verbose=False``.  Every setting actually used is
-recorded on the solution.
+Settings are OSQP's own (``eps_abs``, ``eps_rel``, ``max_iter``, ``polishing``, ...), which include
+the common vocabulary under the same names; the only default we change is ``verbose=False``.
+Every setting actually used is recorded on the solution; an unknown name raises
+:class:`~solvers.errors.InvalidSettingError`.
+
+For infeasible problems OSQP fills ``x``/``y`` with a NaN placeholder (``2143289344.0``, the bits of
+a float NaN read as a number); it is never read as a point: ``x``, ``y``, the objective and the
+residuals are NaN and the certificate is in ``extras``.
 """
 
 from __future__ import annotations
@@ -20,7 +25,9 @@ import osqp
 import scipy.sparse as sp
 
 from .base import Backend, failed_solution
+from .errors import InvalidSettingError
 from .problem import QP, QPBatch
+from .settings import SettingsSpec
 from .solution import BatchSolution, Solution, Status
 
 __all__ = ["OSQPBackend", "make_backend"]
@@ -36,6 +43,52 @@ _STATUS = {
     int(_S.OSQP_DUAL_INFEASIBLE_INACCURATE): Status.DUAL_INFEASIBLE,
     # OSQP_TIME_LIMIT_REACHED, OSQP_NON_CVX, OSQP_SIGINT, OSQP_UNSOLVED -> ERROR (the default)
 }
+#: OSQP's own setting names (osqp 1.x)
+NATIVE = frozenset(
+    {
+        "adaptive_rho",
+        "adaptive_rho_fraction",
+        "adaptive_rho_interval",
+        "adaptive_rho_tolerance",
+        "alpha",
+        "cg_max_iter",
+        "cg_precond",
+        "cg_tol_fraction",
+        "cg_tol_reduction",
+        "check_dualgap",
+        "check_termination",
+        "delta",
+        "device",
+        "eps_abs",
+        "eps_dual_inf",
+        "eps_prim_inf",
+        "eps_rel",
+        "linsys_solver",
+        "max_iter",
+        "polish_refine_iter",
+        "polishing",
+        "rho",
+        "rho_is_vec",
+        "scaled_termination",
+        "scaling",
+        "sigma",
+        "time_limit",
+        "verbose",
+        "warm_starting",
+    }
+)
+#: the common vocabulary: OSQP's names are the common ones
+COMMON = {k: (k,) for k in ("eps_abs", "eps_rel", "max_iter", "time_limit", "verbose")}
+SPEC = SettingsSpec(
+    backend="osqp",
+    common=COMMON,
+    native=NATIVE,
+    warm_start=True,
+    tolerance=("eps_abs", "eps_rel"),
+    tolerance_defaults=(1e-3, 1e-3),
+)
+#: OSQP's float NaN placeholder (0x7FC00000 read as an integer) in x/y of infeasible problems
+NAN_PLACEHOLDER = 2143289344.0
 # A time limit is not an iteration limit: the caller asked for a budget in seconds, and the iterate
 # is no more trustworthy than an ERROR's.  NON_CVX means P is not PSD.
 
@@ -58,9 +111,23 @@ def _finite(v: np.ndarray | None) -> bool:
     return v is not None and bool(np.all(np.isfinite(v)))
 
 
+def _point(v: Any) -> np.ndarray | None:
+    """OSQP's x or y as float64, or ``None`` when it is non-finite or OSQP's NaN placeholder."""
+    if v is None:
+        return None
+    v = np.array(v, dtype=np.float64)
+    if not np.all(np.isfinite(v)) or np.any(v == NAN_PLACEHOLDER):
+        return None
+    return v
+
+
 class OSQPBackend(Backend):
     name = "osqp"
     detects_infeasibility = True
+    honours_warm_start = True
+
+    def settings_spec(self, settings: dict[str, Any] | None = None) -> SettingsSpec:
+        return SPEC
 
     # -------------------------------------------------------------- helpers
     @staticmethod
@@ -84,15 +151,19 @@ class OSQPBackend(Backend):
             extras["prim_inf_cert"] = np.array(res.prim_inf_cert, dtype=np.float64)
         if status is Status.DUAL_INFEASIBLE and res.dual_inf_cert is not None:
             extras["dual_inf_cert"] = np.array(res.dual_inf_cert, dtype=np.float64)
-        x = None if res.x is None else np.array(res.x, dtype=np.float64)
-        y = None if res.y is None else np.array(res.y, dtype=np.float64)
-        if not _finite(x) or status in (Status.PRIMAL_INFEASIBLE, Status.DUAL_INFEASIBLE):
+        infeasible = status in (Status.PRIMAL_INFEASIBLE, Status.DUAL_INFEASIBLE)
+        # an infeasible problem has no point: never read x/y (OSQP's NaN placeholder) then
+        x = None if infeasible else _point(res.x)
+        y = None if infeasible else _point(res.y)
+        if x is None:
+            if status in (Status.SOLVED, Status.SOLVED_INACCURATE, Status.MAX_ITER):
+                status = Status.ERROR  # no usable point came back
             sol = failed_solution(
                 qp,
                 self.name,
                 status,
-                x=x if _finite(x) else None,
-                y=y if _finite(y) else None,
+                x=None,
+                y=None,
                 solve_time=dt,
                 iterations=int(info.iter),
                 settings=used,
@@ -115,13 +186,14 @@ class OSQPBackend(Backend):
         )
 
     # ------------------------------------------------------------------ API
-    def solve(self, qp: QP, *, warm_start: Solution | None = None, **settings: Any) -> Solution:
+    def solve(self, qp: QP, *, warm_start: Any = None, **settings: Any) -> Solution:
+        settings, record = self.native_settings(settings)
         t0 = time.perf_counter()
         try:
             solver = self._setup(qp.P, qp.A, qp.q, qp.l, qp.u, settings)
         except (ValueError, TypeError) as exc:
             if "Unrecognized settings" in str(exc):
-                raise  # a caller's typo is a programming error, not a solver failure
+                raise InvalidSettingError(str(exc)) from None
             return failed_solution(
                 qp,
                 self.name,
@@ -137,25 +209,26 @@ class OSQPBackend(Backend):
                 settings=dict(settings),
                 message=f"OSQP setup failed: {exc!r}",
             )
-        used = _used_settings(solver)
+        used = _used_settings(solver) | record
         if warm_start is not None and _finite(warm_start.x) and _finite(warm_start.y):
             solver.warm_start(x=warm_start.x, y=warm_start.y)
         res = solver.solve(raise_error=False)
         return self._result(qp, res, time.perf_counter() - t0, used)
 
     def solve_batch(
-        self, batch: QPBatch, *, warm_start: BatchSolution | None = None, **settings: Any
+        self, batch: QPBatch, *, warm_start: Any = None, **settings: Any
     ) -> BatchSolution:
+        settings, record = self.native_settings(settings)
         t_start = time.perf_counter()
         try:
             solver = self._setup(batch.P, batch.A, batch.q[0], batch.l[0], batch.u[0], settings)
         except (ValueError, TypeError) as exc:
             if "Unrecognized settings" in str(exc):
-                raise
+                raise InvalidSettingError(str(exc)) from None
             return self._all_failed(batch, t_start, settings, exc)
         except Exception as exc:
             return self._all_failed(batch, t_start, settings, exc)
-        used = _used_settings(solver)
+        used = _used_settings(solver) | record
         warm = bool(used.get("warm_starting", True))
         rho0 = float(used["rho"])
         sols: list[Solution] = []

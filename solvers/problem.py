@@ -16,7 +16,9 @@ from typing import Any
 import numpy as np
 import scipy.sparse as sp
 
-__all__ = ["QP", "QPBatch", "INF"]
+from .errors import NonConvexError
+
+__all__ = ["QP", "QPBatch", "INF", "BOUND_INF", "check_convex"]
 
 INF = np.inf
 #: magnitude at or above which a bound is treated as infinite (Maros–Meszaros uses 1e20)
@@ -25,15 +27,36 @@ BOUND_INF = 1e20
 Matrix = np.ndarray | sp.spmatrix | sp.sparray
 
 
+def _real(v: Any, name: str) -> np.ndarray:
+    """``v`` as a float64 array; complex, strings and other non-numbers raise naming ``name``."""
+    a = np.asarray(v)
+    if a.dtype.kind == "c":
+        raise ValueError(
+            f"{name} is complex (dtype {a.dtype}): a QP needs real data; the imaginary part is "
+            "not dropped silently"
+        )
+    if a.dtype.kind == "O":
+        try:
+            a = a.astype(np.float64)
+        except (TypeError, ValueError) as exc:
+            raise ValueError(f"{name} must be numeric: {exc}") from None
+    elif a.dtype.kind not in "biuf":
+        raise ValueError(f"{name} must be numeric, got dtype {a.dtype} ({np.ravel(a)[:3]!r})")
+    return a.astype(np.float64, copy=False)
+
+
 def _as_matrix(M: Any, name: str, shape: tuple[int, int]) -> np.ndarray | sp.csc_matrix:
+    if M is None:
+        raise ValueError(f"{name} is required, got None")
     if sp.issparse(M):
+        if M.dtype.kind == "c":
+            raise ValueError(f"{name} is complex (dtype {M.dtype}): a QP needs real data")
+        if M.dtype.kind not in "biuf":
+            raise ValueError(f"{name} must be numeric, got dtype {M.dtype}")
         M = sp.csc_matrix(M, dtype=np.float64)
         data = M.data
     else:
-        try:
-            M = np.asarray(M, dtype=np.float64)
-        except (TypeError, ValueError) as exc:
-            raise ValueError(f"{name} must be a numeric matrix: {exc}") from None
+        M = _real(M, name)
         if M.ndim == 1 and shape[0] == 0:
             M = M.reshape(0, shape[1])
         data = M
@@ -45,10 +68,9 @@ def _as_matrix(M: Any, name: str, shape: tuple[int, int]) -> np.ndarray | sp.csc
 
 
 def _as_vector(v: Any, name: str, size: int, *, allow_inf: bool, batch: int | None = None):
-    try:
-        v = np.asarray(v, dtype=np.float64)
-    except (TypeError, ValueError) as exc:
-        raise ValueError(f"{name} must be numeric: {exc}") from None
+    if v is None:
+        raise ValueError(f"{name} is required, got None")
+    v = _real(v, name)
     shape = (size,) if batch is None else (batch, size)
     if v.shape != shape:
         raise ValueError(f"{name} has shape {v.shape}, expected {shape}")
@@ -56,16 +78,37 @@ def _as_vector(v: Any, name: str, size: int, *, allow_inf: bool, batch: int | No
         raise ValueError(f"{name} contains NaN")
     if not allow_inf and not np.all(np.isfinite(v)):
         raise ValueError(f"{name} contains inf")
-    if allow_inf:
-        v = np.where(v >= BOUND_INF, np.inf, np.where(v <= -BOUND_INF, -np.inf, v))
     return v
 
 
-def _check_bounds(l: np.ndarray, u: np.ndarray) -> None:
+def _bounds(l: np.ndarray, u: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Apply the 1e20 rule and check ``l ≤ u``; returns the bounds to store.
+
+    A magnitude ≥ :data:`BOUND_INF` means "no bound" only in the direction of no bound (``l ≤
+    −1e20`` → ``−inf``, ``u ≥ 1e20`` → ``+inf``) and never on a row with ``l == u``: a finite
+    equality stays the number it is.  A lower bound of ``+inf`` or an upper bound of ``−inf``
+    (an equality at infinity included) can never be met and is refused.
+    """
+    eq = l == u
+    l = np.where((l <= -BOUND_INF) & ~eq, -np.inf, l)
+    u = np.where((u >= BOUND_INF) & ~eq, np.inf, u)
+    for name, bad, what in (
+        ("l", l == np.inf, "+inf (a lower bound of +inf can never be met)"),
+        ("u", u == -np.inf, "-inf (an upper bound of -inf can never be met)"),
+    ):
+        if np.any(bad):
+            idx = np.argwhere(bad)[:5].tolist()
+            both = " (l == u == ±inf: an equality at infinity)" if np.any(eq & bad) else ""
+            raise ValueError(f"{name} is {what} at index {idx} (first 5 shown){both}")
     bad = l > u
     if np.any(bad):
         idx = np.argwhere(bad)[:5].tolist()
         raise ValueError(f"infeasible bounds: l > u at index {idx} (first 5 shown)")
+    return l, u
+
+
+def _check_bounds(l: np.ndarray, u: np.ndarray) -> None:
+    _bounds(l, u)
 
 
 def _is_symmetric(P: np.ndarray | sp.csc_matrix) -> bool:
@@ -76,9 +119,72 @@ def _is_symmetric(P: np.ndarray | sp.csc_matrix) -> bool:
     return bool(np.max(np.abs(D), initial=0.0) <= 1e-9 * scale)
 
 
+#: P + ε·I must factor (Cholesky) with ε = PSD_RTOL·‖P‖∞: eigenvalues above −ε count as zero.
+#: Matrices given to ~6 significant digits are PSD only to that precision: Maros–Meszaros VALUES
+#: (entries printed with 6 decimals) has λ_min = −1.3e-5 at ‖P‖∞ = 10.9 and every solver reaches
+#: its published optimum; diag(1, −1) (λ_min = −‖P‖∞) is refused.
+PSD_RTOL = 1e-5
+#: above this many variables a sparse P is checked by a sparse LDLᵀ-like LU instead of densified
+_PSD_DENSE_MAX = 3000
+
+
+def check_convex(P: Any, name: str = "P") -> None:
+    """Raise :class:`~solvers.errors.NonConvexError` unless ``P`` is positive semidefinite.
+
+    Cheap: a Cholesky factorisation of ``P + εI``, ``ε = 1e-5·‖P‖∞`` (max absolute row sum), so
+    the negative eigenvalues that rounding of the data leaves in a PSD matrix pass (see
+    :data:`PSD_RTOL`); on failure the smallest eigenvalue is reported.
+    Sparse ``P`` with more than 3000 variables: an LU of ``P + εI`` without pivoting
+    (``SymmetricMode``), whose pivots are positive exactly when ``P + εI`` is positive definite.
+    """
+    n = P.shape[0]
+    if n == 0:
+        return
+    row_sums = abs(P).sum(axis=1) if sp.issparse(P) else np.abs(P).sum(axis=1)
+    scale = float(np.max(row_sums))
+    if scale == 0.0:
+        return
+    eps = PSD_RTOL * scale
+    if sp.issparse(P) and n > _PSD_DENSE_MAX:
+        import scipy.sparse.linalg as spla
+
+        M = sp.csc_matrix(P) + eps * sp.identity(n, format="csc")
+        try:
+            lu = spla.splu(
+                M,
+                permc_spec="MMD_AT_PLUS_A",
+                diag_pivot_thresh=0.0,
+                options={"SymmetricMode": True},
+            )
+            ok = bool(np.all(lu.U.diagonal() > 0))
+        except RuntimeError:  # exactly singular: not positive definite
+            ok = False
+        if not ok:
+            raise NonConvexError(
+                f"{name} is not positive semidefinite (P + {eps:.1e}·I has a non-positive "
+                "pivot): the QP is non-convex and is refused; pass check_convex=False to skip "
+                "this check"
+            )
+        return
+    Pd = P.toarray() if sp.issparse(P) else np.asarray(P)
+    try:
+        np.linalg.cholesky(Pd + eps * np.eye(n))
+        return
+    except np.linalg.LinAlgError:
+        pass
+    lam = float(np.linalg.eigvalsh(0.5 * (Pd + Pd.T))[0])
+    if lam >= -eps:  # Cholesky's rounding, not an indefinite P
+        return
+    raise NonConvexError(
+        f"{name} is not positive semidefinite (smallest eigenvalue {lam:.3g}, ‖{name}‖∞ "
+        f"{scale:.3g}): the QP is non-convex and is refused; pass check_convex=False to skip "
+        "this check"
+    )
+
+
 @dataclass(frozen=True, eq=False)
 class QP:
-    """One convex QP ``min ½xᵀPx + qᵀx s.t. l ≤ Ax ≤ u``.
+    """One convex QP ``min ½xᵀPx + qᵀx s.t. l ≤ Ax ≤ u`` (OSQP's form).
 
     Parameters
     ----------
@@ -86,7 +192,23 @@ class QP:
         If only the upper triangle is given (as some formats store it), pass ``P + P.T - diag(P)``.
     q : (n,)
     A : (m, n) dense or sparse; ``m`` may be 0.
-    l, u : (m,) with ``-inf``/``+inf`` allowed and ``l ≤ u``.  Magnitudes ≥ 1e20 are read as inf.
+    l, u : (m,) with ``-inf``/``+inf`` allowed and ``l ≤ u``; ``l == u`` makes an equality.
+        ``l ≤ −1e20`` and ``u ≥ 1e20`` are read as infinite (never on a row with ``l == u``).
+    check_convex : refuse a ``P`` that is not positive semidefinite with
+        :class:`~solvers.errors.NonConvexError` (a Cholesky of ``P + εI``); ``False`` skips the
+        check on large problems, at the caller's risk.
+
+    Every argument is validated on construction: wrong shapes, non-numeric or complex data,
+    NaN/inf in the matrices or in ``q``, NaN in the bounds, ``l > u``, ``l = +inf``, ``u = −inf``
+    raise :class:`ValueError` naming the argument.
+
+    Example::
+
+        >>> import numpy as np
+        >>> from solvers import QP, solve
+        >>> qp = QP(np.eye(2), [1.0, -1.0], np.eye(2), [-0.5, -0.5], [1.0, 1.0])
+        >>> solve(qp, backend="clarabel").x.round(6)
+        array([-0.5,  1. ])
     """
 
     P: Matrix
@@ -94,14 +216,19 @@ class QP:
     A: Matrix
     l: np.ndarray
     u: np.ndarray
+    check_convex: bool = True
 
     def __post_init__(self) -> None:
-        q = np.asarray(self.q, dtype=np.float64) if not isinstance(self.q, np.ndarray) else self.q
+        if self.q is None:
+            raise ValueError("q is required, got None")
+        q = _real(self.q, "q")
         if q.ndim != 1:
             raise ValueError(f"q must be 1-D, got shape {np.shape(q)}")
         n = q.shape[0]
         if n == 0:
             raise ValueError("q is empty: a QP needs at least one variable")
+        if self.A is None:
+            raise ValueError("A is required (use np.zeros((0, n)) for no constraints), got None")
         A_shape = np.shape(self.A) if not sp.issparse(self.A) else self.A.shape
         if len(A_shape) == 1 and A_shape[0] == 0:
             A_shape = (0, n)
@@ -109,15 +236,26 @@ class QP:
             raise ValueError(f"A must be 2-D, got shape {A_shape}")
         m = A_shape[0]
         object.__setattr__(self, "P", _as_matrix(self.P, "P", (n, n)))
-        object.__setattr__(self, "q", _as_vector(self.q, "q", n, allow_inf=False))
+        object.__setattr__(self, "q", _as_vector(q, "q", n, allow_inf=False))
         object.__setattr__(self, "A", _as_matrix(self.A, "A", (m, n)))
         l = _as_vector(self.l, "l", m, allow_inf=True)
         u = _as_vector(self.u, "u", m, allow_inf=True)
-        _check_bounds(l, u)
+        l, u = _bounds(l, u)
         object.__setattr__(self, "l", l)
         object.__setattr__(self, "u", u)
+        if not isinstance(self.check_convex, (bool, np.bool_)):
+            raise ValueError(f"check_convex must be True or False, got {self.check_convex!r}")
         if not _is_symmetric(self.P):
             raise ValueError("P must be symmetric")
+        if self.check_convex:
+            check_convex(self.P)
+        object.__setattr__(self, "_convex_checked", bool(self.check_convex))
+
+    def ensure_convex(self) -> None:
+        """Run the convexity check now if it was skipped at construction (cached)."""
+        if not getattr(self, "_convex_checked", False):
+            check_convex(self.P)
+            object.__setattr__(self, "_convex_checked", True)
 
     # ------------------------------------------------------------------ sizes
     @property
@@ -179,40 +317,70 @@ class QP:
         b: np.ndarray | None = None,
         lb: np.ndarray | None = None,
         ub: np.ndarray | None = None,
+        *,
+        check_convex: bool = True,
     ) -> QP:
-        """Build from the qpsolvers form ``Gx ≤ h, Ax = b, lb ≤ x ≤ ub``."""
-        q = np.asarray(q, dtype=np.float64)
+        """Build from qpsolvers' form ``min ½xᵀPx + qᵀx s.t. Gx ≤ h, Ax = b, lb ≤ x ≤ ub``.
+
+        Rows are stacked as ``[G; A; I]`` with bounds ``(−inf, h)``, ``(b, b)``, ``(lb, ub)``.
+        Dense ``P`` gives a dense ``A``; sparse ``P`` a CSC one.  Each argument is checked and
+        named in errors (``G`` without ``h``, wrong lengths, NaN, complex data).
+
+        Example::
+
+            >>> qp = QP.from_qpsolvers(np.eye(2), [1.0, -1.0], G=[[1.0, 1.0]], h=[0.5],
+            ...                        lb=[-1.0, -1.0], ub=[1.0, 1.0])
+            >>> qp.m  # one inequality row and two bound rows
+            3
+        """
+        if q is None:
+            raise ValueError("q is required, got None")
+        q = _real(q, "q")
+        if q.ndim != 1 or q.shape[0] == 0:
+            raise ValueError(f"q must be a non-empty 1-D vector, got shape {q.shape}")
         n = q.shape[0]
         rows, lo, hi = [], [], []
-        if G is not None:
-            if h is None:
-                raise ValueError("h is required when G is given")
-            G = sp.csc_matrix(G)
-            rows.append(G)
-            h = np.asarray(h, dtype=np.float64).reshape(-1)
-            lo.append(np.full(h.shape, -np.inf))
-            hi.append(h)
-        if A is not None:
-            if b is None:
-                raise ValueError("b is required when A is given")
-            A = sp.csc_matrix(A)
-            b = np.asarray(b, dtype=np.float64).reshape(-1)
-            rows.append(A)
-            lo.append(b)
-            hi.append(b)
+
+        def _rows(M: Any, name: str) -> sp.csc_matrix:
+            if not sp.issparse(M):
+                M = _real(M, name)
+                if M.ndim == 1:
+                    M = M.reshape(1, -1)
+            M = _as_matrix(M, name, (M.shape[0], n) if M.ndim == 2 else M.shape)
+            return sp.csc_matrix(M)
+
+        def _rhs(v: Any, name: str, k: int, *, allow_inf: bool) -> np.ndarray:
+            v = _real(v, name).reshape(-1) if np.ndim(v) <= 1 else _real(v, name)
+            return _as_vector(v, name, k, allow_inf=allow_inf)
+
+        for M, v, Mname, vname in ((G, h, "G", "h"), (A, b, "A", "b")):
+            if M is None and v is None:
+                continue
+            if M is None or v is None:
+                given, missing = (Mname, vname) if v is None else (vname, Mname)
+                raise ValueError(f"{missing} is required when {given} is given")
+            Ms = _rows(M, Mname)
+            vv = _rhs(v, vname, Ms.shape[0], allow_inf=(vname == "h"))
+            if vname == "b" and not np.all(np.isfinite(vv)):
+                raise ValueError("b contains inf: an equality at infinity can never be met")
+            rows.append(Ms)
+            lo.append(np.full(vv.shape, -np.inf) if vname == "h" else vv)
+            hi.append(vv)
         if lb is not None or ub is not None:
-            lbv = np.full(n, -np.inf) if lb is None else np.asarray(lb, dtype=np.float64)
-            ubv = np.full(n, np.inf) if ub is None else np.asarray(ub, dtype=np.float64)
+            lbv = np.full(n, -np.inf) if lb is None else _rhs(lb, "lb", n, allow_inf=True)
+            ubv = np.full(n, np.inf) if ub is None else _rhs(ub, "ub", n, allow_inf=True)
+            bad = lbv > ubv
+            if np.any(bad):
+                raise ValueError(f"lb > ub at index {np.flatnonzero(bad)[:5].tolist()}")
             rows.append(sp.identity(n, format="csc"))
             lo.append(lbv)
             hi.append(ubv)
         Acat = sp.vstack(rows, format="csc") if rows else sp.csc_matrix((0, n))
         l = np.concatenate(lo) if lo else np.zeros(0)
         u = np.concatenate(hi) if hi else np.zeros(0)
-        dense = not sp.issparse(P)
-        if dense:
+        if P is not None and not sp.issparse(P):
             Acat = Acat.toarray()
-        return cls(P, q, Acat, l, u)
+        return cls(P, q, Acat, l, u, check_convex=check_convex)
 
     def to_qpsolvers(self) -> dict[str, Any]:
         """Return the qpsolvers form as a dict with keys ``P, q, G, h, A, b, lb, ub``.
@@ -284,6 +452,7 @@ class QPBatch:
     """Many QPs sharing ``P`` (n, n) and ``A`` (m, n); per-problem ``q`` (B, n), ``l``/``u`` (B, m).
 
     Iterating or indexing yields :class:`QP` objects, so any backend can loop over a batch.
+    Validated like :class:`QP` (``check_convex`` included, once for the shared ``P``).
     """
 
     P: Matrix
@@ -291,14 +460,21 @@ class QPBatch:
     q: np.ndarray
     l: np.ndarray
     u: np.ndarray
+    check_convex: bool = True
 
     def __post_init__(self) -> None:
-        q = np.asarray(self.q, dtype=np.float64)
+        if self.q is None:
+            raise ValueError("q is required, got None")
+        q = _real(self.q, "q")
         if q.ndim != 2:
             raise ValueError(f"q must have shape (B, n) with a leading batch axis, got {q.shape}")
         B, n = q.shape
         if B == 0:
             raise ValueError("q has an empty batch axis: a batch needs at least one problem")
+        if n == 0:
+            raise ValueError("q has shape (B, 0): a QP needs at least one variable")
+        if self.A is None:
+            raise ValueError("A is required (use np.zeros((0, n)) for no constraints), got None")
         A_shape = self.A.shape if sp.issparse(self.A) else np.shape(self.A)
         if len(A_shape) != 2:
             raise ValueError(f"A must be 2-D, got shape {A_shape}")
@@ -308,11 +484,22 @@ class QPBatch:
         object.__setattr__(self, "q", _as_vector(q, "q", n, allow_inf=False, batch=B))
         l = _as_vector(self.l, "l", m, allow_inf=True, batch=B)
         u = _as_vector(self.u, "u", m, allow_inf=True, batch=B)
-        _check_bounds(l, u)
+        l, u = _bounds(l, u)
         object.__setattr__(self, "l", l)
         object.__setattr__(self, "u", u)
+        if not isinstance(self.check_convex, (bool, np.bool_)):
+            raise ValueError(f"check_convex must be True or False, got {self.check_convex!r}")
         if not _is_symmetric(self.P):
             raise ValueError("P must be symmetric")
+        if self.check_convex:
+            check_convex(self.P)
+        object.__setattr__(self, "_convex_checked", bool(self.check_convex))
+
+    def ensure_convex(self) -> None:
+        """Run the convexity check now if it was skipped at construction (cached)."""
+        if not getattr(self, "_convex_checked", False):
+            check_convex(self.P)
+            object.__setattr__(self, "_convex_checked", True)
 
     @property
     def batch_size(self) -> int:
@@ -330,7 +517,10 @@ class QPBatch:
         return self.batch_size
 
     def __getitem__(self, i: int) -> QP:
-        return QP(self.P, self.q[i], self.A, self.l[i], self.u[i])
+        # P was checked (or the check skipped) for the whole batch: not again per problem
+        qp = QP(self.P, self.q[i], self.A, self.l[i], self.u[i], check_convex=False)
+        object.__setattr__(qp, "_convex_checked", getattr(self, "_convex_checked", False))
+        return qp
 
     def __iter__(self):
         for i in range(self.batch_size):
@@ -349,8 +539,10 @@ class QPBatch:
         P0, A0 = qps[0].dense()
         for i, qp in enumerate(qps[1:], 1):
             P, A = qp.dense()
-            if P.shape != P0.shape or A.shape != A0.shape or not (
-                np.array_equal(P, P0) and np.array_equal(A, A0)
+            if (
+                P.shape != P0.shape
+                or A.shape != A0.shape
+                or not (np.array_equal(P, P0) and np.array_equal(A, A0))
             ):
                 raise ValueError(f"qps[{i}] does not share P and A with qps[0]")
         return cls(
@@ -359,6 +551,7 @@ class QPBatch:
             np.stack([qp.q for qp in qps]),
             np.stack([qp.l for qp in qps]),
             np.stack([qp.u for qp in qps]),
+            check_convex=qps[0].check_convex,
         )
 
     def objective(self, x: np.ndarray) -> np.ndarray:

@@ -1,8 +1,11 @@
 """Backends ``qpsolvers:<name>``: any QP solver that the ``qpsolvers`` package finds installed.
 
 Each problem goes through :meth:`QP.to_qpsolvers` (``G = [A[up]; −A[lo]]``, ``Aeq = A[eq]``) and
-``qpsolvers.solve_problem(Problem(...), solver=name, **settings)``; settings are the native solver's
-keyword arguments, passed straight through (qpsolvers itself defaults to ``verbose=False``).
+``qpsolvers.solve_problem(Problem(...), solver=name, **settings)``.  Settings: the common
+vocabulary, mapped per solver (:data:`SPECS`), and the native solver's keyword arguments, checked
+against its known names (qpsolvers itself would pass an unknown one on, where PIQP ignores it and
+others fail); an unknown name raises :class:`~solvers.errors.InvalidSettingError`.  qpsolvers
+defaults to ``verbose=False``.  ``qpsolvers`` is imported on first use, not at module import.
 
 qpsolvers' duals follow the same sign convention as ours (``Px + q + Gᵀz + Aᵀy = 0``), so they
 map back to OSQP's ``y`` over our rows as ``y[eq] = y_qp``, ``y[up] += z[:n_up]`` and
@@ -22,14 +25,23 @@ import warnings
 from typing import Any
 
 import numpy as np
-import qpsolvers
 import scipy.sparse as sp
 
 from .base import Backend, failed_solution
+from .errors import UnknownBackendError
 from .problem import QP
+from .settings import SettingsSpec
 from .solution import Solution, Status
 
-__all__ = ["QpsolversBackend", "installed_solvers", "make_backend", "RESIDUAL_RTOL", "GROSS_RTOL"]
+__all__ = [
+    "QpsolversBackend",
+    "installed_solvers",
+    "make_backend",
+    "RESIDUAL_RTOL",
+    "GROSS_RTOL",
+    "EXCLUDED",
+    "SPECS",
+]
 
 #: a "found" point whose scaled primal or dual residual exceeds this is reported SOLVED_INACCURATE
 #: (scaled as OSQP does: primal by max(1, ‖Ax‖∞), dual by max(1, ‖Px‖∞, ‖Aᵀy‖∞, ‖q‖∞))
@@ -39,7 +51,7 @@ GROSS_RTOL = 1e-2
 
 # Solvers qpsolvers may list that we do not offer, and why.  Every solver installed here was checked
 # on random feasible QPs, projection-like QPs, and the Maros–Meszaros subset in the tests.
-_EXCLUDED: dict[str, str] = {
+EXCLUDED: dict[str, str] = {
     # Offered with caveats instead: quadprog (needs P positive definite: ERROR otherwise), daqp and
     # quadprog (qpsolvers does not expose their infeasibility status: detects_infeasibility=False),
     # proxqp (unreliable infeasibility claims, see _DETECTS), scs (first order: ask for accuracy).
@@ -53,6 +65,238 @@ _EXCLUDED: dict[str, str] = {
     "cvxopt": "its QP solver needs rank([P; A; G]) = n and fails on our PSD problems",
 }
 
+_EXCLUDED = EXCLUDED
+
+_C = ("eps_abs", "eps_rel", "max_iter", "time_limit", "verbose")
+_OSQP_NATIVE = frozenset(
+    {
+        "adaptive_rho",
+        "adaptive_rho_fraction",
+        "adaptive_rho_interval",
+        "adaptive_rho_tolerance",
+        "alpha",
+        "cg_max_iter",
+        "cg_precond",
+        "cg_tol_fraction",
+        "cg_tol_reduction",
+        "check_dualgap",
+        "check_termination",
+        "delta",
+        "device",
+        "eps_abs",
+        "eps_dual_inf",
+        "eps_prim_inf",
+        "eps_rel",
+        "linsys_solver",
+        "max_iter",
+        "polish_refine_iter",
+        "polishing",
+        "rho",
+        "rho_is_vec",
+        "scaled_termination",
+        "scaling",
+        "sigma",
+        "time_limit",
+        "verbose",
+        "warm_starting",
+        "raise_error",
+    }
+)
+#: per qpsolvers solver: common -> native names, native names (None: unchecked), whether a warm
+#: start (qpsolvers' ``initvals``) is used, stated tolerance keys and defaults
+SPECS: dict[str, tuple[dict, frozenset | None, bool, tuple, tuple]] = {
+    "clarabel": (
+        {
+            "eps_abs": ("tol_gap_abs", "tol_feas"),
+            "eps_rel": ("tol_gap_rel",),
+            "max_iter": ("max_iter",),
+            "time_limit": ("time_limit",),
+        },
+        None,  # filled from solvers.clarabel_ in spec_for
+        False,
+        ("tol_feas", "tol_feas"),
+        (1e-8, 1e-8),
+    ),
+    "osqp": ({k: (k,) for k in _C}, _OSQP_NATIVE, True, ("eps_abs", "eps_rel"), (1e-3, 1e-3)),
+    "piqp": (
+        {"eps_abs": ("eps_abs",), "eps_rel": ("eps_rel",), "max_iter": ("max_iter",)},
+        frozenset(
+            {
+                "backend",
+                "check_duality_gap",
+                "compute_timings",
+                "delta_init",
+                "eps_abs",
+                "eps_dual_inf",
+                "eps_duality_gap_abs",
+                "eps_duality_gap_rel",
+                "eps_primal_inf",
+                "eps_rel",
+                "infeasibility_threshold",
+                "iterative_refinement_always_enabled",
+                "iterative_refinement_eps_abs",
+                "iterative_refinement_eps_rel",
+                "iterative_refinement_max_iter",
+                "iterative_refinement_min_improvement_rate",
+                "iterative_refinement_static_regularization_eps",
+                "iterative_refinement_static_regularization_rel",
+                "kkt_solver",
+                "max_factor_retires",
+                "max_iter",
+                "num_threads",
+                "preconditioner_iter",
+                "preconditioner_reuse_on_update",
+                "preconditioner_scale_cost",
+                "reg_finetune_dual_update_threshold",
+                "reg_finetune_lower_limit",
+                "reg_finetune_primal_update_threshold",
+                "reg_lower_limit",
+                "rho_init",
+                "tau",
+            }
+        ),
+        False,  # qpsolvers: "warm-start values are ignored by PIQP"
+        ("eps_abs", "eps_rel"),
+        (1e-8, 1e-9),
+    ),
+    "proxqp": (
+        {"eps_abs": ("eps_abs",), "eps_rel": ("eps_rel",), "max_iter": ("max_iter",)},
+        frozenset(
+            {
+                "backend",
+                "x",
+                "y",
+                "z",
+                "rho",
+                "mu_eq",
+                "mu_in",
+                "alpha_bcl",
+                "alpha_gpdal",
+                "bcl_update",
+                "beta_bcl",
+                "check_duality_gap",
+                "cold_reset_mu_eq",
+                "cold_reset_mu_in",
+                "compute_preconditioner",
+                "compute_timings",
+                "default_H_eigenvalue_estimate",
+                "default_mu_eq",
+                "default_mu_in",
+                "default_rho",
+                "eps_abs",
+                "eps_dual_inf",
+                "eps_duality_gap_abs",
+                "eps_duality_gap_rel",
+                "eps_primal_inf",
+                "eps_rel",
+                "frequence_infeasibility_check",
+                "initial_guess",
+                "max_iter",
+                "max_iter_in",
+                "merit_function_type",
+                "mu_max_eq_inv",
+                "mu_max_in_inv",
+                "mu_min_eq",
+                "mu_min_in",
+                "mu_update_factor",
+                "nb_iterative_refinement",
+                "preconditioner_accuracy",
+                "preconditioner_max_iter",
+                "primal_infeasibility_solving",
+                "refactor_dual_feasibility_threshold",
+                "refactor_rho_threshold",
+                "sparse_backend",
+                "update_preconditioner",
+                "manual_minimal_H_eigenvalue",
+            }
+        ),
+        True,  # initvals -> ProxQP's x
+        ("eps_abs", "eps_rel"),
+        (1e-5, 0.0),
+    ),
+    "daqp": (
+        {"eps_abs": ("primal_tol",), "max_iter": ("iter_limit",)},
+        frozenset(
+            {
+                "primal_tol",
+                "dual_tol",
+                "zero_tol",
+                "pivot_tol",
+                "progress_tol",
+                "cycle_tol",
+                "iter_limit",
+                "fval_bound",
+                "eps_prox",
+                "eta_prox",
+                "rho_soft",
+                "rel_subopt",
+                "abs_subopt",
+                "sing_tol",
+                "refactor_tol",
+                "eq_reduction",
+                "presolve",
+                "time_limit",
+            }
+        ),
+        False,  # qpsolvers: "warm-start values are ignored by DAQP"
+        ("primal_tol", None),
+        (1e-6, 0.0),
+    ),
+    "quadprog": ({}, frozenset({"factorized"}), False, (None, None), (1e-9, 1e-9)),
+    "scs": (
+        {
+            "eps_abs": ("eps_abs",),
+            "eps_rel": ("eps_rel",),
+            "max_iter": ("max_iters",),
+            "time_limit": ("time_limit_secs",),
+        },
+        frozenset(
+            {
+                "normalize",
+                "scale",
+                "adaptive_scale",
+                "rho_x",
+                "max_iters",
+                "eps_abs",
+                "eps_rel",
+                "eps_infeas",
+                "alpha",
+                "time_limit_secs",
+                "acceleration_lookback",
+                "acceleration_interval",
+                "write_data_filename",
+                "log_csv_filename",
+                "use_indirect",
+                "gpu",
+                "mkl",
+            }
+        ),
+        True,  # initvals -> SCS's x
+        ("eps_abs", "eps_rel"),
+        (1e-4, 1e-4),
+    ),
+}
+
+
+def spec_for(solver: str) -> SettingsSpec:
+    """The settings spec of ``qpsolvers:<solver>`` (unchecked pass-through for other solvers)."""
+    common, native, warm, tol, tol_def = SPECS.get(
+        solver, ({k: (k,) for k in _C}, None, False, ("eps_abs", "eps_rel"), (1e-6, 1e-6))
+    )
+    if solver == "clarabel":
+        from .clarabel_ import NATIVE as native
+    common = dict(common)
+    common["verbose"] = ("verbose",)  # qpsolvers' own keyword, for every solver
+    return SettingsSpec(
+        backend=f"qpsolvers:{solver}",
+        common=common,
+        native=None if native is None else native | {"verbose"},
+        warm_start=warm,
+        tolerance=tol,
+        tolerance_defaults=tol_def,
+    )
+
+
 # Solvers whose failure status qpsolvers keeps in `Solution.extras` (so infeasibility can be told).
 _STATUS_IN_EXTRAS = {"clarabel", "osqp", "piqp", "proxqp", "scs", "qpalm", "kvxopt", "ecos"}
 # ...and of those, the ones whose infeasibility claims we rely on (`detects_infeasibility`).
@@ -63,8 +307,10 @@ _DETECTS = _STATUS_IN_EXTRAS - {"proxqp"}
 
 
 def installed_solvers() -> list[str]:
-    """qpsolvers' installed solvers usable on our QPs (``_EXCLUDED`` says why not the rest)."""
-    return [s for s in qpsolvers.available_solvers if s not in _EXCLUDED]
+    """qpsolvers' installed solvers usable on our QPs (``EXCLUDED`` says why not the rest)."""
+    import qpsolvers
+
+    return [s for s in qpsolvers.available_solvers if s not in EXCLUDED]
 
 
 def _norm(s: str) -> str:
@@ -106,16 +352,14 @@ class QpsolversBackend(Backend):
     """One qpsolvers solver; ``settings`` go to ``qpsolvers.solve_problem`` untouched."""
 
     def __init__(self, solver: str) -> None:
-        if solver not in qpsolvers.available_solvers:
-            from .registry import UnknownBackendError
+        import qpsolvers
 
+        if solver not in qpsolvers.available_solvers:
             raise UnknownBackendError(
                 f"qpsolvers has no installed solver {solver!r}; installed: "
                 f"{', '.join(qpsolvers.available_solvers)}"
             )
-        if solver in _EXCLUDED:
-            from .registry import UnknownBackendError
-
+        if solver in EXCLUDED:
             raise UnknownBackendError(
                 f"qpsolvers solver {solver!r} is not offered: {_EXCLUDED[solver]}"
             )
@@ -124,6 +368,11 @@ class QpsolversBackend(Backend):
         self.detects_infeasibility = solver in _DETECTS
         self._status_known = solver in _STATUS_IN_EXTRAS
         self._sparse = solver in qpsolvers.sparse_solvers
+        self._spec = spec_for(solver)
+        self.honours_warm_start = self._spec.warm_start
+
+    def settings_spec(self, settings: dict[str, Any] | None = None) -> SettingsSpec:
+        return self._spec
 
     def _matrices(self, qp: QP) -> dict[str, Any]:
         d = qp.to_qpsolvers()
@@ -156,10 +405,13 @@ class QpsolversBackend(Backend):
             y[lo] -= zz[n_up:]
         return y
 
-    def solve(self, qp: QP, *, warm_start: Solution | None = None, **settings: Any) -> Solution:
-        used = {"solver": self.solver, **settings}
+    def solve(self, qp: QP, *, warm_start: Any = None, **settings: Any) -> Solution:
+        import qpsolvers
+
+        settings, record = self.native_settings(settings)
+        used = {"solver": self.solver, **settings, **record}
         kw = dict(settings)
-        if warm_start is not None and np.all(np.isfinite(warm_start.x)):
+        if self.honours_warm_start and warm_start is not None and np.all(np.isfinite(warm_start.x)):
             kw.setdefault("initvals", np.asarray(warm_start.x, dtype=np.float64))
         t0 = time.perf_counter()
         with warnings.catch_warnings(record=True) as caught:

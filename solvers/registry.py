@@ -9,11 +9,16 @@ package and the extra that installs it.  ``qpsolvers:<name>`` selects any solver
 from __future__ import annotations
 
 import importlib
+import importlib.util
 from collections.abc import Callable
 from typing import Any
 
-from .base import Backend
+import numpy as np
+
+from .base import Backend, residual_check
+from .errors import BackendUnavailableError, UnknownBackendError
 from .problem import QP, QPBatch
+from .settings import IGNORED, as_warm_start
 from .solution import BatchSolution, Solution
 
 __all__ = [
@@ -26,21 +31,33 @@ __all__ = [
     "solve_batch",
 ]
 
-
-class BackendUnavailableError(ImportError):
-    """The backend exists but its package is not installed."""
-
-
-class UnknownBackendError(ValueError):
-    """No backend of that name."""
-
-
 # name -> (module, packages it imports, pip extra that installs them)
 _BUILTIN: dict[str, tuple[str, tuple[str, ...], str]] = {
     "clarabel": ("solvers.clarabel_", ("clarabel",), "core"),
     "osqp": ("solvers.osqp_", ("osqp",), "osqp"),
     "cvxpy": ("solvers.cvxpy_", ("cvxpy",), "cvxpy"),
     "admm": ("solvers.admm", ("jax",), "core"),
+    "ipm": ("solvers.ipm", ("jax",), "core"),
+}
+# qpsolvers' solver name -> the module its solver imports (found without importing anything)
+_QPSOLVERS_MODULES: dict[str, str] = {
+    "clarabel": "clarabel",
+    "daqp": "daqp",
+    "ecos": "ecos",
+    "highs": "highspy",
+    "osqp": "osqp",
+    "piqp": "piqp",
+    "proxqp": "proxsuite",
+    "qpalm": "qpalm",
+    "qpoases": "qpoases",
+    "qpswift": "qpSWIFT",
+    "quadprog": "quadprog",
+    "scs": "scs",
+    "cvxopt": "cvxopt",
+    "gurobi": "gurobipy",
+    "mosek": "mosek",
+    "jaxopt_osqp": "jaxopt",
+    "kvxopt": "kvxopt",
 }
 _USER: dict[str, Callable[[], Backend]] = {}
 _CACHE: dict[str, Backend] = {}
@@ -55,17 +72,23 @@ def register_backend(name: str, factory: Callable[[], Backend]) -> None:
 
 
 def _missing(name: str, pkg: str, extra: str, exc: Exception) -> BackendUnavailableError:
-    how = (
-        f"pip install 'mmdopt[{extra}]'" if extra != "core" else f"pip install {pkg}"
-    )
+    how = f"pip install 'mmdopt[{extra}]'" if extra != "core" else f"pip install {pkg}"
     return BackendUnavailableError(
         f"backend {name!r} needs the package {pkg!r}, which could not be imported ({exc}); "
         f"install it with: {how}"
     )
 
 
+def _found(module: str) -> bool:
+    """Whether ``module`` can be found, without importing it (its parent package may be)."""
+    try:
+        return importlib.util.find_spec(module) is not None
+    except (ImportError, ValueError):  # a parent that is missing, or set to None in sys.modules
+        return False
+
+
 def get_backend(name: str) -> Backend:
-    """The backend object for ``name`` (cached)."""
+    """The backend object for ``name`` (imported on first use, then cached)."""
     if not isinstance(name, str):
         raise TypeError(f"backend must be a string, got {type(name).__name__}")
     if name in _CACHE:
@@ -97,51 +120,144 @@ def get_backend(name: str) -> Backend:
 
 
 def available_backends() -> list[str]:
-    """Names of the backends whose packages import on this machine."""
-    names = []
-    for name, (_module, pkgs, _extra) in _BUILTIN.items():
-        try:
-            for pkg in pkgs:
-                importlib.import_module(pkg)
-        except ImportError:
-            continue
-        try:
-            importlib.import_module(_module)
-        except ImportError:
-            continue
-        names.append(name)
-    try:
-        from . import qpsolvers_
+    """Names of the backends whose packages are installed on this machine.
 
-        names.extend(f"qpsolvers:{s}" for s in qpsolvers_.installed_solvers())
-    except ImportError:
-        pass
+    Lazy: packages are looked up with :func:`importlib.util.find_spec`, not imported (a package
+    that is found but broken raises :class:`BackendUnavailableError` on first use).
+    ``qpsolvers:<name>`` lists the solvers qpsolvers would find, minus those not offered.
+    """
+    names = [
+        name
+        for name, (module, pkgs, _extra) in _BUILTIN.items()
+        if all(_found(p) for p in pkgs) and _found(module)
+    ]
+    if _found("qpsolvers"):
+        from .qpsolvers_ import EXCLUDED
+
+        names.extend(
+            f"qpsolvers:{s}"
+            for s, mod in _QPSOLVERS_MODULES.items()
+            if s not in EXCLUDED and _found(mod)
+        )
     names.extend(_USER)
     return names
 
 
-def solve(qp: QP, backend: str = "clarabel", **settings: Any) -> Solution:
-    """Solve one QP with the named backend; ``settings`` go to the native solver.
+def _check_qp(qp: QP, check_convex: bool | None) -> None:
+    if check_convex is True:
+        qp.ensure_convex()
+    elif check_convex not in (None, False):
+        raise ValueError(f"check_convex must be True, False or None, got {check_convex!r}")
 
-    ``warm_start=`` (a previous :class:`Solution`) is honoured by backends that support it.
+
+def _record_warm_start(settings: dict, given: bool, be: Backend) -> None:
+    if given:
+        settings["warm_start"] = "used" if be.honours_warm_start else IGNORED
+
+
+def solve(
+    qp: QP,
+    backend: str = "clarabel",
+    *,
+    warm_start: Any = None,
+    check_convex: bool | None = None,
+    **settings: Any,
+) -> Solution:
+    """Solve one QP with the named backend.
+
+    ``settings``: the common names (``eps_abs``, ``eps_rel``, ``max_iter``, ``time_limit``,
+    ``verbose``; see :mod:`solvers.settings`) and the solver's native names; anything else raises
+    :class:`~solvers.errors.InvalidSettingError`.  ``warm_start``: a previous :class:`Solution`
+    or a tuple ``(x, y)`` (recorded as ``"ignored"`` by backends that cannot use it).
+    ``check_convex=True`` runs the convexity check now for a QP built with
+    ``check_convex=False``.  A ``SOLVED`` whose primal residual fails the backend's stated
+    tolerance by orders of magnitude is flagged in ``extras["residual_check"]``.
+
+    Example::
+
+        >>> sol = solve(QP(np.eye(2), [1.0, -1.0], np.eye(2), [-0.5, -0.5], [1.0, 1.0]),
+        ...             backend="osqp", eps_abs=1e-8, eps_rel=1e-8)
+        >>> sol.status.name, sol.settings["eps_abs"]
+        ('SOLVED', 1e-08)
     """
     if not isinstance(qp, QP):
         raise TypeError(f"qp must be a solvers.QP, got {type(qp).__name__}")
-    return get_backend(backend).solve(qp, **settings)
+    _check_qp(qp, check_convex)
+    be = get_backend(backend)
+    ws = as_warm_start(warm_start, qp.n, qp.m)
+    sol = be.solve(qp, warm_start=ws, **settings)
+    _record_warm_start(sol.settings, ws is not None, be)
+    residual_check(be, qp, sol)
+    return sol
 
 
 def solve_batch(
     batch: QPBatch,
     backend: str = "admm",
     *,
-    warm_start: BatchSolution | None = None,
+    warm_start: Any = None,
+    check_convex: bool | None = None,
     **settings: Any,
 ) -> BatchSolution:
-    """Solve a batch of QPs sharing ``P`` and ``A``; returns fields with a leading batch axis."""
+    """Solve a batch of QPs sharing ``P`` and ``A``; returns fields with a leading batch axis.
+
+    Settings and ``warm_start`` (a :class:`BatchSolution` or a tuple ``(x (B, n), y (B, m))``)
+    as in :func:`solve`.
+    """
     if not isinstance(batch, QPBatch):
         raise TypeError(f"batch must be a solvers.QPBatch, got {type(batch).__name__}")
-    if warm_start is not None and (
-        not isinstance(warm_start, BatchSolution) or len(warm_start) != len(batch)
-    ):
-        raise ValueError("warm_start must be a BatchSolution with the same batch size")
-    return get_backend(backend).solve_batch(batch, warm_start=warm_start, **settings)
+    if check_convex is True:
+        batch.ensure_convex()
+    elif check_convex not in (None, False):
+        raise ValueError(f"check_convex must be True, False or None, got {check_convex!r}")
+    if warm_start is not None and not isinstance(warm_start, tuple):
+        if not hasattr(warm_start, "x") or np.ndim(warm_start.x) != 2:
+            raise ValueError(
+                "warm_start must be a BatchSolution with the same batch size, or a tuple "
+                f"(x (B, n), y (B, m)); got {type(warm_start).__name__}"
+            )
+        if len(warm_start.x) != len(batch):
+            raise ValueError(
+                f"warm_start has batch size {len(warm_start.x)}, the batch has {len(batch)}"
+            )
+    be = get_backend(backend)
+    ws = as_warm_start(warm_start, batch.n, batch.m, batch=len(batch))
+    sol = be.solve_batch(batch, warm_start=ws, **settings)
+    _record_warm_start(sol.settings, ws is not None, be)
+    residual_check(be, batch, sol)
+    return sol
+
+
+def solve_qp(
+    P: Any,
+    q: Any,
+    G: Any = None,
+    h: Any = None,
+    A: Any = None,
+    b: Any = None,
+    lb: Any = None,
+    ub: Any = None,
+    backend: str = "clarabel",
+    *,
+    warm_start: Any = None,
+    check_convex: bool = True,
+    **settings: Any,
+) -> Solution:
+    """One call, in qpsolvers' argument order: ``min ½xᵀPx + qᵀx s.t. Gx ≤ h, Ax = b,
+    lb ≤ x ≤ ub``.
+
+    Builds :meth:`QP.from_qpsolvers` (every argument validated and named in errors) and calls
+    :func:`solve`; returns the same :class:`Solution` (``y`` over the rows ``[G; A; I]``, OSQP's
+    sign convention).  Settings as in :func:`solve`.
+
+    Example::
+
+        >>> import numpy as np
+        >>> from solvers import solve_qp
+        >>> sol = solve_qp(np.eye(2), [1.0, -1.0], G=[[1.0, 1.0]], h=[0.0],
+        ...                lb=[-0.5, -0.5], ub=[1.0, 1.0], backend="clarabel")
+        >>> sol.status.name, sol.x.round(6)
+        ('SOLVED', array([-0.5,  0.5]))
+    """
+    qp = QP.from_qpsolvers(P, q, G, h, A, b, lb, ub, check_convex=check_convex)
+    return solve(qp, backend, warm_start=warm_start, **settings)

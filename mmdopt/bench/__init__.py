@@ -2,3 +2,7 @@
 
 The method (:mod:`mmdopt`) never imports this package.
 """
+
+from .results import load_results
+
+__all__ = ["load_results"]

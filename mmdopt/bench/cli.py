@@ -2,14 +2,20 @@
 
 ::
 
+    mmdopt --version
     mmdopt demo [--out DIR]                               plan one built-in scene, table + PNG
     mmdopt bench synthetic   --scenes N --seed S --out DIR [--methods mmd,degroot,random,saa]
                              [--scene-params FILE.json] [--backend NAME] [--config FILE.json]
                              [--preset paper100|reference36|lanechange] [--jobs J]
+    mmdopt bench frontier    --out DIR [--knobs 'mmd=0.001,0.005;saa=0.02'] [--methods ...]
+                             (safety-progress frontier: every method's risk knob swept)
     mmdopt bench reduced-set --scenes N --random-sets R --out DIR       (paper Fig. 4)
     mmdopt bench timing      --out DIR [--sizes 10,20,30,40,50] [--samples 50,100,200]
     mmdopt bench figure      --scene I --out DIR                        (paper Fig. 3)
     mmdopt bench qp-backends [ARGS...]                                  QP backend comparison
+    mmdopt bench highway     --episodes N --seed S --duration T --out DIR   (closed loop)
+    mmdopt bench ngsim --scenarios PATH [PATH ...] --out DIR            recorded US-101 traffic
+    mmdopt predictor train|eval [--data DIR]                            the learned predictor
 
 Bad options exit with status 2 and a message naming the option (argparse).
 """
@@ -127,13 +133,27 @@ def _presets() -> list[str]:
 # parser
 
 
+def version() -> str:
+    """The installed distribution's version (package metadata), else ``mmdopt.__version__``."""
+    try:
+        from importlib.metadata import PackageNotFoundError
+        from importlib.metadata import version as _dist_version
+
+        return _dist_version("mmdopt")
+    except PackageNotFoundError:
+        import mmdopt
+
+        return mmdopt.__version__
+
+
 def build_parser() -> argparse.ArgumentParser:
     p = argparse.ArgumentParser(
         prog="mmdopt",
         description="MMD-Opt: planning under multi-modal obstacle predictions - demo and "
         "the paper's experiments.",
     )
-    sub = p.add_subparsers(dest="command", required=True, metavar="{demo,bench}")
+    p.add_argument("--version", action="version", version=f"%(prog)s {version()}")
+    sub = p.add_subparsers(dest="command", required=True, metavar="{demo,bench,predictor}")
 
     d = sub.add_parser(
         "demo", help="plan one built-in multi-modal scene; print a table, write a PNG"
@@ -153,7 +173,7 @@ def build_parser() -> argparse.ArgumentParser:
     bs = b.add_subparsers(
         dest="experiment",
         required=True,
-        metavar="{synthetic,reduced-set,timing,figure,qp-backends}",
+        metavar="{synthetic,frontier,reduced-set,timing,figure,qp-backends,highway,ngsim}",
     )
 
     def common(q, scenes_default):
@@ -207,6 +227,22 @@ def build_parser() -> argparse.ArgumentParser:
         help="comma-separated methods (default: mmd,degroot,random,saa)",
     )
 
+    fr = bs.add_parser("frontier", help="safety-progress frontier: each method's risk knob swept")
+    common(fr, None)
+    fr.add_argument("--out", required=True, help="output folder (resumable)")
+    fr.add_argument(
+        "--methods",
+        type=_methods(PLAN_METHODS),
+        default=list(PLAN_METHODS),
+        help="comma-separated methods (default: all five)",
+    )
+    fr.add_argument(
+        "--knobs",
+        default=None,
+        help="knob grids (target collision probability) per method, e.g. "
+        "'mmd=0.001,0.005,0.02;saa=0.005,0.02' (default: mmdopt.bench.frontier.DEFAULT_KNOBS)",
+    )
+
     r = bs.add_parser(
         "reduced-set", help="reduced-set selection vs random reduced sets and alternatives (Fig. 4)"
     )
@@ -248,6 +284,13 @@ def build_parser() -> argparse.ArgumentParser:
     t.add_argument(
         "--backend", type=_backend, default=PLANNER_BACKEND, help="projection QP backend"
     )
+    t.add_argument(
+        "--obstacles",
+        type=_int_list,
+        default=None,
+        help="also time plan() against these numbers of obstacles, e.g. 1,5,10,20 "
+        "(timing_obstacles.csv)",
+    )
     t.add_argument("--no-progress", action="store_true", help="no progress bar")
 
     f = bs.add_parser("figure", help="qualitative scene figure (paper Fig. 3)")
@@ -268,6 +311,15 @@ def build_parser() -> argparse.ArgumentParser:
         "qp-backends", help="QP backend comparison (benchmarks/qp_backends.py)", add_help=False
     )
     q.add_argument("args", nargs=argparse.REMAINDER, help="arguments passed to the benchmark")
+
+    from .highway.cli import add_highway_parser
+
+    add_highway_parser(bs)
+
+    from .ngsim.cli import add_ngsim_parser, add_train_parser
+
+    add_ngsim_parser(bs)
+    add_train_parser(sub)
     return p
 
 
@@ -410,19 +462,26 @@ def load_planner_config_from_dict(raw):
     return MMDOptConfig().replace(**kw)
 
 
-def _table(rows: Sequence[dict], cols: Sequence[str]) -> str:
+def _table(rows: Sequence[dict], cols: Sequence[str], headers: dict[str, str] | None = None) -> str:
+    """A right-aligned text table of ``rows``; ``headers`` maps a column key to its printed
+    header (with its unit)."""
+    headers = headers or {}
+
     def fmt(v):
         if isinstance(v, float):
             return f"{v:.3g}" if abs(v) < 100 else f"{v:.1f}"
         return str(v)
 
     cells = [[fmt(r.get(c, "")) for c in cols] for r in rows]
-    w = [max(len(c), *(len(x[i]) for x in cells)) for i, c in enumerate(cols)]
+    names = [headers.get(c, c) for c in cols]
+    w = [max(len(c), *(len(x[i]) for x in cells)) for i, c in enumerate(names)]
     line = lambda xs: "  ".join(x.rjust(w[i]) for i, x in enumerate(xs))  # noqa: E731
-    return "\n".join([line(cols), line(["-" * n for n in w])] + [line(x) for x in cells])
+    return "\n".join([line(names), line(["-" * n for n in w])] + [line(x) for x in cells])
 
 
-def _print_summary(summary: dict, bars: dict | None = None) -> None:
+def _print_summary(summary: dict, n_validation: int | str = "N") -> None:
+    """The per-method table of a synthetic sweep (collision-free counts of ``n_validation``
+    validation samples per scene, over scenes)."""
     rows = []
     for m, s in summary["methods"].items():
         cf = s["collision_free"]
@@ -442,32 +501,41 @@ def _print_summary(summary: dict, bars: dict | None = None) -> None:
                 plan_s=s["plan_time_s"]["median"],
             )
         )
-    print(
-        _table(
-            rows,
-            [
-                "method",
-                "scenes",
-                "mean",
-                "std",
-                "q1",
-                "median",
-                "min",
-                "progress_m",
-                "feasible",
-                "mmd_ge",
-                "plan_s",
-            ],
-        )
-    )
-    if bars:
-        print(
-            "bars (paper protocol): "
-            + ", ".join(
-                f"{k} {v['value']:.3g} {'>=' if v['ok'] else '<'} {v['target']:g}"
-                for k, v in bars.items()
-            )
-        )
+    of = f"of {n_validation}"
+    headers = {
+        "mean": f"collision-free ({of}): mean",
+        "q1": "Q1",
+        "progress_m": "progress (m)",
+        "feasible": "feasible (share)",
+        "mmd_ge": "mmd >= it (share)",
+        "plan_s": "plan time (s)",
+    }
+    cols = ["method", "scenes", "mean", "std", "q1", "median", "min"]
+    cols += ["progress_m", "feasible", "mmd_ge", "plan_s"]
+    print(_table(rows, cols, headers))
+
+
+#: printed headers (with units) of the demo table and the timing table
+DEMO_HEADERS = {
+    "progress_m": "progress (m)",
+    "mean_speed": "mean speed (m/s)",
+    "plan_time_s": "plan time (s)",
+    "wall_s": "wall (s)",
+}
+TIMING_HEADERS = {
+    "reduced_set_size": "reduced-set size m",
+    "n_samples": "samples n",
+    "reduced_set_s": "reduced-set time (s)",
+    "algorithm1_s": "Algorithm 1 time (s)",
+    "plan_s": "plan time (s)",
+    "compile_s": "compile time (s)",
+}
+REDUCED_SET_HEADERS = {
+    "mean_pct": "collision-free mean (%)",
+    "std_pct": "std (%)",
+    "progress_m": "progress (m)",
+    "rs_mmd2": "reduced-set MMD²",
+}
 
 
 # ---------------------------------------------------------------------------------------------
@@ -489,26 +557,20 @@ def cmd_demo(args, parser) -> int:
         f"{scene.intent_probs[1]:.2f}; {scene.obstacles.shape[1]} planning samples, "
         f"{scene.validation.shape[1]} validation samples"
     )
+    print(
+        f"planning with {', '.join(args.methods)}; the first plan compiles Algorithm 1 "
+        "(JAX, ~30 s on a CPU, once per process)…",
+        flush=True,
+    )
     rows, plans = [], {}
     for m in args.methods:
         row, plan = run_scene(scene, m, backend=args.backend)
         rows.append(row)
         plans[m] = plan
-    print(
-        _table(
-            rows,
-            [
-                "method",
-                "collision_free",
-                "n_validation",
-                "progress_m",
-                "mean_speed",
-                "feasible",
-                "plan_time_s",
-                "wall_s",
-            ],
-        )
-    )
+    nv = rows[0]["n_validation"] if rows else "N"
+    cols = ["method", "collision_free", "progress_m", "mean_speed", "feasible", "plan_time_s"]
+    headers = dict(DEMO_HEADERS, collision_free=f"collision-free of {nv}")
+    print(_table(rows, [*cols, "wall_s"], headers))
     png = plots.scene_figure(scene, plans, out / "demo.png")
     with open(out / "demo.json", "w") as f:
         json.dump(rows, f, indent=1, default=str)
@@ -546,11 +608,54 @@ def cmd_synthetic(args, parser) -> int:
         title=f"{len(res['rows']) // len(args.methods)} scenes, "
         f"preset {args.preset}, seed {args.seed}",
     )
-    _print_summary(res["summary"], res["bars"])
+    nvs = sorted({r["n_validation"] for r in res["rows"]})
+    _print_summary(res["summary"], nvs[0] if len(nvs) == 1 else "N")
     print(
         f"{res['computed']} plans computed, {res['reused']} reused, "
         f"{res['wall_s']:.1f} s; wrote {out / 'results.csv'}, {out / 'summary.json'}, "
         f"{out / 'collision_free.png'}"
+    )
+    return 0
+
+
+def cmd_frontier(args, parser) -> int:
+    from .frontier import TARGET_LEVELS, parse_knobs, run_frontier
+
+    params = _scene_params(args, parser)
+    try:
+        knobs = parse_knobs(args.knobs, args.methods)
+    except ValueError as e:
+        parser.error(f"argument --knobs: {e}")
+    try:
+        res = run_frontier(
+            args.out,
+            knobs=knobs,
+            methods=args.methods,
+            config=_planner_config(args, parser),
+            scenes=args.scenes,
+            seed=args.seed,
+            params=params,
+            backend=args.backend,
+            jobs=args.jobs,
+            progress=not args.no_progress,
+            executor=args.executor,
+            address=args.address,
+        )
+    except ValueError as e:
+        parser.error(str(e))
+    cols = ["method", "knob", "scenes", "mean", "q1", "min", "progress_m", "plan_time_s"]
+    print(_table(res["points"], cols))
+    lv = [f"{x:g}" for x in TARGET_LEVELS]
+    rows = [
+        {"method": m, **{f"progress_m@{k}": v[k] for k in lv}}
+        for m, v in res["interpolated"].items()
+    ]
+    print("interpolated mean progress (m) at mean collision-free level (of 1000); nan: not reached")
+    print(_table(rows, ["method", *[f"progress_m@{k}" for k in lv]]))
+    out = Path(args.out)
+    print(
+        f"{res['computed']} plans computed, {res['reused']} reused, {res['wall_s']:.1f} s; wrote "
+        f"{out / 'frontier.csv'}, {out / 'frontier_summary.json'}, {out / 'frontier.png'}"
     )
     return 0
 
@@ -577,7 +682,9 @@ def cmd_reduced_set(args, parser) -> int:
         )
     except ValueError as e:
         parser.error(str(e))
-    print(_table(res["table"], list(res["table"][0])))
+    nv = res["rows"][0]["n_validation"] if res["rows"] else "N"
+    headers = dict(REDUCED_SET_HEADERS, min=f"min (of {nv})")
+    print(_table(res["table"], list(res["table"][0]), headers))
     print(f"wrote {Path(args.out) / 'reduced_set.csv'}, reduced_set_summary.json, reduced_set.png")
     return 0
 
@@ -618,9 +725,22 @@ def cmd_timing(args, parser) -> int:
                 "compile_s",
                 "backend",
             ],
+            TIMING_HEADERS,
         )
     )
     print(f"wrote {Path(args.out) / 'timing.csv'} and timing.png")
+    if args.obstacles:
+        from .timing import OBSTACLE_TIMING_COLUMNS, run_obstacle_timing
+
+        rows = run_obstacle_timing(
+            args.out,
+            counts=args.obstacles,
+            repeats=args.repeats,
+            backend=args.backend,
+            progress=not args.no_progress,
+        )
+        print(_table(rows, list(OBSTACLE_TIMING_COLUMNS)))
+        print(f"wrote {Path(args.out) / 'timing_obstacles.csv'}")
     return 0
 
 
@@ -676,6 +796,12 @@ def _check_out(args, parser) -> None:
         parser.error(f"argument --out: folder {out!r} {what} (permission denied)")
 
 
+def _cmd_ngsim(args) -> int:
+    from .ngsim.cli import cmd_ngsim
+
+    return cmd_ngsim(args)
+
+
 def main(argv: Sequence[str] | None = None) -> int:
     """Entry point of the ``mmdopt`` console script; returns the exit status.
 
@@ -685,13 +811,21 @@ def main(argv: Sequence[str] | None = None) -> int:
     args = parser.parse_args(argv)
     if args.command == "demo":
         cmd = cmd_demo
+    elif args.command == "predictor":
+        from .ngsim.cli import cmd_predictor
+
+        def cmd(a, _):
+            return cmd_predictor(a)
     else:
         cmd = {
             "synthetic": cmd_synthetic,
+            "frontier": cmd_frontier,
             "reduced-set": cmd_reduced_set,
             "timing": cmd_timing,
             "figure": cmd_figure,
             "qp-backends": cmd_qp_backends,
+            "highway": lambda a, _: a.func(a),
+            "ngsim": lambda a, _: _cmd_ngsim(a),
         }[args.experiment]
     try:
         with stop_on_signals():

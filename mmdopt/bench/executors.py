@@ -42,6 +42,16 @@ EXECUTORS = ("local", "ray")
 
 _ONE_XLA_THREAD = "--xla_cpu_multi_thread_eigen=false"
 
+#: the environment of every worker process (local pool and local Ray): one XLA / BLAS / OpenMP
+#: thread each, so that both executors compute bit-identical numbers (Ray sets
+#: OMP_NUM_THREADS=1 in its workers; multi-threaded BLAS sums in another order)
+_WORKER_ENV = {
+    "XLA_FLAGS": _ONE_XLA_THREAD,
+    "OMP_NUM_THREADS": "1",
+    "OPENBLAS_NUM_THREADS": "1",
+    "MKL_NUM_THREADS": "1",
+}
+
 
 def check_manifest(
     out: str | Path,
@@ -161,6 +171,7 @@ def run_tasks(
     desc: str = "tasks",
     unit: str = "task",
     isolate: bool = False,
+    first_note: str | None = None,
 ) -> list[Any]:
     """Run ``fn(task)`` for every task; returns the results in completion order.
 
@@ -168,6 +179,10 @@ def run_tasks(
     their own files).  ``isolate=True`` runs even ``jobs=1`` in one spawned worker process (one
     XLA thread, as every pool and Ray worker: the numbers do not depend on ``jobs``); with
     ``isolate=False`` and ``jobs=1`` the tasks run in this process (its XLA threading).
+
+    ``first_note`` (e.g. ``"compiling Algorithm 1 (first scene, ~30 s)…"``) is shown beside the
+    progress bar until the first task finishes, so a first task that JIT-compiles does not look
+    like a stuck bar.
 
     Stopping: an exception in the caller's thread (KeyboardInterrupt, :class:`Interrupted` from
     :func:`stop_on_signals`, a task's error) cancels the queued tasks and terminates every
@@ -181,6 +196,8 @@ def run_tasks(
         raise ValueError(f"jobs must be an integer >= 1, got {jobs!r}")
     tasks = list(tasks)
     bar = tqdm(total=len(tasks), desc=desc, unit=unit, disable=not progress or not tasks)
+    if first_note and not bar.disable:
+        bar.set_postfix_str(first_note)
     try:
         if not tasks:
             return []
@@ -190,11 +207,18 @@ def run_tasks(
             out = []
             for t in tasks:
                 out.append(fn(t))
-                bar.update(1)
+                _tick(bar)
             return out
         return _run_pool(fn, tasks, jobs, bar)
     finally:
         bar.close()
+
+
+def _tick(bar) -> None:
+    """One task done: advance the bar and clear the first-task note."""
+    if getattr(bar, "postfix", None):  # a disabled bar has no postfix
+        bar.set_postfix_str("", refresh=False)
+    bar.update(1)
 
 
 def worker_layout(jobs: int, executor: str = "local", isolate: bool = False) -> str:
@@ -223,8 +247,10 @@ def _kill_pool(ex: cf.ProcessPoolExecutor) -> None:
 
 
 def _run_pool(fn, tasks, jobs, bar) -> list[Any]:
-    env_old = os.environ.get("XLA_FLAGS")
-    os.environ["XLA_FLAGS"] = (env_old + " " if env_old else "") + _ONE_XLA_THREAD
+    saved = {k: os.environ.get(k) for k in _WORKER_ENV}
+    for k, v in _WORKER_ENV.items():
+        old = saved[k]
+        os.environ[k] = (old + " " + v) if (k == "XLA_FLAGS" and old) else v
     can_mask = threading.current_thread() is threading.main_thread()
     ex = None
     try:
@@ -244,7 +270,7 @@ def _run_pool(fn, tasks, jobs, bar) -> list[Any]:
         out = []
         for f in cf.as_completed(futs):
             out.append(f.result())
-            bar.update(1)
+            _tick(bar)
         ex.shutdown(wait=True)
         return out
     except BaseException:
@@ -252,10 +278,27 @@ def _run_pool(fn, tasks, jobs, bar) -> list[Any]:
             _kill_pool(ex)
         raise
     finally:
-        if env_old is None:
-            os.environ.pop("XLA_FLAGS", None)
-        else:
-            os.environ["XLA_FLAGS"] = env_old
+        for k, old in saved.items():
+            if old is None:
+                os.environ.pop(k, None)
+            else:
+                os.environ[k] = old
+
+
+def _code_root() -> str:
+    """The folder holding the ``mmdopt``, ``frenet`` and ``solvers`` packages this process runs."""
+    return str(Path(__file__).resolve().parents[2])
+
+
+def _worker_env() -> dict[str, str]:
+    """Environment of local Ray workers: :data:`_WORKER_ENV` (as the local pool's workers, so
+    both executors compute the same numbers) and this process's code first on the path (an
+    installed ``mmdopt`` elsewhere, e.g. an editable install of another checkout, must not win)."""
+    path = [_code_root()] + [p for p in os.environ.get("PYTHONPATH", "").split(os.pathsep) if p]
+    env = {**_WORKER_ENV, "PYTHONPATH": os.pathsep.join(path)}
+    if os.environ.get("XLA_FLAGS"):
+        env["XLA_FLAGS"] = os.environ["XLA_FLAGS"] + " " + _ONE_XLA_THREAD
+    return env
 
 
 def _run_ray(fn, tasks, jobs, address, bar) -> list[Any]:
@@ -270,7 +313,7 @@ def _run_ray(fn, tasks, jobs, address, bar) -> list[Any]:
             kw: dict[str, Any] = dict(ignore_reinit_error=True, log_to_driver=False)
             if address is None:
                 kw.update(num_cpus=jobs, include_dashboard=False)
-                kw["runtime_env"] = {"env_vars": {"XLA_FLAGS": _ONE_XLA_THREAD}}
+                kw["runtime_env"] = {"env_vars": _worker_env()}
             else:
                 kw["address"] = address
             ray.init(**kw)
@@ -283,7 +326,7 @@ def _run_ray(fn, tasks, jobs, address, bar) -> list[Any]:
             done, pending = ray.wait(pending, num_returns=1)
             for ref in done:
                 out.append(ray.get(ref))
-                bar.update(1)
+                _tick(bar)
         return out
     except BaseException:
         for ref in pending:

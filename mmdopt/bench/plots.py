@@ -56,6 +56,25 @@ def _label(m: str) -> str:
     return METHOD_LABELS.get(m, m)
 
 
+def _box_legend(ax, plt) -> None:
+    """Legend for matplotlib's box plot marks (``showmeans=True``)."""
+    from matplotlib.lines import Line2D
+    from matplotlib.patches import Patch
+
+    ax.legend(
+        handles=[
+            Patch(facecolor="none", edgecolor="k", label="box: quartiles Q1–Q3"),
+            Line2D([], [], color="tab:orange", lw=1.5, label="median"),
+            Line2D([], [], marker="^", color="tab:green", ls="none", ms=7, label="mean"),
+            Line2D([], [], color="k", lw=1, label="whiskers: last scene within 1.5 × IQR"),
+            Line2D([], [], marker="o", mfc="none", mec="k", ls="none", ms=5, label="outlier scene"),
+        ],
+        fontsize=7,
+        loc="best",
+        framealpha=0.85,
+    )
+
+
 def collision_box_violin(
     rows: Sequence[Mapping[str, Any]],
     path: str | Path,
@@ -63,7 +82,11 @@ def collision_box_violin(
     title: str | None = None,
 ) -> Path:
     """Paper Fig. 5: box and violin plots of collision-free validation samples per method,
-    with a third panel for progress (m) so a method cannot win by standing still."""
+    with a third panel for progress (m) so a method cannot win by standing still.  One point per
+    scene; every mark is explained in the panels' legends."""
+    from matplotlib.lines import Line2D
+    from matplotlib.patches import Patch
+
     plt = _plt()
     methods = list(methods or dict.fromkeys(r["method"] for r in rows))
     data = [
@@ -74,17 +97,38 @@ def collision_box_violin(
     methods = [methods[i] for i in keep]
     data, prog = [data[i] for i in keep], [prog[i] for i in keep]
     labels = [_label(m) for m in methods]
-    fig, axs = plt.subplots(1, 3, figsize=(13, 4.2))
+    nvs = sorted({int(r["n_validation"]) for r in rows if "n_validation" in r})
+    of = f"of {nvs[0]}" if len(nvs) == 1 else "count"
+    fig, axs = plt.subplots(1, 3, figsize=(15, 4.8))
     axs[0].boxplot(data, tick_labels=labels, showmeans=True)
-    axs[0].set_title("collision-free validation samples (box)")
+    axs[0].set_title("collision-free validation samples per scene (box)", fontsize=10)
+    axs[0].set_ylabel(f"collision-free validation samples ({of})")
+    _box_legend(axs[0], plt)
     parts = axs[1].violinplot(data, showmedians=True)
     for body, m in zip(parts["bodies"], methods, strict=True):
         body.set_facecolor(METHOD_COLOURS.get(m, "tab:blue"))
     axs[1].set_xticks(range(1, len(labels) + 1), labels)
-    axs[1].set_title("collision-free validation samples (violin)")
+    axs[1].set_title("collision-free validation samples per scene (violin)", fontsize=10)
+    axs[1].set_ylabel(f"collision-free validation samples ({of})")
+    axs[1].legend(
+        handles=[
+            Patch(facecolor=METHOD_COLOURS.get(m, "tab:blue"), alpha=0.5, label=f"{lab}: density")
+            for m, lab in zip(methods, labels, strict=True)
+        ]
+        + [
+            Line2D([], [], color="tab:blue", lw=1.5, label="median (middle bar)"),
+            Line2D([], [], color="tab:blue", lw=1, label="min / max (end bars)"),
+        ],
+        fontsize=7,
+        loc="best",
+        framealpha=0.85,
+    )
     axs[2].boxplot(prog, tick_labels=labels, showmeans=True)
-    axs[2].set_title("progress in 15 s (m)")
+    axs[2].set_title("progress along the road over the 15 s horizon", fontsize=10)
+    axs[2].set_ylabel("progress (m)")
+    _box_legend(axs[2], plt)
     for ax in axs:
+        ax.set_xlabel("method")
         ax.tick_params(axis="x", labelrotation=20)
         ax.grid(alpha=0.3)
     n = data[0].size if data else 0
@@ -129,7 +173,7 @@ def scene_figure(
 
     plt = _plt()
     n = len(plans)
-    fig, axs = plt.subplots(n, 1, figsize=(12, 2.9 * n), squeeze=False)
+    fig, axs = plt.subplots(n, 1, figsize=(15, 3.1 * n), squeeze=False)
     obs = np.asarray(scene.obstacles[0])
     val = np.asarray(scene.validation[0])
     if validation_index is None:
@@ -137,9 +181,13 @@ def scene_figure(
         rare = int(np.argmin(scene.intent_probs))
         cand = np.flatnonzero(scene.validation_intents == rare)
         validation_index = int(cand[0]) if cand.size else 0
+    from matplotlib.lines import Line2D
+
     lanes = (-3.5, 0.0, 3.5)
     for ax, (m, plan) in zip(axs[:, 0], plans.items(), strict=True):
         xy = np.stack([np.asarray(plan.x), np.asarray(plan.y)], -1)
+        t = np.asarray(getattr(plan, "t", np.arange(xy.shape[0])))
+        every = int(dt_every(t, 1.5))
         for y in lanes:
             ax.axhline(y, color="k", lw=0.5, ls=":")
         for y in (-5.25, -1.75, 1.75, 5.25):
@@ -147,20 +195,55 @@ def scene_figure(
         for intent in np.unique(scene.intents):
             sel = obs[scene.intents == intent]
             ax.plot(sel[:, :, 0].T, sel[:, :, 1].T, color="0.7", lw=0.6, alpha=0.6)
+        col = METHOD_COLOURS.get(m, "m")
+        handles = [
+            Line2D([], [], color="0.7", lw=1, label=f"planning samples ({obs.shape[0]})"),
+        ]
         idx = reduced_set_indices(plan)
         if idx is not None:
             rs = obs[idx]
-            ax.plot(rs[:, :, 0].T, rs[:, :, 1].T, color=METHOD_COLOURS.get(m, "m"), lw=1.6)
+            ax.plot(rs[:, :, 0].T, rs[:, :, 1].T, color=col, lw=1.6)
+            handles.append(
+                Line2D(
+                    [], [], color=col, lw=1.6, label=f"reduced set used by the cost ({idx.size})"
+                )
+            )
         counts = collision_free_count(xy, val[None])
         hit = np.asarray(counts.colliding)[0]
         if hit.any():
             hv = val[hit][:50]
             ax.plot(hv[:, :, 0].T, hv[:, :, 1].T, color="red", lw=0.7, alpha=0.5)
+            handles.append(
+                Line2D(
+                    [], [], color="red", lw=0.9,
+                    label=f"validation samples the plan hits ({int(hit.sum())}"
+                    + (", 50 drawn)" if hit.sum() > 50 else ")"),
+                )
+            )  # fmt: skip
         v = val[validation_index]
         ax.plot(v[:, 0], v[:, 1], "k--", lw=1.0)
-        ax.plot(v[::10, 0], v[::10, 1], "ks", ms=3)
-        ax.plot(xy[:, 0], xy[:, 1], color="tab:blue" if m == "mmd" else "k", lw=2)
-        ax.plot(xy[::10, 0], xy[::10, 1], "o", color="tab:blue" if m == "mmd" else "k", ms=4)
+        ax.plot(v[::every, 0], v[::every, 1], "ks", ms=3)
+        handles.append(
+            Line2D(
+                [], [], color="k", ls="--", marker="s", ms=3, lw=1.0,
+                label=f"one validation sample (■ every {t[every] - t[0]:.1f} s)",
+            )
+        )  # fmt: skip
+        pc = "k"  # the plan in black in every panel (the reduced set has the method colour)
+        ax.plot(xy[:, 0], xy[:, 1], color=pc, lw=2)
+        ax.plot(xy[::every, 0], xy[::every, 1], "o", color=pc, ms=4)
+        handles += [
+            Line2D(
+                [], [], color=pc, lw=2, marker="o", ms=4,
+                label=f"ego plan (● every {t[every] - t[0]:.1f} s)",
+            ),
+            Line2D([], [], color="k", lw=0.8, label="lane boundary"),
+            Line2D([], [], color="k", lw=0.5, ls=":", label="lane centre"),
+        ]  # fmt: skip
+        ax.legend(
+            handles=handles, fontsize=7, loc="upper left", bbox_to_anchor=(1.005, 1.0),
+            borderaxespad=0.0,
+        )  # fmt: skip
         cf_ = int(counts.joint)
         prog = float(np.asarray(plan.s)[-1] - np.asarray(plan.s)[0])
         ax.set_title(
@@ -171,7 +254,7 @@ def scene_figure(
         ax.set_ylim(-6, 6)
         ax.set_xlim(-5, max(200.0, float(obs[:, -1, 0].max()) + 5))
         ax.set_ylabel("y (m)")
-    axs[-1, 0].set_xlabel("x (m)")
+        ax.set_xlabel("x (m)")
     fig.suptitle(
         title
         or (
@@ -185,6 +268,14 @@ def scene_figure(
     fig.savefig(path, dpi=110)
     plt.close(fig)
     return path
+
+
+def dt_every(t: np.ndarray, seconds: float) -> int:
+    """The number of grid steps closest to ``seconds`` on the time grid ``t`` (at least 1)."""
+    t = np.asarray(t, float)
+    if t.size < 2:
+        return 1
+    return max(1, int(round(seconds / float(t[1] - t[0]))))
 
 
 RS_LABELS = {
@@ -219,15 +310,34 @@ def reduced_set_figure(
     means += [rnd.mean(), rnd_best.mean()]
     stds += [rnd.std(), rnd_best.std()]
     cols = [METHOD_COLOURS.get(m, "tab:blue") for m in names] + ["0.6", "0.3"]
-    axs[0].bar(range(len(names_all)), means, yerr=stds, color=cols, capsize=3)
+    bars = axs[0].bar(
+        range(len(names_all)),
+        means,
+        yerr=stds,
+        color=cols,
+        capsize=3,
+    )
     axs[0].set_xticks(range(len(names_all)), [_rs_label(m) for m in names_all], rotation=25)
+    axs[0].set_xlabel("reduced-set selection")
     axs[0].set_ylabel("collision-free validation samples (%)")
-    axs[0].set_title("Algorithm 1 with the MMD surrogate on each reduced set", fontsize=10)
+    axs[0].set_title(
+        f"mean over {len(random_sets)} scenes of Algorithm 1 (MMD surrogate) on each reduced set",
+        fontsize=9,
+    )
     lo = min(m - s for m, s in zip(means, stds, strict=True))
     axs[0].set_ylim(max(0.0, lo - 5), 100.5)
     axs[0].grid(alpha=0.3, axis="y")
+    from matplotlib.lines import Line2D
+
     for i, r in enumerate(random_sets):
-        axs[1].plot(np.full(len(r), i), np.asarray(r) / n_validation * 100, ".", color="0.6", ms=3)
+        axs[1].plot(
+            np.full(len(r), i),
+            np.asarray(r) / n_validation * 100,
+            ".",
+            color="0.6",
+            ms=3,
+            label="one random reduced set (Algorithm 1 on it)" if i == 0 else None,
+        )
     for m in names:
         axs[1].plot(
             range(len(per_scene[m])),
@@ -239,13 +349,23 @@ def reduced_set_figure(
             label=_rs_label(m),
         )
     axs[1].set_xticks(range(len(random_sets)))
-    axs[1].set_xlabel("scene")
-    axs[1].set_ylabel("collision-free (%)")
-    axs[1].legend(fontsize=8)
+    axs[1].set_xlabel("scene (index)")
+    axs[1].set_ylabel("collision-free validation samples (%)")
+    axs[1].set_title("per scene: each selection method against the random reduced sets", fontsize=9)
+    axs[1].legend(fontsize=7)
     axs[1].grid(alpha=0.3)
     fig.tight_layout()
+    # below panel (a), after the layout (bbox_inches='tight' keeps it in the PNG)
+    axs[0].legend(
+        handles=[*bars.patches, Line2D([], [], color="k", marker="_", ms=8, label="± 1 std")],
+        labels=[_rs_label(m) for m in names_all] + ["error bar: ± 1 std over scenes"],
+        fontsize=7,
+        loc="upper center",
+        bbox_to_anchor=(0.5, -0.5),
+        ncol=2,
+    )
     path = Path(path)
-    fig.savefig(path, dpi=110)
+    fig.savefig(path, dpi=110, bbox_inches="tight")
     plt.close(fig)
     return path
 
@@ -262,14 +382,14 @@ def timing_figure(rows: Sequence[Mapping[str, Any]], path: str | Path) -> Path:
     m_def = 10 if any(r["reduced_set_size"] == 10 for r in rows) else a[0]["reduced_set_size"]
     b = sorted((r for r in rows if r["reduced_set_size"] == m_def), key=lambda r: r["n_samples"])
     for ax, rs, key, xl in (
-        (axs[0], a, "reduced_set_size", f"reduced-set size (n = {n_def})"),
-        (axs[1], b, "n_samples", f"samples n (m = {m_def})"),
+        (axs[0], a, "reduced_set_size", f"reduced-set size m (samples; n = {n_def})"),
+        (axs[1], b, "n_samples", f"planning samples n (samples; m = {m_def})"),
     ):
         x = [r[key] for r in rs]
         ax.plot(x, [r["reduced_set_s"] * 1e3 for r in rs], "o-", label="reduced-set selection")
         ax.plot(x, [r["algorithm1_s"] * 1e3 for r in rs], "s-", label="Algorithm 1")
         ax.set_xlabel(xl)
-        ax.set_ylabel("median time (ms)")
+        ax.set_ylabel("median wall time per call (ms)")
         ax.set_yscale("log")
         ax.grid(alpha=0.3)
         ax.legend(fontsize=8)

@@ -158,6 +158,7 @@ def run_reduced_set(
             desc="scenes",
             unit="scene",
             isolate=isolate,
+            first_note="compiling Algorithm 1 (first scene of each worker, ~30 s)…",
         )
     finally:
         remove_temp_files(out / "scenes")

@@ -21,6 +21,8 @@ __all__ = [
     "read_results",
     "summarize",
     "check_bars",
+    "RESULT_TABLES",
+    "load_results",
 ]
 
 #: Columns of ``results.csv`` (the first seven are the outside contract).
@@ -114,6 +116,60 @@ def read_results(path: str | Path) -> list[dict[str, Any]]:
         for r in csv.DictReader(f):
             out.append({k: _parse(v) for k, v in r.items()})
     return out
+
+
+#: the tables the benchmarks write, in the order :func:`load_results` looks for them
+RESULT_TABLES = ("results", "reduced_set", "timing", "frontier", "episodes")
+
+
+def load_results(path: str | Path, table: str | None = None) -> Any:
+    """A benchmark folder's table(s) as a ``pandas.DataFrame`` (``pip install "mmdopt[pandas]"``).
+
+    Parameters
+    ----------
+    path : an ``--out`` folder of ``mmdopt bench ...`` (or one of its CSV files)
+    table : one of :data:`RESULT_TABLES` (``"results"``, ``"reduced_set"``, ``"timing"``,
+        ``"frontier"``, ``"episodes"``); default: whichever ``<table>.csv`` the folder holds
+
+    Returns
+    -------
+    pandas.DataFrame with the CSV's columns (numbers parsed, ``True``/``False`` as bool).  When
+    the folder holds several of the tables and ``table`` is not given, they are concatenated
+    with a first column ``table`` naming each row's file.
+
+    Raises
+    ------
+    FileNotFoundError
+        if ``path`` does not exist or holds none of the tables (the names looked for are listed).
+    ValueError
+        for an unknown ``table``.
+    ImportError
+        if pandas is not installed.
+    """
+    try:
+        import pandas as pd
+    except ImportError:  # pragma: no cover - pandas is in the [pandas] and [all] extras
+        raise ImportError('load_results needs pandas: pip install "mmdopt[pandas]"') from None
+    if table is not None and table not in RESULT_TABLES:
+        raise ValueError(f"table must be one of {RESULT_TABLES}, got {table!r}")
+    p = Path(path)
+    if p.is_file():
+        files = {p.stem: p}
+    elif p.is_dir():
+        names = RESULT_TABLES if table is None else (table,)
+        files = {t: p / f"{t}.csv" for t in names if (p / f"{t}.csv").is_file()}
+    else:
+        raise FileNotFoundError(f"{p} does not exist")
+    if not files:
+        looked = ", ".join(f"{t}.csv" for t in (RESULT_TABLES if table is None else (table,)))
+        raise FileNotFoundError(f"{p} holds no benchmark table (looked for {looked})")
+    frames = {t: pd.read_csv(f) for t, f in files.items()}
+    if len(frames) == 1:
+        return next(iter(frames.values()))
+    return pd.concat(
+        [df.assign(table=t)[["table", *df.columns]] for t, df in frames.items()],
+        ignore_index=True,
+    )
 
 
 def _parse(v: str):

@@ -19,7 +19,13 @@ from .results import write_results
 from .scenes import Scene, demo_scene, make_scene
 from .synthetic import scene_config
 
-__all__ = ["TIMING_COLUMNS", "run_timing"]
+__all__ = [
+    "TIMING_COLUMNS",
+    "OBSTACLE_TIMING_COLUMNS",
+    "run_timing",
+    "run_obstacle_timing",
+    "traffic_scene",
+]
 
 
 def _time_calls(fn, key, repeats: int) -> tuple[float, float]:
@@ -134,4 +140,85 @@ def run_timing(
     ]
     write_results(rows, out / "timing.csv", cols)
     plots.timing_figure(rows, out / "timing.png")
+    return rows
+
+
+# ------------------------------------------------------------------------ many obstacles (issue 15)
+OBSTACLE_TIMING_COLUMNS = (
+    "obstacles",
+    "interacting",
+    "reduced_set_s",
+    "algorithm1_s",
+    "plan_s",
+    "plan_first_s",
+    "per_obstacle_s",
+    "backend",
+)
+
+
+def traffic_scene(n_obstacles: int, seed: int = 0) -> tuple[Scene, np.ndarray, int]:
+    """The demo scene plus ``n_obstacles − 1`` other vehicles on a three-lane road (seeded): each a
+    copy of the demo obstacle's samples moved to another lane (offsets −3.5, +3.5, +7 m) and
+    20–200 m ahead or 30–90 m behind.  Returns ``(scene, obstacles (O, n, K, 2), interacting)``,
+    ``interacting`` = the obstacles some sample of which comes within 10 m of the ego's lane
+    centre line ahead of the ego within the horizon (a rough count of the ones that matter)."""
+    if n_obstacles < 1:
+        raise ValueError(f"n_obstacles must be >= 1, got {n_obstacles}")
+    sc = demo_scene()
+    base = sc.obstacles[0]
+    rng = np.random.default_rng(np.random.SeedSequence([int(seed), 15]))
+    out = [base]
+    for _ in range(1, n_obstacles):
+        dy = rng.choice([-3.5, 3.5, 7.0])
+        dx = rng.uniform(20.0, 200.0) if rng.random() < 0.7 else -rng.uniform(30.0, 90.0)
+        out.append(base + np.array([dx, dy]))
+    obs = np.stack(out)
+    t = sc.t
+    ego_x = sc.params.ego_speed * t
+    near = (np.abs(obs[..., 1]) < 3.0) & (np.abs(obs[..., 0] - ego_x) < 10.0)
+    return sc, obs, int(np.sum(np.any(near, axis=(1, 2))))
+
+
+def run_obstacle_timing(
+    out: str | Path,
+    *,
+    counts: Sequence[int] = (1, 5, 10, 20),
+    repeats: int = 5,
+    backend: str = PLANNER_BACKEND,
+    config=None,
+    progress: bool = True,
+) -> list[dict[str, Any]]:
+    """Median time of reduced-set selection, Algorithm 1 and the whole ``plan()`` call against
+    1, 5, 10, 20 obstacles (:func:`traffic_scene`); writes ``out/timing_obstacles.csv``."""
+    from tqdm.auto import tqdm
+
+    out = Path(out)
+    out.mkdir(parents=True, exist_ok=True)
+    rows = []
+    for O in tqdm([int(c) for c in counts], desc="obstacles", disable=not progress):
+        sc, obs, inter = traffic_scene(O)
+        cfg = scene_config(sc, config)
+        rs_t, cem_t, plan_t = [], [], []
+        for r in range(repeats + 1):
+            p = mmdopt.plan(
+                sc.ego(), sc.road(), obs, config=cfg, backend=backend,
+                key=jax.random.fold_in(sc.key(), r),
+            )  # fmt: skip
+            rs_t.append(p.diagnostics["reduced_set_s"])
+            cem_t.append(p.diagnostics["cem_s"])
+            plan_t.append(p.plan_time_s)
+        a1 = float(np.median(cem_t[1:]))
+        rows.append(
+            dict(
+                obstacles=O,
+                interacting=inter,
+                reduced_set_s=float(np.median(rs_t[1:])),
+                algorithm1_s=a1,
+                plan_s=float(np.median(plan_t[1:])),
+                plan_first_s=plan_t[0],
+                per_obstacle_s=a1 / O,
+                backend=backend,
+            )
+        )
+    write_results(rows, out / "timing_obstacles.csv", OBSTACLE_TIMING_COLUMNS)
     return rows

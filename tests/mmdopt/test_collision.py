@@ -209,3 +209,31 @@ def test_surrogate_rejects_mismatched_shapes():
         mmd_surrogate(_ego([0.0])[:, :10], ro)
     with pytest.raises(ValueError, match="obstacles.weights"):
         mmd_surrogate(_ego([0.0]), ReducedObstacles(ro.centres, ro.weights[:, :2]))
+
+
+@pytest.mark.parametrize("mode", ["mmd", "scenario", "saa"])
+def test_collision_cost_is_the_sum_over_obstacles_and_far_traffic_adds_nothing(mode):
+    from mmdopt.collision import collision_cost, taylor_terms
+
+    rng = np.random.default_rng(3)
+    K = 30
+    t = np.linspace(0, 5, K)
+    s = jnp.asarray(np.stack([v * t for v in (2.0, 5.0, 8.0)]))  # (B = 3, K)
+    d = jnp.zeros_like(s)
+    near = np.stack([x0 + 4.0 * t for x0 in (10.0, 12.0)])  # two samples in the ego lane
+    far = near + 500.0  # the same samples 500 m ahead: no ego point gets near
+    cen = lambda xy: np.asarray(  # noqa: E731
+        circle_centres(np.stack([xy, rng.normal(0, 0.3, xy.shape)], -1), OBSTACLE_FOOTPRINT)
+    )
+    c = jnp.asarray(np.stack([cen(near), cen(far), cen(near + 3.0)]))  # (O = 3, J = 2, C, K, 2)
+    w = jnp.full((3, 2), 0.5)
+    m = jnp.ones((3, 2), bool)
+    kw = dict(bandwidth=0.5, f_scale=1.0, n_terms=taylor_terms(2.0, 1e-12))
+    total = collision_cost(mode, s, d, c, w, m, 6.0, 3.5, **kw)
+    single = [collision_cost(mode, s, d, c[o : o + 1], w[o : o + 1], m[o : o + 1], 6.0, 3.5, **kw)
+              for o in range(3)]  # fmt: skip
+    np.testing.assert_allclose(total, sum(single), rtol=1e-12)
+    np.testing.assert_array_equal(np.asarray(single[1]), 0.0)
+    assert float(jnp.max(total)) > 0
+    with pytest.raises(ValueError, match="mode"):
+        collision_cost("nope", s, d, c, w, m, 6.0, 3.5)

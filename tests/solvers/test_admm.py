@@ -12,7 +12,8 @@ import jax
 import numpy as np
 import pytest
 
-import solvers.admm as admm
+import solvers.admm.backend as admm_backend
+import solvers.admm.core as admm_core
 from solvers import QP, QPBatch, Status, solve, solve_batch
 from solvers.admm import ADMMSettings, admm_factor, admm_iterate, rows_from_bounds
 from solvers.examples import projection_like_batch, random_feasible_qp
@@ -58,7 +59,7 @@ def test_settings_used_are_recorded_and_defaults_kept():
 
 
 def test_large_n_warns(monkeypatch):
-    monkeypatch.setattr(admm, "DENSE_N_WARN", 4)
+    monkeypatch.setattr(admm_backend, "DENSE_N_WARN", 4)
     b = projection_like_batch(1, horizon=8)
     with pytest.warns(UserWarning, match="densifies"):
         solve_batch(b, "admm", max_iter=25)
@@ -110,8 +111,13 @@ def test_infeasible_problems_get_their_certificate_in_a_batch():
 
 def test_dual_infeasible_is_detected():
     # min −x2 + ½x1² with x2 unbounded above: unbounded
-    qp = QP(np.diag([1.0, 0.0]), np.array([0.0, -1.0]), np.eye(2), np.array([-1.0, 0.0]),
-            np.array([1.0, np.inf]))
+    qp = QP(
+        np.diag([1.0, 0.0]),
+        np.array([0.0, -1.0]),
+        np.eye(2),
+        np.array([-1.0, 0.0]),
+        np.array([1.0, np.inf]),
+    )
     assert solve(qp, "admm").status is Status.DUAL_INFEASIBLE
 
 
@@ -138,9 +144,9 @@ def test_no_recompile_for_new_data_of_the_same_shape():
     b1 = projection_like_batch(3, horizon=12, seed=3)
     b2 = projection_like_batch(3, horizon=12, seed=4)
     solve_batch(b1, "admm", **PROJ)
-    n0 = admm._admm_iterate_jit._cache_size()
+    n0 = admm_core._admm_iterate_jit._cache_size()
     solve_batch(b2, "admm", **PROJ)
-    assert admm._admm_iterate_jit._cache_size() == n0
+    assert admm_core._admm_iterate_jit._cache_size() == n0
 
 
 def test_warm_start_from_previous_batch_needs_no_more_iterations():
@@ -169,8 +175,7 @@ def test_jitted_equals_eager_on_a_tiny_batch(dtype, atol):
     P, A, q, l, u = _tiny()
     eq, free = rows_from_bounds(l, u)
     with jax.enable_x64(dtype == "float64"):
-        f = admm_factor(P, A, ADMMSettings(check_every=5, dtype=dtype), eq_rows=eq,
-                        free_rows=free)
+        f = admm_factor(P, A, ADMMSettings(check_every=5, dtype=dtype), eq_rows=eq, free_rows=free)
         jitted = jax.jit(lambda q, l, u: admm_iterate(f, q, l, u, iters=20))(q, l, u)
         with jax.disable_jit():
             eager = admm_iterate(f, q, l, u, iters=20)
@@ -206,8 +211,14 @@ def test_float32_and_float64_agree():
 
 def test_fallback_is_visible_and_counted():
     batch = projection_like_batch(3, horizon=12, seed=7)
-    sol = solve_batch(batch, "admm", max_iter=25, polish=False, fallback="clarabel", **{
-        k: v for k, v in PROJ.items() if k != "max_iter"})
+    sol = solve_batch(
+        batch,
+        "admm",
+        max_iter=25,
+        polish=False,
+        fallback="clarabel",
+        **{k: v for k, v in PROJ.items() if k != "max_iter"},
+    )
     assert sol.settings["fallback"] == "clarabel"
     assert sol.extras["fallback_count"] == sol.extras["fallback_attempted"] > 0
     assert sol.all_solved

@@ -12,7 +12,16 @@ import scipy.sparse as sp
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
-from solvers import QP, QPBatch, Status, available_backends, get_backend, solve, solve_batch
+from solvers import (
+    QP,
+    InvalidSettingError,
+    QPBatch,
+    Status,
+    available_backends,
+    get_backend,
+    solve,
+    solve_batch,
+)
 from solvers.examples import projection_like_batch, random_feasible_qp
 
 from .conftest import assert_agrees, reference
@@ -219,7 +228,7 @@ def test_osqp_records_its_defaults_and_changes_only_verbose():
     assert s["eps_abs"] == 1e-3 and s["eps_rel"] == 1e-3 and s["max_iter"] == 4000  # OSQP's own
     sol = solve(random_feasible_qp(4, 3, 1, seed=0), "osqp", eps_abs=1e-6, polishing=True)
     assert sol.settings["eps_abs"] == 1e-6 and sol.settings["polishing"] in (1, True)
-    with pytest.raises(ValueError, match="Unrecognized settings"):
+    with pytest.raises(InvalidSettingError, match="unknown setting 'eps_typo'"):
         solve(random_feasible_qp(4, 3, 1, seed=0), "osqp", eps_typo=1.0)
 
 
@@ -250,8 +259,11 @@ def test_osqp_batch_sets_up_once_and_warm_starts():
 
 
 def test_osqp_non_convex_objective_is_an_error_status():
+    """With the convexity check skipped by the caller, OSQP's own NON_CVX is still an ERROR."""
     pytest.importorskip("osqp")
-    qp = QP(np.diag([1.0, -1.0]), np.zeros(2), np.eye(2), -np.ones(2), np.ones(2))
+    qp = QP(
+        np.diag([1.0, -1.0]), np.zeros(2), np.eye(2), -np.ones(2), np.ones(2), check_convex=False
+    )
     assert solve(qp, "osqp").status is Status.ERROR
 
 

@@ -195,7 +195,7 @@ TOLERANCES: dict[str, BackendTol] = {
             "QAFIRO": "admm: MAX_ITER (4000); the polish finds no acceptable active set",
             "QSHARE1B": "admm: MAX_ITER (4000); the polish finds no acceptable active set",
             "VALUES": "admm: MAX_ITER at eps 1e-7 (objective 1e-7 off, residuals ~1e-4); no "
-                      "polished point accepted (cause not investigated)",
+            "polished point accepted (cause not investigated)",
         },
         examples=10,
     ),

@@ -125,7 +125,7 @@ def test_demo_writes_png_and_prints_table(tmp_path, capsys):
     assert rc == 0
     png = tmp_path / "demo.png"
     assert png.is_file() and png.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
-    for word in ("method", "collision_free", "progress_m", "mmd", "degroot"):
+    for word in ("method", "collision-free of 1000", "progress (m)", "plan time (s)", "mmd"):
         assert word in out.out
     rows = json.loads((tmp_path / "demo.json").read_text())
     assert {r["method"] for r in rows} == {"mmd", "degroot"}

@@ -239,3 +239,14 @@ def test_timing_table_has_the_contract_columns_and_algorithm1_inside_plan(tmp_pa
     assert r["reduced_set_size"] == 5 and r["n_samples"] == 100 and r["backend"] == "admm-fixed"
     assert 0 < r["algorithm1_s"] <= r["plan_s"] and r["reduced_set_s"] > 0
     assert r["compile_s"] >= 0 and (tmp_path / "timing.png").exists()
+
+
+def test_obstacle_timing_table_has_its_columns(tmp_path):
+    """``bench timing --obstacles``: one row per obstacle count; far traffic is cheap."""
+    cfg = mmdopt.MMDOptConfig(n_samples=200, n_cem=40, n_elite=15, iterations=3, n_brake=5)
+    rows = timing.run_obstacle_timing(tmp_path, counts=[3], repeats=1, config=cfg, progress=False)
+    assert [r["obstacles"] for r in rows] == [3]
+    with open(tmp_path / "timing_obstacles.csv") as f:
+        got = list(csv.DictReader(f))
+    assert set(timing.OBSTACLE_TIMING_COLUMNS) <= set(got[0])
+    assert all(r["algorithm1_s"] > 0 and r["interacting"] >= 1 for r in rows)

@@ -1,0 +1,86 @@
+"""Closed-loop benchmark: receding-horizon MMD-Opt driving in highway-env (issue 13).
+
+Everything that knows highway-env lives in this package (the optional extra ``[highway]``):
+``settings`` (methods, planner defaults, :class:`HighwaySettings`), ``adapter`` (state
+conversion, the plan-following ego, :class:`HighwaySource`), ``predictors``, ``runner`` (one
+episode, the resumable sweep, videos) and ``cli``.
+
+* :class:`HighwaySource` — the scene source of :func:`mmdopt.receding.run_receding`.  Headless
+  (``render_mode=None``; ``"rgb_array"`` for videos).  The Frenet frame is a straight
+  :class:`frenet.ReferencePath` along highway-env's lanes (+x at ``y = 0``, the centre of lane 0;
+  highway-env's y axis points to the right of travel on screen, which is only a mirror image for
+  the planner); the ego's lateral bounds ``y_lb, y_ub`` are the centres of the outermost lanes of
+  its road, so the planner may change lanes.
+* **The ego follows the plan exactly**: it is a :class:`PlanFollower` vehicle whose pose and speed
+  are set along the planned trajectory (linear interpolation of the plan's grid) at every
+  simulator step; no tracking controller.  The plan is kinematically feasible within the
+  :class:`mmdopt.Road` limits, so this isolates the planner from a controller's tracking error.
+  The other vehicles are highway-env's own IDM/MOBIL drivers, they see the ego as an ordinary
+  vehicle, and highway-env's own collision checker (rotated rectangles, ``Road.step``) decides
+  crashes.
+* Frequencies are explicit: ``simulation_frequency`` (default 10 Hz) and ``policy_frequency`` =
+  1/δ (default 2 Hz: replan every δ = 0.5 s, five simulator steps per plan).
+* Predictors (each returns ``(O, n, K, 2)`` Cartesian samples on the planner's grid and is timed
+  per call): :class:`SimulatorPredictor` clones the simulator (the nearby vehicles, with a fresh
+  road sharing the lane network) and rolls out highway-env's own IDM/MOBIL models with
+  randomised driver parameters and random forced lane changes — multi-modal by construction;
+  :class:`ConstantVelocityPredictor` extrapolates each car's velocity with Gaussian velocity
+  noise.
+* Methods: ``mmd`` (MMD-Opt), ``degroot`` (the scenario baseline), ``cv`` (Algorithm 1 with the
+  scenario cost against the single noise-free constant-velocity prediction of each car: a planner
+  that ignores uncertainty) and ``idm`` (highway-env's own IDM/MOBIL driver as the ego: the
+  reference for speed).
+* :func:`run_highway` — the resumable benchmark behind ``mmdopt bench highway`` (one JSON per
+  finished episode, ``episodes.csv`` rebuilt from them), :func:`write_video` for one episode.
+"""
+
+from .adapter import (
+    HighwaySource,
+    PlanFollower,
+    classify_crash,
+    frenet_to_pose,
+    vehicle_to_frenet,
+)
+from .cli import add_highway_parser, cmd_highway, main
+from .predictors import (
+    ConstantVelocityPredictor,
+    SimulatorPredictor,
+    _straight_parallel,
+    make_predictor,
+)
+from .runner import CSV_COLUMNS, run_episode, run_highway, summarize, write_csv, write_video
+from .settings import (
+    HIGHWAY_PLANNER,
+    METHODS,
+    PREDICTORS,
+    HighwaySettings,
+    highway_available,
+    highway_config,
+)
+
+__all__ = [
+    "HIGHWAY_PLANNER",
+    "METHODS",
+    "PREDICTORS",
+    "CSV_COLUMNS",
+    "HighwaySettings",
+    "HighwaySource",
+    "PlanFollower",
+    "SimulatorPredictor",
+    "ConstantVelocityPredictor",
+    "make_predictor",
+    "vehicle_to_frenet",
+    "frenet_to_pose",
+    "classify_crash",
+    "highway_config",
+    "highway_available",
+    "run_episode",
+    "run_highway",
+    "summarize",
+    "write_csv",
+    "write_video",
+    "add_highway_parser",
+    "cmd_highway",
+    "main",
+    "_straight_parallel",
+]

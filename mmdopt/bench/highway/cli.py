@@ -1,0 +1,216 @@
+"""``mmdopt bench highway``: :func:`add_highway_parser` and :func:`cmd_highway`."""
+
+from __future__ import annotations
+
+import json
+import math
+from collections.abc import Sequence
+from pathlib import Path
+
+from ..executors import EXECUTORS
+from .runner import run_highway, summarize, write_video
+from .settings import METHODS, PREDICTORS, HighwaySettings, highway_available, highway_config
+
+
+# ------------------------------------------------------------------------------------------ CLI
+def _pos_int(s: str) -> int:
+    import argparse
+
+    try:
+        v = int(s)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected a positive integer, got {s!r}") from None
+    if v < 1:
+        raise argparse.ArgumentTypeError(f"expected a positive integer, got {v}")
+    return v
+
+
+def _nonneg_int(s: str) -> int:
+    import argparse
+
+    try:
+        v = int(s)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected an integer >= 0, got {s!r}") from None
+    if v < 0:
+        raise argparse.ArgumentTypeError(f"expected an integer >= 0, got {v}")
+    return v
+
+
+def _pos_float(s: str) -> float:
+    import argparse
+
+    try:
+        v = float(s)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected a positive number, got {s!r}") from None
+    if not (math.isfinite(v) and v > 0):
+        raise argparse.ArgumentTypeError(f"expected a positive number, got {s!r}")
+    return v
+
+
+def _method_list(s: str) -> list[str]:
+    import argparse
+
+    ms = [m.strip() for m in s.split(",") if m.strip()]
+    bad = [m for m in ms if m not in METHODS]
+    if not ms or bad:
+        raise argparse.ArgumentTypeError(
+            f"unknown method(s) {', '.join(bad) or '(none)'}; choose from {', '.join(METHODS)}"
+        )
+    return list(dict.fromkeys(ms))
+
+
+def add_highway_parser(bench_subparsers):
+    """Add ``highway`` to the ``mmdopt bench`` sub-commands; returns the parser."""
+    h = bench_subparsers.add_parser(
+        "highway",
+        help="closed-loop receding-horizon driving in highway-env (issue 13)",
+        description="Receding-horizon MMD-Opt and baselines driving in highway-env; "
+        "resumable, one JSON per episode, DIR/episodes.csv.",
+    )
+    h.add_argument("--episodes", type=_pos_int, default=20, help="episodes (default 20)")
+    h.add_argument("--seed", type=_nonneg_int, default=0, help="episode i uses seed S + i")
+    h.add_argument("--duration", type=_pos_float, default=20.0, help="seconds per episode")
+    h.add_argument("--out", required=True, help="output folder (resumable)")
+    h.add_argument("--env", default="highway-v0", help="highway-env id (default highway-v0)")
+    h.add_argument(
+        "--methods",
+        type=_method_list,
+        default=["mmd", "degroot", "cv", "idm"],
+        help="comma-separated: mmd,degroot,cv,idm (default all)",
+    )
+    h.add_argument("--predictor", choices=PREDICTORS, default="sim", help="sim | cv (default sim)")
+    h.add_argument(
+        "--config",
+        default=None,
+        metavar="FILE.json",
+        help="JSON object of MMDOptConfig fields on top of the highway defaults",
+    )
+    h.add_argument("--dt", type=_pos_float, default=0.5, help="replan period δ (s, default 0.5)")
+    h.add_argument("--samples", type=_pos_int, default=20, help="predictor samples per car")
+    h.add_argument(
+        "--executor",
+        choices=EXECUTORS,
+        default="local",
+        help="local process pool (default) or ray (pip install 'mmdopt[ray]')",
+    )
+    h.add_argument(
+        "--address",
+        default=None,
+        help="with --executor ray: address of an existing Ray cluster (default: a local one)",
+    )
+    h.add_argument("--jobs", type=_pos_int, default=1, help="parallel episodes (default 1)")
+    h.add_argument(
+        "--video",
+        type=_nonneg_int,
+        default=None,
+        metavar="EPISODE",
+        help="also write DIR/video_EPISODE_METHOD.gif (or .mp4) of this episode",
+    )
+    h.add_argument("--no-progress", action="store_true")
+    h.set_defaults(func=cmd_highway)
+    return h
+
+
+def _load_overrides(path) -> dict:
+    if path is None:
+        return {}
+    p = Path(path)
+    if not p.is_file():
+        raise ValueError(f"argument --config: file {str(path)!r} does not exist")
+    try:
+        raw = json.loads(p.read_text())
+    except json.JSONDecodeError as e:
+        raise ValueError(f"argument --config: {path} is not valid JSON: {e}") from None
+    if not isinstance(raw, dict):
+        raise ValueError(
+            "argument --config: the config must be a JSON object of MMDOptConfig fields"
+        )
+    try:
+        highway_config(raw)
+    except (TypeError, ValueError) as e:
+        raise ValueError(f"argument --config: {e}") from None
+    return raw
+
+
+def cmd_highway(args) -> int:
+    """Run ``mmdopt bench highway``; prints a per-method table; returns the exit status."""
+    import sys
+
+    if not highway_available():
+        print(
+            'mmdopt bench highway: highway-env is not installed; pip install -e ".[highway]"',
+            file=sys.stderr,
+        )
+        return 2
+    try:
+        overrides = _load_overrides(args.config)
+        settings = HighwaySettings(
+            env=args.env,
+            duration=float(args.duration),
+            dt=float(args.dt),
+            n_samples=int(args.samples),
+            predictor=args.predictor,
+        )
+    except ValueError as e:
+        print(f"mmdopt bench highway: {e}", file=sys.stderr)
+        return 2
+    try:
+        rows = run_highway(
+            args.out,
+            episodes=args.episodes,
+            seed=args.seed,
+            methods=args.methods,
+            settings=settings,
+            config_overrides=overrides,
+            executor=args.executor,
+            jobs=args.jobs,
+            address=args.address,
+            progress=not args.no_progress,
+        )
+    except ValueError as e:
+        print(f"mmdopt bench highway: {e}", file=sys.stderr)
+        return 2
+    summ = summarize(rows)
+    cols = [
+        "method",
+        "episodes",
+        "crashes",
+        "mean_speed",
+        "distance_m",
+        "median_plan_s",
+        "max_plan_s",
+        "median_predict_s",
+    ]
+    print("  ".join(f"{c:>14}" for c in cols))
+    for s in summ:
+        print(
+            "  ".join(
+                f"{s[c]:>14.3f}" if isinstance(s[c], float) else f"{s[c]!s:>14}" for c in cols
+            )
+        )
+    print(f"wrote {Path(args.out) / 'episodes.csv'}")
+    if args.video is not None:
+        for m in args.methods:
+            p = write_video(
+                Path(args.out) / f"video_{args.video:04d}_{m}.mp4",
+                args.video,
+                args.seed + args.video,
+                m,
+                settings,
+                highway_config(overrides),
+            )
+            print(f"wrote {p}")
+    return 0
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    """``python -m mmdopt.bench.highway [OPTIONS]``: the options of ``mmdopt bench highway``."""
+    import argparse
+    import sys
+
+    p = argparse.ArgumentParser(prog="python -m mmdopt.bench.highway")
+    add_highway_parser(p.add_subparsers(dest="experiment", required=True))
+    args = p.parse_args(["highway", *(sys.argv[1:] if argv is None else argv)])
+    return cmd_highway(args)

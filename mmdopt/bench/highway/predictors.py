@@ -1,0 +1,460 @@
+"""Predictors of the highway benchmark: simulator rollouts (vectorised replica of highway-env's
+IDM/MOBIL, or exact clones) and constant velocity.  Each returns ``(O, n, K, 2)`` samples on the
+planner's grid and records its wall time per call in ``last_time_s``."""
+
+from __future__ import annotations
+
+import copy
+import math
+import time
+from dataclasses import dataclass
+
+import numpy as np
+
+from .settings import PREDICTORS
+
+
+# ----------------------------------------------------------------------------------- predictors
+def _clone_road(road, vehicles, seed: int):
+    """A new highway-env ``Road`` sharing the (immutable) lane network, with deep copies of
+    ``vehicles`` whose ``road`` points at the clone; its own random state."""
+    from highway_env.road.road import Road as HRoad
+
+    clone = HRoad(network=road.network, np_random=np.random.RandomState(seed), record_history=False)
+    memo = {id(road): clone, id(road.network): road.network}
+    for lane in road.network.lanes_list():
+        memo[id(lane)] = lane
+    clone.vehicles = copy.deepcopy(list(vehicles), memo)
+    clone.objects = copy.deepcopy(list(road.objects), memo)
+    return clone
+
+
+@dataclass
+class SimulatorPredictor:
+    """Samples of each car's future from the simulator's own driver models.
+
+    For each of ``n`` rollouts the nearby traffic (cars within ``radius`` m of the ego) is cloned
+    and every IDM/MOBIL car gets randomised driver parameters: desired speed
+    ± ``speed_spread`` (Gaussian), time gap U[1, 2] s, comfortable acceleration U[2, 4] m/s²,
+    comfortable deceleration U[4, 6] m/s², IDM exponent U[3.5, 4.5], MOBIL politeness U[0, 0.5],
+    gain threshold U[0, 0.4] m/s², lane-change timer phase; with probability
+    ``lane_change_prob`` a car is also sent to a random neighbouring lane at a random time in the
+    first half of the horizon (the modes).  The ego keeps following its current plan.
+
+    ``mode="auto"`` (default) picks ``"vectorised"`` on roads made only of straight lanes along
+    +x (highway-v0) and ``"clone"`` otherwise (merge-v0's ramp).  ``mode="vectorised"`` steps
+    all rollouts at once with a NumPy replica of highway-env's ``IDMVehicle`` (IDM acceleration
+    with its centre-to-centre gap, MOBIL with its own conventions: neighbours found with
+    ``on_lane``'s 1 m margin, the deciding car's parameters, the minimum over the current and the
+    target lane during a change, the 1 s decision timer) and a first-order lateral response fitted
+    to highway-env's steering controller (time constant 0.55 s, |ḋ| ≤ 5 m/s).
+    ``mode="clone"`` deep-copies the vehicles onto a fresh highway-env ``Road`` and steps its own
+    ``act``/``step`` rollout by rollout (exact, any road geometry, ~100× slower).  Positions are
+    interpolated onto the planner's grid; ``last_time_s`` is the wall time of the last call.
+    """
+
+    radius: float = 150.0
+    rollout_frequency: float = 10.0
+    lane_change_prob: float = 0.25
+    speed_spread: float = 2.0
+    randomise: bool = True
+    mode: str = "auto"
+    name: str = "sim"
+    last_time_s: float = 0.0
+
+    def __post_init__(self) -> None:
+        if self.mode not in ("auto", "vectorised", "clone"):
+            raise ValueError(f"mode must be 'auto', 'vectorised' or 'clone', got {self.mode!r}")
+
+    def __call__(self, road, ego_vehicle, targets, t_grid: np.ndarray, n: int, rng) -> np.ndarray:
+        t0 = time.perf_counter()
+        t_grid = np.asarray(t_grid, dtype=np.float64)
+        O, K = len(targets), t_grid.shape[0]
+        if O == 0:
+            self.last_time_s = time.perf_counter() - t0
+            return np.zeros((0, n, K, 2))
+        near = [
+            v
+            for v in road.vehicles
+            if np.linalg.norm(v.position - ego_vehicle.position) < self.radius
+        ]
+        for v in targets:
+            if not any(v is u for u in near):
+                near.append(v)
+        idx = [next(i for i, u in enumerate(near) if u is v) for v in targets]
+        dt = 1.0 / self.rollout_frequency
+        steps = int(math.ceil(t_grid[-1] / dt - 1e-9))
+        t_roll = np.arange(steps + 1) * dt
+        mode = self.mode
+        if mode == "auto":
+            mode = "vectorised" if _straight_parallel(road.network) else "clone"
+        if mode == "vectorised":
+            traj = self._vectorised(road, near, idx, ego_vehicle, steps, dt, n, rng)
+        else:
+            traj = self._clone(road, near, idx, steps, dt, n, rng)
+        # traj (n, O, steps+1, 2) -> (O, n, K, 2) on the planner's grid
+        out = np.empty((O, n, K, 2))
+        for o in range(O):
+            for j in range(n):
+                out[o, j, :, 0] = np.interp(t_grid, t_roll, traj[j, o, :, 0])
+                out[o, j, :, 1] = np.interp(t_grid, t_roll, traj[j, o, :, 1])
+        self.last_time_s = time.perf_counter() - t0
+        return out
+
+    # -- the randomised parameters, shared by both modes: (n, N) arrays
+    def _params(self, near, idx, horizon, n, rng):
+        from highway_env.vehicle.behavior import IDMVehicle
+
+        N = len(near)
+        idm = np.array([isinstance(v, IDMVehicle) and not v.crashed for v in near])
+        base = {
+            "target_speed": np.array([float(getattr(v, "target_speed", v.speed)) for v in near]),
+            "TIME_WANTED": np.array([getattr(v, "TIME_WANTED", 1.5) for v in near], float),
+            "COMFORT_ACC_MAX": np.array([getattr(v, "COMFORT_ACC_MAX", 3.0) for v in near], float),
+            "COMFORT_ACC_MIN": np.array([getattr(v, "COMFORT_ACC_MIN", -5.0) for v in near], float),
+            "DELTA": np.array([getattr(v, "DELTA", 4.0) for v in near], float),
+            "POLITENESS": np.array([getattr(v, "POLITENESS", 0.0) for v in near], float),
+            "LANE_CHANGE_MIN_ACC_GAIN": np.array(
+                [getattr(v, "LANE_CHANGE_MIN_ACC_GAIN", 0.2) for v in near], float
+            ),
+            "timer": np.array([float(getattr(v, "timer", 0.0)) for v in near]),
+        }
+        p = {k: np.broadcast_to(v, (n, N)).copy() for k, v in base.items()}
+        lc_time = np.full((n, N), np.inf)
+        lc_side = np.zeros((n, N), dtype=np.int64)
+        if self.randomise:
+            r = rng.random
+            p["target_speed"] = np.maximum(
+                0.0, p["target_speed"] + rng.normal(0.0, self.speed_spread, (n, N))
+            )
+            p["TIME_WANTED"] = 1.0 + r((n, N))
+            p["COMFORT_ACC_MAX"] = 2.0 + 2.0 * r((n, N))
+            p["COMFORT_ACC_MIN"] = -6.0 + 2.0 * r((n, N))
+            p["DELTA"] = 3.5 + r((n, N))
+            p["POLITENESS"] = 0.5 * r((n, N))
+            p["LANE_CHANGE_MIN_ACC_GAIN"] = 0.4 * r((n, N))
+            p["timer"] = r((n, N))
+            is_target = np.zeros(N, bool)
+            is_target[idx] = True
+            force = (r((n, N)) < self.lane_change_prob) & is_target[None, :] & idm[None, :]
+            when = 0.5 * horizon * r((n, N))
+            lc_time = np.where(force, when, np.inf)
+            lc_side = np.where(force, rng.integers(0, 2, (n, N)) * 2 - 1, 0)
+        for k in p:
+            p[k] = np.where(idm[None, :], p[k], base[k][None, :])
+        return idm, p, lc_time, lc_side
+
+    def _clone(self, road, near, idx, steps, dt, n, rng):
+        from highway_env.vehicle.behavior import IDMVehicle
+
+        def side_lane(v, side):
+            # the neighbouring lane on `side` (-1 / +1 lane id), else the other one, else None
+            if not v.lane_index:
+                return None
+            ids = {s[2]: s for s in road.network.side_lanes(v.lane_index)}
+            k = v.lane_index[2]
+            return ids.get(k + side, ids.get(k - side))
+
+        idm, p, lc_time, lc_side = self._params(near, idx, steps * dt, n, rng)
+        O = len(idx)
+        traj = np.zeros((n, O, steps + 1, 2))
+        for j in range(n):
+            clone = _clone_road(road, near, int(rng.integers(2**31 - 1)))
+            cars = clone.vehicles
+            forced = {}
+            for i, car in enumerate(cars):
+                if not (isinstance(car, IDMVehicle) and idm[i]):
+                    continue
+                for k in p:
+                    setattr(car, k, float(p[k][j, i]))
+                if np.isfinite(lc_time[j, i]):
+                    lane = side_lane(car, int(lc_side[j, i]))
+                    if lane is not None:
+                        forced[i] = (lc_time[j, i], lane)
+            traj[j, :, 0] = [cars[i].position for i in idx]
+            for k in range(steps):
+                tk = k * dt
+                for i, (t_lc, lane) in list(forced.items()):
+                    if tk >= t_lc:
+                        cars[i].target_lane_index = lane
+                        del forced[i]
+                clone.act()
+                clone.step(dt)
+                traj[j, :, k + 1] = [cars[i].position for i in idx]
+        return traj
+
+    def _vectorised(self, road, near, idx, ego_vehicle, steps, dt, n, rng):
+        from highway_env.vehicle.behavior import IDMVehicle
+
+        lanes = road.network.all_side_lanes(ego_vehicle.lane_index)
+        yc = np.array([float(road.network.get_lane(li).position(0.0, 0.0)[1]) for li in lanes])
+        order = np.argsort(yc)
+        yc = yc[order]
+        L = len(yc)
+        half_w = 0.5 * float(road.network.get_lane(lanes[0]).width)
+        speed_limit = road.network.get_lane(lanes[0]).speed_limit
+
+        def lane_no(y):
+            return np.argmin(np.abs(np.asarray(y)[..., None] - yc), axis=-1)
+
+        idm, p, lc_time, lc_side = self._params(near, idx, steps * dt, n, rng)
+        N = len(near)
+        pos = np.array([v.position for v in near], float)
+        lane0 = lane_no(pos[:, 1])[None, :]
+        lc_lane = lane0 + lc_side
+        lc_lane = np.where((lc_lane < 0) | (lc_lane >= L), lane0 - lc_side, lc_lane)
+        lc_lane = np.where((lc_side == 0) | (lc_lane < 0) | (lc_lane >= L), -1, lc_lane)
+        x = np.broadcast_to(pos[:, 0], (n, N)).copy()
+        y = np.broadcast_to(pos[:, 1], (n, N)).copy()
+        spd = np.array([float(v.speed) for v in near])
+        hd = np.array([float(v.heading) for v in near])
+        v = np.broadcast_to(spd, (n, N)).copy()
+        vy0 = spd * np.sin(hd)
+        tgt = np.empty((n, N), np.int64)
+        for i, car in enumerate(near):
+            ti = getattr(car, "target_lane_index", None)
+            yt = (
+                float(road.network.get_lane(ti).position(car.position[0], 0.0)[1])
+                if ti is not None and isinstance(car, IDMVehicle)
+                else car.position[1]
+            )
+            tgt[:, i] = int(lane_no(yt))
+        v0 = p["target_speed"]
+        if speed_limit is not None:
+            v0 = np.clip(v0, 0.0, speed_limit)
+        T, amax, bmin = p["TIME_WANTED"], p["COMFORT_ACC_MAX"], p["COMFORT_ACC_MIN"]
+        delta, pol, gain, timer = (
+            p["DELTA"],
+            p["POLITENESS"],
+            p["LANE_CHANGE_MIN_ACC_GAIN"],
+            p["timer"],
+        )
+        d0 = IDMVehicle.DISTANCE_WANTED
+        acc_max, delay = IDMVehicle.ACC_MAX, IDMVehicle.LANE_CHANGE_DELAY
+        brake_imposed = IDMVehicle.LANE_CHANGE_MAX_BRAKING_IMPOSED
+        ego_i = next((i for i, c in enumerate(near) if c is ego_vehicle), None)
+        ego_fn = _ego_motion(ego_vehicle) if ego_i is not None else None
+        passive = ~idm  # constant velocity (the ego is overwritten along its plan)
+        vx_passive = spd * np.cos(hd)
+        O = len(idx)
+        traj = np.zeros((n, O, steps + 1, 2))
+        traj[:, :, 0, 0], traj[:, :, 0, 1] = x[:, idx], y[:, idx]
+        rows = np.arange(n)[:, None]
+        eye = np.eye(N, dtype=bool)[None]
+        crashed = np.broadcast_to(np.array([bool(c.crashed) for c in near]), (n, N)).copy()
+        length, width = IDMVehicle.LENGTH, IDMVehicle.WIDTH
+
+        def idm_acc(vi, v0i, Ti, ai, bi, di, gap, vf, has):
+            # IDMVehicle.acceleration: free road term minus the interaction term (centre gap)
+            free = ai * (1.0 - np.power(np.maximum(vi, 0.0) / np.maximum(np.abs(v0i), 1e-6), di))
+            ab = -ai * bi
+            dstar = d0 + vi * Ti + vi * (vi - vf) / (2.0 * np.sqrt(ab))
+            inter = ai * (dstar / np.where(np.abs(gap) > 1e-6, gap, 1e-6)) ** 2
+            return free - np.where(has, inter, 0.0)
+
+        def neighbours(lane_idx):
+            # front / rear of every car i in lane lane_idx[:, i] (on_lane with a 1 m margin)
+            on = np.abs(y[:, None, :] - yc[lane_idx][:, :, None]) <= half_w + 1.0  # (n, i, j)
+            on &= ~eye
+            dx = x[:, None, :] - x[:, :, None]  # x_j - x_i
+            fr = np.where(on & (dx >= 0), dx, np.inf)
+            re = np.where(on & (dx < 0), -dx, np.inf)
+            jf, jr = np.argmin(fr, axis=2), np.argmin(re, axis=2)
+            hf = np.isfinite(np.take_along_axis(fr, jf[..., None], 2)[..., 0])
+            hr = np.isfinite(np.take_along_axis(re, jr[..., None], 2)[..., 0])
+            return jf, hf, jr, hr
+
+        def acc_of(who, front, has_front, exists, params_of):
+            # acceleration of car `who` (n, N indices) behind car `front`, with the parameters of
+            # the deciding car (params_of = identity index: highway-env's MOBIL convention)
+            vi = v[rows, who]
+            gap = x[rows, front] - x[rows, who]
+            vf = v[rows, front]
+            a = idm_acc(vi, v0[rows, who], T, amax, bmin, delta, gap, vf, has_front)
+            return np.where(exists, a, 0.0)
+
+        t = 0.0
+        for k in range(steps):
+            lane = lane_no(y)
+            # forced lane changes (the random modes)
+            fire = (t >= lc_time) & (lc_lane >= 0)
+            tgt = np.where(fire, lc_lane, tgt)
+            lc_time = np.where(fire, np.inf, lc_time)
+            # longitudinal: IDM in the current lane, min with the target lane while changing
+            jf, hf, jr, hr = neighbours(lane)
+            a = idm_acc(v, v0, T, amax, bmin, delta, x[rows, jf] - x, v[rows, jf], hf)
+            changing = lane != tgt
+            jft, hft, _, _ = neighbours(tgt)
+            a_t = idm_acc(v, v0, T, amax, bmin, delta, x[rows, jft] - x, v[rows, jft], hft)
+            a = np.where(changing, np.minimum(a, a_t), a)
+            a = np.clip(a, -acc_max, acc_max)
+            # lateral decision: MOBIL every LANE_CHANGE_DELAY seconds when not changing
+            decide = (~changing) & (timer > delay) & idm[None, :]
+            timer = np.where(decide, 0.0, timer)
+            if decide.any():
+                self_a = idm_acc(v, v0, T, amax, bmin, delta, x[rows, jf] - x, v[rows, jf], hf)
+                # old follower: behind me (jr) now, and with my front as its front
+                old_fol_a = np.where(
+                    hr,
+                    idm_acc(
+                        v[rows, jr], v0[rows, jr], T, amax, bmin, delta, x - x[rows, jr], v, True
+                    ),
+                    0.0,
+                )
+                old_fol_pred_a = np.where(
+                    hr,
+                    idm_acc(
+                        v[rows, jr],
+                        v0[rows, jr],
+                        T,
+                        amax,
+                        bmin,
+                        delta,
+                        x[rows, jf] - x[rows, jr],
+                        v[rows, jf],
+                        hf,
+                    ),
+                    0.0,
+                )
+                for side in (-1, 1):
+                    cand = lane + side
+                    valid = decide & (cand >= 0) & (cand < L) & (np.abs(v) >= 1.0)
+                    if not valid.any():
+                        continue
+                    cand_c = np.clip(cand, 0, L - 1)
+                    nf, hnf, nr, hnr = neighbours(cand_c)
+                    new_fol_a = np.where(
+                        hnr,
+                        idm_acc(
+                            v[rows, nr],
+                            v0[rows, nr],
+                            T,
+                            amax,
+                            bmin,
+                            delta,
+                            x[rows, nf] - x[rows, nr],
+                            v[rows, nf],
+                            hnf,
+                        ),
+                        0.0,
+                    )
+                    new_fol_pred_a = np.where(
+                        hnr,
+                        idm_acc(
+                            v[rows, nr],
+                            v0[rows, nr],
+                            T,
+                            amax,
+                            bmin,
+                            delta,
+                            x - x[rows, nr],
+                            v,
+                            True,
+                        ),
+                        0.0,
+                    )
+                    self_pred_a = idm_acc(
+                        v, v0, T, amax, bmin, delta, x[rows, nf] - x, v[rows, nf], hnf
+                    )
+                    jerk = (
+                        self_pred_a
+                        - self_a
+                        + pol * (new_fol_pred_a - new_fol_a + old_fol_pred_a - old_fol_a)
+                    )
+                    ok = valid & (new_fol_pred_a >= -brake_imposed) & (jerk >= gain)
+                    tgt = np.where(ok, cand_c, tgt)
+            # crashed cars brake to a stop (highway-env: acceleration −speed, no steering); a
+            # crash is an overlap of the 5 m × 2 m boxes (axis-aligned: lanes run along +x)
+            a = np.where(crashed, -v, a)
+            # lateral motion: first-order response to the target lane centre
+            vy = np.clip((yc[tgt] - y) / 0.55, -5.0, 5.0)
+            vy = np.where(crashed, 0.0, vy)
+            vy = np.where(passive[None, :], vy0[None, :], vy)
+            vx = np.where(passive[None, :], vx_passive[None, :], v)
+            x = x + vx * dt
+            y = y + vy * dt
+            v = np.where(passive[None, :], v, np.maximum(v + a * dt, 0.0))
+            timer = timer + dt
+            t += dt
+            if ego_fn is not None:
+                ex, ey, ev = ego_fn(t)
+                x[:, ego_i], y[:, ego_i], v[:, ego_i] = ex, ey, ev
+            hit = (np.abs(x[:, None, :] - x[:, :, None]) < length) & (
+                np.abs(y[:, None, :] - y[:, :, None]) < width
+            )
+            crashed |= np.any(hit & ~eye, axis=2)
+            traj[:, :, k + 1, 0], traj[:, :, k + 1, 1] = x[:, idx], y[:, idx]
+        return traj
+
+
+def _straight_parallel(network) -> bool:
+    """Whether every lane of ``network`` is a straight lane along +x (the vectorised rollout's
+    road model)."""
+    from highway_env.road.lane import StraightLane
+
+    for lane in network.lanes_list():
+        if type(lane) is not StraightLane or abs(math.sin(lane.heading)) > 1e-9:
+            return False
+        if math.cos(lane.heading) < 0:
+            return False
+    return True
+
+
+def _ego_motion(ego):
+    """``t -> (x, y, speed)`` of the ego in a rollout: along its current plan (if it is a
+    :class:`PlanFollower`), else at constant velocity."""
+    plan = getattr(ego, "_plan", None)
+    x0, y0 = (float(c) for c in ego.position)
+    sp, h = float(ego.speed), float(ego.heading)
+    if plan is None:
+        return lambda t: (x0 + sp * math.cos(h) * t, y0 + sp * math.sin(h) * t, sp)
+    tp, xp, yp, hp, vp, _ = plan
+    clock = float(ego.plan_clock)
+
+    def f(t):
+        tc = clock + t
+        if tc <= tp[-1]:
+            return np.interp(tc, tp, xp), np.interp(tc, tp, yp), np.interp(tc, tp, vp)
+        e = tc - tp[-1]
+        return (
+            xp[-1] + vp[-1] * math.cos(hp[-1]) * e,
+            yp[-1] + vp[-1] * math.sin(hp[-1]) * e,
+            vp[-1],
+        )
+
+    return f
+
+
+@dataclass
+class ConstantVelocityPredictor:
+    """Each car keeps its current velocity; sample ``j > 0`` adds Gaussian velocity noise
+    (``sigma_long`` m/s along the road, ``sigma_lat`` m/s across), sample 0 is the noise-free
+    extrapolation.  Unimodal."""
+
+    sigma_long: float = 1.0
+    sigma_lat: float = 0.3
+    name: str = "cv"
+    last_time_s: float = 0.0
+
+    def __call__(self, road, ego_vehicle, targets, t_grid: np.ndarray, n: int, rng) -> np.ndarray:
+        t0 = time.perf_counter()
+        O = len(targets)
+        if O == 0:
+            self.last_time_s = time.perf_counter() - t0
+            return np.zeros((0, n, t_grid.shape[0], 2))
+        pos = np.array([v.position for v in targets], float)  # (O, 2)
+        vel = np.array([v.velocity for v in targets], float)
+        noise = rng.normal(size=(O, n, 2)) * np.array([self.sigma_long, self.sigma_lat])
+        noise[:, 0] = 0.0
+        v = vel[:, None, :] + noise  # (O, n, 2) — highway-v0 lanes run along +x
+        out = pos[:, None, None, :] + v[:, :, None, :] * t_grid[None, None, :, None]
+        self.last_time_s = time.perf_counter() - t0
+        return out
+
+
+def make_predictor(name: str):
+    if name == "sim":
+        return SimulatorPredictor()
+    if name == "cv":
+        return ConstantVelocityPredictor()
+    raise ValueError(f"predictor must be one of {PREDICTORS}, got {name!r}")

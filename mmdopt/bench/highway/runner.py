@@ -1,0 +1,279 @@
+"""One episode, the resumable sweep behind ``mmdopt bench highway`` and the video writer."""
+
+from __future__ import annotations
+
+import csv
+import json
+import math
+import time
+from collections.abc import Sequence
+from dataclasses import asdict
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+import mmdopt
+from mmdopt.receding import RecedingConfig, run_receding, warm_up
+
+from ..executors import EXECUTORS, check_manifest, run_tasks
+from ..results import write_json
+from .adapter import HighwaySource
+from .settings import METHODS, HighwaySettings, highway_config
+
+CSV_COLUMNS = (
+    "episode",
+    "seed",
+    "env",
+    "method",
+    "predictor",
+    "crashed",
+    "mean_speed",
+    "distance_m",
+    "duration_s",
+    "mean_plan_s",
+    "max_plan_s",
+    "median_plan_s",
+    "over_budget",
+    "steps",
+    "mean_predict_s",
+    "max_predict_s",
+    "first_plan_s",
+    "fallbacks",
+    "crash_kind",
+)
+
+
+# ------------------------------------------------------------------------------------ one episode
+def run_episode(
+    episode: int,
+    seed: int,
+    method: str,
+    settings: HighwaySettings,
+    config: mmdopt.MMDOptConfig,
+    *,
+    render: bool = False,
+) -> dict[str, Any]:
+    """Drive one episode with ``method``; the episode record (a JSON-friendly dict with the CSV
+    columns, per-step plan and predictor times, and the frames when ``render``)."""
+    import jax
+
+    src = HighwaySource(settings, seed, config, method=method, render=render)
+    t_start = time.perf_counter()
+    rec: dict[str, Any] = {
+        "episode": int(episode),
+        "seed": int(seed),
+        "env": settings.env,
+        "method": method,
+        "predictor": "-"
+        if method == "idm"
+        else ("cv-mean" if method == "cv" else settings.predictor),
+    }
+    plan_times: list[float] = []
+    first_plan = float("nan")
+    fallbacks = 0
+    steps_status: list[str] = []
+    if method == "idm":
+        out = src.run_idm()
+        crashed = out.crashed
+    else:
+        planner_method = "scenario_all" if method == "cv" else method
+        rc = RecedingConfig(
+            dt=settings.dt,
+            budget_s=settings.budget_s,
+            method=planner_method,
+            max_obstacles=settings.max_obstacles,
+            max_steps=int(math.ceil(settings.duration / settings.dt)) + 1,
+        )
+        # compile once on the first scene (shapes are fixed by max_obstacles), untimed by the loop
+        obs0 = src.observe()
+        src.predict_times.clear()
+        src.step_index = 0
+        first_plan = warm_up(obs0, rc, config, jax.random.PRNGKey(seed))
+        res = run_receding(src, rc, config=config, key=jax.random.PRNGKey(seed))
+        crashed = res.crashed
+        plan_times = [float(x) for x in res.plan_times]
+        fallbacks = sum(r.fallback for r in res.steps)
+        steps_status = [r.status for r in res.steps if r.status != "ok"]
+        rec["plan_d"] = [r.d for r in res.steps]  # lateral offset at each replan (m)
+        for name in ("reduced_set_s", "cem_s"):
+            rec[name] = [r.timings.get(name, float("nan")) for r in res.steps]
+    pt = np.array(plan_times) if plan_times else np.array([np.nan])
+    pr = np.array(src.predict_times) if src.predict_times else np.array([np.nan])
+    speeds = np.array(src.speeds)
+    rec.update(
+        crashed=bool(crashed),
+        mean_speed=float(speeds.mean()),
+        distance_m=src.distance(),
+        duration_s=float(src.env.time),
+        mean_plan_s=float(pt.mean()),
+        max_plan_s=float(pt.max()),
+        median_plan_s=float(np.median(pt)),
+        over_budget=int(np.sum(pt > settings.budget_s)),
+        steps=len(plan_times),
+        mean_predict_s=float(pr.mean()),
+        max_predict_s=float(pr.max()),
+        first_plan_s=first_plan,
+        fallbacks=int(fallbacks),
+        crash_kind=src.crash_kind,
+        plan_times=plan_times,
+        predict_times=[float(x) for x in src.predict_times],
+        speeds=[float(x) for x in speeds],
+        statuses=steps_status[:20],
+        wall_s=time.perf_counter() - t_start,
+    )
+    if render:
+        rec["frames"] = src.frames
+    src.close()
+    return rec
+
+
+# ------------------------------------------------------------------------------------ the sweep
+def _episode_path(out: Path, episode: int, method: str) -> Path:
+    return out / "episodes" / f"episode_{episode:04d}__{method}.json"
+
+
+def _manifest(settings: HighwaySettings, config_overrides: dict, seed: int) -> dict:
+    return json.loads(
+        json.dumps({"settings": asdict(settings), "config": config_overrides, "seed": int(seed)})
+    )
+
+
+def _task(args) -> str:
+    episode, seed, method, settings_d, overrides, out, progress = args
+    settings = HighwaySettings(**settings_d)
+    config = highway_config(overrides)
+    rec = run_episode(episode, seed, method, settings, config)
+    write_json(_episode_path(Path(out), episode, method), rec)
+    line = _progress_line(rec)
+    if progress:
+        print(line, flush=True)
+    return line
+
+
+def write_csv(rows: Sequence[dict], path: Path) -> None:
+    with open(path, "w", newline="") as f:
+        w = csv.DictWriter(f, fieldnames=list(CSV_COLUMNS), extrasaction="ignore")
+        w.writeheader()
+        for r in rows:
+            w.writerow({k: r.get(k, "") for k in CSV_COLUMNS})
+
+
+def summarize(rows: Sequence[dict]) -> list[dict]:
+    """Per method: episodes, crashes, mean speed, mean distance, median/mean/max plan time."""
+    out = []
+    for m in dict.fromkeys(r["method"] for r in rows):
+        rs = [r for r in rows if r["method"] == m]
+        pts = np.concatenate([np.asarray(r.get("plan_times") or [np.nan]) for r in rs])
+        pts = pts[np.isfinite(pts)]
+        prs = np.concatenate([np.asarray(r.get("predict_times") or [np.nan]) for r in rs])
+        prs = prs[np.isfinite(prs)]
+        out.append(
+            {
+                "method": m,
+                "episodes": len(rs),
+                "crashes": int(sum(bool(r["crashed"]) for r in rs)),
+                "mean_speed": float(np.mean([r["mean_speed"] for r in rs])),
+                "distance_m": float(np.mean([r["distance_m"] for r in rs])),
+                "median_plan_s": float(np.median(pts)) if pts.size else float("nan"),
+                "mean_plan_s": float(np.mean(pts)) if pts.size else float("nan"),
+                "max_plan_s": float(np.max(pts)) if pts.size else float("nan"),
+                "median_predict_s": float(np.median(prs)) if prs.size else float("nan"),
+            }
+        )
+    return out
+
+
+def run_highway(
+    out: str | Path,
+    *,
+    episodes: int,
+    seed: int = 0,
+    methods: Sequence[str] = ("mmd", "idm"),
+    settings: HighwaySettings | None = None,
+    config_overrides: dict | None = None,
+    executor: str = "local",
+    jobs: int = 1,
+    address: str | None = None,
+    progress: bool = True,
+) -> list[dict]:
+    """Resumable benchmark: episode ``i`` uses seed ``seed + i``; each finished (episode, method)
+    is ``OUT/episodes/episode_XXXX__METHOD.json`` and never recomputed; ``OUT/episodes.csv`` is
+    rebuilt from them.  Reusing ``out`` with other settings is refused (``ValueError``)."""
+    settings = HighwaySettings() if settings is None else settings
+    overrides = dict(config_overrides or {})
+    highway_config(overrides)  # validate before starting
+    if isinstance(episodes, bool) or not isinstance(episodes, int) or episodes < 1:
+        raise ValueError(f"episodes must be an int >= 1, got {episodes!r}")
+    bad = [m for m in methods if m not in METHODS]
+    if bad or not methods:
+        raise ValueError(f"methods must be among {METHODS}, got {list(methods)}")
+    if executor not in EXECUTORS:
+        raise ValueError(f"executor must be one of {EXECUTORS}, got {executor!r}")
+    out = Path(out)
+    (out / "episodes").mkdir(parents=True, exist_ok=True)
+    check_manifest(out, _manifest(settings, overrides, seed))
+    todo = [
+        (i, seed + i, m, asdict(settings), overrides, str(out), progress)
+        for i in range(episodes)
+        for m in methods
+        if not _episode_path(out, i, m).exists()
+    ]
+    run_tasks(
+        _task,
+        todo,
+        jobs=jobs,
+        executor=executor,
+        address=address,
+        progress=False,
+        desc="episodes",
+        unit="episode",
+    )
+    rows = []
+    for i in range(episodes):
+        for m in methods:
+            p = _episode_path(out, i, m)
+            if p.exists():
+                rows.append(json.loads(p.read_text()))
+    write_csv(rows, out / "episodes.csv")
+    (out / "summary.json").write_text(json.dumps(summarize(rows), indent=1))
+    return rows
+
+
+def _progress_line(r) -> str:
+    return (
+        f"  episode {r['episode']} seed {r['seed']} {r['method']}: "
+        f"crashed={r['crashed']} mean_speed={r['mean_speed']:.2f} m/s "
+        f"median_plan={r['median_plan_s']:.3f} s predict={r['mean_predict_s']:.3f} s"
+    )
+
+
+def write_video(
+    path: str | Path,
+    episode: int,
+    seed: int,
+    method: str,
+    settings: HighwaySettings,
+    config: mmdopt.MMDOptConfig,
+) -> Path:
+    """Render one episode (highway-env's ``rgb_array``) to ``path``: MP4 when imageio's ffmpeg
+    plugin is installed and ``path`` ends in ``.mp4``, otherwise a GIF (suffix replaced)."""
+    import imageio.v2 as imageio
+
+    rec = run_episode(episode, seed, method, settings, config, render=True)
+    frames = [np.asarray(f) for f in rec["frames"] if f is not None]
+    if not frames:
+        raise RuntimeError("highway-env rendered no frames")
+    path = Path(path)
+    fps = settings.simulation_frequency
+    if path.suffix == ".mp4":
+        try:
+            import imageio_ffmpeg  # noqa: F401
+
+            imageio.mimsave(path, frames, fps=fps)
+            return path
+        except ImportError:
+            path = path.with_suffix(".gif")
+    path = path.with_suffix(".gif")
+    imageio.mimsave(path, frames, duration=1000.0 / fps, loop=0)
+    return path

@@ -1,0 +1,130 @@
+"""Settings of the highway benchmark: methods, predictors, the planner defaults, the
+environment/loop settings and the optional-dependency check."""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+from typing import Any
+
+import mmdopt
+
+METHODS = ("mmd", "degroot", "cv", "idm")
+PREDICTORS = ("sim", "cv")
+#: planner settings for highway driving (overridable with ``--config``): a 5 s horizon on a 0.1 s
+#: grid (51 points), sizes cut to fit the 0.5 s replan budget on a 2-core CPU, the speed limit as
+#: the desired speed, and the lateral collision semi-axis of highway-env's 2 m wide cars (2 m
+#: between centres + 0.6 m) instead of the paper's 3.5 m, which would not fit two cars in
+#: neighbouring 4 m lanes.
+HIGHWAY_PLANNER: dict[str, Any] = {
+    "horizon": 5.0,
+    "num_steps": 51,
+    "n_samples": 400,
+    "n_cem": 100,
+    "n_elite": 30,
+    "iterations": 12,
+    "reduced_set_size": 10,
+    "v_des": 30.0,
+    "b": 2.6,
+    "margin_lat": 0.4,
+    "margin_long": 2.5,
+    "margin_rate": 1.0,
+}
+
+
+def highway_available() -> bool:
+    """Whether highway-env and gymnasium import."""
+    try:
+        import gymnasium  # noqa: F401
+        import highway_env  # noqa: F401
+    except ImportError:
+        return False
+    return True
+
+
+def _require_highway():
+    try:
+        import gymnasium as gym
+        import highway_env  # noqa: F401  (registers the environments)
+    except ImportError as e:  # pragma: no cover - depends on the environment
+        raise ImportError(
+            f"the highway benchmark needs highway-env and gymnasium ({e}); "
+            'install them with: pip install -e ".[highway]"'
+        ) from None
+    return gym
+
+
+def highway_config(overrides: dict | None = None) -> mmdopt.MMDOptConfig:
+    """:data:`HIGHWAY_PLANNER` on top of ``MMDOptConfig()``, then ``overrides`` (field names)."""
+    kw = dict(HIGHWAY_PLANNER)
+    kw.update(overrides or {})
+    return mmdopt.MMDOptConfig().replace(**kw)
+
+
+@dataclass(frozen=True)
+class HighwaySettings:
+    """One benchmark's environment and loop settings (JSON-friendly).
+
+    env : highway-env id (``highway-v0``, ``merge-v0``, ...), at its default traffic density
+    duration : simulated seconds per episode
+    simulation_frequency : highway-env's simulator rate (Hz)
+    dt : δ, seconds of each plan executed before replanning (``policy_frequency = 1/dt``;
+        ``simulation_frequency · dt`` must be an integer)
+    n_samples : predictor samples per obstacle
+    max_obstacles : obstacles given to the planner (nearest first, padded with phantoms)
+    ahead, behind : perception range along the road (m) for the obstacles given to the planner
+    budget_s : per-step plan-time budget (s)
+    predictor : "sim" | "cv"
+    v_max, ax_max, ay_max, vy_max : the planner's kinematic limits (:class:`mmdopt.Road`)
+    env_config : extra highway-env configuration keys
+    """
+
+    env: str = "highway-v0"
+    duration: float = 20.0
+    simulation_frequency: int = 10
+    dt: float = 0.5
+    n_samples: int = 20
+    max_obstacles: int = 6
+    ahead: float = 80.0
+    behind: float = 30.0
+    budget_s: float = 0.5
+    predictor: str = "sim"
+    v_max: float = 30.0
+    ax_max: float = 5.0
+    ay_max: float = 3.0
+    vy_max: float = 3.0
+    env_config: dict = field(default_factory=dict)
+
+    def __post_init__(self) -> None:
+        if not (math.isfinite(self.duration) and self.duration > 0):
+            raise ValueError(f"duration must be > 0 s, got {self.duration}")
+        if not (math.isfinite(self.dt) and self.dt > 0):
+            raise ValueError(f"dt must be > 0 s, got {self.dt}")
+        if isinstance(self.simulation_frequency, bool) or not isinstance(
+            self.simulation_frequency, int
+        ):
+            raise ValueError("simulation_frequency must be an int (Hz)")
+        frames = self.simulation_frequency * self.dt
+        if self.simulation_frequency < 1 or abs(frames - round(frames)) > 1e-9 or frames < 1:
+            raise ValueError(
+                f"simulation_frequency · dt must be a positive integer, got "
+                f"{self.simulation_frequency} Hz · {self.dt} s"
+            )
+        if self.predictor not in PREDICTORS:
+            raise ValueError(f"predictor must be one of {PREDICTORS}, got {self.predictor!r}")
+        for name in ("n_samples", "max_obstacles"):
+            v = getattr(self, name)
+            if isinstance(v, bool) or not isinstance(v, int) or v < 1:
+                raise ValueError(f"{name} must be an int >= 1, got {v!r}")
+        for name in ("ahead", "behind", "budget_s", "v_max", "ax_max", "ay_max", "vy_max"):
+            v = getattr(self, name)
+            if not (isinstance(v, int | float) and v > 0):
+                raise ValueError(f"{name} must be > 0, got {v!r}")
+
+    @property
+    def policy_frequency(self) -> float:
+        return 1.0 / self.dt
+
+    @property
+    def frames_per_step(self) -> int:
+        return int(round(self.simulation_frequency * self.dt))

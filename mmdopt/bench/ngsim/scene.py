@@ -1,0 +1,388 @@
+"""CommonRoad scenes → plain arrays: lanes, recorded tracks, reference paths, predictor inputs.
+
+The only module that imports ``commonroad`` (:func:`load_scenario`); everything downstream works on
+:class:`NgsimScene` (NumPy arrays) and the types of :mod:`frenet`, :mod:`mmdopt` and
+:mod:`mmdopt.predict`.
+
+Conventions: tracks are sampled at the scene's ``dt`` (0.1 s for NGSIM), step ``k`` is time
+``k·dt``; ``xy[v, k]`` is NaN where vehicle ``v`` is not in the scene.  A lane's *chain* is its
+centre line joined with its first predecessors / successors (the ego's *route*), resampled every
+:data:`CHAIN_SPACING` metres.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from functools import lru_cache
+from pathlib import Path
+
+import numpy as np
+
+import frenet
+from mmdopt.predict.base import GAP_NONE, PredictionContext, cartesian_to_lane
+
+__all__ = [
+    "CHAIN_SPACING",
+    "Lane",
+    "NgsimScene",
+    "load_scenario",
+    "scenario_files",
+    "lane_chain",
+    "history_at",
+    "future_at",
+    "context_at",
+    "present",
+]
+
+#: Spacing (m) of resampled lane centre lines.
+CHAIN_SPACING = 2.0
+
+
+@dataclass(frozen=True, eq=False)
+class Lane:
+    """One lanelet: centre/left/right polylines (P, 2), mean width (m), graph links."""
+
+    id: int
+    center: np.ndarray
+    left: np.ndarray
+    right: np.ndarray
+    width: float
+    successors: tuple[int, ...]
+    predecessors: tuple[int, ...]
+    left_id: int | None  # same-direction neighbour
+    right_id: int | None
+
+
+@dataclass(frozen=True, eq=False)
+class NgsimScene:
+    """A recorded scene as arrays: ``V`` vehicles over ``T`` steps of ``dt`` seconds."""
+
+    name: str
+    path: str
+    dt: float
+    lanes: dict[int, Lane]
+    ids: np.ndarray  # (V,) CommonRoad obstacle ids
+    xy: np.ndarray  # (V, T, 2) m, NaN when absent
+    heading: np.ndarray  # (V, T) rad
+    speed: np.ndarray  # (V, T) m/s
+    accel: np.ndarray  # (V, T) m/s²
+    length: np.ndarray  # (V,) m
+    width: np.ndarray  # (V,) m
+    lane_of: np.ndarray = field(repr=False)  # (V, T) lanelet id, -1 off the map / absent
+
+    @property
+    def num_steps(self) -> int:
+        return int(self.xy.shape[1])
+
+    @property
+    def recording(self) -> int:
+        """The recording number N of ``USA_US101-N_K_T-1`` (the train/test split key)."""
+        return recording_of(self.name)
+
+
+def recording_of(name: str) -> int:
+    try:
+        return int(Path(name).stem.split("-")[1].split("_")[0])
+    except (IndexError, ValueError):
+        raise ValueError(f"not a USA_US101-N_K_T-1 scene name: {name!r}") from None
+
+
+def scenario_files(paths) -> list[Path]:
+    """CommonRoad ``.xml`` files named by ``paths`` (files or folders, sorted, de-duplicated)."""
+    if isinstance(paths, str | Path):
+        paths = [paths]
+    out: list[Path] = []
+    for p in map(Path, paths):
+        if p.is_dir():
+            out += sorted(p.glob("*.xml"))
+        elif p.is_file() and p.suffix == ".xml":
+            out.append(p)
+        else:
+            raise ValueError(f"scenario path {p} is neither an .xml file nor a folder")
+    seen, files = set(), []
+    for f in out:
+        if f.resolve() not in seen:
+            seen.add(f.resolve())
+            files.append(f)
+    if not files:
+        raise ValueError(f"no .xml scenario files under {list(map(str, paths))}")
+    return files
+
+
+@lru_cache(maxsize=8)
+def load_scenario(path: str | Path) -> NgsimScene:
+    """Read a CommonRoad scenario (commonroad-io) into an :class:`NgsimScene` (cached)."""
+    try:
+        from commonroad.common.file_reader import CommonRoadFileReader
+    except ImportError as exc:  # pragma: no cover - depends on the environment
+        raise ImportError(
+            "reading CommonRoad scenes needs commonroad-io: pip install 'mmdopt[commonroad]'"
+        ) from exc
+    path = Path(path)
+    if not path.is_file():
+        raise ValueError(f"scenario file {path} does not exist")
+    scenario, _ = CommonRoadFileReader(str(path)).open()
+    dt = float(scenario.dt)
+    net = scenario.lanelet_network
+    lanes: dict[int, Lane] = {}
+    for ll in net.lanelets:
+        w = float(np.mean(np.linalg.norm(ll.left_vertices - ll.right_vertices, axis=-1)))
+        lanes[int(ll.lanelet_id)] = Lane(
+            id=int(ll.lanelet_id),
+            center=np.asarray(ll.center_vertices, np.float64),
+            left=np.asarray(ll.left_vertices, np.float64),
+            right=np.asarray(ll.right_vertices, np.float64),
+            width=w,
+            successors=tuple(int(i) for i in ll.successor),
+            predecessors=tuple(int(i) for i in ll.predecessor),
+            left_id=int(ll.adj_left) if ll.adj_left and ll.adj_left_same_direction else None,
+            right_id=int(ll.adj_right) if ll.adj_right and ll.adj_right_same_direction else None,
+        )
+    obs = list(scenario.dynamic_obstacles)
+    T = 1 + max([o.prediction.final_time_step for o in obs if o.prediction is not None] + [0])
+    V = len(obs)
+    xy = np.full((V, T, 2), np.nan)
+    hd, sp, ac = (np.full((V, T), np.nan) for _ in range(3))
+    length, width = np.zeros(V), np.zeros(V)
+    ids = np.zeros(V, dtype=np.int64)
+    for v, o in enumerate(obs):
+        ids[v] = o.obstacle_id
+        length[v] = float(getattr(o.obstacle_shape, "length", 4.5))
+        width[v] = float(getattr(o.obstacle_shape, "width", 1.8))
+        states = [o.initial_state] + (
+            list(o.prediction.trajectory.state_list) if o.prediction is not None else []
+        )
+        for st in states:
+            k = int(st.time_step)
+            if 0 <= k < T:
+                xy[v, k] = st.position
+                hd[v, k] = float(getattr(st, "orientation", np.nan))
+                sp[v, k] = float(getattr(st, "velocity", np.nan))
+                ac[v, k] = float(getattr(st, "acceleration", 0.0) or 0.0)
+    lane_of = np.full((V, T), -1, dtype=np.int64)
+    mask = np.all(np.isfinite(xy), -1)
+    pts = xy[mask]
+    if len(pts):
+        found = net.find_lanelet_by_position([p for p in pts])
+        lane_ids = [
+            _pick_lane(lanes, p, h, c) for p, h, c in zip(pts, hd[mask], found, strict=True)
+        ]
+        lane_of[mask] = lane_ids
+    return NgsimScene(
+        name=path.stem,
+        path=str(path),
+        dt=dt,
+        lanes=lanes,
+        ids=ids,
+        xy=xy,
+        heading=hd,
+        speed=sp,
+        accel=ac,
+        length=length,
+        width=width,
+        lane_of=lane_of,
+    )
+
+
+def _pick_lane(lanes: dict[int, Lane], p, heading, candidates) -> int:
+    """Of the lanelets containing ``p``, the one whose centre line is nearest."""
+    if not candidates:
+        return -1
+    if len(candidates) == 1:
+        return int(candidates[0])
+    best, best_d = -1, np.inf
+    for c in candidates:
+        dist = np.min(np.linalg.norm(lanes[int(c)].center - p, axis=-1))
+        if dist < best_d:
+            best, best_d = int(c), dist
+    return best
+
+
+# --------------------------------------------------------------------------- lane chains
+def _dedup(xy: np.ndarray) -> np.ndarray:
+    keep = np.concatenate([[True], np.linalg.norm(np.diff(xy, axis=0), axis=-1) > 1e-6])
+    return xy[keep]
+
+
+def _resample(xy: np.ndarray, s_from: float, s_to: float, spacing: float) -> np.ndarray:
+    """Polyline ``xy`` resampled at ``spacing`` on ``[s_from, s_to]`` of its arc length
+    (linear extension beyond its ends)."""
+    seg = np.linalg.norm(np.diff(xy, axis=0), axis=-1)
+    cum = np.concatenate([[0.0], np.cumsum(seg)])
+    s = np.arange(s_from, s_to + 1e-9, spacing)
+    i = np.clip(np.searchsorted(cum, s, side="right") - 1, 0, len(cum) - 2)
+    tan = np.diff(xy, axis=0) / seg[:, None]
+    return xy[i] + (s - cum[i])[:, None] * tan[i]
+
+
+def lane_chain(scene: NgsimScene, lane_id: int, prefer=()) -> np.ndarray:
+    """Centre line of ``lane_id`` joined with its predecessors (first one) and successors (the
+    first that is in ``prefer``, else the first), as a de-duplicated (P, 2) polyline."""
+    lanes = scene.lanes
+    parts = [lanes[lane_id].center]
+    seen = {lane_id}
+    cur = lanes[lane_id]
+    while cur.predecessors and cur.predecessors[0] not in seen:
+        cur = lanes[cur.predecessors[0]]
+        seen.add(cur.id)
+        parts.insert(0, cur.center)
+    cur = lanes[lane_id]
+    while cur.successors:
+        nxt = [s for s in cur.successors if s in prefer] or list(cur.successors)
+        if nxt[0] in seen:
+            break
+        cur = lanes[nxt[0]]
+        seen.add(cur.id)
+        parts.append(cur.center)
+    return _dedup(np.concatenate(parts, 0))
+
+
+def vehicle_centerline(
+    scene: NgsimScene, v: int, k: int, behind: float = 30.0, ahead: float = 170.0
+) -> np.ndarray:
+    """Vehicle ``v``'s lane centre line at step ``k``, resampled from ``behind`` m behind it to
+    ``ahead`` m ahead (fixed length: ``(behind + ahead)/CHAIN_SPACING + 1`` points)."""
+    lid = int(scene.lane_of[v, k])
+    p = scene.xy[v, k]
+    if lid < 0:  # off the map: the nearest lanelet's chain
+        lid = min(
+            scene.lanes, key=lambda i: np.min(np.linalg.norm(scene.lanes[i].center - p, axis=-1))
+        )
+    route = set(int(x) for x in scene.lane_of[v, k:] if x >= 0)
+    chain = lane_chain(scene, lid, prefer=route)
+    s0, _ = cartesian_to_lane(chain, p[None])
+    return _resample(chain, float(s0[0]) - behind, float(s0[0]) + ahead, CHAIN_SPACING)
+
+
+# --------------------------------------------------------------------------- predictor inputs
+def present(scene: NgsimScene, k_from: int, k_to: int) -> np.ndarray:
+    """(V,) bool: vehicle recorded at every step ``k_from … k_to`` (inclusive)."""
+    if k_from < 0 or k_to >= scene.num_steps:
+        return np.zeros(len(scene.ids), bool)
+    return np.all(np.isfinite(scene.xy[:, k_from : k_to + 1, 0]), axis=1)
+
+
+def history_at(scene: NgsimScene, idx, k: int, H: int) -> np.ndarray:
+    """(O, H, 2) positions at steps ``k−H+1 … k``.  Rows before a vehicle entered the scene are
+    extrapolated backwards at its first recorded velocity (so vehicles that just appeared still
+    have an H-row history); each vehicle must be present at ``k`` and ``k−1``."""
+    idx = np.asarray(idx)
+    out = np.empty((len(idx), H, 2))
+    for j, v in enumerate(idx):
+        steps = np.arange(k - H + 1, k + 1)
+        rows = np.full((H, 2), np.nan)
+        ok = (steps >= 0) & (steps < scene.num_steps)
+        rows[ok] = scene.xy[v, steps[ok]]
+        fin = np.all(np.isfinite(rows), -1)
+        if not (fin[-1] and fin[-2]):
+            raise ValueError(f"vehicle {scene.ids[v]} is not present at steps {k - 1}, {k}")
+        f0 = int(np.flatnonzero(fin)[0])
+        v0 = rows[f0 + 1] - rows[f0] if fin[f0 + 1] else rows[-1] - rows[-2]
+        for i in range(f0 - 1, -1, -1):  # before the vehicle entered: backwards at v0
+            rows[i] = rows[i + 1] - v0
+        for i in range(f0 + 1, H):  # (interior gaps do not occur in these files; bridge them)
+            if not fin[i]:
+                rows[i] = rows[i - 1] + v0
+        out[j] = rows
+    return out
+
+
+def future_at(scene: NgsimScene, idx, k: int, times) -> np.ndarray:
+    """(O, K, 2) recorded positions at ``k·dt + times`` (linear interpolation between steps;
+    NaN where the vehicle is not recorded)."""
+    idx = np.asarray(idx)
+    tq = k + np.asarray(times, np.float64) / scene.dt
+    lo = np.floor(tq + 1e-9).astype(int)
+    u = (tq - lo)[:, None]
+    hi = np.minimum(lo + 1, scene.num_steps - 1)
+    out = np.full((len(idx), len(tq), 2), np.nan)
+    valid = lo < scene.num_steps
+    lo_c = np.minimum(lo, scene.num_steps - 1)
+    for j, v in enumerate(idx):
+        a, b = scene.xy[v, lo_c], scene.xy[v, hi]
+        b = np.where(u < 1e-9, a, b)
+        out[j] = np.where(valid[:, None], (1 - u) * a + u * b, np.nan)
+    return out
+
+
+def context_at(
+    scene: NgsimScene, idx, k: int, times, dt_history: float | None = None
+) -> PredictionContext:
+    """The :class:`~mmdopt.predict.PredictionContext` of vehicles ``idx`` at step ``k``.
+
+    Neighbours: every other vehicle recorded at ``k`` (the ego included — it is a car on the road
+    when the scene is used for training), classified by its offset ``d`` in the vehicle's lane
+    frame: own lane ``|d| < w/2``, left ``w/2 ≤ d < 1.5w``, right ``−1.5w < d ≤ −w/2``; the gap is
+    the difference of arc lengths (centre to centre)."""
+    idx = np.asarray(idx)
+    O = len(idx)
+    here = np.flatnonzero(np.isfinite(scene.xy[:, k, 0]))
+    cl = np.empty((O, int(round(200.0 / CHAIN_SPACING)) + 1, 2))
+    w = np.empty(O)
+    hl, hr = np.zeros(O, bool), np.zeros(O, bool)
+    gaps = np.full((O, 6), GAP_NONE)
+    rel = np.zeros((O, 6))
+    for j, v in enumerate(idx):
+        cl[j] = vehicle_centerline(scene, v, k)
+        lid = int(scene.lane_of[v, k])
+        lane = scene.lanes.get(lid)
+        w[j] = lane.width if lane is not None else 3.5
+        hl[j] = lane is not None and lane.left_id is not None
+        hr[j] = lane is not None and lane.right_id is not None
+        others = here[here != v]
+        if len(others) == 0:
+            continue
+        s, d = cartesian_to_lane(cl[j], scene.xy[others, k])
+        s0, _ = cartesian_to_lane(cl[j], scene.xy[v, k][None])
+        ds = s - s0[0]
+        dv = scene.speed[others, k] - scene.speed[v, k]
+        dv = np.where(np.isfinite(dv), dv, 0.0)
+        half = 0.5 * w[j]
+        for slot, m in enumerate(
+            (np.abs(d) < half, (d >= half) & (d < 3 * half), (d <= -half) & (d > -3 * half))
+        ):
+            for side, sel in ((0, m & (ds > 0)), (1, m & (ds <= 0))):
+                if np.any(sel):
+                    c = np.flatnonzero(sel)[np.argmin(np.abs(ds[sel]))]
+                    if abs(ds[c]) < GAP_NONE:
+                        gaps[j, 2 * slot + side] = abs(ds[c])
+                        rel[j, 2 * slot + side] = dv[c]
+    return PredictionContext(
+        times=np.asarray(times, np.float64),
+        dt_history=scene.dt if dt_history is None else dt_history,
+        centerline=cl,
+        lane_width=w,
+        has_left=hl,
+        has_right=hr,
+        gaps=gaps,
+        rel_speed=rel,
+    )
+
+
+# --------------------------------------------------------------------------- ego road
+def ego_road_geometry(
+    scene: NgsimScene, v: int, k: int, behind: float = 30.0, ahead: float = 260.0
+):
+    """The ego's reference path (its lane's chain, ``frenet.ReferencePath``) and the offsets (m)
+    of the same-direction neighbour lanes' centres in that path's frame (``None`` if absent),
+    measured as the median over the 100 m ahead of the ego."""
+    lid = int(scene.lane_of[v, k])
+    if lid < 0:
+        raise ValueError(f"vehicle {scene.ids[v]} is off the lane map at step {k}")
+    route = set(int(x) for x in scene.lane_of[v, k:] if x >= 0)
+    chain = lane_chain(scene, lid, prefer=route)
+    s0, _ = cartesian_to_lane(chain, scene.xy[v, k][None])
+    pts = _resample(chain, float(s0[0]) - behind, float(s0[0]) + ahead, CHAIN_SPACING)
+    path = frenet.ReferencePath.from_waypoints(pts, spacing=0.5)
+    lane = scene.lanes[lid]
+    offsets = []
+    for nb in (lane.left_id, lane.right_id):
+        if nb is None:
+            offsets.append(None)
+            continue
+        nchain = lane_chain(scene, nb)
+        s, d = path.to_frenet(nchain[:, 0], nchain[:, 1])
+        se, _ = path.to_frenet(*scene.xy[v, k])
+        near = (s >= float(se) - 10) & (s <= float(se) + 100)
+        offsets.append(float(np.median(d[near])) if np.any(near) else None)
+    return path, offsets[0], offsets[1]

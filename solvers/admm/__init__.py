@@ -1,0 +1,35 @@
+"""Batched, jitted ADMM in JAX: the functional core and the registry's ``admm`` backend.
+
+* :mod:`solvers.admm.core` — :class:`ADMMSettings`, :func:`admm_factor`, :func:`admm_iterate`,
+  :class:`ADMMState` (pure JAX, for use inside your own ``jit``; the planner's projector uses it).
+* :mod:`solvers.admm.polish` — the float64 active-set polish and termination test (NumPy).
+* :mod:`solvers.admm.backend` — :class:`ADMMBackend`, what ``solve(..., backend="admm")`` runs.
+
+Importing this package imports JAX; ``import solvers`` alone does not.
+"""
+
+from .backend import DENSE_N_WARN, ADMMBackend, make_backend
+from .core import (
+    ADMMFactor,
+    ADMMSettings,
+    ADMMState,
+    admm_factor,
+    admm_iterate,
+    flops_per_iteration,
+    rows_from_bounds,
+)
+from .polish import polish
+
+__all__ = [
+    "ADMMSettings",
+    "ADMMFactor",
+    "ADMMState",
+    "ADMMBackend",
+    "DENSE_N_WARN",
+    "admm_factor",
+    "admm_iterate",
+    "rows_from_bounds",
+    "polish",
+    "flops_per_iteration",
+    "make_backend",
+]

@@ -1,0 +1,362 @@
+"""The registry's ``admm`` backend: batched, jitted ADMM in JAX for QPs sharing ``P`` and ``A``.
+
+Meant for small dense shared matrices (``n`` up to a few hundred; a warning is given above
+``n = 2000``): ``P`` and ``A`` are densified, and the batch of ``q, l, u`` is solved with batched
+matrix products (:mod:`solvers.admm.core`), on GPU when JAX has one, on CPU otherwise.
+
+* Iterations run in ``dtype`` (float32 by default) under a fixed budget ``max_iter``; converged,
+  infeasible or broken QPs are frozen by a per-QP mask, so a slow QP never holds the batch.
+* Then (``polish=True``) a batched active-set polish in float64 NumPy
+  (:mod:`solvers.admm.polish`).  A polished point replaces the ADMM iterate only where it passes
+  the same termination test (with its duals projected onto the normal cone) and is no worse.
+* Optional, visible and counted: ``fallback="clarabel"`` re-solves the QPs still not solved.
+* Infeasibility claims are re-checked in float64 on the unscaled data (OSQP's certificates on
+  the last ``δx``/``δy``); a claim that does not hold becomes ``MAX_ITER`` (then the fallback,
+  if asked for, gets it).
+* Before any status is reported, a final float64 check on the returned point (never on the
+  float32 iterate): ``SOLVED`` needs OSQP's unscaled test **and** the primal residual within
+  ``eps_abs + eps_rel·max(1, ‖finite l, u‖∞)`` (an absolute floor that the size of a diverging
+  iterate cannot loosen); a point with ``‖x‖∞`` beyond :data:`DIVERGED` times the data's scale
+  that no certificate explains is ``ERROR`` ("iterates diverged").
+
+Statuses (per QP, :class:`solvers.Status` codes): ``SOLVED`` as above, ``PRIMAL_INFEASIBLE`` /
+``DUAL_INFEASIBLE`` from OSQP's certificates, ``MAX_ITER`` when the budget ran out,
+``SOLVED_INACCURATE`` where only the iteration dtype (or only OSQP's relative test) met the
+tolerance, ``ERROR`` on NaN or divergence.
+
+Use::
+
+    from solvers import solve_batch
+    sol = solve_batch(batch, backend="admm", eps_abs=1e-5, polish=True, warm_start=prev)
+
+Settings are the fields of :class:`~solvers.admm.ADMMSettings` plus the common names
+(``time_limit`` and ``verbose`` are recorded as ignored); unknown names raise
+:class:`~solvers.errors.InvalidSettingError`.  ``sol.extras`` holds the polish counts, the
+fallback count, timings and the per-QP final ``rho``.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import hashlib
+import time
+import warnings
+from typing import Any
+
+import jax
+import numpy as np
+
+from ..base import Backend, primal_tolerance
+from ..problem import QP, QPBatch
+from ..settings import SettingsSpec, WarmStart
+from ..solution import BatchSolution, Solution, Status
+from .core import (
+    _DINF,
+    _ERROR,
+    _MAX_ITER,
+    _PINF,
+    _SOLVED,
+    ADMMFactor,
+    ADMMSettings,
+    _admm_iterate_jit,
+    _flops,
+    admm_factor,
+    rows_from_bounds,
+)
+from .polish import PolishData, polish, polish_data, termination
+
+__all__ = ["ADMMBackend", "DENSE_N_WARN", "DIVERGED", "make_backend"]
+
+#: above this many variables the dense path warns (it stores (n, n) inverses per rung)
+DENSE_N_WARN = 2000
+#: ``‖x‖∞`` beyond this times ``max(1, ‖q‖∞, ‖finite l, u‖∞)``, with no certificate: diverged
+DIVERGED = 1e8
+
+
+#: the common vocabulary: ADMMSettings uses the common names; time_limit and verbose are ignored
+SPEC = SettingsSpec(
+    backend="admm",
+    common={"eps_abs": ("eps_abs",), "eps_rel": ("eps_rel",), "max_iter": ("max_iter",)},
+    native=frozenset(f.name for f in dataclasses.fields(ADMMSettings)),
+    warm_start=True,
+    tolerance=("eps_abs", "eps_rel"),
+    tolerance_defaults=(ADMMSettings.eps_abs, ADMMSettings.eps_rel),
+)
+
+
+class ADMMBackend(Backend):
+    """Batched ADMM backend (see the module docstring)."""
+
+    name = "admm"
+    detects_infeasibility = True
+    honours_warm_start = True
+
+    def settings_spec(self, settings: dict[str, Any] | None = None) -> SettingsSpec:
+        return SPEC
+
+    def __init__(self) -> None:
+        self._factors: dict[tuple, tuple[ADMMFactor, PolishData | None]] = {}
+
+    # -- caching of the host-side precomputation per (P, A, row masks, settings)
+    def _factor(self, P, A, eq, free, s: ADMMSettings, need_polish: bool):
+        h = hashlib.blake2b(digest_size=16)
+        for arr in (P, A, eq, free):
+            h.update(np.ascontiguousarray(arr).tobytes())
+            h.update(str(arr.shape).encode())
+        key_s = s.replace(polish=False, fallback=None, eps_abs=0.0, eps_rel=0.0)
+        key = (h.hexdigest(), key_s)
+        hit = self._factors.get(key)
+        if hit is None:
+            f = admm_factor(P, A, key_s, eq_rows=eq, free_rows=free)
+            hit = (f, None)
+            if len(self._factors) > 16:
+                self._factors.pop(next(iter(self._factors)))
+            self._factors[key] = hit
+        f, pd = hit
+        if need_polish and pd is None:
+            pd = polish_data(P, A, s, f.D, f.E, f.c)
+            self._factors[key] = (f, pd)
+        # the tolerances are not baked into the factor arrays: swap the settings in
+        return ADMMFactor(*f.tree_flatten()[0], settings=s.replace(polish=False, fallback=None)), pd
+
+    def solve(self, qp: QP, *, warm_start: Any = None, **settings: Any) -> Solution:
+        batch = QPBatch(qp.P, qp.A, qp.q[None], qp.l[None], qp.u[None], check_convex=False)
+        ws = None
+        if warm_start is not None:
+            ws = WarmStart(np.asarray(warm_start.x)[None], np.asarray(warm_start.y)[None])
+        sol = self.solve_batch(batch, warm_start=ws, **settings)
+        out = sol[0]
+        return dataclasses.replace(out, extras=dict(sol.extras))
+
+    def solve_batch(
+        self, batch: QPBatch, *, warm_start: Any = None, **settings: Any
+    ) -> BatchSolution:
+        native, record = self.native_settings(settings)
+        s = ADMMSettings.from_kwargs(**native)
+        if s.dtype == "float64":
+            with jax.enable_x64(True):
+                sol = self._solve_batch(batch, warm_start, s)
+        else:
+            sol = self._solve_batch(batch, warm_start, s)
+        sol.settings.update(record)
+        return sol
+
+    def _solve_batch(self, batch: QPBatch, warm_start, s: ADMMSettings) -> BatchSolution:
+        t0 = time.perf_counter()
+        P, A = batch.dense()
+        P = np.asarray(P, np.float64)
+        A = np.asarray(A, np.float64).reshape(batch.m, batch.n)
+        if batch.n > DENSE_N_WARN:
+            warnings.warn(
+                f"admm densifies P and A and stores (n, n) inverses per rho rung; n = {batch.n} "
+                f"is above {DENSE_N_WARN}: expect large memory use; a sparse backend (osqp, "
+                "clarabel) is likely better",
+                stacklevel=3,
+            )
+        q, l, u = batch.q, batch.l, batch.u
+        eq, free = rows_from_bounds(l, u)
+        factor, pd = self._factor(P, A, eq, free, s, s.polish)
+        t_factor = time.perf_counter() - t0
+        B, n, m = len(batch), batch.n, batch.m
+        x = np.zeros((B, n))
+        y = np.zeros((B, m))
+        if warm_start is not None:
+            x = np.nan_to_num(np.asarray(warm_start.x, float), nan=0.0, posinf=0.0, neginf=0.0)
+            y = np.nan_to_num(np.asarray(warm_start.y, float), nan=0.0, posinf=0.0, neginf=0.0)
+        z = np.zeros((B, m))
+        dx, dy = np.zeros((B, n)), np.zeros((B, m))
+        rho = np.full(B, s.rho)
+        status = np.full(B, _MAX_ITER, np.int32)
+        admm_status = status.copy()
+        iters = np.zeros(B, np.int64)
+        polished = np.zeros(B, bool)
+        stage = s.max_iter if s.stage_iter is None else max(s.check_every, int(s.stage_iter))
+        todo = np.arange(B)
+        done_iter = 0
+        t_iter = t_pol = flops = 0.0
+        rung_mm = iters_run = attempted = 0
+        first = True
+        while todo.size and (first or done_iter < s.max_iter):
+            first = False
+            k = min(stage, s.max_iter - done_iter)
+            Bs = todo.size if todo.size == B else min(B, 1 << (todo.size - 1).bit_length())
+            sub = np.concatenate([todo, np.repeat(todo[:1], Bs - todo.size)])  # padded
+            t1 = time.perf_counter()
+            st = _admm_iterate_jit(
+                factor, q[sub], l[sub], u[sub], x[sub], y[sub], iters=k, rho0=rho[sub]
+            )
+            st = jax.tree_util.tree_map(np.asarray, st)
+            t_iter += time.perf_counter() - t1
+            r = slice(0, todo.size)
+            x[todo] = st.x[r]
+            y[todo] = st.y[r]
+            z[todo] = st.z[r]
+            dx[todo], dy[todo] = st.delta_x[r], st.delta_y[r]
+            rho[todo] = st.rho[r]
+            iters[todo] += st.iterations[r]
+            stt = st.status[r].astype(np.int32)
+            admm_status[todo] = stt
+            status[todo] = stt
+            it_s = int(st.iterations.max(initial=0))
+            iters_run += it_s
+            rung_mm += int(st.rung_matmuls)
+            flops += _flops(n, m, Bs, it_s, int(st.rung_matmuls), s.check_every)
+            done_iter += k
+            # float64 re-check of what the iteration dtype declared solved
+            ok64, *_ = termination(P, A, q[todo], l[todo], u[todo], x[todo], y[todo], s)
+            status[todo[(stt == _SOLVED) & ~ok64]] = int(Status.SOLVED_INACCURATE)
+            t2 = time.perf_counter()
+            if s.polish:
+                cand = todo[~np.isin(stt, (_PINF, _DINF, _ERROR))]
+                if cand.size:
+                    acc, xp, yp, _, _ = polish(
+                        pd, P, A, q[cand], l[cand], u[cand], x[cand], z[cand], y[cand], s
+                    )
+                    ids = cand[acc]
+                    x[ids], y[ids] = xp[acc], yp[acc]
+                    status[ids] = _SOLVED
+                    polished[ids] = True
+                    attempted += int(cand.size)
+            t_pol += time.perf_counter() - t2
+            # only QPs that ran out of iterations and were not polished go on
+            todo = todo[(stt == _MAX_ITER) & ~polished[todo]]
+        extras: dict[str, Any] = {
+            "admm_status_counts": _counts(admm_status),
+            "iterations_run": iters_run,
+            "rung_matmuls": rung_mm,
+            "flops": flops,
+            "rho": rho,
+            "time_factor": t_factor,
+            "time_iterations": t_iter,
+            "time_polish": t_pol,
+            "polished": polished,
+        }
+        if s.polish:
+            extras["polish_attempted"] = attempted
+            extras["polish_accepted"] = int(polished.sum())
+        rejected = _recheck_certificates(batch, P, A, status, dx, dy, s)
+        status[rejected] = _MAX_ITER
+        extras["certificate_rejected"] = rejected
+        st = None
+        fb = 0
+        if s.fallback == "clarabel":
+            from ..clarabel_ import ClarabelBackend
+
+            need = np.flatnonzero(~np.isin(status, (_SOLVED, _PINF, _DINF)))
+            cb = ClarabelBackend()
+            for i in need:
+                r = cb.solve(batch[i])
+                if r.status in (Status.SOLVED, Status.PRIMAL_INFEASIBLE, Status.DUAL_INFEASIBLE):
+                    x[i], y[i], status[i] = r.x, r.y, int(r.status)
+                    fb += 1
+            extras["fallback_attempted"] = int(need.size)
+        extras["fallback_count"] = fb
+        total = time.perf_counter() - t0
+        finite = np.all(np.isfinite(x), axis=1)
+        status[~finite] = _ERROR
+        xs = np.where(finite[:, None], x, 0.0)
+        obj = np.where(finite, batch.objective(xs), np.nan)
+        prim = np.where(finite, batch.constraint_violation(xs), np.nan)
+        status, diverged, floor_failed = _final_check(batch, xs, prim, status, s)
+        extras["diverged"] = diverged
+        extras["floor_failed"] = floor_failed
+        yfin = np.all(np.isfinite(y), axis=1)
+        dual = np.where(
+            finite & yfin, batch.dual_residual(xs, np.where(yfin[:, None], y, 0.0)), np.nan
+        )
+        B = len(batch)
+        return BatchSolution(
+            x=x,
+            y=y,
+            status=status,
+            objective=obj,
+            iterations=iters,
+            solve_time=np.full(B, total / B),
+            primal_residual=prim,
+            dual_residual=dual,
+            backend=self.name,
+            total_time=total,
+            settings=s.as_dict(),
+            extras=extras,
+        )
+
+
+def _recheck_certificates(batch: QPBatch, P, A, status, dx, dy, s: ADMMSettings) -> np.ndarray:
+    """OSQP's infeasibility certificates again, in float64 on the unscaled data, for every QP the
+    iterations declared infeasible (the float32 test ran on the scaled problem).  Returns the mask
+    of claims that do not hold (they become ``MAX_ITER``: nothing is certified).
+    (Stellato et al. 2020, §3.4: ``‖Aᵀδy‖ ≤ ε‖δy‖, uᵀδy₊ + lᵀδy₋ ≤ −ε‖δy‖`` and ``‖Pδx‖ ≤ ε‖δx‖,
+    qᵀδx ≤ −ε‖δx‖, Aδx ∈ recession cone of [l, u] ± ε‖δx‖``.)"""
+    l, u, q = batch.l, batch.u, batch.q
+    fl, fu = np.isfinite(l), np.isfinite(u)
+    rejected = np.zeros(len(batch), bool)
+    pinf = status == _PINF
+    if pinf.any():
+        d = dy[pinf]
+        d = np.where(fu[pinf], d, np.minimum(d, 0.0))
+        d = np.where(fl[pinf], d, np.maximum(d, 0.0))
+        nd = np.abs(d).max(axis=1, initial=0.0)
+        At = np.abs(d @ A).max(axis=1, initial=0.0)
+        supp = np.sum(
+            np.where(d > 0, np.where(fu[pinf], u[pinf], 0.0) * d, 0.0)
+            + np.where(d < 0, np.where(fl[pinf], l[pinf], 0.0) * d, 0.0),
+            axis=1,
+        )
+        ok = (nd > 0) & (At <= s.eps_prim_inf * nd) & (supp <= -s.eps_prim_inf * nd)
+        rejected[np.flatnonzero(pinf)[~ok]] = True
+    dinf = status == _DINF
+    if dinf.any():
+        d = dx[dinf]
+        nd = np.abs(d).max(axis=1, initial=0.0)
+        Pd = np.abs(d @ P).max(axis=1, initial=0.0)
+        qd = np.sum(q[dinf] * d, axis=1)
+        Ad = d @ A.T
+        tol = s.eps_dual_inf * nd[:, None]
+        rows = np.where(fu[dinf], Ad <= tol, True) & np.where(fl[dinf], Ad >= -tol, True)
+        ok = (
+            (nd > 0)
+            & (Pd <= s.eps_dual_inf * nd)
+            & (qd <= -s.eps_dual_inf * nd)
+            & np.all(rows, axis=1)
+        )
+        rejected[np.flatnonzero(dinf)[~ok]] = True
+    return rejected
+
+
+def _final_check(
+    batch: QPBatch, x: np.ndarray, prim: np.ndarray, status: np.ndarray, s: ADMMSettings
+):
+    """The last word on each status, in float64 on the point returned (never on the iterate).
+
+    * ``SOLVED`` stays only if the unscaled primal residual is within the absolute floor
+      ``eps_abs + eps_rel·max(1, ‖finite l, u‖∞)`` (:func:`solvers.base.primal_tolerance`), which
+      a diverging iterate cannot loosen (OSQP's relative test, met with ``‖Ax‖`` blown up, can);
+      else ``SOLVED_INACCURATE``.
+    * Divergence guard: a point with ``‖x‖∞ > DIVERGED·max(1, ‖q‖∞, ‖finite l, u‖∞)`` that no
+      infeasibility certificate explains is ``ERROR``.
+    Returns ``(status, diverged mask, floor-failed mask)``.
+    """
+    status = status.copy()
+    tol = primal_tolerance(batch.l, batch.u, s.eps_abs, s.eps_rel)
+    solved = status == _SOLVED
+    with np.errstate(invalid="ignore"):
+        floor_failed = solved & ~(prim <= tol)
+    status[floor_failed] = int(Status.SOLVED_INACCURATE)
+    bounds = np.maximum(
+        np.where(np.isfinite(batch.l), np.abs(batch.l), 0.0).max(axis=1, initial=0.0),
+        np.where(np.isfinite(batch.u), np.abs(batch.u), 0.0).max(axis=1, initial=0.0),
+    )
+    data = np.maximum(1.0, np.maximum(np.abs(batch.q).max(axis=1), bounds))
+    certified = np.isin(status, (_PINF, _DINF))
+    diverged = ~certified & (np.abs(x).max(axis=1, initial=0.0) > DIVERGED * data)
+    status[diverged] = _ERROR
+    return status, diverged, floor_failed
+
+
+def _counts(status: np.ndarray) -> dict[str, int]:
+    vals, cnt = np.unique(np.asarray(status), return_counts=True)
+    return {Status(int(v)).name: int(c) for v, c in zip(vals, cnt, strict=True)}
+
+
+def make_backend() -> Backend:
+    return ADMMBackend()

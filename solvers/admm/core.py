@@ -1,0 +1,706 @@
+"""The functional core of the ``admm`` backend: settings, factorisation, batched jitted iterations.
+
+Pure JAX, for use inside your own ``jit``::
+
+    from solvers.admm import ADMMSettings, admm_factor, admm_iterate
+
+    factor = admm_factor(P, A, ADMMSettings(), eq_rows=eq_mask)  # NumPy/float64, once per P, A
+    @jax.jit
+    def project(q, l, u, x0, y0):                               # (B, n), (B, m), (B, m), ...
+        st = admm_iterate(factor, q, l, u, x0=x0, y0=y0, iters=200)
+        return st.x, st.status
+
+* :func:`admm_factor` precomputes the scaling, the scaled matrices and the ladder of inverses, and
+  returns an :class:`ADMMFactor` pytree: its arrays are leaves (so a new ``P``/``A`` of the same
+  shape does not recompile) and its settings are static metadata.  ``eq_rows`` (bool ``(m,)``)
+  marks rows that are equalities in every QP (they get ``rho_eq_scale · rho``); ``free_rows``
+  marks rows unbounded on both sides.  Use :func:`rows_from_bounds` to derive both from ``l, u``.
+* :func:`admm_iterate` takes unscaled ``q (B, n), l (B, m), u (B, m)`` (a 1-D problem is treated
+  as ``B = 1`` and squeezed back), an optional warm start ``x0 (B, n), y0 (B, m)`` (unscaled,
+  OSQP sign convention) and a static iteration budget ``iters`` (rounded up to a multiple of
+  ``check_every``).  It is jittable and vmappable, has no Python loop over samples, and returns an
+  :class:`ADMMState` ``(x, z, y, prim_res, dual_res, status, iterations, rho, delta_x, delta_y,
+  rung_matmuls)``,
+  unscaled, with ``status`` the :class:`solvers.Status` integer codes (``MAX_ITER`` where the
+  budget ran out).  It does not polish; :func:`solvers.admm.polish` (NumPy, host side) can be
+  applied after.
+* ``dtype=float64`` needs JAX's x64 mode (``jax.enable_x64(True)`` as a context manager); the
+  backend enables it for the call itself.
+
+Method (OSQP's ADMM, arranged for batches; Stellato et al. 2020, Algorithm 1): Ruiz equilibration
+of the shared KKT matrix plus one cost scaling; for a small ladder of step sizes ``rho`` the
+inverse ``K⁻¹ = (P + σI + Aᵀ R A)⁻¹`` is computed once in float64 and stored in the iteration
+dtype; each QP carries its own rung and re-picks it every ``check_every`` iterations with OSQP's
+residual-balancing rule; every ``check_every`` iterations OSQP's unscaled termination test, its
+primal and dual infeasibility certificates, and a NaN guard.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from dataclasses import dataclass
+from typing import Any, NamedTuple
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import scipy.linalg as sla
+import scipy.sparse as sp
+from jax import lax
+
+from ..errors import InvalidSettingError
+from ..solution import Status
+
+__all__ = [
+    "ADMMSettings",
+    "ADMMFactor",
+    "ADMMState",
+    "admm_factor",
+    "admm_iterate",
+    "rows_from_bounds",
+    "spd_inverse",
+    "flops_per_iteration",
+]
+
+_SOLVED = int(Status.SOLVED)
+_MAX_ITER = int(Status.MAX_ITER)
+_PINF = int(Status.PRIMAL_INFEASIBLE)
+_DINF = int(Status.DUAL_INFEASIBLE)
+_ERROR = int(Status.ERROR)
+_RUNNING = 0
+
+
+@dataclass(frozen=True)
+class ADMMSettings:
+    """Settings of the ``admm`` backend (all explicit; nothing else is changed behind them).
+
+    Attributes
+    ----------
+    eps_abs, eps_rel : OSQP-style termination, ``‖Ax − z‖∞ ≤ eps_abs + eps_rel·max(‖Ax‖∞, ‖z‖∞)``
+        and ``‖Px + q + Aᵀy‖∞ ≤ eps_abs + eps_rel·max(‖Px‖∞, ‖Aᵀy‖∞, ‖q‖∞)`` (unscaled).
+    eps_prim_inf, eps_dual_inf : tolerances of OSQP's infeasibility certificates.
+    max_iter : iteration budget per QP (rounded up to a multiple of ``check_every``).
+    check_every : iterations between termination/infeasibility checks and rho updates.
+    rho : initial step size; the ladder rung nearest to it is the start.
+    rho_ladder : the step sizes whose inverses are precomputed (sorted ascending).
+    rho_eq_scale : ``rho`` multiplier on rows that are equalities in every QP of the batch.
+    rho_free : the (absolute) rho on rows with both bounds infinite.
+    sigma : proximal term on ``x``.
+    alpha : over-relaxation.
+    adaptive_rho : re-pick each QP's rung at every check.
+    scaling_iter : Ruiz equilibration passes (0 = no scaling).
+    dtype : iteration dtype, ``"float32"`` or ``"float64"``.
+    polish, polish_delta, polish_refine_iter, polish_passes : float64 active-set polish; the
+        regularisation ``δ``, iterative-refinement steps, active-set repair passes.
+    stage_iter : ``None`` (one stage of ``max_iter``), or run ADMM in stages of this many
+        iterations: after each stage the polish is tried, the QPs it accepts leave the batch and
+        the rest continue (warm-started with their rho) in a smaller batch padded to a power of
+        two.  Saves the dense batch's work on QPs already solved; each new batch size compiles.
+    fallback : ``None`` or ``"clarabel"``: re-solve QPs still not solved (not certified
+        infeasible) with Clarabel; counted in ``extras["fallback_count"]``.
+    """
+
+    eps_abs: float = 1e-5
+    eps_rel: float = 1e-5
+    eps_prim_inf: float = 1e-4
+    eps_dual_inf: float = 1e-4
+    max_iter: int = 1000
+    check_every: int = 25
+    rho: float = 0.1
+    rho_ladder: tuple[float, ...] = (0.1 / 125, 0.1 / 25, 0.1 / 5, 0.1, 0.5, 2.5, 12.5)
+    rho_eq_scale: float = 1e3
+    rho_free: float = 1e-6
+    sigma: float = 1e-6
+    alpha: float = 1.6
+    adaptive_rho: bool = True
+    scaling_iter: int = 10
+    dtype: str = "float32"
+    polish: bool = True
+    polish_delta: float = 1e-6
+    polish_refine_iter: int = 3
+    polish_passes: int = 25
+    stage_iter: int | None = None
+    fallback: str | None = None
+
+    def __post_init__(self) -> None:
+        object.__setattr__(self, "rho_ladder", tuple(sorted(float(r) for r in self.rho_ladder)))
+        if self.dtype not in ("float32", "float64"):
+            raise ValueError(f"dtype must be 'float32' or 'float64', got {self.dtype!r}")
+        if self.fallback not in (None, "clarabel"):
+            raise ValueError(f"fallback must be None or 'clarabel', got {self.fallback!r}")
+        if self.check_every < 1 or self.max_iter < 0:
+            raise ValueError("check_every must be ≥ 1 and max_iter ≥ 0")
+        if not self.rho_ladder or min(self.rho_ladder) <= 0 or self.rho <= 0:
+            raise ValueError("rho and rho_ladder must be positive")
+        if not (0 < self.alpha < 2):
+            raise ValueError("alpha must be in (0, 2)")
+        for name in ("eps_abs", "eps_rel", "eps_prim_inf", "eps_dual_inf", "sigma"):
+            if getattr(self, name) < 0:
+                raise ValueError(f"{name} must be ≥ 0")
+
+    @classmethod
+    def from_kwargs(cls, **kwargs: Any) -> ADMMSettings:
+        """Build from keyword arguments; unknown names raise ``InvalidSettingError`` naming them."""
+        names = {f.name for f in dataclasses.fields(cls)}
+        unknown = sorted(set(kwargs) - names)
+        if unknown:
+            raise InvalidSettingError(
+                f"unknown admm setting(s) {unknown}; valid names: {', '.join(sorted(names))}"
+            )
+        if "rho_ladder" in kwargs:
+            kwargs["rho_ladder"] = tuple(kwargs["rho_ladder"])
+        return cls(**kwargs)
+
+    def replace(self, **kwargs: Any) -> ADMMSettings:
+        return dataclasses.replace(self, **kwargs)
+
+    def as_dict(self) -> dict[str, Any]:
+        return dataclasses.asdict(self)
+
+
+# ----------------------------------------------------------------------------- factor (host)
+@jax.tree_util.register_pytree_node_class
+@dataclass(frozen=True, eq=False)
+class ADMMFactor:
+    """Precomputed, scaled data for :func:`admm_iterate` (a pytree; settings are static).
+
+    Scaled problem: ``P̄ = c·D P D``, ``Ā = E A D``, ``q̄ = c·D q``, ``l̄ = E l``, ``ū = E u``;
+    ``x = D x̄``, ``z = E⁻¹ z̄``, ``y = E ȳ / c``.
+    """
+
+    P: Any  # (n, n) scaled P̄
+    A: Any  # (m, n) scaled Ā
+    D: Any  # (n,)
+    E: Any  # (m,)
+    c: Any  # ()
+    Kinv: Any  # (L, n, n) (P̄ + σI + ĀᵀR_rĀ)⁻¹ per rung
+    ladder: Any  # (L,) rho values
+    Rbase: Any  # (m,) row multipliers of rho (1, rho_eq_scale, or rho_free/rho)
+    free: Any  # (m,) bool, rows with the absolute rho_free
+    settings: ADMMSettings
+
+    def tree_flatten(self):
+        leaves = (
+            self.P,
+            self.A,
+            self.D,
+            self.E,
+            self.c,
+            self.Kinv,
+            self.ladder,
+            self.Rbase,
+            self.free,
+        )
+        return leaves, self.settings
+
+    @classmethod
+    def tree_unflatten(cls, settings, leaves):
+        return cls(*leaves, settings=settings)
+
+    @property
+    def n(self) -> int:
+        return self.P.shape[0]
+
+    @property
+    def m(self) -> int:
+        return self.A.shape[0]
+
+
+def rows_from_bounds(l: np.ndarray, u: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """``(eq_rows, free_rows)``: rows equal in every QP, rows unbounded on both sides in every QP.
+
+    ``l, u`` are ``(m,)`` or ``(B, m)``.
+    """
+    l2, u2 = np.atleast_2d(np.asarray(l, float)), np.atleast_2d(np.asarray(u, float))
+    eq = np.all((l2 == u2) & np.isfinite(l2), axis=0)
+    free = np.all(np.isinf(l2) & np.isinf(u2), axis=0)
+    return eq, free
+
+
+def _ruiz(P: np.ndarray, A: np.ndarray, iters: int) -> tuple[np.ndarray, np.ndarray, float]:
+    """OSQP's modified Ruiz equilibration of ``[[P, Aᵀ], [A, 0]]`` plus a cost scaling."""
+    n, m = P.shape[0], A.shape[0]
+    D, E = np.ones(n), np.ones(m)
+    Ps, As = P.copy(), A.copy()
+    c = 1.0
+    lo, hi = 1e-4, 1e4
+    for _ in range(iters):
+        cn = np.maximum(np.abs(Ps).max(axis=0, initial=0.0), np.abs(As).max(axis=0, initial=0.0))
+        rn = np.abs(As).max(axis=1, initial=0.0)
+        cn = np.where(cn < lo, 1.0, cn)
+        rn = np.where(rn < lo, 1.0, rn)
+        dD = np.clip(1.0 / np.sqrt(cn), lo, hi)
+        dE = np.clip(1.0 / np.sqrt(rn), lo, hi)
+        Ps = dD[:, None] * Ps * dD[None, :]
+        As = dE[:, None] * As * dD[None, :]
+        D, E = D * dD, E * dE
+        # cost scaling from P only (q differs per QP, the factor is shared)
+        pn = float(np.mean(np.abs(Ps).max(axis=0, initial=0.0))) if n else 0.0
+        g = 1.0 / pn if pn >= lo else 1.0
+        g = float(np.clip(g, lo, hi))
+        Ps *= g
+        c *= g
+    return D, E, c
+
+
+def spd_inverse(K: np.ndarray) -> np.ndarray:
+    """Inverse of a symmetric positive definite matrix via Cholesky (LU-based ``inv`` is far
+    slower here); falls back to ``inv`` when Cholesky fails."""
+    try:
+        return sla.cho_solve(sla.cho_factor(K, lower=True), np.eye(K.shape[0]))
+    except np.linalg.LinAlgError:
+        return np.linalg.inv(K)
+
+
+def admm_factor(
+    P: Any,
+    A: Any,
+    settings: ADMMSettings | None = None,
+    *,
+    eq_rows: np.ndarray | None = None,
+    free_rows: np.ndarray | None = None,
+) -> ADMMFactor:
+    """Precompute the scaled data and the ladder of inverses (NumPy, float64), once per ``P, A``.
+
+    Parameters
+    ----------
+    P : (n, n) symmetric PSD, dense or sparse (densified).
+    A : (m, n) dense or sparse (densified).
+    settings : :class:`ADMMSettings` (defaults if ``None``).
+    eq_rows, free_rows : (m,) bool masks, see :func:`rows_from_bounds`.
+    """
+    s = settings or ADMMSettings()
+    P = np.asarray(P.toarray() if sp.issparse(P) else P, dtype=np.float64)
+    A = np.asarray(A.toarray() if sp.issparse(A) else A, dtype=np.float64)
+    n, m = P.shape[0], A.shape[0]
+    A = A.reshape(m, n)
+    eq = np.zeros(m, bool) if eq_rows is None else np.asarray(eq_rows, bool)
+    free = np.zeros(m, bool) if free_rows is None else np.asarray(free_rows, bool)
+    free = free & ~eq
+    D, E, c = _ruiz(P, A, s.scaling_iter)
+    Ps = c * D[:, None] * P * D[None, :]
+    As = E[:, None] * A * D[None, :]
+    Rbase = np.where(eq, s.rho_eq_scale, 1.0)
+    ladder = np.asarray(s.rho_ladder, np.float64)
+    Kinv = np.empty((len(ladder), n, n))
+    for r, rho in enumerate(ladder):
+        R = np.where(free, s.rho_free, rho * Rbase)
+        K = Ps + s.sigma * np.eye(n) + As.T @ (R[:, None] * As)
+        Ki = spd_inverse(K)
+        Kinv[r] = 0.5 * (Ki + Ki.T)
+    dt = np.dtype(s.dtype)
+    return ADMMFactor(
+        P=Ps.astype(dt),
+        A=As.astype(dt),
+        D=D.astype(dt),
+        E=E.astype(dt),
+        c=np.asarray(c, dt),
+        Kinv=Kinv.astype(dt),
+        ladder=ladder.astype(dt),
+        Rbase=Rbase.astype(dt),
+        free=free,
+        settings=s,
+    )
+
+
+# ------------------------------------------------------------------------- iterations (JAX)
+class ADMMState(NamedTuple):
+    """Result of :func:`admm_iterate` (unscaled; leading batch axis ``B``)."""
+
+    x: jax.Array  # (B, n)
+    z: jax.Array  # (B, m)  A x projected on [l, u]
+    y: jax.Array  # (B, m)  OSQP sign convention
+    prim_res: jax.Array  # (B,) ‖Ax − z‖∞ at the last check
+    dual_res: jax.Array  # (B,) ‖Px + q + Aᵀy‖∞ at the last check
+    status: jax.Array  # (B,) int32 Status codes
+    iterations: jax.Array  # (B,) iterations each QP ran
+    rho: jax.Array  # (B,) final rho of each QP
+    delta_x: jax.Array  # (B, n) x − x_prev at the last check (dual infeasibility certificate)
+    delta_y: jax.Array  # (B, m) y − y_prev at the last check (primal infeasibility certificate)
+    rung_matmuls: jax.Array  # () number of (B,n)x(n,n) K⁻¹ products executed
+
+
+class _Scaled(NamedTuple):
+    """The scaled batch inside :func:`admm_iterate`: the factor's arrays and the scaled data."""
+
+    P: jax.Array  # (n, n) P̄
+    A: jax.Array  # (m, n) Ā
+    D: jax.Array  # (n,)
+    E: jax.Array  # (m,)
+    c: jax.Array  # ()
+    Dinv: jax.Array  # (n,)
+    Einv: jax.Array  # (m,)
+    Kinv: jax.Array  # (L, n, n)
+    ladder: jax.Array  # (L,)
+    Rbase: jax.Array  # (m,)
+    free: jax.Array  # (m,) bool
+    q: jax.Array  # (B, n) q̄ = c·D q
+    lb: jax.Array  # (B, m) l̄ = E l
+    ub: jax.Array  # (B, m) ū = E u
+    l: jax.Array  # (B, m) unscaled l (infeasibility certificates)
+    u: jax.Array  # (B, m) unscaled u
+
+
+class _Carry(NamedTuple):
+    """Loop state of :func:`admm_iterate` (scaled iterates), one check chunk per loop step."""
+
+    x: jax.Array  # (B, n)
+    z: jax.Array  # (B, m)
+    y: jax.Array  # (B, m)
+    rung: jax.Array  # (B,) int32 ladder index of each QP
+    status: jax.Array  # (B,) int32, _RUNNING until a check decides
+    iterations: jax.Array  # (B,) int32 iterations each QP ran
+    prim: jax.Array  # (B,) unscaled primal residual at the last check
+    dual: jax.Array  # (B,) unscaled dual residual at the last check
+    dx: jax.Array  # (B, n) x − x_prev at the last check (scaled)
+    dy: jax.Array  # (B, m) y − y_prev at the last check (scaled)
+    chunk: jax.Array  # () int32 chunks done
+    matmuls: jax.Array  # () int32 K⁻¹ products executed
+
+
+def _inf_norm(v):
+    return jnp.max(jnp.abs(v), axis=-1, initial=0.0)
+
+
+def _scale_problem(factor: ADMMFactor, q, l, u) -> _Scaled:
+    # (jnp.asarray: the factor may be closed over as NumPy constants inside a user's jit)
+    Pb, Ab, D, E, c = (jnp.asarray(v) for v in (factor.P, factor.A, factor.D, factor.E, factor.c))
+    Kinv, ladder, Rbase, free = (
+        jnp.asarray(v) for v in (factor.Kinv, factor.ladder, factor.Rbase, factor.free)
+    )
+    return _Scaled(
+        P=Pb,
+        A=Ab,
+        D=D,
+        E=E,
+        c=c,
+        Dinv=1.0 / D,
+        Einv=1.0 / E,
+        Kinv=Kinv,
+        ladder=ladder,
+        Rbase=Rbase,
+        free=free,
+        q=c * D * q,
+        lb=E * l,
+        ub=E * u,
+        l=l,
+        u=u,
+    )
+
+
+def _initial_rung(pb: _Scaled, s: ADMMSettings, B: int, rho0, dt) -> jax.Array:
+    if rho0 is None:
+        return jnp.full((B,), _nearest_rung(s), jnp.int32)
+    # per-QP start (e.g. the rho a previous run ended with): the nearest rung
+    lr = jnp.log(jnp.broadcast_to(jnp.asarray(rho0, dt), (B,)))
+    rung = jnp.argmin(jnp.abs(lr[:, None] - jnp.log(pb.ladder)[None, :]), axis=-1)
+    return rung.astype(jnp.int32)
+
+
+def _nearest_rung(s: ADMMSettings) -> int:
+    return int(np.argmin(np.abs(np.log(np.asarray(s.rho_ladder)) - np.log(s.rho))))
+
+
+def _row_rho(pb: _Scaled, s: ADMMSettings, rung):
+    """Per-row step sizes ``R`` (B, m): rung's rho × row multiplier, or rho_free on free rows."""
+    rho = pb.ladder[rung]
+    dt = pb.P.dtype
+    return jnp.where(
+        pb.free[None, :], jnp.asarray(s.rho_free, dt), rho[:, None] * pb.Rbase[None, :]
+    )
+
+
+def _kinv_apply(pb: _Scaled, rhs, rung, active):
+    """``K⁻¹_r · rhs`` for each QP's rung ``r``: one matmul per rung in use, then a select (a
+    rolled loop keeps compile time small).  Returns ``(out, rung matmuls executed)``."""
+
+    def body(r, acc):
+        out, cnt = acc
+        sel = (rung == r) & active
+        use = jnp.any(sel)
+        out = lax.cond(
+            use, lambda o: jnp.where(sel[:, None], rhs @ pb.Kinv[r], o), lambda o: o, out
+        )
+        return out, cnt + use.astype(jnp.int32)
+
+    L = pb.Kinv.shape[0]
+    return lax.fori_loop(0, L, body, (jnp.zeros_like(rhs), jnp.zeros((), jnp.int32)))
+
+
+def _step(pb: _Scaled, s: ADMMSettings, x, z, y, rung, active):
+    """One ADMM iteration (OSQP's, over-relaxed) with each QP on its own rung of the ladder."""
+    R = _row_rho(pb, s, rung)
+    rhs = s.sigma * x - pb.q + (R * z - y) @ pb.A
+    xt, k = _kinv_apply(pb, rhs, rung, active)  # x̃ = K⁻¹(σx − q + Āᵀ(Rz − y))
+    zt = xt @ pb.A.T
+    xn = s.alpha * xt + (1.0 - s.alpha) * x
+    zr = s.alpha * zt + (1.0 - s.alpha) * z
+    zn = jnp.clip(zr + y / R, pb.lb, pb.ub)  # z ← Π[l,u](αz̃ + (1−α)z + y/R)
+    yn = y + R * (zr - zn)
+    a = active[:, None]
+    return jnp.where(a, xn, x), jnp.where(a, zn, z), jnp.where(a, yn, y), k
+
+
+def _fixed_rung_iterations(pb: _Scaled, s: ADMMSettings, K_fix, R_fix, x, z, y, active, all_active):
+    """``check_every`` iterations of :func:`_step` on one fixed rung, with the batch as the last
+    axis: the products become (m, n)·(n, B) instead of (B, n)·(n, m), which XLA's CPU backend
+    runs ≈ 3× faster at these shapes (n, m ≲ 100; measured, docs/benchmarks.md).
+    Returns ``(x, z, y, x_prev, y_prev)``."""
+    R, Rinv = R_fix.T, (1.0 / R_fix).T  # (m, 1)
+    qT, lT, uT = pb.q.T, pb.lb.T, pb.ub.T
+    Ab = pb.A
+    a = active[None, :]
+
+    def it(_, c_):
+        xT, zT, yT, _xp, _yp = c_
+        rhs = s.sigma * xT - qT + Ab.T @ (R * zT - yT)
+        xt = K_fix @ rhs  # K⁻¹ is symmetric
+        zt = Ab @ xt
+        xn = s.alpha * xt + (1.0 - s.alpha) * xT
+        zr = s.alpha * zt + (1.0 - s.alpha) * zT
+        zn = jnp.clip(zr + yT * Rinv, lT, uT)
+        yn = yT + R * (zr - zn)
+        if not all_active:  # QPs that have stopped keep their iterate
+            xn, zn, yn = (jnp.where(a, new, old) for new, old in ((xn, xT), (zn, zT), (yn, yT)))
+        return xn, zn, yn, xT, yT
+
+    xT, zT, yT = x.T, z.T, y.T
+    xT, zT, yT, xpT, ypT = lax.fori_loop(0, s.check_every, it, (xT, zT, yT, xT, yT))
+    return xT.T, zT.T, yT.T, xpT.T, ypT.T
+
+
+class _Residuals(NamedTuple):
+    prim: jax.Array  # (B,) unscaled ‖Ax − z‖∞
+    dual: jax.Array  # (B,) unscaled ‖Px + q + Aᵀy‖∞
+    solved: jax.Array  # (B,) bool, OSQP's termination test
+    Ax: jax.Array  # scaled products, reused by the rho update
+    Px: jax.Array
+    Aty: jax.Array
+
+
+def _residuals(pb: _Scaled, s: ADMMSettings, x, z, y) -> _Residuals:
+    """OSQP's unscaled termination test (``scaled_termination = False``)."""
+    Ax = x @ pb.A.T
+    Px = x @ pb.P
+    Aty = y @ pb.A
+    Dinv, Einv, c = pb.Dinv, pb.Einv, pb.c
+    prim = _inf_norm(Einv * (Ax - z))
+    dual = _inf_norm(Dinv * (Px + pb.q + Aty)) / c
+    n_Ax, n_z = _inf_norm(Einv * Ax), _inf_norm(Einv * z)
+    n_Px, n_Aty, n_q = (
+        _inf_norm(Dinv * Px) / c,
+        _inf_norm(Dinv * Aty) / c,
+        _inf_norm(Dinv * pb.q) / c,
+    )
+    eps_p = s.eps_abs + s.eps_rel * jnp.maximum(n_Ax, n_z)
+    eps_d = s.eps_abs + s.eps_rel * jnp.maximum(jnp.maximum(n_Px, n_Aty), n_q)
+    solved = (prim <= eps_p) & (dual <= eps_d)
+    return _Residuals(prim, dual, solved, Ax, Px, Aty)
+
+
+def _primal_infeasible(pb: _Scaled, s: ADMMSettings, y, yp):
+    """OSQP's certificate: δy projected on the polar of the recession cone of [l, u]."""
+    finite_l, finite_u = jnp.isfinite(pb.l), jnp.isfinite(pb.u)
+    dy = pb.E * (y - yp) / pb.c
+    dy = jnp.where(finite_u, dy, jnp.minimum(dy, 0.0))
+    dy = jnp.where(finite_l, dy, jnp.maximum(dy, 0.0))
+    ndy = _inf_norm(dy)
+    Atdy = _inf_norm(pb.Dinv * ((y - yp) @ pb.A)) / pb.c
+    supp = jnp.sum(
+        jnp.where(dy > 0, jnp.where(finite_u, pb.u, 0.0) * dy, 0.0)
+        + jnp.where(dy < 0, jnp.where(finite_l, pb.l, 0.0) * dy, 0.0),
+        axis=-1,
+    )
+    return (ndy > 1e-30) & (Atdy <= s.eps_prim_inf * ndy) & (supp <= -s.eps_prim_inf * ndy)
+
+
+def _dual_infeasible(pb: _Scaled, s: ADMMSettings, x, xp):
+    """OSQP's certificate on δx: Pδx ≈ 0, qᵀδx < 0, Aδx in the recession cone of [l, u]."""
+    finite_l, finite_u = jnp.isfinite(pb.l), jnp.isfinite(pb.u)
+    dxs = x - xp
+    dx = pb.D * dxs
+    ndx = _inf_norm(dx)
+    Pdx = _inf_norm(pb.Dinv * (dxs @ pb.P)) / pb.c
+    qdx = jnp.sum(pb.q * dxs, axis=-1) / pb.c
+    Adx = pb.Einv * (dxs @ pb.A.T)
+    tol = s.eps_dual_inf * ndx[:, None]
+    ok_rows = jnp.where(finite_u, Adx <= tol, True) & jnp.where(finite_l, Adx >= -tol, True)
+    return (
+        (ndx > 1e-30)
+        & (Pdx <= s.eps_dual_inf * ndx)
+        & (qdx <= -s.eps_dual_inf * ndx)
+        & jnp.all(ok_rows, axis=-1)
+    )
+
+
+def _adapt_rung(pb: _Scaled, s: ADMMSettings, r: _Residuals, z, rung, status, active):
+    """OSQP's residual-balancing rho rule on scaled quantities, snapped to the nearest rung."""
+    sp_ = _inf_norm(r.Ax - z) / (jnp.maximum(_inf_norm(r.Ax), _inf_norm(z)) + 1e-30)
+    sd_ = _inf_norm(r.Px + pb.q + r.Aty) / (
+        jnp.maximum(jnp.maximum(_inf_norm(r.Px), _inf_norm(r.Aty)), _inf_norm(pb.q)) + 1e-30
+    )
+    rho_new = pb.ladder[rung] * jnp.sqrt(sp_ / (sd_ + 1e-30))
+    lr = jnp.log(jnp.clip(rho_new, 1e-30, 1e30))
+    best = jnp.argmin(jnp.abs(lr[:, None] - jnp.log(pb.ladder)[None, :]), axis=-1)
+    keep = ~jnp.isfinite(lr) | (r.prim == 0) | (r.dual == 0)
+    return jnp.where(active & (status == _RUNNING) & ~keep, best.astype(jnp.int32), rung)
+
+
+def _check(pb: _Scaled, s: ADMMSettings, x, z, y, xp, yp, rung, status, active):
+    """Termination, certificates and NaN guard for the active QPs; then the rho update.
+    Returns ``(prim, dual, status, rung)``."""
+    r = _residuals(pb, s, x, z, y)
+    pinf = _primal_infeasible(pb, s, y, yp)
+    dinf = _dual_infeasible(pb, s, x, xp)
+    bad = ~(
+        jnp.all(jnp.isfinite(x), -1) & jnp.all(jnp.isfinite(y), -1) & jnp.all(jnp.isfinite(z), -1)
+    )
+    new = jnp.where(
+        bad,
+        _ERROR,
+        jnp.where(r.solved, _SOLVED, jnp.where(pinf, _PINF, jnp.where(dinf, _DINF, _RUNNING))),
+    )
+    status = jnp.where(active, new, status)
+    if s.adaptive_rho:
+        rung = _adapt_rung(pb, s, r, z, rung, status, active)
+    return r.prim, r.dual, status, rung
+
+
+def _chunk(pb: _Scaled, s: ADMMSettings, fixed, carry: _Carry, all_active=False) -> _Carry:
+    """``check_every`` iterations, then one check.  ``fixed`` is ``(K⁻¹, R)`` of the static
+    fixed-rung path, or ``None``."""
+    x, z, y, rung = carry.x, carry.z, carry.y, carry.rung
+    cnt = carry.matmuls
+    active = carry.status == _RUNNING
+
+    def it(_, c_):
+        x, z, y, _xp, _yp, cnt = c_
+        xn, zn, yn, k = _step(pb, s, x, z, y, rung, active)
+        return xn, zn, yn, x, y, cnt + k
+
+    if fixed is not None:
+        K_fix, R_fix = fixed
+        x, z, y, xp, yp = _fixed_rung_iterations(pb, s, K_fix, R_fix, x, z, y, active, all_active)
+        cnt = cnt + s.check_every * jnp.any(active).astype(jnp.int32)
+    else:
+        x, z, y, xp, yp, cnt = lax.fori_loop(0, s.check_every, it, (x, z, y, x, y, cnt))
+    prim_n, dual_n, status_n, rung = _check(pb, s, x, z, y, xp, yp, rung, carry.status, active)
+    return _Carry(
+        x=x,
+        y=y,
+        z=z,
+        rung=rung,
+        status=status_n,
+        iterations=carry.iterations + jnp.where(active, s.check_every, 0),
+        prim=jnp.where(active, prim_n, carry.prim),
+        dual=jnp.where(active, dual_n, carry.dual),
+        dx=jnp.where(active[:, None], x - xp, carry.dx),
+        dy=jnp.where(active[:, None], y - yp, carry.dy),
+        chunk=carry.chunk + 1,
+        matmuls=cnt,
+    )
+
+
+def admm_iterate(
+    factor: ADMMFactor,
+    q: Any,
+    l: Any,
+    u: Any,
+    x0: Any = None,
+    y0: Any = None,
+    iters: int | None = None,
+    rho0: Any = None,
+) -> ADMMState:
+    """Run batched ADMM (no polish) on unscaled ``q (B, n), l (B, m), u (B, m)``; jittable.
+
+    ``iters`` (static; default ``settings.max_iter``) is rounded up to a multiple of
+    ``check_every``.  ``rho0`` (scalar or ``(B,)``, optional) starts each QP on the ladder rung
+    nearest to it (default: ``settings.rho``).  Returns an :class:`ADMMState`.
+    """
+    s = factor.settings
+    dt = factor.P.dtype
+    squeeze = jnp.ndim(q) == 1
+    q, l, u = (jnp.atleast_2d(jnp.asarray(v, dt)) for v in (q, l, u))
+    B = q.shape[0]
+    n, m = factor.n, factor.m
+    iters = s.max_iter if iters is None else int(iters)
+    n_chunks = -(-iters // s.check_every)
+    pb = _scale_problem(factor, q, l, u)
+
+    # warm start, scaled: x̄ = D⁻¹x, ȳ = c E⁻¹ y, z̄ = Π(Āx̄)
+    xs = jnp.zeros((B, n), dt) if x0 is None else jnp.atleast_2d(jnp.asarray(x0, dt)) * pb.Dinv
+    if y0 is None:
+        ys = jnp.zeros((B, m), dt)
+    else:
+        ys = pb.c * jnp.atleast_2d(jnp.asarray(y0, dt)) * pb.Einv
+    zs = jnp.clip(xs @ pb.A.T, pb.lb, pb.ub)
+    rung = _initial_rung(pb, s, B, rho0, dt)
+
+    # Static fast path: every QP starts on the same rung and no rho update can happen before
+    # the last iteration (one check chunk, or adaptation off), so K⁻¹ is one fixed matrix and
+    # the step sizes R are constants of the loop (no per-step rung dispatch).
+    fixed = None
+    if rho0 is None and (n_chunks == 1 or not s.adaptive_rho):
+        fixed = (pb.Kinv[_nearest_rung(s)], _row_rho(pb, s, rung)[:1])  # R: (1, m), equal rows
+
+    inf = jnp.full((B,), jnp.inf, dt)
+    zero_b = jnp.zeros((B,), jnp.int32)
+    zero = jnp.zeros((), jnp.int32)
+    init = _Carry(
+        xs,
+        zs,
+        ys,
+        rung,
+        zero_b,
+        zero_b,
+        inf,
+        inf,
+        jnp.zeros_like(xs),
+        jnp.zeros_like(ys),
+        zero,
+        zero,
+    )
+    if n_chunks == 1:
+        # one chunk: no loop, every QP active; outputs nobody uses (the check, when a jitted
+        # caller keeps only x) are then removed by XLA
+        out = _chunk(pb, s, fixed, init, all_active=True)
+    else:
+        out = lax.while_loop(
+            lambda c: (c.chunk < n_chunks) & jnp.any(c.status == _RUNNING),
+            lambda c: _chunk(pb, s, fixed, c),
+            init,
+        )
+    status = jnp.where(out.status == _RUNNING, _MAX_ITER, out.status).astype(jnp.int32)
+    res = ADMMState(
+        x=pb.D * out.x,
+        z=pb.Einv * out.z,
+        y=pb.E * out.y / pb.c,
+        prim_res=out.prim,
+        dual_res=out.dual,
+        status=status,
+        iterations=out.iterations,
+        rho=pb.ladder[out.rung],
+        delta_x=pb.D * out.dx,
+        delta_y=pb.E * out.dy / pb.c,
+        rung_matmuls=out.matmuls,
+    )
+    if squeeze:
+        res = ADMMState(*(v[0] for v in res[:-1]), res[-1])
+    return res
+
+
+_admm_iterate_jit = jax.jit(admm_iterate, static_argnames=("iters",))
+
+
+def _flops(n: int, m: int, B: int, iters: int, rung_matmuls: int, check_every: int) -> float:
+    """Matmul FLOPs of one :func:`admm_iterate` call on a dense batch of ``B``."""
+    checks = (iters // check_every) * B * (8.0 * m * n + 4.0 * n * n)
+    return 4.0 * m * n * B * iters + 2.0 * n * n * B * rung_matmuls + checks
+
+
+def flops_per_iteration(n: int, m: int, rungs_used: float = 1.0) -> float:
+    """Floating-point operations of one ADMM iteration for one QP (matmuls only).
+
+    ``Āᵀ(Rz − y)``: 2mn; ``K⁻¹·rhs``: 2n² per rung in use; ``Āx̃``: 2mn.
+    """
+    return 4.0 * m * n + 2.0 * n * n * rungs_used

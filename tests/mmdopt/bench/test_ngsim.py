@@ -1,0 +1,207 @@
+"""The real-traffic benchmark on the shared US-101 scenes: loader, lane geometry, at-fault rule,
+a 2-scenario smoke run (skipped with a reason where ../shared/data is absent)."""
+
+from __future__ import annotations
+
+import csv
+
+import numpy as np
+import pytest
+
+pytest.importorskip(
+    "commonroad", reason="the ngsim benchmark needs commonroad-io (mmdopt[commonroad])"
+)
+
+from mmdopt.bench.ngsim.metric import (  # noqa: E402
+    at_fault,
+    classify_collision,
+    rect_corners,
+    rect_distance,
+    rects_overlap,
+)
+
+FILE = "USA_US101-10_1_T-1.xml"
+pytestmark = pytest.mark.filterwarnings("ignore::DeprecationWarning")
+
+
+@pytest.fixture(scope="module")
+def ngsim_dir(shared_data):
+    d = shared_data / "ngsim_us101"
+    if not (d / FILE).is_file():
+        pytest.skip(f"NGSIM scenes not found in {d}")
+    return d
+
+
+@pytest.fixture(scope="module")
+def scene(ngsim_dir):
+    from mmdopt.bench.ngsim.scene import load_scenario
+
+    return load_scenario(str(ngsim_dir / FILE))
+
+
+def test_loader_reads_lanes_and_tracks(scene):
+    assert scene.dt == pytest.approx(0.1)
+    assert len(scene.lanes) == 12 and len(scene.ids) == 44
+    assert scene.xy.shape == (44, scene.num_steps, 2)
+    present = np.isfinite(scene.xy[..., 0])
+    assert present.sum() > 1000
+    assert np.mean(scene.lane_of[present] >= 0) > 0.95  # the cars drive on the mapped lanes
+    speeds = scene.speed[present]
+    assert 0 <= speeds.min() and speeds.max() < 40  # freeway traffic, m/s
+    lane = scene.lanes[42]
+    assert lane.left_id == 18 and lane.right_id == 14 and lane.successors == (40,)
+
+
+def test_frenet_round_trip_along_a_real_lane_within_1cm(scene):
+    from mmdopt.bench.ngsim.scene import ego_road_geometry, present
+
+    v = int(np.flatnonzero(present(scene, 0, 60) & (scene.lane_of[:, 10] >= 0))[0])
+    path, off_l, off_r = ego_road_geometry(scene, v, 10)
+    # every recorded position within 10 m of the path, there and back
+    pts = scene.xy[np.isfinite(scene.xy[..., 0])]
+    s, d = path.to_frenet(pts[:, 0], pts[:, 1])
+    near = (np.abs(d) < 10) & (s > 0) & (s < path.length)
+    x, y = path.to_cartesian(s[near], d[near])
+    err = np.hypot(x - pts[near, 0], y - pts[near, 1])
+    assert near.sum() > 200 and err.max() < 0.01
+    # the adjacent lanes' centres are one lane width away
+    for off in (off_l, -off_r if off_r is not None else None):
+        if off is not None:
+            assert 3.0 < off < 4.0
+
+
+def test_predictor_inputs_from_a_scene(scene):
+    from mmdopt.bench.ngsim.scene import context_at, future_at, history_at, present
+
+    idx = np.flatnonzero(present(scene, 0, 60))[:6]
+    ctx = context_at(scene, idx, 9, np.linspace(0, 5, 51))
+    assert ctx.centerline.shape[0] == 6 and np.all(ctx.lane_width > 3.0)
+    assert np.all(ctx.gaps > 0)
+    h = history_at(scene, idx, 9, 10)
+    np.testing.assert_allclose(h[:, -1], scene.xy[idx, 9])
+    f = future_at(scene, idx, 9, np.linspace(0, 5, 51))
+    np.testing.assert_allclose(f[:, 10], scene.xy[idx, 19])
+
+
+def test_split_holds_out_whole_recordings(ngsim_dir):
+    from mmdopt.bench.ngsim.data import split_files
+    from mmdopt.bench.ngsim.scene import recording_of
+
+    train, test = split_files(ngsim_dir)
+    assert test and train
+    assert not {recording_of(f.stem) for f in train} & {recording_of(f.stem) for f in test}
+
+
+# ------------------------------------------------------------------ at-fault rule (no data)
+def _rect(x, y=0.0, h=0.0):
+    return rect_corners(x, y, h, 4.5, 1.8)
+
+
+@pytest.mark.parametrize(
+    "ego_speed, other, other_speed, expected",
+    [
+        (0.0, (-4.0, 0.0), 10.0, "stopped_ego"),
+        (10.0, (4.0, 0.0), 0.0, "stopped_track"),
+        (10.0, (4.0, 0.0), 5.0, "front"),
+        (10.0, (-4.0, 0.0), 15.0, "rear"),
+        (10.0, (-0.5, 1.7), 10.0, "lateral"),
+    ],
+)
+def test_collision_classes(ego_speed, other, other_speed, expected):
+    o = _rect(*other)
+    assert bool(rects_overlap(_rect(0.0), o))
+    assert (
+        classify_collision(_rect(0.0), 0.0, ego_speed, o, np.array(other), other_speed) == expected
+    )
+
+
+@pytest.mark.parametrize(
+    "cls, decel, changing, fault",
+    [
+        ("front", 0.0, False, True),
+        ("stopped_track", 0.0, False, True),
+        ("rear", 1.0, False, False),
+        ("rear", 5.0, False, True),  # brake check
+        ("stopped_ego", 0.5, False, False),
+        ("lateral", 0.0, False, False),
+        ("lateral", 0.0, True, True),
+    ],
+)
+def test_at_fault_rule(cls, decel, changing, fault):
+    assert at_fault(cls, decel, changing) is fault
+
+
+def test_rectangles_distance_and_overlap():
+    assert not bool(rects_overlap(_rect(0.0), _rect(10.0)))
+    assert float(rect_distance(_rect(0.0), _rect(10.0))) == pytest.approx(5.5)
+    assert float(rect_distance(_rect(0.0), _rect(2.0))) == 0.0
+    with pytest.raises(ValueError, match="collision class"):
+        at_fault("sideswipe", 0.0, False)
+
+
+# ------------------------------------------------------------------ smoke run
+@pytest.mark.slow  # two JIT compiles of Algorithm 1 (one per lane-bound pair): ~30-80 s on 2 cores
+def test_two_scenario_smoke_run_writes_the_csv_and_resumes(ngsim_dir, tmp_path):
+    from mmdopt import ReducedSetConfig
+    from mmdopt.bench.ngsim import RESULT_COLUMNS, NgsimParams, ngsim_config, run_ngsim
+
+    files = [ngsim_dir / FILE, ngsim_dir / "USA_US101-11_1_T-1.xml"]
+    cfg = ngsim_config(
+        n_samples=40,
+        n_cem=16,
+        n_elite=8,
+        n_brake=4,
+        iterations=2,
+        reduced_set_size=4,
+        reduced_set=ReducedSetConfig(population=16, n_elite=4, iterations=3, simplex_iterations=20),
+    )
+    p = NgsimParams(egos_per_time=1, every=100.0, max_obstacles=3, n_samples=8, n_validation=16)
+    rows = run_ngsim(files, tmp_path, methods=("mmd",), predictor="cv", config=cfg, params=p)
+    with open(tmp_path / "results.csv") as f:
+        table = list(csv.DictReader(f))
+    assert tuple(table[0].keys()) == RESULT_COLUMNS
+    assert {r["scenario"] for r in table} == {"USA_US101-10_1_T-1", "USA_US101-11_1_T-1"}
+    for r in rows:
+        assert not str(r["status"]).startswith("error"), r["status"]
+        assert 0 <= r["collision_free"] <= 16 and r["n_validation"] == 16
+        assert r["recorded_progress_m"] > 0 and np.isfinite(r["progress_m"])
+        assert r["min_clearance_m"] >= 0 and 1 <= r["n_obstacles"] <= 3
+    # resumable: a second call recomputes nothing
+    mtimes = sorted(p_.stat().st_mtime_ns for p_ in (tmp_path / "tasks").glob("*.json"))
+    run_ngsim(files, tmp_path, methods=("mmd",), predictor="cv", config=cfg, params=p)
+    assert sorted(p_.stat().st_mtime_ns for p_ in (tmp_path / "tasks").glob("*.json")) == mtimes
+
+
+@pytest.mark.parametrize(
+    "argv, option",
+    [
+        (["bench", "ngsim", "--scenarios", "nowhere.xml", "--out", "x"], "--scenarios"),
+        (
+            ["bench", "ngsim", "--scenarios", ".", "--out", "x", "--predictor", "oracle"],
+            "--predictor",
+        ),
+        (["bench", "ngsim", "--scenarios", ".", "--out", "x", "--methods", "mpc"], "--methods"),
+        (["bench", "ngsim", "--scenarios", ".", "--out", "x", "--jobs", "0"], "--jobs"),
+        (["predictor", "train", "--steps", "-1"], "--steps"),
+    ],
+)
+def test_ngsim_cli_bad_options_exit_2_naming_the_option(argv, option, capsys):
+    from mmdopt.bench.cli import main
+
+    with pytest.raises(SystemExit) as e:
+        main(argv)
+    assert e.value.code == 2
+    assert option in capsys.readouterr().err
+
+
+def test_run_ngsim_rejects_bad_arguments(tmp_path):
+    from mmdopt.bench.ngsim import run_ngsim
+
+    with pytest.raises(ValueError, match="method"):
+        run_ngsim([tmp_path], tmp_path, methods=("mpc",))
+    with pytest.raises(ValueError, match="predictor"):
+        run_ngsim([tmp_path], tmp_path, predictor="oracle")
+    with pytest.raises(ValueError, match="no .xml"):
+        run_ngsim([tmp_path], tmp_path / "out", predictor="cv")
+    with pytest.raises(ValueError, match="unknown NgsimParams"):
+        run_ngsim([tmp_path], tmp_path / "out", config={"bench": {"egos": 3}})

@@ -1,0 +1,222 @@
+"""Receding-horizon loop (mmdopt.receding) against a small synthetic scene source.
+
+The source is a straight two-lane road with one slower car ahead in the ego lane whose future is
+bimodal (stays / moves to the left lane); the ego is moved exactly along each plan for δ seconds.
+One small planner configuration is shared so the jitted planner compiles once.
+"""
+
+from __future__ import annotations
+
+import subprocess
+import sys
+
+import jax
+import numpy as np
+import pytest
+
+import frenet
+import mmdopt
+from mmdopt.receding import (
+    Observation,
+    RecedingConfig,
+    SceneSource,
+    StepOutcome,
+    pad_obstacles,
+    run_receding,
+    warm_up,
+)
+
+CFG = mmdopt.MMDOptConfig(
+    n_samples=80,
+    n_cem=30,
+    n_elite=10,
+    iterations=4,
+    n_brake=5,
+    horizon=5.0,
+    num_steps=26,
+    reduced_set_size=5,
+    v_des=15.0,
+)
+T = frenet.TimeGrid(CFG.horizon, CFG.num_steps).t
+
+
+class TwoLaneScene:
+    """Ego at 15 m/s behind a 8 m/s car; the car stays (70 %) or changes to y = 3.5 (30 %)."""
+
+    def __init__(self, seed=0, duration=3.0, gap=35.0, crash_at=None):
+        self.road = mmdopt.Road(y_lb=-0.3, y_ub=3.8, v_max=20.0)
+        self.ego = frenet.EgoState(s=0.0, d=0.0, vs=15.0)
+        self.obs_x, self.obs_v = gap, 8.0
+        self.t = 0.0
+        self.duration = duration
+        self.rng = np.random.default_rng(seed)
+        self.crash_at = crash_at
+        self.min_gap = np.inf
+        self.steps = 0
+
+    def observe(self) -> Observation:
+        n = 10
+        change = self.rng.random(n) < 0.3
+        y_end = np.where(change, 3.5, 0.0)
+        v = self.obs_v + 0.3 * self.rng.standard_normal(n)
+        x = self.obs_x + v[:, None] * T[None]
+        y = y_end[:, None] * np.clip(T[None] / 3.0, 0.0, 1.0)
+        obs = np.stack([x, y], axis=-1)[None]
+        return Observation(ego=self.ego, road=self.road, obstacles=obs, time=self.t)
+
+    def step(self, trajectory, dt) -> StepOutcome:
+        f = {k: np.interp(dt, trajectory.t, getattr(trajectory, k)) for k in ("s", "d", "vs", "vd")}
+        f.update(as_=np.interp(dt, trajectory.t, trajectory.as_))
+        f.update(ad=np.interp(dt, trajectory.t, trajectory.ad))
+        self.ego = frenet.EgoState(**{k: float(v) for k, v in f.items()})
+        self.obs_x += self.obs_v * dt
+        self.t += dt
+        self.steps += 1
+        gap = np.hypot(self.obs_x - self.ego.s, 0.0 - self.ego.d)
+        self.min_gap = min(self.min_gap, gap)
+        crashed = self.crash_at is not None and self.steps >= self.crash_at
+        return StepOutcome(done=self.t >= self.duration - 1e-9, crashed=crashed)
+
+
+@pytest.fixture(scope="module")
+def run():
+    # compile the cold and the warm-started planner first: the timed loop then sees plan times
+    warm_up(TwoLaneScene().observe(), RecedingConfig(), CFG)
+    src = TwoLaneScene()
+    res = run_receding(
+        src, RecedingConfig(dt=0.5, budget_s=60.0), config=CFG, key=jax.random.PRNGKey(3)
+    )
+    return src, res
+
+
+def test_scene_source_satisfies_the_protocol():
+    assert isinstance(TwoLaneScene(), SceneSource)
+
+
+def test_loop_replans_every_delta_until_the_source_is_done(run):
+    src, res = run
+    assert res.done and not res.crashed
+    assert len(res.steps) == 6  # 3 s at δ = 0.5 s
+    assert [r.time for r in res.steps] == pytest.approx(np.arange(6) * 0.5)
+    assert src.ego.s > 6 * 0.5 * 5.0  # it kept moving (at least 5 m/s on average)
+    # executed states are the plans' states: each record starts where the previous plan was at δ
+    assert all(r.n_obstacles == 1 for r in res.steps)
+
+
+def test_every_replan_after_the_first_is_warm_started(run):
+    _, res = run
+    assert [r.warm_started for r in res.steps] == [False] + [True] * 5
+    cold = run_receding(TwoLaneScene(duration=1.0), RecedingConfig(warm_start=False), config=CFG)
+    assert not any(r.warm_started for r in cold.steps)
+
+
+def test_plan_times_and_budget_are_reported(run):
+    _, res = run
+    pt = res.plan_times
+    assert pt.shape == (6,) and np.all(pt > 0)
+    assert res.n_over_budget == 0  # a 60 s budget
+    s = res.summary()
+    assert s["steps"] == 6 and s["over_budget"] == 0
+    assert s["max_plan_s"] >= s["median_plan_s"] > 0
+
+
+def test_warm_up_compiles_without_touching_the_source(run):
+    src = TwoLaneScene()
+    secs = warm_up(src.observe(), RecedingConfig(), CFG, jax.random.PRNGKey(0))
+    assert secs > 0 and src.steps == 0 and src.t == 0.0
+
+
+def test_tiny_budget_counts_every_step_over_budget():
+    res = run_receding(
+        TwoLaneScene(duration=1.0),
+        RecedingConfig(dt=0.5, budget_s=1e-6),
+        config=CFG,
+        key=jax.random.PRNGKey(0),
+    )
+    assert res.n_over_budget == len(res.steps) == 2
+
+
+def test_closed_loop_keeps_clear_of_the_slower_car(run):
+    src, _ = run
+    # the car ahead is 8 m/s, the ego starts at 15 m/s, 35 m behind: it must not close in
+    assert src.min_gap > 8.0
+
+
+def test_same_key_same_run():
+    a = run_receding(TwoLaneScene(duration=1.5), config=CFG, key=jax.random.PRNGKey(7))
+    b = run_receding(TwoLaneScene(duration=1.5), config=CFG, key=jax.random.PRNGKey(7))
+    for ra, rb in zip(a.steps, b.steps, strict=True):
+        assert (ra.cost, ra.s, ra.d, ra.speed, ra.status) == (
+            rb.cost,
+            rb.s,
+            rb.d,
+            rb.speed,
+            rb.status,
+        )
+
+
+def test_loop_stops_when_the_source_reports_a_crash():
+    res = run_receding(
+        TwoLaneScene(duration=10.0, crash_at=2), config=CFG, key=jax.random.PRNGKey(0)
+    )
+    assert res.crashed and len(res.steps) == 2
+
+
+def test_empty_road_plans_against_a_phantom():
+    class Empty(TwoLaneScene):
+        def observe(self):
+            o = super().observe()
+            return Observation(ego=o.ego, road=o.road, obstacles=np.zeros((0, 10, len(T), 2)))
+
+    res = run_receding(Empty(duration=1.0), config=CFG, key=jax.random.PRNGKey(0))
+    assert res.done and len(res.steps) == 2 and all(r.n_obstacles == 0 for r in res.steps)
+    # nothing in the way: it holds v_des (15 m/s) and the phantom adds no collision cost
+    assert res.steps[-1].speed == pytest.approx(15.0, abs=0.5)
+    assert all(r.cost < 1.0 for r in res.steps)
+
+
+def test_pad_obstacles_shapes_and_phantoms_far_behind():
+    road = mmdopt.Road()
+    ego = frenet.EgoState(s=100.0, d=0.0, vs=10.0)
+    obs = np.zeros((2, 4, len(T), 2))
+    assert pad_obstacles(obs, 5, ego, road, T).shape == (5, 4, len(T), 2)
+    assert pad_obstacles(obs, 1, ego, road, T).shape == (1, 4, len(T), 2)
+    ph = pad_obstacles(np.zeros((0, 4, len(T), 2)), None, ego, road, T)
+    assert ph.shape == (1, 4, len(T), 2)
+    assert np.all(ph[..., 0] < ego.s - 400.0 + ego.vs * T)  # stays ≥ 400 m behind
+    assert len(np.unique(ph[0, :, 0, 0])) == 4  # distinct samples (positive kernel bandwidth)
+    with pytest.raises(ValueError, match="obstacles must have shape"):
+        pad_obstacles(np.zeros((1, 4, 3, 2)), 2, ego, road, T)
+
+
+@pytest.mark.parametrize(
+    "kw, match",
+    [
+        ({"dt": 0.0}, "dt"),
+        ({"dt": float("nan")}, "dt"),
+        ({"max_steps": 0}, "max_steps"),
+        ({"budget_s": -1.0}, "budget_s"),
+        ({"method": "nope"}, "method"),
+        ({"max_obstacles": 0}, "max_obstacles"),
+    ],
+)
+def test_bad_receding_config_is_rejected(kw, match):
+    with pytest.raises(ValueError, match=match):
+        RecedingConfig(**kw)
+
+
+def test_bad_arguments_are_rejected():
+    with pytest.raises(ValueError, match="horizon"):
+        run_receding(TwoLaneScene(), RecedingConfig(dt=6.0), config=CFG)
+    with pytest.raises(ValueError, match="SceneSource"):
+        run_receding(object(), config=CFG)
+    with pytest.raises(ValueError, match="MMDOptConfig"):
+        run_receding(TwoLaneScene(), config={"horizon": 5.0})
+
+
+def test_receding_does_not_import_the_benchmarks():
+    code = (
+        "import sys, mmdopt.receding; print(any(m.startswith('mmdopt.bench') for m in sys.modules))"
+    )
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
+    assert out.stdout.strip() == "False"
