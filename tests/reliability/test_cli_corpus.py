@@ -198,8 +198,8 @@ OPTIONS = [
     ("figure scene -1", lambda t: ["bench", "figure", "--out", t, "--scene", "-1"], "--scene"),
     ("demo methods unknown", lambda t: ["demo", "--out", t, "--methods", "x"], "--methods"),
     ("demo backend unknown", lambda t: ["demo", "--out", t, "--backend", "x"], "--backend"),
-    ("no command", lambda t: [], "{demo,bench}"),
-    ("bench no experiment", lambda t: ["bench"], "{synthetic,reduced-set"),
+    ("no command", lambda t: [], "{demo,bench,predictor}"),
+    ("bench no experiment", lambda t: ["bench"], "{synthetic,frontier,reduced-set"),
 ]
 
 
