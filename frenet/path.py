@@ -36,6 +36,26 @@ def wrap_angle(a: ArrayLike) -> NDArray[np.float64]:
     return (np.asarray(a, dtype=np.float64) + np.pi) % (2 * np.pi) - np.pi
 
 
+def _as_float(name: str, v) -> np.ndarray:
+    try:
+        a = np.asarray(v, dtype=np.float64)
+    except (TypeError, ValueError):
+        raise ValueError(f"{name} must be a real number or array of them, got {v!r}") from None
+    return a
+
+
+def _broadcast(names: tuple[str, ...], *arrays) -> list[np.ndarray]:
+    """``arrays`` as float64, broadcast together; ``ValueError`` naming them if they do not."""
+    arrs = [_as_float(n, a) for n, a in zip(names, arrays, strict=True)]
+    try:
+        return list(np.broadcast_arrays(*arrs))
+    except ValueError:
+        shapes = ", ".join(f"{n} {a.shape}" for n, a in zip(names, arrs, strict=True))
+        raise ValueError(
+            f"{'/'.join(names)} must have the same (or broadcastable) shapes, got {shapes}"
+        ) from None
+
+
 def _check_finite(name: str, *arrays: np.ndarray) -> None:
     for a in arrays:
         if not np.all(np.isfinite(a)):
@@ -114,10 +134,17 @@ class ReferencePath:
         cls, length: float = 1000.0, *, start=(0.0, 0.0), heading: float = 0.0
     ) -> ReferencePath:
         """A straight path of ``length`` metres from ``start`` along ``heading`` (rad)."""
-        if not (np.isfinite(length) and length > 0):
-            raise ValueError(f"length must be positive and finite, got {length}")
-        x0, y0 = map(float, start)
-        d = np.array([np.cos(heading), np.sin(heading)])
+        length = float(_as_float("length", length)) if np.ndim(length) == 0 else length
+        if np.ndim(length) != 0 or not (np.isfinite(length) and length > 0):
+            raise ValueError(f"length must be positive and finite, got {length!r}")
+        st = _as_float("start", start)
+        if st.shape != (2,) or not np.all(np.isfinite(st)):
+            raise ValueError(f"start must be a finite (x, y) pair, got {start!r}")
+        h = _as_float("heading", heading)
+        if h.ndim != 0 or not np.isfinite(h):
+            raise ValueError(f"heading must be a finite angle (rad), got {heading!r}")
+        x0, y0 = float(st[0]), float(st[1])
+        d = np.array([np.cos(float(h)), np.sin(float(h))])
         return cls.from_waypoints(
             np.array([[x0, y0], [x0, y0] + length * d]), spacing=max(0.5, length / 2000)
         )
@@ -153,19 +180,22 @@ class ReferencePath:
 
     def point(self, s: ArrayLike) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
         """Cartesian ``(x, y)`` of the path at arc length ``s`` (any shape)."""
-        s = np.asarray(s, dtype=np.float64)
+        s = _as_float("s", s)
+        _check_finite("s", s)
         x, y, *_ = self._eval(s.ravel())
         return x.reshape(s.shape), y.reshape(s.shape)
 
     def heading(self, s: ArrayLike) -> NDArray[np.float64]:
         """Path heading ``θ(s)`` (rad, wrapped to [−π, π))."""
-        s = np.asarray(s, dtype=np.float64)
+        s = _as_float("s", s)
+        _check_finite("s", s)
         _, _, dx, dy, _, _ = self._eval(s.ravel())
         return np.arctan2(dy, dx).reshape(s.shape)
 
     def curvature(self, s: ArrayLike) -> NDArray[np.float64]:
         """Signed curvature ``κ(s)`` (1/m, positive turning left); zero beyond the ends."""
-        s = np.asarray(s, dtype=np.float64)
+        s = _as_float("s", s)
+        _check_finite("s", s)
         _, _, dx, dy, ddx, ddy = self._eval(s.ravel())
         k = (dx * ddy - dy * ddx) / np.hypot(dx, dy) ** 3
         return k.reshape(s.shape)
@@ -192,7 +222,7 @@ class ReferencePath:
         -------
         (s, d) or (s, d, heading_rel), each of the broadcast shape of the inputs.
         """
-        x, y = np.broadcast_arrays(np.asarray(x, dtype=np.float64), np.asarray(y, dtype=np.float64))
+        x, y = _broadcast(("x", "y"), x, y)
         _check_finite("x/y", x, y)
         shape = x.shape
         px, py = x.ravel(), y.ravel()
@@ -215,7 +245,14 @@ class ReferencePath:
         s, d = s.reshape(shape), d.reshape(shape)
         if heading is None:
             return s, d
-        heading = np.broadcast_to(np.asarray(heading, dtype=np.float64), shape)
+        heading = _as_float("heading", heading)
+        try:
+            heading = np.broadcast_to(heading, shape)
+        except ValueError:
+            raise ValueError(
+                f"heading must have the shape of x/y {shape} (or broadcast to it), got "
+                f"{heading.shape}"
+            ) from None
         _check_finite("heading", heading)
         return s, d, wrap_angle(heading - np.arctan2(dy, dx).reshape(shape))
 
@@ -250,7 +287,7 @@ class ReferencePath:
 
         Returns ``(x, y)`` or ``(x, y, heading_abs)`` when a path-relative ``heading`` is given.
         """
-        s, d = np.broadcast_arrays(np.asarray(s, dtype=np.float64), np.asarray(d, dtype=np.float64))
+        s, d = _broadcast(("s", "d"), s, d)
         _check_finite("s/d", s, d)
         shape = s.shape
         rx, ry, dx, dy, _, _ = self._eval(s.ravel())
@@ -260,7 +297,14 @@ class ReferencePath:
         y = ry + dd * dx / nrm
         if heading is None:
             return x.reshape(shape), y.reshape(shape)
-        heading = np.broadcast_to(np.asarray(heading, dtype=np.float64), shape)
+        heading = _as_float("heading", heading)
+        try:
+            heading = np.broadcast_to(heading, shape)
+        except ValueError:
+            raise ValueError(
+                f"heading must have the shape of s/d {shape} (or broadcast to it), got "
+                f"{heading.shape}"
+            ) from None
         _check_finite("heading", heading)
         return (
             x.reshape(shape),
@@ -275,9 +319,7 @@ class ReferencePath:
 
         Uses ``ẋ_cart = (1 − dκ) ṡ t + ḋ n``: the heading is ``θ(s) + atan2(ḋ, (1 − dκ) ṡ)``.
         """
-        s, d, vs, vd = np.broadcast_arrays(
-            *(np.asarray(a, dtype=np.float64) for a in (s, d, vs, vd))
-        )
+        s, d, vs, vd = _broadcast(("s", "d", "vs", "vd"), s, d, vs, vd)
         _check_finite("trajectory", s, d, vs, vd)
         x, y = self.to_cartesian(s, d)
         k = self.curvature(s)

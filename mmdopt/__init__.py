@@ -11,7 +11,7 @@ collision-free count), :mod:`~mmdopt.algorithm` (Algorithm 1: config, state, ini
 float64 ask for it locally (``jax.enable_x64`` inside the call).
 """
 
-from . import algorithm
+from . import algorithm, risk
 from .algorithm import MMDOptConfig
 from .api import Plan, Road, plan, plan_frenet
 from .baselines import METHODS as PLAN_METHODS
@@ -52,12 +52,15 @@ from .reduced_set import (
     select_reduced_set_unchecked,
     select_reduced_sets,
 )
+from .risk import config_for_risk
 
 __version__ = "0.2.0"
 
 __all__ = [
     "__version__",
     "algorithm",
+    "risk",
+    "config_for_risk",
     "CircleFootprint",
     "EGO_FOOTPRINT",
     "OBSTACLE_FOOTPRINT",

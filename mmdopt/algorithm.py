@@ -63,7 +63,15 @@ from jax import lax
 import frenet
 
 from ._x64 import x64
-from .collision import ELLIPSE_A, ELLIPSE_B, collision_cost, taylor_terms
+from .collision import (
+    ELLIPSE_A,
+    ELLIPSE_B,
+    collision_cost,
+    mmd_cost,
+    saa_cost,
+    scenario_cost,
+    taylor_terms,
+)
 from .reduced_set import ReducedSetConfig
 
 __all__ = [
@@ -80,6 +88,7 @@ __all__ = [
     "run",
     "shift",
     "planning_semi_axis",
+    "margin_ellipse_values",
     "n_taylor_terms",
     "check_backend",
 ]
@@ -127,7 +136,23 @@ class MMDOptConfig:
     al. and the reference code plan (their worst-case sample set is their safety mechanism; see
     docs/benchmarks.md for both settings at matched progress);
     ``res_tol`` feasibility tolerance of the residual; ``saa_eps``, ``saa_temperature`` for the
-    SAA baseline.  ``reduced_set`` configures the reduced-set selection; ``rs_lateral_scale``
+    SAA baseline.
+
+    **Sample-driven margins** (``margin_mode = "samples"``, issue 11; :mod:`mmdopt.risk`): instead
+    of the time-linear constants, every planning point's ellipse is inflated per time step by the
+    spread of the planning samples it stands for (its cluster), to contain them with probability
+    ``1 − risk_eps`` under a per-step Gaussian fit (longitudinally one-sided: behind / ahead of
+    the point; laterally symmetric); ``coverage_prior`` is the pseudo-count of the pooled spread
+    a small cluster is shrunk towards; ``coverage_knn`` (0: ``n // reduced_set_size``) the
+    neighbourhood size that stands for a sample's cluster when a method plans on all samples.
+    The margins are computed in :func:`mmdopt.plan` and travel in the :class:`ObstacleSet`;
+    ``reselect`` (0: off) > 0 runs Algorithm 1 a second time, warm-started, with the
+    ``reselect`` samples in deepest conflict with the first plan added to a reduced set (weight
+    1/n each; the re-selection conditioned on the CEM solution of issue 11).
+    ``w_cover`` weighs the coverage term ``Σ_j Σ_k f̄_jk`` on these inflated ellipses that
+    MMD-Opt adds to ``l_dist`` in this mode (any entry costs, whatever the point's weight ᾱ).
+    ``margin_mode = "linear"`` keeps the constants above.  ``reduced_set`` configures the
+    reduced-set selection; ``rs_lateral_scale``
     multiplies the samples' lateral offsets in the selection's kernel features (an anisotropic
     kernel: lateral intents count more than longitudinal spread).
     """
@@ -148,6 +173,9 @@ class MMDOptConfig:
     admm_check_every: int = _static(25)
     dtype: str = _static("float32")
     admm_rho: float | None = _static(None)
+    margin_mode: str = _static("linear")
+    coverage_knn: int = _static(0)
+    reselect: int = _static(0)
     # leaves: optimiser
     gamma: float = 0.9
     eta: float = 0.6
@@ -174,6 +202,9 @@ class MMDOptConfig:
     res_tol: float = 0.05
     saa_eps: float = 0.02
     saa_temperature: float = 0.05
+    risk_eps: float = 0.005
+    w_cover: float = 0.0
+    coverage_prior: float = 2.0
     reduced_set: ReducedSetConfig = field(default_factory=ReducedSetConfig)
 
     def replace(self, **kw) -> MMDOptConfig:
@@ -192,6 +223,8 @@ class MMDOptConfig:
             "degree",
             "admm_iters",
             "admm_check_every",
+            "coverage_knn",
+            "reselect",
         )
         for name in ints:
             v = getattr(self, name)
@@ -213,6 +246,18 @@ class MMDOptConfig:
             raise ValueError(
                 f"constraint_points must be 'hull' or 'grid', got {self.constraint_points!r}"
             )
+        if self.margin_mode not in ("linear", "samples"):
+            raise ValueError(f"margin_mode must be 'linear' or 'samples', got {self.margin_mode!r}")
+        if self.reselect < 0:
+            raise ValueError(f"MMDOptConfig.reselect must be >= 0, got {self.reselect}")
+        if self.coverage_knn < 0:
+            raise ValueError(f"MMDOptConfig.coverage_knn must be >= 0, got {self.coverage_knn}")
+        v = self.risk_eps
+        if _concrete(v) and not 0 < float(v) < 0.5:
+            raise ValueError(f"MMDOptConfig.risk_eps must be in (0, 0.5), got {v}")
+        v = self.coverage_prior
+        if _concrete(v) and not float(v) >= 0:
+            raise ValueError(f"MMDOptConfig.coverage_prior must be >= 0, got {v}")
         if self.dtype not in ("float32", "float64"):
             raise ValueError(f"dtype must be 'float32' or 'float64', got {self.dtype!r}")
         for name in (
@@ -404,10 +449,18 @@ class ObstacleSet:
     mask: Any
     mode: str = field(metadata=dict(static=True))
     n_terms: int = field(default=0, metadata=dict(static=True))
+    margins: Any = None
 
     @staticmethod
-    def create(cfg: MMDOptConfig, centres, weights, mode: str, mask=None) -> ObstacleSet:
-        """Build (and validate) an obstacle set for ``cfg``; ``mode`` as above."""
+    def create(
+        cfg: MMDOptConfig, centres, weights, mode: str, mask=None, margins=None
+    ) -> ObstacleSet:
+        """Build (and validate) an obstacle set for ``cfg``; ``mode`` as above.
+
+        ``margins`` : optional (3, O, J, K) sample-driven planning margins (m): longitudinal
+        behind and ahead of each point, lateral (:func:`mmdopt.risk.coverage_margins`); when
+        given they replace the time-linear margins of every method.
+        """
         if mode not in ("mmd", "scenario", "saa"):
             raise ValueError(f"mode must be 'mmd', 'scenario' or 'saa', got {mode!r}")
         c = np.asarray(centres, np.float64)
@@ -426,8 +479,23 @@ class ObstacleSet:
         if m.shape != w.shape:
             raise ValueError(f"mask must have shape {w.shape}, got {m.shape}")
         n_terms = n_taylor_terms(cfg) if mode == "mmd" else 0
+        mg = None
+        if margins is not None:
+            mg = np.asarray(margins, np.float64)
+            want = (3, *w.shape, cfg.num_steps)
+            if mg.shape != want:
+                raise ValueError(f"margins must have shape {want}, got {mg.shape}")
+            if not np.all(np.isfinite(mg)) or np.any(mg < 0):
+                raise ValueError("margins must be finite and >= 0")
         with jax.enable_x64(True):
-            return ObstacleSet(jnp.asarray(c), jnp.asarray(w), jnp.asarray(m), mode, n_terms)
+            return ObstacleSet(
+                jnp.asarray(c),
+                jnp.asarray(w),
+                jnp.asarray(m),
+                mode,
+                n_terms,
+                None if mg is None else jnp.asarray(mg),
+            )
 
 
 class Best(NamedTuple):
@@ -496,6 +564,22 @@ def _sample(cfg: MMDOptConfig, key, mu, cov, elites, problem: Problem):
 def _collision_term(cfg: MMDOptConfig, prob: CEMProblem, s, dd, obstacles: ObstacleSet, dt):
     """The method's collision term and its weight (eq. c_aug), per ego sample (B,)."""
     mode = obstacles.mode
+    if obstacles.margins is not None:
+        # sample-driven coverage margins (issue 11, mmdopt.risk): per-point ellipses
+        f = margin_ellipse_values(cfg, s, dd, obstacles.centres.astype(dt), obstacles.margins)
+        if mode == "mmd":
+            coll = mmd_cost(
+                f, obstacles.weights.astype(dt), cfg.bandwidth, cfg.f_scale, obstacles.n_terms
+            )
+            # coverage term (issue 11): every penetration of a point's coverage ellipse costs
+            # w_cover·f̄ whatever the point's weight ᾱ (the 1 − ε coverage holds only if no
+            # ellipse is entered); returned weighted (the term's weight is then 1)
+            cover = scenario_cost(f, obstacles.mask)
+            return cfg.w_mmd * coll + cfg.w_cover * cover, jnp.asarray(1.0, dt)
+        if mode == "scenario":
+            return scenario_cost(f, obstacles.mask), cfg.w_coll
+        coll, _ = saa_cost(f, obstacles.mask, cfg.saa_eps, cfg.saa_temperature)
+        return coll, cfg.w_saa
     scale = 1.0 if mode == "mmd" else cfg.baseline_margin_scale
     coll = collision_cost(
         mode,
@@ -586,6 +670,20 @@ def planning_semi_axis(cfg: MMDOptConfig, t, dt=None, scale=1.0):
     of the predictions; ``scale`` is 1 for MMD-Opt, ``baseline_margin_scale`` for baselines)."""
     t = jnp.asarray(t, dt) if dt is not None else jnp.asarray(t)
     return cfg.a + scale * (cfg.margin_long + cfg.margin_rate * t)
+
+
+def margin_ellipse_values(cfg: MMDOptConfig, s, d, centres, margins):
+    """Collision function with per-point, per-step sample-driven margins (issue 11):
+    ``f = 1 − Δs²/a_±² − Δd²/(b + m_lat)²`` with ``a_− = a + m_behind`` when the ego is behind
+    the point (Δs < 0) and ``a_+ = a + m_ahead`` otherwise.  ``s, d`` (B, K); ``centres``
+    (O, J, C, K, 2); ``margins`` (3, O, J, K).  Returns (B, O, J, C, K)."""
+    dt = centres.dtype
+    mg = margins.astype(dt)[:, :, :, None, :]  # (3, O, J, 1, K)
+    ds = s[:, None, None, None, :] - centres[None, ..., 0]
+    dd = d[:, None, None, None, :] - centres[None, ..., 1]
+    a = cfg.a + jnp.where(ds < 0, mg[0][None], mg[1][None])
+    b = cfg.b + mg[2][None]
+    return 1.0 - ds * ds / (a * a) - dd * dd / (b * b)
 
 
 def planner_output(prob: CEMProblem, d, state, dt):

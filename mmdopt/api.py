@@ -312,6 +312,7 @@ def plan(
     key: ArrayLike | None = None,
     reduced_set: ReducedSet | None = None,
     warm_start: alg.CEMState | None = None,
+    risk: float | None = None,
     **backend_settings: Any,
 ) -> Plan:
     """Plan with Algorithm 1 against Cartesian obstacle-trajectory samples.
@@ -334,6 +335,9 @@ def plan(
         selection (methods whose cost uses a reduced set: "mmd", "random", "degroot")
     warm_start : optional :class:`mmdopt.algorithm.CEMState` (e.g. ``algorithm.shift`` of the
         previous plan's ``state``): the sampling distribution and elites start from it
+    risk : optional target collision probability ε in (0, 0.5), the method's risk knob: the
+        method's margins and chance level follow from it (:func:`mmdopt.risk.config_for_risk`,
+        applied to ``config``); ``None``: ``config`` as given
 
     Returns
     -------
@@ -351,6 +355,7 @@ def plan(
     config = MMDOptConfig() if config is None else config
     key = jax.random.PRNGKey(0) if key is None else key
     _check_common(ego, road, method, config, backend, key)
+    config = _apply_risk(method, risk, config)
     alg.check_backend(backend, backend_settings)
     arr = _check_obstacles(obstacles, config, method)
     t1 = time.perf_counter()
@@ -377,6 +382,7 @@ def plan_frenet(
     key: ArrayLike | None = None,
     reduced_set: ReducedSet | None = None,
     warm_start: alg.CEMState | None = None,
+    risk: float | None = None,
     **backend_settings: Any,
 ) -> Plan:
     """:func:`plan` with obstacle samples already in the Frenet frame of ``road.path``:
@@ -386,6 +392,7 @@ def plan_frenet(
     config = MMDOptConfig() if config is None else config
     key = jax.random.PRNGKey(0) if key is None else key
     _check_common(ego, road, method, config, backend, key)
+    config = _apply_risk(method, risk, config)
     alg.check_backend(backend, backend_settings)
     arr = _check_obstacles(obstacles_frenet, config, method, name="obstacles_frenet")
     diag = {"frenet_conversion_s": 0.0}
@@ -393,6 +400,14 @@ def plan_frenet(
         ego, road, arr, method, config, backend, key, backend_settings, t0, diag,
         reduced_set, warm_start,
     )  # fmt: skip
+
+
+def _apply_risk(method: str, risk: Any, config: MMDOptConfig) -> MMDOptConfig:
+    if risk is None:
+        return config
+    from .risk import config_for_risk
+
+    return config_for_risk(method, risk, config)
 
 
 def _check_reduced_set(rs: Any, O: int, n: int, method: str) -> ReducedSet:
@@ -479,8 +494,25 @@ def _plan_impl(
     diag["reduced_set_s"] = time.perf_counter() - t1
     sel = np.take_along_axis(obs_fr, np.asarray(rs.indices)[:, :, None, None], axis=1)
     centres = circle_centres(jnp.asarray(sel), OBSTACLE_FOOTPRINT)  # (O, J, C, K, 2)
+    margins = None
+    if config.margin_mode == "samples":
+        from .risk import coverage_margins
+
+        t3 = time.perf_counter()
+        knn = 0
+        if SELECTION[method] is None:
+            knn = config.coverage_knn or max(2, n // config.reduced_set_size)
+        margins = coverage_margins(
+            obs_fr,
+            np.asarray(rs.indices),
+            float(config.risk_eps),
+            lateral_scale=float(config.rs_lateral_scale),
+            prior=float(config.coverage_prior),
+            knn=knn,
+        )
+        diag["margins_s"] = time.perf_counter() - t3
     obstacles = alg.ObstacleSet.create(
-        config, centres, np.asarray(rs.weights, np.float64), COST_MODE[method]
+        config, centres, np.asarray(rs.weights, np.float64), COST_MODE[method], margins=margins
     )
     ctx = _Ctx(ego, road, config, prob, method, backend, rs, t0, diag, obs_fr, obstacles)
 
@@ -496,6 +528,8 @@ def _plan_impl(
         config, problem, obstacles, k_cem, backend, warm_start=warm_start, **backend_settings
     )
     state = jax.block_until_ready(state)
+    if config.reselect > 0 and SELECTION[method] is not None and config.margin_mode == "samples":
+        state = _reselect_pass(ctx, state, problem, k_cem, backend, backend_settings)
     diag["cem_s"] = time.perf_counter() - t2
     best, lv = state.best, state.least_violating
     if not math.isfinite(float(best.cost)) or float(best.cost) >= 1e29:
@@ -526,6 +560,53 @@ def _plan_impl(
         status,
         state,
     )
+
+
+def _reselect_pass(ctx: _Ctx, state, problem, key, backend, backend_settings):
+    """Second pass of Algorithm 1 (``config.reselect`` > 0): the reduced set plus the
+    ``reselect`` samples in deepest conflict with the first pass's plan (weight 1/n each), new
+    coverage margins, warm-started from the first pass; ``ctx`` is updated in place."""
+    from .risk import coverage_margins
+
+    config, prob, obs_fr = ctx.config, ctx.prob, ctx.obs_fr
+    O, n = obs_fr.shape[:2]
+    P = np.asarray(prob.P)
+    s1 = P @ np.asarray(state.best.cx, np.float64)
+    d1 = P @ np.asarray(state.best.cy, np.float64)
+    centres = circle_centres(jnp.asarray(obs_fr), OBSTACLE_FOOTPRINT)  # (O, n, C, K, 2)
+    f = ellipse_values(jnp.asarray(s1[None]), jnp.asarray(d1[None]), centres, config.a, config.b)
+    depth = np.asarray(jnp.max(f[0], axis=(2, 3)))  # (O, n) deepest conflict over time
+    idx0 = np.asarray(ctx.rs.indices)
+    r = min(int(config.reselect), n - idx0.shape[1])
+    if r <= 0:
+        return state
+    extra = np.empty((O, r), idx0.dtype)
+    for o in range(O):
+        d = depth[o].copy()
+        d[idx0[o]] = -np.inf
+        extra[o] = np.argsort(-d, kind="stable")[:r]
+    idx = np.concatenate([idx0, extra], axis=1)
+    w = np.concatenate(
+        [np.asarray(ctx.rs.weights, np.float64) * (1.0 - r / n), np.full((O, r), 1.0 / n)], 1
+    )
+    sel = np.take_along_axis(obs_fr, idx[:, :, None, None], axis=1)
+    cen = circle_centres(jnp.asarray(sel), OBSTACLE_FOOTPRINT)
+    margins = coverage_margins(
+        obs_fr,
+        idx,
+        float(config.risk_eps),
+        lateral_scale=float(config.rs_lateral_scale),
+        prior=float(config.coverage_prior),
+    )
+    obstacles = alg.ObstacleSet.create(config, cen, w, COST_MODE[ctx.method], margins=margins)
+    ctx.obstacles = obstacles
+    ctx.diag["reselected"] = extra
+    warm = alg.shift(state, 0.0)
+    out = alg.run(
+        config, problem, obstacles, jax.random.fold_in(key, 1), backend, warm_start=warm,
+        **backend_settings,
+    )  # fmt: skip
+    return jax.block_until_ready(out)
 
 
 def _braking_fallback(ctx: _Ctx, status: str, state=None) -> Plan:
@@ -560,13 +641,18 @@ def _assemble(ctx: _Ctx, cx, cy, dvec, cost, best_iter, fallback, status, state)
             f"{float(config.res_tol):g}"
         )
     ob = ctx.obstacles
-    f = ellipse_values(
-        jnp.asarray(s[None]),
-        jnp.asarray(d[None]),
-        ob.centres,
-        planning_semi_axis(config, prob.t()),
-        config.b + config.margin_lat,
-    )
+    if ob.margins is not None:
+        f = alg.margin_ellipse_values(
+            config, jnp.asarray(s[None]), jnp.asarray(d[None]), ob.centres, ob.margins
+        )
+    else:
+        f = ellipse_values(
+            jnp.asarray(s[None]),
+            jnp.asarray(d[None]),
+            ob.centres,
+            planning_semi_axis(config, prob.t()),
+            config.b + config.margin_lat,
+        )
     mmd_val = float(
         _mmd_cost_jit(f, ob.weights, config.bandwidth, config.f_scale, n_taylor_terms(config))[0]
     )

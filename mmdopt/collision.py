@@ -67,6 +67,7 @@ __all__ = [
     "mmd_surrogate_terms",
     "CollisionCounts",
     "collision_free_count",
+    "check_weights",
     "COLLISION_MODES",
     "collision_cost",
 ]
@@ -303,6 +304,7 @@ def reduced_obstacles(
     footprint : obstacle circles (default 3 at {0, +2.5, −2.5} m)
     heading : optional (O, n, K) headings; default finite differences of each sample
     """
+    _check_reduced_obstacles_inputs(samples, reduced)
     if isinstance(reduced, list | tuple):
         m_max = max(int(np.shape(r.indices)[0]) for r in reduced)
         cs, ws = [], []
@@ -319,6 +321,44 @@ def reduced_obstacles(
     sel = jnp.take_along_axis(samples, idx[:, :, None, None], axis=1)  # (O, m, K, 2)
     h = None if heading is None else jnp.take_along_axis(jnp.asarray(heading), idx[:, :, None], 1)
     return ReducedObstacles(centres=circle_centres(sel, footprint, h), weights=reduced.weights)
+
+
+def _check_reduced_obstacles_inputs(samples, reduced) -> None:
+    from .reduced_set import ReducedSet
+
+    if isinstance(reduced, list | tuple):
+        if len(reduced) == 0 or len(reduced) != len(samples):
+            raise ValueError(
+                f"reduced must hold one ReducedSet per obstacle ({len(samples)}), got "
+                f"{len(reduced)}"
+            )
+        pairs = [(np.shape(samples[o]), r, f"reduced[{o}]") for o, r in enumerate(reduced)]
+    else:
+        shape = np.shape(samples)
+        if len(shape) != 4 or shape[-1] != 2:
+            raise ValueError(f"samples must have shape (O, n, K, 2), got {shape}")
+        pairs = [(shape[1:], reduced, "reduced")]
+        if isinstance(reduced, ReducedSet) and np.shape(reduced.indices)[:1] != shape[:1]:
+            raise ValueError(
+                f"reduced.indices must have shape (O, m) with O = {shape[0]}, got "
+                f"{np.shape(reduced.indices)}"
+            )
+    for sshape, r, name in pairs:
+        if not isinstance(r, ReducedSet):
+            raise ValueError(f"{name} must be an mmdopt.ReducedSet, got {type(r).__name__}")
+        if len(sshape) != 3 or sshape[-1] != 2:
+            raise ValueError(f"samples of {name} must have shape (n, K, 2), got {sshape}")
+        n = sshape[0]
+        idx = r.indices
+        check_weights(r.weights, f"{name}.weights", np.shape(idx))
+        if _concrete(idx):
+            i = np.asarray(idx)
+            if not np.issubdtype(i.dtype, np.integer):
+                raise ValueError(f"{name}.indices must be integers, got {i.dtype}")
+            if i.size and (i.min() < 0 or i.max() >= n):
+                raise ValueError(
+                    f"{name}.indices must lie in [0, {n}) (n samples), got {i.min()}…{i.max()}"
+                )
 
 
 def ellipse_f(ego: ArrayLike, obs: ArrayLike, a: ArrayLike, b: ArrayLike) -> jax.Array:
@@ -352,34 +392,73 @@ def _ego_centres(ego_xy, cfg, ego_heading):
     return circle_centres(ego_xy, cfg.ego_footprint, ego_heading)  # (B, E, K, 2)
 
 
-@x64
+def _concrete(x) -> bool:
+    return not isinstance(x, jax.core.Tracer)
+
+
+def check_weights(weights, name: str = "weights", shape: tuple | None = None) -> None:
+    """``ValueError`` naming ``name`` unless ``weights`` (..., m) has ``shape`` (if given) and,
+    when concrete, is finite, ``>= 0`` and sums to 1 over its last axis (a mixture ᾱ)."""
+    wshape = tuple(np.shape(weights))
+    if shape is not None and wshape != tuple(shape):
+        raise ValueError(f"{name} must have shape {tuple(shape)}, got {wshape}")
+    if not _concrete(weights):
+        return
+    w = np.asarray(weights, dtype=np.float64)
+    if not np.all(np.isfinite(w)):
+        raise ValueError(f"{name} contains NaN or inf")
+    if np.any(w < 0):
+        raise ValueError(f"{name} must be >= 0 (a negative weight rewards collision): {w.min()}")
+    sums = w.sum(axis=-1)
+    if not np.allclose(sums, 1.0, atol=1e-6):
+        raise ValueError(f"{name} must sum to 1 per obstacle, got sums {np.round(sums, 6)}")
+
+
+def _check_surrogate(ego_xy, obstacles, config) -> None:
+    if not isinstance(obstacles, ReducedObstacles):
+        raise ValueError(
+            f"obstacles must be a ReducedObstacles (see reduced_obstacles), got "
+            f"{type(obstacles).__name__}"
+        )
+    if not isinstance(config, SurrogateConfig):
+        raise ValueError(f"config must be a SurrogateConfig, got {type(config).__name__}")
+    es, oc = np.shape(ego_xy), np.shape(obstacles.centres)
+    if len(es) != 3 or es[-1] != 2:
+        raise ValueError(f"ego_xy must have shape (B, K, 2), got {es}")
+    if len(oc) != 5 or oc[-2:] != es[-2:]:
+        raise ValueError(
+            f"obstacles.centres must have shape (O, m, C, K, 2) with K = {es[1]}, got {oc}"
+        )
+    check_weights(obstacles.weights, "obstacles.weights", oc[:2])
+    for name, arr in (("ego_xy", ego_xy), ("obstacles.centres", obstacles.centres)):
+        if _concrete(arr) and not np.all(np.isfinite(np.asarray(arr))):
+            raise ValueError(f"{name} contains NaN or inf")
+    for name in ("bandwidth", "f_scale", "a", "b"):
+        v = getattr(config, name)
+        if _concrete(v) and not (np.isfinite(float(v)) and float(v) > 0):
+            raise ValueError(f"config.{name} must be positive and finite, got {v}")
+
+
 @jax.jit
+def _surrogate_terms(ego_xy, obstacles: ReducedObstacles, config: SurrogateConfig, ego_heading):
+    ego_c = _ego_centres(jnp.asarray(ego_xy), config, ego_heading)
+    return jax.vmap(lambda e: _terms_one(e, obstacles, config))(ego_c)
+
+
+@x64
 def mmd_surrogate_terms(
     ego_xy: ArrayLike,
     obstacles: ReducedObstacles,
     config: SurrogateConfig,
     ego_heading: ArrayLike | None = None,
 ) -> jax.Array:
-    """Per-step terms of :func:`mmd_surrogate`: (B, K, 2) -> (B, O, K)."""
-    ego_xy = jnp.asarray(ego_xy)
-    oc = obstacles.centres
-    if ego_xy.ndim != 3 or ego_xy.shape[-1] != 2:
-        raise ValueError(f"ego_xy must have shape (B, K, 2), got {ego_xy.shape}")
-    if oc.ndim != 5 or oc.shape[-2:] != ego_xy.shape[-2:]:
-        raise ValueError(
-            f"obstacles.centres must have shape (O, m, C, K, 2) with K = {ego_xy.shape[1]}, "
-            f"got {oc.shape}"
-        )
-    if obstacles.weights.shape != oc.shape[:2]:
-        raise ValueError(
-            f"obstacles.weights must have shape {oc.shape[:2]}, got {obstacles.weights.shape}"
-        )
-    ego_c = _ego_centres(ego_xy, config, ego_heading)
-    return jax.vmap(lambda e: _terms_one(e, obstacles, config))(ego_c)
+    """Per-step terms of :func:`mmd_surrogate`: (B, K, 2) -> (B, O, K).  Inputs checked as
+    there (``ValueError`` naming the argument)."""
+    _check_surrogate(ego_xy, obstacles, config)
+    return _surrogate_terms(ego_xy, obstacles, config, ego_heading)
 
 
 @x64
-@jax.jit
 def mmd_surrogate(
     ego_xy: ArrayLike,
     obstacles: ReducedObstacles,
@@ -399,8 +478,19 @@ def mmd_surrogate(
     Returns
     -------
     (B,) l_dist ≥ 0; exactly 0 when every f̄ is 0.
+
+    Raises
+    ------
+    ValueError naming the argument: wrong shapes, NaN/inf, weights that are negative or do not
+    sum to 1 per obstacle, a non-positive bandwidth.
     """
-    return jnp.sum(mmd_surrogate_terms(ego_xy, obstacles, config, ego_heading), axis=(1, 2))
+    _check_surrogate(ego_xy, obstacles, config)
+    return jnp.sum(_surrogate_terms(ego_xy, obstacles, config, ego_heading), axis=(1, 2))
+
+
+# the public wrappers validate, then call one jitted function: its compile cache is theirs
+mmd_surrogate._cache_size = _surrogate_terms._cache_size  # type: ignore[attr-defined]
+mmd_surrogate_terms._cache_size = _surrogate_terms._cache_size  # type: ignore[attr-defined]
 
 
 @jax.tree_util.register_dataclass
@@ -469,6 +559,12 @@ def collision_free_count(
             f"validation_samples must have shape (O, N, K, 2) with K = {ego.shape[-2]}, "
             f"got {np.shape(validation_samples)}"
         )
+    for name, arr in (("ego_xy", ego), ("validation_samples", val)):
+        if _concrete(arr) and not bool(jnp.all(jnp.isfinite(arr))):
+            raise ValueError(f"{name} contains NaN or inf")
+    for name, v in (("a", a), ("b", b)):
+        if _concrete(v) and not (np.isfinite(float(v)) and float(v) > 0):
+            raise ValueError(f"{name} must be positive and finite, got {v}")
     single = ego.ndim == 2
     if single:
         ego = ego[None]

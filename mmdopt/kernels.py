@@ -52,6 +52,11 @@ def sq_distances(x: ArrayLike, y: ArrayLike | None = None) -> jax.Array:
     x = jnp.asarray(x)
     same = y is None
     y = x if same else jnp.asarray(y)
+    if x.ndim < 2 or y.ndim < 2 or x.shape[-1] != y.shape[-1]:
+        raise ValueError(
+            f"x and y must have shapes (..., n, d) and (..., p, d) with the same d, got "
+            f"{x.shape} and {y.shape}"
+        )
     centre = jnp.mean(x, axis=-2, keepdims=True)
     xc, yc = x - centre, y - centre
     xx = jnp.sum(xc * xc, axis=-1)[..., :, None]
@@ -168,6 +173,15 @@ def mmd2_weighted(
     """
     x, y = jnp.asarray(x), jnp.asarray(y)
     wx, wy = jnp.asarray(wx), jnp.asarray(wy)
+    if x.ndim < 2 or y.ndim < 2 or x.shape[-1] != y.shape[-1]:
+        raise ValueError(
+            f"x and y must have shapes (..., n, d) and (..., p, d) with the same d, got "
+            f"{x.shape} and {y.shape}"
+        )
+    if wx.shape != x.shape[:-1]:
+        raise ValueError(f"wx must have shape {x.shape[:-1]} (one weight per x), got {wx.shape}")
+    if wy.shape != y.shape[:-1]:
+        raise ValueError(f"wy must have shape {y.shape[:-1]} (one weight per y), got {wy.shape}")
     n = x.shape[-2]
     # one Gram matrix of the union: all blocks share the centring, so identical sets give
     # bit-identical blocks and MMD(P, P) = 0
@@ -200,6 +214,16 @@ def mmd2_to_dirac(a: ArrayLike, w: ArrayLike, bandwidth: ArrayLike) -> jax.Array
     w = jnp.asarray(w)
     if a.ndim == w.ndim:
         a = a[..., None]
+    try:
+        ok = w.ndim >= 1 and w.shape[-1] == a.shape[-2]
+        jnp.broadcast_shapes(a.shape[:-1], w.shape)
+    except (ValueError, IndexError):
+        ok = False
+    if not ok:
+        raise ValueError(
+            f"w must match a's sample axes (..., P) (one weight per sample, batch axes "
+            f"broadcastable), got a {a.shape} and w {w.shape}"
+        )
     s2 = jnp.asarray(bandwidth) ** 2
     s2 = jnp.reshape(s2, s2.shape + (1,) * (w.ndim - s2.ndim)) if s2.ndim else s2
     h = jnp.sum(a * a, axis=-1) / (2.0 * s2)  # (..., P)

@@ -147,6 +147,38 @@ class ReducedSetConfig:
             raise ValueError("iterations must be >= 1")
         if isinstance(self.weights, str) and self.weights not in WEIGHT_MODES:
             raise ValueError(f"weights must be one of {WEIGHT_MODES}, got {self.weights!r}")
+        for name in ("population", "n_elite", "iterations", "simplex_iterations"):
+            v = getattr(self, name)
+            if isinstance(v, bool) or not isinstance(v, int | np.integer):
+                raise ValueError(f"ReducedSetConfig.{name} must be an int, got {v!r}")
+        if not isinstance(self.weights, str):
+            raise ValueError(f"ReducedSetConfig.weights must be a string, got {self.weights!r}")
+        # leaves (checked when concrete: inside a trace they are tracers)
+        # (bandwidth: its sign is checked by select_reduced_set, naming config.bandwidth)
+        positive = ("sigma0", "ratio_eps", "a", "b", "feature_scale", "alpha_scale")
+        nonneg = ("beta", "cov_reg", "ridge")
+        for f in dataclasses.fields(self):
+            if f.metadata.get("static"):
+                continue
+            v = getattr(self, f.name)
+            if isinstance(v, str | bytes | complex) or isinstance(v, bool):
+                raise ValueError(f"ReducedSetConfig.{f.name} must be a real number, got {v!r}")
+            # only plain scalars: tracers, batched arrays and pytree placeholders pass through
+            if not isinstance(v, int | float | np.number) and not (
+                isinstance(v, np.ndarray | jax.Array)
+                and not isinstance(v, jax.core.Tracer)
+                and np.ndim(v) == 0
+            ):
+                continue
+            x = float(v)
+            if not np.isfinite(x):
+                raise ValueError(f"ReducedSetConfig.{f.name} must be finite, got {v}")
+            if f.name in positive and not x > 0:
+                raise ValueError(f"ReducedSetConfig.{f.name} must be > 0, got {v}")
+            if f.name in nonneg and x < 0:
+                raise ValueError(f"ReducedSetConfig.{f.name} must be >= 0, got {v}")
+            if f.name == "smoothing" and not 0 <= x < 1:
+                raise ValueError(f"ReducedSetConfig.smoothing must lie in [0, 1), got {v}")
 
 
 @jax.tree_util.register_dataclass

@@ -7,6 +7,8 @@
     mmdopt bench synthetic   --scenes N --seed S --out DIR [--methods mmd,degroot,random,saa]
                              [--scene-params FILE.json] [--backend NAME] [--config FILE.json]
                              [--preset paper100|reference36|lanechange] [--jobs J]
+    mmdopt bench frontier    --out DIR [--knobs 'mmd=0.001,0.005;saa=0.02'] [--methods ...]
+                             (safety-progress frontier: every method's risk knob swept)
     mmdopt bench reduced-set --scenes N --random-sets R --out DIR       (paper Fig. 4)
     mmdopt bench timing      --out DIR [--sizes 10,20,30,40,50] [--samples 50,100,200]
     mmdopt bench figure      --scene I --out DIR                        (paper Fig. 3)
@@ -33,7 +35,7 @@ __all__ = ["main", "build_parser"]
 from mmdopt.algorithm import PLANNER_BACKEND
 from mmdopt.baselines import METHODS as PLAN_METHODS
 
-from .executors import EXECUTORS
+from .executors import EXECUTORS, Interrupted, stop_on_signals
 
 REDUCED_SET_METHODS = ("mmd", "herding", "degroot", "random")
 
@@ -171,7 +173,7 @@ def build_parser() -> argparse.ArgumentParser:
     bs = b.add_subparsers(
         dest="experiment",
         required=True,
-        metavar="{synthetic,reduced-set,timing,figure,qp-backends,highway,ngsim}",
+        metavar="{synthetic,frontier,reduced-set,timing,figure,qp-backends,highway,ngsim}",
     )
 
     def common(q, scenes_default):
@@ -223,6 +225,22 @@ def build_parser() -> argparse.ArgumentParser:
         type=_methods(PLAN_METHODS),
         default=["mmd", "degroot", "random", "saa"],
         help="comma-separated methods (default: mmd,degroot,random,saa)",
+    )
+
+    fr = bs.add_parser("frontier", help="safety-progress frontier: each method's risk knob swept")
+    common(fr, None)
+    fr.add_argument("--out", required=True, help="output folder (resumable)")
+    fr.add_argument(
+        "--methods",
+        type=_methods(PLAN_METHODS),
+        default=list(PLAN_METHODS),
+        help="comma-separated methods (default: all five)",
+    )
+    fr.add_argument(
+        "--knobs",
+        default=None,
+        help="knob grids (target collision probability) per method, e.g. "
+        "'mmd=0.001,0.005,0.02;saa=0.005,0.02' (default: mmdopt.bench.frontier.DEFAULT_KNOBS)",
     )
 
     r = bs.add_parser(
@@ -332,57 +350,116 @@ def _planner_config(args, parser):
         parser.error(f"argument --config: {e}")
 
 
+def _checked_config(args, parser, methods):
+    """``--config`` parsed and checked against the scenes and methods (the planning problem is
+    built once) before anything is written into ``--out``; errors name the option."""
+    from .synthetic import check_sweep_config
+
+    params = _scene_params(args, parser)
+    config = _planner_config(args, parser)
+    try:
+        check_sweep_config(params, config, methods, args.backend, args.seed)
+    except ValueError as e:
+        opt = "--config" if args.config is not None else "--scene-params"
+        if args.config is not None and args.scene_params is not None:
+            opt = "--config/--scene-params"
+        parser.error(f"argument {opt}: {e}")
+    return params, config
+
+
 def load_planner_config(path):
     """``MMDOptConfig().replace(**overrides)`` from a JSON object of field names; the nested
     ``reduced_set`` takes a JSON object of ``ReducedSetConfig`` fields.  Unknown keys, wrong
-    types or invalid values raise ``ValueError`` naming the key."""
+    types, NaN/Infinity or invalid values raise ``ValueError`` naming the key."""
     try:
         raw = json.loads(Path(path).read_text())
     except json.JSONDecodeError as e:
         raise ValueError(f"{path} is not valid JSON: {e}") from None
+    except (OSError, UnicodeDecodeError) as e:
+        raise ValueError(f"{path} cannot be read: {e}") from None
     return load_planner_config_from_dict(raw)
+
+
+def _non_finite_key(obj, prefix: str = "") -> str | None:
+    """The key path of the first NaN/Infinity number in a parsed JSON value, else ``None``."""
+    import math
+
+    if isinstance(obj, float) and not math.isfinite(obj):
+        return prefix or "(top level)"
+    if isinstance(obj, dict):
+        for k, v in obj.items():
+            hit = _non_finite_key(v, f"{prefix}.{k}" if prefix else str(k))
+            if hit:
+                return hit
+    if isinstance(obj, list):
+        for i, v in enumerate(obj):
+            hit = _non_finite_key(v, f"{prefix}[{i}]")
+            if hit:
+                return hit
+    return None
+
+
+def _typed_overrides(cls, raw: dict, prefix: str = "") -> dict:
+    """Check ``raw`` against the fields of the dataclass ``cls`` by their defaults' types:
+    integers, numbers (ints accepted, converted to float), strings, and ``None``-default fields
+    as numbers or ``null``.  Raises ``ValueError`` naming the key."""
+    import dataclasses
+
+    fields = {f.name: f for f in dataclasses.fields(cls)}
+    bad = sorted(set(raw) - set(fields))
+    if bad:
+        raise ValueError(
+            f"unknown {cls.__name__} field(s) {', '.join(prefix + b for b in bad)}; "
+            f"known: {', '.join(sorted(fields))}"
+        )
+    base = cls()
+    kw = {}
+    for k, v in raw.items():
+        name = prefix + k
+        default = getattr(base, k)
+        number = isinstance(v, int | float) and not isinstance(v, bool)
+        if isinstance(default, bool):
+            if not isinstance(v, bool):
+                raise ValueError(f"{name} must be true or false, got {v!r}")
+        elif default is None:
+            if v is not None and not number:
+                raise ValueError(f"{name} must be a number or null, got {v!r}")
+            v = None if v is None else float(v)
+        elif isinstance(default, int):
+            if not (isinstance(v, int) and not isinstance(v, bool)):
+                raise ValueError(f"{name} must be an integer, got {v!r}")
+        elif isinstance(default, float):
+            if not number:
+                raise ValueError(f"{name} must be a number, got {v!r}")
+            v = float(v)
+        elif isinstance(default, str):
+            if not isinstance(v, str):
+                raise ValueError(f"{name} must be a string, got {v!r}")
+        kw[k] = v
+    return kw
 
 
 def load_planner_config_from_dict(raw):
     """:func:`load_planner_config` from an already parsed JSON value."""
-    import dataclasses
-
     from mmdopt.algorithm import MMDOptConfig
     from mmdopt.reduced_set import ReducedSetConfig
 
     if not isinstance(raw, dict):
         raise ValueError("the config must be a JSON object of MMDOptConfig fields")
-    fields = {f.name: f for f in dataclasses.fields(MMDOptConfig)}
-    bad = sorted(set(raw) - set(fields))
-    if bad:
-        raise ValueError(
-            f"unknown MMDOptConfig field(s) {', '.join(bad)}; known: {', '.join(sorted(fields))}"
-        )
-    kw = dict(raw)
-    if "reduced_set" in kw:
-        rs = kw["reduced_set"]
-        if not isinstance(rs, dict):
+    hit = _non_finite_key(raw)
+    if hit:
+        raise ValueError(f"{hit} is NaN or Infinity; every value must be a finite number")
+    rs_raw = raw.get("reduced_set")
+    kw = _typed_overrides(MMDOptConfig, {k: v for k, v in raw.items() if k != "reduced_set"})
+    if "reduced_set" in raw:
+        if not isinstance(rs_raw, dict):
             raise ValueError("reduced_set must be a JSON object of ReducedSetConfig fields")
+        rs_kw = _typed_overrides(ReducedSetConfig, rs_raw, "reduced_set.")
         try:
-            kw["reduced_set"] = ReducedSetConfig(**rs)
-        except TypeError as e:
+            kw["reduced_set"] = ReducedSetConfig(**rs_kw)
+        except (TypeError, ValueError) as e:
             raise ValueError(f"reduced_set: {e}") from None
-    base = MMDOptConfig()
-    for k, v in kw.items():
-        if k == "reduced_set":
-            continue
-        default = getattr(base, k)
-        if isinstance(default, bool) or default is None:
-            continue
-        if isinstance(default, int) and not (isinstance(v, int) and not isinstance(v, bool)):
-            raise ValueError(f"{k} must be an integer, got {v!r}")
-        if isinstance(default, float) and not (
-            isinstance(v, int | float) and not isinstance(v, bool)
-        ):
-            raise ValueError(f"{k} must be a number, got {v!r}")
-        if isinstance(default, float):
-            kw[k] = float(v)
-    return base.replace(**kw)
+    return MMDOptConfig().replace(**kw)
 
 
 def _table(rows: Sequence[dict], cols: Sequence[str], headers: dict[str, str] | None = None) -> str:
@@ -505,11 +582,11 @@ def cmd_synthetic(args, parser) -> int:
     from . import plots
     from .synthetic import run_synthetic
 
-    params = _scene_params(args, parser)
+    params, config = _checked_config(args, parser, args.methods)
     try:
         res = run_synthetic(
             args.out,
-            config=_planner_config(args, parser),
+            config=config,
             scenes=args.scenes,
             seed=args.seed,
             params=params,
@@ -519,6 +596,7 @@ def cmd_synthetic(args, parser) -> int:
             progress=not args.no_progress,
             executor=args.executor,
             address=args.address,
+            isolate=True,
         )
     except ValueError as e:
         parser.error(str(e))
@@ -540,14 +618,56 @@ def cmd_synthetic(args, parser) -> int:
     return 0
 
 
-def cmd_reduced_set(args, parser) -> int:
-    from .reduced_set import run_reduced_set
+def cmd_frontier(args, parser) -> int:
+    from .frontier import TARGET_LEVELS, parse_knobs, run_frontier
 
     params = _scene_params(args, parser)
     try:
+        knobs = parse_knobs(args.knobs, args.methods)
+    except ValueError as e:
+        parser.error(f"argument --knobs: {e}")
+    try:
+        res = run_frontier(
+            args.out,
+            knobs=knobs,
+            methods=args.methods,
+            config=_planner_config(args, parser),
+            scenes=args.scenes,
+            seed=args.seed,
+            params=params,
+            backend=args.backend,
+            jobs=args.jobs,
+            progress=not args.no_progress,
+            executor=args.executor,
+            address=args.address,
+        )
+    except ValueError as e:
+        parser.error(str(e))
+    cols = ["method", "knob", "scenes", "mean", "q1", "min", "progress_m", "plan_time_s"]
+    print(_table(res["points"], cols))
+    lv = [f"{x:g}" for x in TARGET_LEVELS]
+    rows = [
+        {"method": m, **{f"progress_m@{k}": v[k] for k in lv}}
+        for m, v in res["interpolated"].items()
+    ]
+    print("interpolated mean progress (m) at mean collision-free level (of 1000); nan: not reached")
+    print(_table(rows, ["method", *[f"progress_m@{k}" for k in lv]]))
+    out = Path(args.out)
+    print(
+        f"{res['computed']} plans computed, {res['reused']} reused, {res['wall_s']:.1f} s; wrote "
+        f"{out / 'frontier.csv'}, {out / 'frontier_summary.json'}, {out / 'frontier.png'}"
+    )
+    return 0
+
+
+def cmd_reduced_set(args, parser) -> int:
+    from .reduced_set import run_reduced_set
+
+    params, config = _checked_config(args, parser, ["mmd"])
+    try:
         res = run_reduced_set(
             args.out,
-            config=_planner_config(args, parser),
+            config=config,
             scenes=args.scenes,
             seed=args.seed,
             params=params,
@@ -558,6 +678,7 @@ def cmd_reduced_set(args, parser) -> int:
             progress=not args.no_progress,
             executor=args.executor,
             address=args.address,
+            isolate=True,
         )
     except ValueError as e:
         parser.error(str(e))
@@ -571,6 +692,19 @@ def cmd_reduced_set(args, parser) -> int:
 def cmd_timing(args, parser) -> int:
     from .timing import run_timing
 
+    low = [n for n in args.samples if n < min(args.sizes)]
+    if low:
+        parser.error(
+            f"argument --samples: {','.join(map(str, low))} below the smallest reduced-set size "
+            f"{min(args.sizes)} (--sizes): the sample sweep runs at the smallest size, which "
+            "needs n >= m"
+        )
+    big = [m for m in args.sizes if m > 100]
+    if big:
+        parser.error(
+            f"argument --sizes: {','.join(map(str, big))} above 100, the number of samples the "
+            "size sweep uses"
+        )
     res = run_timing(
         args.out,
         sizes=args.sizes,
@@ -641,6 +775,27 @@ def cmd_qp_backends(args, parser) -> int:
     return int(qp_backends.main(rest) or 0)
 
 
+def _check_out(args, parser) -> None:
+    """``--out`` must be a folder, or a path where one can be created, that this process can
+    write into (exit 2 otherwise).  Nothing is created here."""
+    out = getattr(args, "out", None)
+    if out is None:
+        return
+    p = Path(out)
+    if p.exists() and not p.is_dir():
+        parser.error(f"argument --out: {out!r} exists and is not a folder")
+    parent = p
+    while not parent.exists():
+        if parent.parent == parent:
+            break
+        parent = parent.parent
+    if parent.exists() and not parent.is_dir():
+        parser.error(f"argument --out: cannot create folder {out!r}: {str(parent)!r} is a file")
+    if not os.access(parent, os.W_OK | os.X_OK):
+        what = "is not writable" if parent == p else f"cannot be created in {str(parent)!r}"
+        parser.error(f"argument --out: folder {out!r} {what} (permission denied)")
+
+
 def _cmd_ngsim(args) -> int:
     from .ngsim.cli import cmd_ngsim
 
@@ -648,25 +803,39 @@ def _cmd_ngsim(args) -> int:
 
 
 def main(argv: Sequence[str] | None = None) -> int:
-    """Entry point of the ``mmdopt`` console script; returns the exit status."""
+    """Entry point of the ``mmdopt`` console script; returns the exit status.
+
+    SIGINT and SIGTERM stop a run cleanly: every worker is terminated, finished result files are
+    kept (writes are atomic), one line goes to stderr and the status is 130 / 143."""
     parser = build_parser()
     args = parser.parse_args(argv)
     if args.command == "demo":
-        return cmd_demo(args, parser)
-    if args.command == "predictor":
+        cmd = cmd_demo
+    elif args.command == "predictor":
         from .ngsim.cli import cmd_predictor
 
-        return cmd_predictor(args)
-    cmd = {
-        "synthetic": cmd_synthetic,
-        "reduced-set": cmd_reduced_set,
-        "timing": cmd_timing,
-        "figure": cmd_figure,
-        "qp-backends": cmd_qp_backends,
-        "highway": lambda a, _: a.func(a),
-        "ngsim": lambda a, _: _cmd_ngsim(a),
-    }[args.experiment]
-    return cmd(args, parser)
+        def cmd(a, _):
+            return cmd_predictor(a)
+    else:
+        cmd = {
+            "synthetic": cmd_synthetic,
+            "frontier": cmd_frontier,
+            "reduced-set": cmd_reduced_set,
+            "timing": cmd_timing,
+            "figure": cmd_figure,
+            "qp-backends": cmd_qp_backends,
+            "highway": lambda a, _: a.func(a),
+            "ngsim": lambda a, _: _cmd_ngsim(a),
+        }[args.experiment]
+    try:
+        with stop_on_signals():
+            _check_out(args, parser)
+            return cmd(args, parser)
+    except Interrupted as e:
+        where = getattr(args, "out", None)
+        kept = f"; finished results are kept in {where} (run the same command to resume)"
+        print(f"mmdopt: stopped by {e.name}{kept if where else ''}", file=sys.stderr)
+        return e.exit_status
 
 
 if __name__ == "__main__":  # pragma: no cover

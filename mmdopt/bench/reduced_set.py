@@ -21,11 +21,18 @@ from mmdopt.algorithm import PLANNER_BACKEND
 from mmdopt.reduced_set import select_reduced_set
 
 from . import plots
-from .executors import check_manifest, run_tasks
+from .executors import check_manifest, run_tasks, worker_layout
 from .metric import _float, collision_free, progress
-from .results import write_json, write_results
+from .results import remove_temp_files, write_json, write_results
 from .scenes import SceneParams, make_scene, num_scenes
-from .synthetic import _manifest, plan_scene, scene_config
+from .synthetic import (
+    _manifest,
+    _manifest_aliases,
+    check_sweep_config,
+    load_task_file,
+    plan_scene,
+    scene_config,
+)
 
 __all__ = ["REDUCED_SET_COLUMNS", "run_reduced_set"]
 
@@ -104,6 +111,7 @@ def run_reduced_set(
     progress: bool = True,
     executor: str = "local",
     address: str | None = None,
+    isolate: bool = False,
 ) -> dict[str, Any]:
     """Reduced-set selection methods and ``random_sets`` random reduced sets per scene (the
     paper's near-exhaustive search), each followed by Algorithm 1 with the MMD surrogate;
@@ -113,30 +121,50 @@ def run_reduced_set(
     """
     params = SceneParams() if params is None else params
     n = num_scenes(params, scenes)
+    check_sweep_config(params, config, ["mmd"], backend, seed)
     out = Path(out)
     (out / "scenes").mkdir(parents=True, exist_ok=True)
-    man = _manifest(seed, params, backend, config)
+    man = _manifest(seed, params, backend, config, worker_layout(jobs, executor, isolate))
     man.update(methods=list(methods), random_sets=int(random_sets))
-    check_manifest(out, man, "run_reduced_set.json")
+    check_manifest(out, man, "run_reduced_set.json", aliases=_manifest_aliases(config))
+    remove_temp_files(out / "scenes")
+    remove_temp_files(out)
+    want = len([m for m in methods if m != "random"]) + (random_sets if "random" in methods else 0)
+
+    def check(rec, i):
+        if not isinstance(rec, list) or len(rec) != want:
+            return f"is not a list of {want} rows"
+        for r in rec:
+            if not isinstance(r, dict) or r.get("scene") != i or "collision_free" not in r:
+                return f"holds a row that is not of scene {i}"
+        return None
+
+    def path_of(i):
+        return out / "scenes" / f"scene_{i:04d}__reduced_set.json"
+
     todo = [
         (i, seed, params.to_dict(), list(methods), random_sets, backend, str(out), config)
         for i in range(n)
-        if not (out / "scenes" / f"scene_{i:04d}__reduced_set.json").exists()
+        if load_task_file(path_of(i), lambda r, i=i: check(r, i)) is None
     ]
-    run_tasks(
-        _reduced_set_task,
-        todo,
-        jobs=jobs,
-        executor=executor,
-        address=address,
-        progress=progress,
-        desc="scenes",
-        unit="scene",
-        first_note="compiling Algorithm 1 (first scene of each worker, ~30 s)…",
-    )
+    try:
+        run_tasks(
+            _reduced_set_task,
+            todo,
+            jobs=jobs,
+            executor=executor,
+            address=address,
+            progress=progress,
+            desc="scenes",
+            unit="scene",
+            isolate=isolate,
+            first_note="compiling Algorithm 1 (first scene of each worker, ~30 s)…",
+        )
+    finally:
+        remove_temp_files(out / "scenes")
     rows = []
     for i in range(n):
-        rows += json.loads((out / "scenes" / f"scene_{i:04d}__reduced_set.json").read_text())
+        rows += json.loads(path_of(i).read_text())
     write_results(rows, out / "reduced_set.csv", REDUCED_SET_COLUMNS)
     sel = [m for m in methods if m != "random"]
     per_scene = {

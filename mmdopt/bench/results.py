@@ -17,6 +17,7 @@ __all__ = [
     "BARS",
     "write_json",
     "write_results",
+    "remove_temp_files",
     "read_results",
     "summarize",
     "check_bars",
@@ -62,6 +63,25 @@ def write_json(path: str | Path, obj: Any) -> None:
     tmp = path.with_suffix(path.suffix + f".tmp{os.getpid()}")
     tmp.write_text(json.dumps(obj, indent=1, default=_json_default))
     os.replace(tmp, path)
+
+
+def remove_temp_files(folder: str | Path) -> list[Path]:
+    """Delete the temporary files :func:`write_json` / :func:`write_results` leave in ``folder``
+    when their process is killed mid-write (``NAME.tmpPID``); returns the paths removed.  Call it
+    only when no writer is running in the folder."""
+    removed = []
+    folder = Path(folder)
+    if not folder.is_dir():
+        return removed
+    for p in folder.iterdir():
+        suffix = p.suffix
+        if suffix.startswith(".tmp") and suffix[4:].isdigit() and p.is_file():
+            try:
+                p.unlink()
+                removed.append(p)
+            except OSError:
+                pass
+    return removed
 
 
 def _json_default(o):

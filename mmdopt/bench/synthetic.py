@@ -10,6 +10,8 @@ from __future__ import annotations
 
 import dataclasses
 import json
+import math
+import sys
 import time
 from collections.abc import Sequence
 from pathlib import Path
@@ -20,12 +22,26 @@ import numpy as np
 import mmdopt
 from mmdopt.algorithm import PLANNER_BACKEND
 
-from .executors import check_manifest, run_tasks
+from .executors import MISSING, check_manifest, run_tasks, worker_layout
 from .metric import _float, evaluate_plan
-from .results import check_bars, summarize, write_json, write_results
+from .results import (
+    check_bars,
+    remove_temp_files,
+    summarize,
+    write_json,
+    write_results,
+)
 from .scenes import Scene, SceneParams, make_scene, num_scenes
 
-__all__ = ["plan_scene", "run_scene", "scene_config", "run_synthetic", "config_overrides"]
+__all__ = [
+    "plan_scene",
+    "run_scene",
+    "scene_config",
+    "run_synthetic",
+    "config_overrides",
+    "check_sweep_config",
+    "load_task_file",
+]
 
 
 def scene_config(scene: Scene, config: mmdopt.MMDOptConfig | None = None) -> mmdopt.MMDOptConfig:
@@ -109,10 +125,112 @@ def _scene_task(args) -> int:
     return done
 
 
-def _manifest(seed, params: SceneParams, backend, config) -> dict[str, Any]:
+def _manifest(seed, params: SceneParams, backend, config, layout: str = "in-process"):
+    # the effective config (the default when none is given): the same settings, the same manifest
+    cfg = mmdopt.MMDOptConfig() if config is None else config
     return dict(
-        seed=int(seed), params=params.to_dict(), backend=backend, config=config_overrides(config)
+        seed=int(seed),
+        params=params.to_dict(),
+        backend=backend,
+        config=config_overrides(cfg),
+        workers=layout,
     )
+
+
+def _manifest_aliases(config) -> dict[str, list[Any]]:
+    """Older manifests recorded the default config as ``{}`` and had no ``workers`` key."""
+    out: dict[str, list[Any]] = {"workers": [MISSING]}
+    if config is None or config == mmdopt.MMDOptConfig():
+        out["config"] = [{}]
+    return out
+
+
+def check_sweep_config(
+    params: SceneParams, config, methods: Sequence[str], backend: str, seed: int = 0
+) -> None:
+    """Everything about a sweep's planner settings that planning would otherwise find late:
+    the config with the scene's desired speed, the obstacle samples against its horizon and
+    reduced-set size for every method, the backend, the planning problem (built once).  Raises
+    ``ValueError``; the runners call it before writing anything into the sweep folder."""
+    from mmdopt import algorithm as alg
+    from mmdopt.api import _check_obstacles
+    from mmdopt.baselines import METHODS
+
+    if config is not None and not isinstance(config, mmdopt.MMDOptConfig):
+        raise ValueError(f"config must be an mmdopt.MMDOptConfig, got {type(config).__name__}")
+    scene = make_scene(0, seed, params)
+    cfg = scene_config(scene, config)
+    alg.check_backend(backend, {})
+    if not isinstance(cfg, alg.MMDOptConfig):  # a stand-in planner's config: nothing to build
+        return
+    for m in methods:
+        if m not in METHODS:
+            raise ValueError(f"method must be one of {METHODS}, got {m!r}")
+        _check_obstacles(scene.obstacles, cfg, m, name="the scene's obstacle samples")
+    road = scene.road()
+    alg.build_problem(cfg, road.bounds())
+
+
+#: keys every per-task record must hold, with their JSON types
+_ROW_TYPES = dict(
+    scene=(int,),
+    method=(str,),
+    collision_free=(int,),
+    n_validation=(int,),
+    progress_m=(int, float),
+    feasible=(bool,),
+    plan_time_s=(int, float),
+)
+
+
+def _row_problem(rec: Any, index: int, method: str) -> str | None:
+    """Why ``rec`` is not the record of (``index``, ``method``), or ``None`` if it is."""
+    if not isinstance(rec, dict):
+        return f"holds a JSON {type(rec).__name__}, not an object"
+    for k, types in _ROW_TYPES.items():
+        if k not in rec:
+            return f"has no {k!r}"
+        v = rec[k]
+        if isinstance(v, bool) and bool not in types:
+            return f"{k!r} is {v!r}"
+        if not isinstance(v, types):
+            return f"{k!r} is {v!r}"
+    if rec["scene"] != index or rec["method"] != method:
+        return f"holds scene {rec['scene']!r}, method {rec['method']!r}"
+    if not (0 <= rec["collision_free"] <= rec["n_validation"]):
+        return f"collision_free {rec['collision_free']} outside [0, {rec['n_validation']}]"
+    if not math.isfinite(rec["progress_m"]):
+        return f"progress_m is {rec['progress_m']}"
+    return None
+
+
+def load_task_file(path: Path, check) -> Any:
+    """Read one per-task JSON; return ``None`` if it is absent.  A damaged file (unreadable,
+    truncated, empty, or ``check(record)`` returns a reason) is moved aside to
+    ``NAME.corrupt`` (numbered if that exists), named in one warning line on stderr, and
+    ``None`` is returned so the task is computed again."""
+    if not path.exists():
+        return None
+    try:
+        rec = json.loads(path.read_text())
+        why = check(rec)
+    except (OSError, UnicodeDecodeError, json.JSONDecodeError) as e:
+        why = f"is not valid JSON ({type(e).__name__}: {e})" if path.stat().st_size else "is empty"
+    if why is None:
+        return rec
+    dest = path.with_name(path.name + ".corrupt")
+    i = 1
+    while dest.exists():
+        dest = path.with_name(f"{path.name}.corrupt{i}")
+        i += 1
+    try:
+        path.replace(dest)
+        what = f"moved to {dest.name}"
+    except OSError:
+        path.unlink(missing_ok=True)
+        what = "deleted"
+    print(f"warning: {path} is corrupt ({why}); {what}, recomputing it", file=sys.stderr)
+    return None
 
 
 def run_synthetic(
@@ -128,6 +246,7 @@ def run_synthetic(
     progress: bool = True,
     executor: str = "local",
     address: str | None = None,
+    isolate: bool = False,
 ) -> dict[str, Any]:
     """Plan and score a sweep of synthetic scenes; resumable and parallel.
 
@@ -135,42 +254,65 @@ def run_synthetic(
     reused, never recomputed), ``out/results.csv`` (all rows,
     :data:`~mmdopt.bench.results.RESULT_COLUMNS`), ``out/summary.json`` and ``out/run.json``
     (the settings; resuming into a folder made with other settings raises ``ValueError``).
+    The settings are checked (:func:`check_sweep_config`) before anything is written; a
+    damaged per-task file is moved aside and recomputed (:func:`load_task_file`); ``isolate``
+    as in :func:`~mmdopt.bench.executors.run_tasks` (the manifest records where results were
+    computed, and a folder refuses a mix).
 
     Returns ``{"rows", "summary", "bars", "computed", "reused", "wall_s"}``.
     """
     params = SceneParams() if params is None else params
     n = num_scenes(params, scenes)
     methods = list(dict.fromkeys(methods))
+    check_sweep_config(params, config, methods, backend, seed)
     out = Path(out)
     (out / "scenes").mkdir(parents=True, exist_ok=True)
-    check_manifest(out, _manifest(seed, params, backend, config))
+    layout = worker_layout(jobs, executor, isolate)
+    check_manifest(
+        out, _manifest(seed, params, backend, config, layout), aliases=_manifest_aliases(config)
+    )
+    remove_temp_files(out / "scenes")
+    remove_temp_files(out)
 
     todo, reused = [], 0
     for i in range(n):
-        missing = [m for m in methods if not _row_path(out, i, m).exists()]
+        missing = [
+            m
+            for m in methods
+            if load_task_file(_row_path(out, i, m), lambda r, i=i, m=m: _row_problem(r, i, m))
+            is None
+        ]
         reused += len(methods) - len(missing)
         if missing:
             todo.append((i, seed, params.to_dict(), missing, backend, str(out), config))
 
     t0 = time.perf_counter()
-    done = run_tasks(
-        _scene_task,
-        todo,
-        jobs=jobs,
-        executor=executor,
-        address=address,
-        progress=progress,
-        desc="scenes",
-        unit="scene",
-        first_note="compiling Algorithm 1 (first scene of each worker, ~30 s)…",
-    )
+    try:
+        done = run_tasks(
+            _scene_task,
+            todo,
+            jobs=jobs,
+            executor=executor,
+            address=address,
+            progress=progress,
+            desc="scenes",
+            unit="scene",
+            isolate=isolate,
+            first_note="compiling Algorithm 1 (first scene of each worker, ~30 s)…",
+        )
+    finally:
+        remove_temp_files(out / "scenes")  # left by workers killed mid-write
     computed = int(sum(done))
     wall = time.perf_counter() - t0
 
     rows = []
     for i in range(n):
         for m in methods:
-            rec = json.loads(_row_path(out, i, m).read_text())
+            path = _row_path(out, i, m)
+            rec = json.loads(path.read_text())
+            why = _row_problem(rec, i, m)
+            if why is not None:  # pragma: no cover - only if the folder changes under us
+                raise ValueError(f"{path} {why}")
             rec.pop("plan_xy", None)
             rows.append(rec)
     write_results(rows, out / "results.csv")

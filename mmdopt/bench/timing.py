@@ -75,8 +75,18 @@ def run_timing(
     out.mkdir(parents=True, exist_ok=True)
     base = demo_scene()
     n_def = 100
+    if not sizes:
+        raise ValueError("sizes must hold at least one reduced-set size")
+    if min(sizes) < 1 or any(m > n_def for m in sizes):
+        raise ValueError(f"sizes must lie in [1, {n_def}] (the size sweep uses n = {n_def})")
+    low = [int(n) for n in samples if n < min(sizes)]
+    if low:
+        raise ValueError(
+            f"samples {low} below the smallest reduced-set size {min(sizes)}: the sample sweep "
+            "runs at the smallest size, which needs n >= m"
+        )
     pairs = [(int(m), n_def) for m in sizes] + [(min(sizes), int(n)) for n in samples]
-    pairs = [p for p in dict.fromkeys(pairs) if p[0] <= p[1]]
+    pairs = list(dict.fromkeys(pairs))
     cfg0 = scene_config(base, config)
     rows = []
     scenes: dict[int, Scene] = {}

@@ -1,0 +1,183 @@
+"""One risk knob per planner: a target collision probability ε, and what follows from it.
+
+Every planning method of :mod:`mmdopt.baselines` takes the same knob, ``risk`` = **ε, the target
+probability that the plan collides with an obstacle's future** (1000 · (1 − ε) is the target
+collision-free count of the benchmarks' metric).  :func:`config_for_risk` derives that method's
+margins, weights and chance level from ε; :func:`mmdopt.plan` does it for ``plan(..., risk=ε)``.
+
+==================  =====================================================================
+method              what ε sets
+==================  =====================================================================
+``"mmd"``           (also: a second, warm-started pass of Algorithm 1 with the m/2
+                    samples in deepest conflict with the first plan added to the reduced
+                    set, ``reselect``)
+                    sample-driven margins (``margin_mode="samples"``): every reduced-set
+``"random"``        point's ellipse is inflated, per time step, to contain the planning
+``"degroot"``       samples of its cluster (the samples nearer to it than to any other
+                    point) with probability 1 − ε under a Gaussian fit (z = Φ⁻¹(1 − ε));
+                    the weights ᾱ and w_mmd / w_coll are unchanged; the MMD cost
+                    ("mmd", "random") adds ``w_cover`` = 100 × Σ f̄ on the inflated
+                    ellipses (entering any costs, whatever ᾱ)
+``"scenario_all"``  the same margins, each sample's cluster being its ``n // m`` nearest
+                    samples (it plans against every sample already: the margin covers
+                    the tail beyond the n samples)
+``"saa"``           chance level ``saa_eps = ε`` (π̂ ≤ ε on the planning samples) plus the
+                    same k-NN margins at 1 − ε
+==================  =====================================================================
+
+The margins (:func:`coverage_margins`): for point j of obstacle o at step k let ``e = s_i − s_j``
+and ``u = d_i − d_j`` over the members i of j's cluster (j included).  With their mean μ and
+variance v (shrunk towards the obstacle's pooled within-cluster variance with
+``coverage_prior`` pseudo-samples, so that clusters of one or two samples get the typical spread
+rather than none), the longitudinal margin **behind** the point (where a following ego meets the
+slower futures) is ``max(0, z·σ_e − μ_e)``, **ahead** ``max(0, z·σ_e + μ_e)``, and the lateral
+margin ``|μ_u| + z·σ_u``.  The old constants (2.5 m + 1.9 m/s·t, 0.4 m) were a fitted stand-in
+for the same quantity: ≈ 1 σ of the speed spread integrated over time.
+"""
+
+from __future__ import annotations
+
+import math
+from statistics import NormalDist
+
+import numpy as np
+
+from .algorithm import MMDOptConfig
+from .baselines import METHODS, SELECTION
+
+__all__ = ["DEFAULT_RISK", "config_for_risk", "coverage_margins", "risk_z", "check_risk"]
+
+#: the default knob of every method (target collision probability ε); each reproduces a
+#: sensible operating point (docs/frontier.md)
+DEFAULT_RISK: dict[str, float] = {
+    "mmd": 0.005,
+    "random": 0.005,
+    "degroot": 0.005,
+    "scenario_all": 0.005,
+    "saa": 0.005,
+}
+#: weight of the coverage term of the MMD cost in the "samples" margin mode (``w_cover``)
+W_COVER = 100.0
+
+
+def check_risk(risk: float, name: str = "risk") -> float:
+    """``risk`` as a float in (0, 0.5), else ``ValueError`` naming ``name``."""
+    if isinstance(risk, bool):
+        raise ValueError(f"{name} must be a number in (0, 0.5), got {risk!r}")
+    try:
+        r = float(risk)
+    except (TypeError, ValueError):
+        raise ValueError(f"{name} must be a number in (0, 0.5), got {risk!r}") from None
+    if not (math.isfinite(r) and 0.0 < r < 0.5):
+        raise ValueError(f"{name} must be in (0, 0.5) (a collision probability), got {risk!r}")
+    return r
+
+
+def risk_z(eps: float) -> float:
+    """z = Φ⁻¹(1 − ε): the standard-normal quantile of the coverage level."""
+    return NormalDist().inv_cdf(1.0 - check_risk(eps, "eps"))
+
+
+def config_for_risk(
+    method: str, risk: float | None = None, config: MMDOptConfig | None = None
+) -> MMDOptConfig:
+    """``config`` (default ``MMDOptConfig()``) with ``method``'s margins, weights and chance level
+    derived from the target collision probability ``risk`` (default :data:`DEFAULT_RISK`).
+
+    See the module docstring for each method's mapping.  Raises ``ValueError`` for an unknown
+    method or a risk outside (0, 0.5).
+    """
+    if method not in METHODS:
+        raise ValueError(f"method must be one of {METHODS}, got {method!r}")
+    eps = DEFAULT_RISK[method] if risk is None else check_risk(risk)
+    cfg = MMDOptConfig() if config is None else config
+    if not isinstance(cfg, MMDOptConfig):
+        raise ValueError(f"config must be an MMDOptConfig, got {type(cfg).__name__}")
+    kw: dict = dict(margin_mode="samples", risk_eps=eps)
+    if method in ("mmd", "random"):
+        kw["w_cover"] = W_COVER
+    if method == "mmd":
+        kw["reselect"] = max(1, cfg.reduced_set_size // 2)
+    if method == "saa":
+        kw["saa_eps"] = eps
+    return cfg.replace(**kw)
+
+
+def _gauss_margins(dev_e, dev_u, member, z, prior):
+    """Margins (3, J, K) from deviations (J, M, K) of the members (mask (J, M)) of each point."""
+    w = member.astype(np.float64)[:, :, None]  # (J, M, 1)
+    c = np.maximum(w.sum(1), 1.0)  # (J, 1)
+    mu_e = (w * dev_e).sum(1) / c
+    mu_u = (w * dev_u).sum(1) / c
+    v_e = np.maximum((w * dev_e**2).sum(1) / c - mu_e**2, 0.0)
+    v_u = np.maximum((w * dev_u**2).sum(1) / c - mu_u**2, 0.0)
+    # pooled within-cluster variance per step (clusters weighted by size)
+    pool_e = (c * v_e).sum(0) / c.sum()
+    pool_u = (c * v_u).sum(0) / c.sum()
+    sd_e = np.sqrt((c * v_e + prior * pool_e) / (c + prior))
+    sd_u = np.sqrt((c * v_u + prior * pool_u) / (c + prior))
+    behind = np.maximum(z * sd_e - mu_e, 0.0)
+    ahead = np.maximum(z * sd_e + mu_e, 0.0)
+    lat = np.abs(mu_u) + z * sd_u
+    return np.stack([behind, ahead, lat])
+
+
+def coverage_margins(
+    obstacles_frenet: np.ndarray,
+    indices: np.ndarray,
+    eps: float,
+    *,
+    lateral_scale: float = 1.0,
+    prior: float = 2.0,
+    knn: int = 0,
+) -> np.ndarray:
+    """Sample-driven planning margins (m), shape (3, O, J, K): behind, ahead, lateral.
+
+    ``obstacles_frenet`` (O, n, K, 2) all n planning samples (Frenet ``s, d``); ``indices``
+    (O, J) the points the planner's cost uses.  With ``knn = 0`` every sample belongs to its
+    nearest point (trajectory distance, lateral offsets × ``lateral_scale`` as in the selection's
+    kernel); with ``knn > 0`` point j's cluster is its ``knn`` nearest samples (for methods that
+    plan on all samples).  ``eps`` the coverage risk (z = Φ⁻¹(1 − eps)), ``prior`` the shrinkage
+    pseudo-count.  Pure NumPy, O(O·J·n·K) (O·n·knn·K with ``knn``).
+    """
+    X = np.asarray(obstacles_frenet, np.float64)
+    idx = np.asarray(indices)
+    if X.ndim != 4 or X.shape[-1] != 2 or X.shape[1] == 0:
+        raise ValueError(f"obstacles_frenet must have shape (O, n, K, 2), n >= 1, got {X.shape}")
+    if not np.all(np.isfinite(X)):
+        raise ValueError("obstacles_frenet contains NaN or inf")
+    O, n, K, _ = X.shape
+    if idx.ndim != 2 or idx.shape[0] != O or idx.shape[1] == 0:
+        raise ValueError(f"indices must have shape (O, J) = ({O}, J >= 1), got {idx.shape}")
+    if not np.issubdtype(idx.dtype, np.integer) or idx.min() < 0 or idx.max() >= n:
+        raise ValueError(f"indices must be integers in [0, {n})")
+    z = risk_z(eps)
+    prior = float(prior)
+    if not (math.isfinite(prior) and prior >= 0):
+        raise ValueError(f"prior must be >= 0, got {prior}")
+    if isinstance(knn, bool) or not isinstance(knn, int | np.integer) or knn < 0:
+        raise ValueError(f"knn must be an integer >= 0, got {knn!r}")
+    scale = np.array([1.0, float(lateral_scale)])
+    out = np.empty((3, O, idx.shape[1], K))
+    for o in range(O):  # O is a handful of obstacles; everything inside is vectorised
+        F = (X[o] * scale).reshape(n, -1)
+        A = F[idx[o]]
+        sq = (A * A).sum(1)[:, None] + (F * F).sum(1)[None, :] - 2.0 * A @ F.T  # (J, n)
+        anchor = X[o][idx[o]]  # (J, K, 2)
+        if knn == 0:
+            owner = np.argmin(sq, axis=0)  # (n,) nearest point of every sample
+            member = owner[None, :] == np.arange(idx.shape[1])[:, None]  # (J, n)
+            member[np.arange(idx.shape[1]), idx[o]] = True
+            dev = X[o][None] - anchor[:, None]  # (J, n, K, 2)
+        else:
+            k = min(int(knn), n)
+            nb = np.argpartition(sq, k - 1, axis=1)[:, :k]  # (J, k) incl. the point itself
+            member = np.ones(nb.shape, bool)
+            dev = X[o][nb] - anchor[:, None]  # (J, k, K, 2)
+        out[:, o] = _gauss_margins(dev[..., 0], dev[..., 1], member, z, prior)
+    return out
+
+
+def needs_knn(method: str) -> bool:
+    """Whether ``method`` plans on all samples (its margins use k-NN clusters)."""
+    return SELECTION[method] is None

@@ -1,0 +1,95 @@
+"""The risk knob (target collision probability ε) and the sample-driven margins (issue 11)."""
+
+from __future__ import annotations
+
+import jax
+import numpy as np
+import pytest
+
+import mmdopt
+from mmdopt.risk import DEFAULT_RISK, config_for_risk, coverage_margins, risk_z
+
+from .test_algorithm import EGO, SMALL, _obstacle
+
+
+def _two_clusters(n=40, seed=0):
+    """(1, n, K, 2): half the samples at 5 m/s, half at 8 m/s, each jittered by 0.5 m/s."""
+    rng = np.random.default_rng(seed)
+    a = _obstacle(x0=40.0, v=5.0, n=n // 2, jitter=0.5, seed=seed)
+    b = _obstacle(x0=40.0, v=8.0, n=n - n // 2, jitter=0.5, seed=seed + 1)
+    x = np.concatenate([a, b], axis=1)
+    return x + 0.0 * rng.standard_normal(x.shape)
+
+
+def test_every_method_has_a_knob_with_a_default():
+    for m in mmdopt.PLAN_METHODS:
+        cfg = config_for_risk(m)
+        assert cfg.margin_mode == "samples" and cfg.risk_eps == DEFAULT_RISK[m]
+        assert cfg.w_cover == (100.0 if m in ("mmd", "random") else 0.0)
+        assert cfg.reselect == (cfg.reduced_set_size // 2 if m == "mmd" else 0)
+    assert config_for_risk("saa", 0.03).saa_eps == 0.03
+    # the knob only changes what it maps to: the rest of the caller's config is kept
+    assert config_for_risk("mmd", 0.01, SMALL).n_samples == SMALL.n_samples
+
+
+@pytest.mark.parametrize("bad", [0.0, 0.5, -0.1, float("nan"), float("inf"), "x", True, None])
+def test_bad_knob_is_a_clear_error(bad):
+    if bad is None:  # None means "the default": not an error
+        assert config_for_risk("mmd", None).risk_eps == DEFAULT_RISK["mmd"]
+        return
+    with pytest.raises(ValueError, match="risk"):
+        config_for_risk("mmd", bad)
+    with pytest.raises(ValueError, match="method"):
+        config_for_risk("nope", 0.01)
+
+
+def test_margins_grow_as_the_risk_falls_and_cover_the_cluster():
+    X = _two_clusters()
+    idx = np.array([[0, 25]])  # one point in each speed cluster
+    lo = coverage_margins(X, idx, 0.1)
+    hi = coverage_margins(X, idx, 0.001)
+    assert lo.shape == (3, 1, 2, X.shape[2])
+    assert np.all(hi >= lo - 1e-12) and np.all(lo >= 0)
+    # at ε = 0.001 every sample of a cluster lies within its point's behind / ahead margins
+    for j, (p, members) in enumerate(((0, range(20)), (25, range(20, 40)))):
+        e = X[0, list(members), :, 0] - X[0, p, :, 0]
+        assert np.all(-e <= hi[0, 0, j] + 1e-9) and np.all(e <= hi[1, 0, j] + 1e-9)
+    # the spread of a constant-speed jitter grows with time: so do the margins (no constant)
+    assert hi[0, 0, 0, -1] > hi[0, 0, 0, 10] > hi[0, 0, 0, 0] - 1e-12
+    assert risk_z(0.5 - 1e-12) == pytest.approx(0.0, abs=1e-9)
+
+
+def test_coverage_margins_check_their_inputs():
+    X = _two_clusters()
+    with pytest.raises(ValueError, match="obstacles_frenet"):
+        coverage_margins(X[0], np.array([[0]]), 0.01)
+    with pytest.raises(ValueError, match="indices"):
+        coverage_margins(X, np.array([[0, 99]]), 0.01)
+    with pytest.raises(ValueError, match="eps"):
+        coverage_margins(X, np.array([[0]]), 0.0)
+    bad = X.copy()
+    bad[0, 0, 0, 0] = np.nan
+    with pytest.raises(ValueError, match="NaN"):
+        coverage_margins(bad, np.array([[0]]), 0.01)
+    with pytest.raises(ValueError, match="knn"):
+        coverage_margins(X, np.array([[0]]), 0.01, knn=-1)
+
+
+def test_plan_risk_knob_trades_progress_for_safety():
+    """A smaller target collision probability keeps the ego further behind the slow futures."""
+    X = _two_clusters()
+    road = mmdopt.Road()
+    key = jax.random.PRNGKey(0)
+    loose = mmdopt.plan(EGO, road, X, method="mmd", config=SMALL, key=key, risk=0.2)
+    tight = mmdopt.plan(EGO, road, X, method="mmd", config=SMALL, key=key, risk=0.001)
+    for p in (loose, tight):
+        assert p.feasible and not p.fallback and p.status == "ok"
+    assert tight.progress <= loose.progress + 1e-6
+    # the tight plan keeps every planning sample clear
+    assert np.all(tight.diagnostics["collision_free_planning"] == X.shape[1])
+    # the second pass added the samples in deepest conflict with the first plan to the set
+    extra = tight.diagnostics["reselected"]
+    assert extra.shape == (1, SMALL.reduced_set_size // 2)
+    assert not set(extra[0].tolist()) & set(np.asarray(tight.reduced_set.indices)[0].tolist())
+    with pytest.raises(ValueError, match="risk"):
+        mmdopt.plan(EGO, road, X, method="mmd", config=SMALL, key=key, risk=0.7)
