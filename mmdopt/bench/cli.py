@@ -808,7 +808,13 @@ def main(argv: Sequence[str] | None = None) -> int:
     SIGINT and SIGTERM stop a run cleanly: every worker is terminated, finished result files are
     kept (writes are atomic), one line goes to stderr and the status is 130 / 143."""
     parser = build_parser()
-    args = parser.parse_args(argv)
+    # ``bench qp-backends`` passes its arguments on, options first included (``--help``):
+    # argparse's REMAINDER does not take an argument list that starts with an option
+    args, extra = parser.parse_known_args(argv)
+    if extra:
+        if getattr(args, "experiment", None) != "qp-backends":
+            parser.error(f"unrecognized arguments: {' '.join(extra)}")
+        args.args = extra + list(args.args)
     if args.command == "demo":
         cmd = cmd_demo
     elif args.command == "predictor":

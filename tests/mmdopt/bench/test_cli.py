@@ -212,3 +212,17 @@ def test_smoke_five_scenes_pipeline_bar(tmp_path, capsys):
 #: 994; de Groot 981.0; 995.6 at cf55bc5), m = 20 and the session-2 margins; the floor leaves a
 #: margin for numerical differences between machines and library versions
 SMOKE_FLOOR = 980.0
+
+
+@pytest.mark.parametrize("first", ["--help", "-h"])
+def test_qp_backends_takes_its_own_options_first(first, capsys):
+    """``mmdopt bench qp-backends --help`` reaches the benchmark's parser (no ``--`` needed);
+    an unknown option of another command is still exit 2 naming it."""
+    with pytest.raises(SystemExit) as e:
+        cli.main(["bench", "qp-backends", first])
+    assert e.value.code == 0
+    out = capsys.readouterr().out
+    assert "qp-backends" in out and "--backends" in out
+    with pytest.raises(SystemExit) as e:
+        cli.main(["bench", "timing", "--out", "x", "--bogus"])
+    assert e.value.code == 2 and "--bogus" in capsys.readouterr().err
