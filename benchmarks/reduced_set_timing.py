@@ -13,6 +13,7 @@ intent and the MMD² of the weighted reduced set against all samples.
     python benchmarks/reduced_set_timing.py --methods mmd --repeats 50
     python benchmarks/reduced_set_timing.py --reference        # the reference's CEM settings too
     python benchmarks/reduced_set_timing.py --quality 40       # selection quality, 40 mixtures
+    python benchmarks/reduced_set_timing.py --samplers 100 300 1000   # CEM Σ: Cholesky vs factor
 """
 
 from __future__ import annotations
@@ -112,6 +113,45 @@ def quality(seeds: int, p_keep: float):
         )
 
 
+def samplers(ns, seeds: int, m: int, repeats: int):
+    """The MMD CEM's two ways to draw from N(μ, Σ) (``ReducedSetConfig.sampler``) at n samples:
+    steady time per selection (median over ``repeats`` keys, after a first call that compiles)
+    and, over ``seeds`` mixtures, the median MMD² of the refined set and the share of the set
+    from the likely intent.  Ratios factor ÷ Cholesky in the same run."""
+    print(
+        "| n | sampler | first call (s) | steady median (s) | time ÷ Cholesky's "
+        f"| median MMD² ({seeds} mixtures) | MMD² ÷ Cholesky's | share from likely intent |"
+    )
+    print("|---|---|---|---|---|---|---|---|")
+    for n in ns:
+        X, _ = two_intent(0, n=n)
+        base = {}
+        for sampler in ("cholesky", "factor"):
+            cfg = ReducedSetConfig(sampler=sampler)
+            t0 = time.perf_counter()
+            jax.block_until_ready(select_reduced_set(jax.random.key(0), X, m, "mmd", cfg))
+            first = time.perf_counter() - t0
+            times = []
+            for r in range(repeats):
+                t0 = time.perf_counter()
+                jax.block_until_ready(select_reduced_set(jax.random.key(r + 1), X, m, "mmd", cfg))
+                times.append(time.perf_counter() - t0)
+            mmd, share = [], []
+            for seed in range(seeds):
+                Xs, keep = two_intent(seed, n=n)
+                rs = select_reduced_set(jax.random.key(seed), Xs, m, "mmd", cfg)
+                mmd.append(float(rs.mmd2))
+                share.append(keep[np.asarray(rs.indices)].mean())
+            t, q = float(np.median(times)), float(np.median(mmd))
+            base.setdefault("t", t)
+            base.setdefault("q", q)
+            print(
+                f"| {n} | {sampler} | {first:.2f} | {t:.3f} | {t / base['t']:.2f} | {q:.2e} "
+                f"| {q / base['q']:.2f} | {np.mean(share):.2f} |",
+                flush=True,
+            )
+
+
 def main():
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--m", type=int, nargs="+", default=[10, 20, 30, 40, 50])
@@ -130,7 +170,18 @@ def main():
         help="instead of timing, compare selection quality over SEEDS mixtures",
     )
     ap.add_argument("--p-keep", type=float, default=0.8)
+    ap.add_argument(
+        "--samplers",
+        type=int,
+        nargs="+",
+        metavar="N",
+        help="instead of timing, compare the CEM samplers (Cholesky / factor) at these n",
+    )
+    ap.add_argument("--seeds", type=int, default=10, help="mixtures per n for --samplers")
     args = ap.parse_args()
+    if args.samplers:
+        samplers(args.samplers, args.seeds, args.m[0], args.repeats)
+        return
     if args.quality:
         quality(args.quality, args.p_keep)
         return
