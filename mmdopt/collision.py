@@ -615,8 +615,9 @@ def collision_cost(
     enters the obstacle's ellipses (MMD and scenario: every f̄ = 0; SAA: every sample's smoothed
     indicator below ε, so the hinge is 0).  With several obstacles the terms are evaluated one
     obstacle at a time (``lax.map``), and the expensive part (the MMD's Taylor features, the
-    hinge) only for obstacles that some candidate reaches (``lax.cond``): far traffic costs one
-    ellipse evaluation, so the cost grows with the number of *interacting* obstacles.
+    hinge) only for obstacles that some candidate reaches (``lax.cond``); whether one can is
+    first bounded from the per-step intervals of ego and obstacle positions, so far traffic
+    costs O(B·K) and the cost grows with the number of *interacting* obstacles.
     """
     if mode not in COLLISION_MODES:
         raise ValueError(f"mode must be one of {COLLISION_MODES}, got {mode!r}")
@@ -624,17 +625,39 @@ def collision_cost(
     if centres.shape[0] == 1:
         return _term(mode, ellipse_values(s, d, centres, a, b), weights, mask, *kw)
 
+    def reaches(fmax):
+        if mode == "saa":  # π̂ ≤ sigmoid(max f / τ) < ε ⇒ max(0, π̂ − ε) = 0
+            return jax.nn.sigmoid(fmax / saa_temperature) >= saa_eps
+        return fmax > 0.0
+
+    # per step, the interval of the batch's ego positions (computed once for all obstacles)
+    box = (jnp.min(s, 0), jnp.max(s, 0), jnp.min(d, 0), jnp.max(d, 0))
+    zero = jnp.zeros(s.shape[:1], jnp.result_type(s, centres))
+
     def one(xs):
         c, w, m = xs
-        f = ellipse_values(s, d, c[None], a, b)  # (B, 1, J, C, K)
-        if mode == "saa":
-            # π̂ ≤ sigmoid(max f / τ) < ε ⇒ max(0, π̂ − ε) = 0
-            live = jax.nn.sigmoid(jnp.max(f) / saa_temperature) >= saa_eps
-        else:
-            live = jnp.any(f > 0.0)
-        zero = jnp.zeros(s.shape[:1], f.dtype)
-        return lax.cond(
-            live, lambda: _term(mode, f, w[None], m[None], *kw).astype(f.dtype), lambda: zero
-        )
+
+        def exact():
+            f = ellipse_values(s, d, c[None], a, b)  # (B, 1, J, C, K)
+            return lax.cond(
+                reaches(jnp.max(f)),
+                lambda: _term(mode, f, w[None], m[None], *kw).astype(zero.dtype),
+                lambda: zero,
+            )
+
+        # cheap bound first: O(B·K + J·C·K) instead of the O(B·J·C·K) ellipse values
+        return lax.cond(reaches(_max_f_bound(box, c, a, b)), exact, lambda: zero)
 
     return jnp.sum(lax.map(one, (centres, weights, mask)), axis=0)
+
+
+def _max_f_bound(box, c, a, b) -> jax.Array:
+    """Upper bound on ``max f`` (eq. coll_constraints) over a batch of ego points and one
+    obstacle's centres ``c`` (J, C, K, 2): per step, the gaps between the intervals spanned by
+    the ego positions ``box = (s_min, s_max, d_min, d_max)`` (K,) and by the centres bound every
+    |Δs| and |Δd| from below."""
+    smin, smax, dmin, dmax = box
+    cs, cd = c[..., 0], c[..., 1]
+    gs = jnp.maximum(0.0, jnp.maximum(jnp.min(cs, (0, 1)) - smax, smin - jnp.max(cs, (0, 1))))
+    gd = jnp.maximum(0.0, jnp.maximum(jnp.min(cd, (0, 1)) - dmax, dmin - jnp.max(cd, (0, 1))))
+    return jnp.max(1.0 - gs * gs / (a * a) - gd * gd / (b * b))

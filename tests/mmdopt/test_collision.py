@@ -237,3 +237,40 @@ def test_collision_cost_is_the_sum_over_obstacles_and_far_traffic_adds_nothing(m
     assert float(jnp.max(total)) > 0
     with pytest.raises(ValueError, match="mode"):
         collision_cost("nope", s, d, c, w, m, 6.0, 3.5)
+
+
+def test_reach_bound_never_misses_a_collision_and_gated_costs_equal_ungated():
+    """The cheap per-step interval bound that gates each obstacle's term is an upper bound on
+    max f (random batches), and an obstacle inside the batch's bounding box that no single ego
+    point reaches (bound positive, every f ≤ 0) still adds exactly nothing."""
+    from mmdopt.collision import _max_f_bound, collision_cost, ellipse_values, taylor_terms
+
+    rng = np.random.default_rng(0)
+    for _ in range(50):
+        s, d = rng.normal(0, 20, (2, 8, 5))
+        c = rng.normal(0, 20, (4, 3, 5, 2))
+        a = rng.uniform(2, 8, 5)
+        box = (s.min(0), s.max(0), d.min(0), d.max(0))
+        bound = float(_max_f_bound(box, jnp.asarray(c), a, 2.0))
+        assert bound >= float(jnp.max(ellipse_values(s, d, c[None], a, 2.0))) - 1e-12
+    # two ego candidates on opposite corners; the obstacle sits on the empty corner
+    K = 10
+    s = jnp.asarray(np.stack([np.zeros(K), np.full(K, 40.0)]))
+    d = jnp.asarray(np.stack([np.full(K, 3.0), np.full(K, -3.0)]))
+    corner = np.broadcast_to(np.array([0.0, -3.0]), (1, 1, K, 2))
+    hit = np.broadcast_to(np.array([40.0, -3.0]), (1, 1, K, 2))
+    c = jnp.asarray(np.stack([corner, hit]))  # (O = 2, J = 1, C = 1, K, 2)
+    box = (jnp.min(s, 0), jnp.max(s, 0), jnp.min(d, 0), jnp.max(d, 0))
+    assert float(_max_f_bound(box, c[0], 5.0, 2.0)) > 0
+    assert float(jnp.max(ellipse_values(s, d, c[:1], 5.0, 2.0))) <= 0
+    w, m = jnp.ones((2, 1)), jnp.ones((2, 1), bool)
+    kw = dict(bandwidth=0.5, f_scale=1.0, n_terms=taylor_terms(2.0, 1e-12))
+    for mode in ("mmd", "scenario", "saa"):
+        total = collision_cost(mode, s, d, c, w, m, 5.0, 2.0, **kw)
+        singles = [
+            collision_cost(mode, s, d, c[o : o + 1], w[o : o + 1], m[o : o + 1], 5.0, 2.0, **kw)
+            for o in range(2)
+        ]
+        np.testing.assert_array_equal(np.asarray(singles[0]), 0.0)
+        np.testing.assert_allclose(total, singles[0] + singles[1], rtol=1e-12)
+        assert float(total[1]) > 0 and float(total[0]) == 0.0
