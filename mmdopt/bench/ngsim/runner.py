@@ -66,6 +66,8 @@ __all__ = [
     "ngsim_config",
     "select_tasks",
     "build_task",
+    "traffic_v_des",
+    "task_config",
     "run_task",
     "run_ngsim",
     "timing_vs_obstacles",
@@ -114,6 +116,10 @@ class NgsimParams:
     n_samples, n_validation : predictor samples per obstacle for planning / for the metric
     lane_keep_margin : lateral freedom (m) on a side without a same-direction lane
     v_des : desired speed (m/s) of the cost (None: the config's)
+    v_des_flow : if set (m/s), the desired speed respects the traffic: ``min(v_des, v_flow +
+        v_des_flow)`` with ``v_flow`` the median speed at t0 (observed, not the future) of the
+        planned vehicles ahead of the ego within ``range_m`` (its lane and the neighbours);
+        ``v_des`` alone when nobody is ahead (:func:`traffic_v_des`)
     bound_step : lane bounds are rounded to this step (m) so few projection problems compile
     obstacle_bucket : obstacle counts are padded with ghosts to a multiple of this (default:
         ``max_obstacles``, i.e. every plan sees the same O and Algorithm 1 compiles once per
@@ -132,10 +138,21 @@ class NgsimParams:
     n_validation: int = 1000
     lane_keep_margin: float = 0.5
     v_des: float | None = 25.0
+    v_des_flow: float | None = None
     bound_step: float = 0.5
     obstacle_bucket: int | None = None
     brake_threshold: float = BRAKE_THRESHOLD
     seed: int = 0
+
+    def __post_init__(self) -> None:
+        for name in ("v_des", "v_des_flow"):
+            v = getattr(self, name)
+            if v is not None and not (isinstance(v, int | float) and np.isfinite(v) and v >= 0):
+                raise ValueError(
+                    f"NgsimParams.{name} must be None or a finite number >= 0, got {v!r}"
+                )
+        if self.v_des_flow is not None and self.v_des is None:
+            raise ValueError("NgsimParams.v_des_flow needs v_des (the cap without traffic)")
 
     @classmethod
     def from_dict(cls, d: dict) -> NgsimParams:
@@ -257,7 +274,13 @@ def build_task(task: dict, params: NgsimParams, config: mmdopt.MMDOptConfig) -> 
     ctx = context_at(sc_wo, obs, k, times)
     hist = history_at(sc, obs, k, params.history)
     lane_w = sc.lanes[int(sc.lane_of[v, k])].width
+    # speed of the traffic ahead, observed at t0 (for the traffic-aware desired speed)
+    s_obs, _ = path.to_frenet(sc.xy[obs, k, 0], sc.xy[obs, k, 1])
+    ahead = obs[np.asarray(s_obs) > ego.s]
+    v_ahead = sc.speed[ahead, k]
+    v_ahead = v_ahead[np.isfinite(v_ahead)]
     return dict(
+        v_flow=float(np.median(v_ahead)) if len(v_ahead) else None,
         scene=sc,
         v=v,
         k=k,
@@ -271,6 +294,26 @@ def build_task(task: dict, params: NgsimParams, config: mmdopt.MMDOptConfig) -> 
         off_l=off_l,
         off_r=off_r,
     )
+
+
+def traffic_v_des(v_flow: float | None, params: NgsimParams) -> float | None:
+    """The desired speed of a task (m/s): ``params.v_des``, capped at ``v_flow +
+    params.v_des_flow`` when ``v_des_flow`` is set and someone is ahead (``v_flow``: median
+    speed at t0 of the vehicles ahead within range); ``None``: keep the config's."""
+    if params.v_des is None:
+        return None
+    if params.v_des_flow is None or v_flow is None:
+        return float(params.v_des)
+    if not np.isfinite(v_flow) or v_flow < 0:
+        raise ValueError(f"v_flow must be a finite speed >= 0, got {v_flow!r}")
+    return float(min(params.v_des, v_flow + params.v_des_flow))
+
+
+def task_config(b: dict, params: NgsimParams, config: mmdopt.MMDOptConfig) -> mmdopt.MMDOptConfig:
+    """The planner config of one built task (:func:`build_task`): ``config`` with the task's
+    desired speed (:func:`traffic_v_des`)."""
+    v = traffic_v_des(b.get("v_flow"), params)
+    return config if v is None else config.replace(v_des=v)
 
 
 def _score_recorded(b: dict, plan, params: NgsimParams) -> dict:
@@ -327,7 +370,7 @@ def run_task(
     samples = pred.sample(b["hist"], b["ctx"], params.n_samples, k_pred)
     predict_s = time.perf_counter() - t1
     val = pred.sample(b["hist"], b["ctx"], params.n_validation, k_val)
-    cfg = config if params.v_des is None else config.replace(v_des=float(params.v_des))
+    cfg = task_config(b, params, config)
     planned = _pad_ghosts(
         samples, b["road"], b["ego"], params.max_obstacles, params.obstacle_bucket
     )
@@ -411,9 +454,8 @@ def timing_vs_obstacles(
     first call (``first_s``, includes the JIT compile) and the median of ``repeats`` more."""
     p = NgsimParams(max_obstacles=max(counts)) if params is None else params
     cfg = ngsim_config() if config is None else config
-    if p.v_des is not None:
-        cfg = cfg.replace(v_des=float(p.v_des))
     b = build_task(task, p, cfg)
+    cfg = task_config(b, p, cfg)
     samples = _predictor(predictor).sample(
         b["hist"], b["ctx"], p.n_samples, jax.random.PRNGKey(p.seed)
     )
