@@ -49,6 +49,23 @@ VARIANT_SETS = {
         "h1.0": (dict(headway_time=1.0, headway_gap=2.0), dict(v_des_flow=None)),
         "flow+2,h0.5": (dict(headway_time=0.5, headway_gap=2.0), dict(v_des_flow=2.0)),
         "flow+2,h1.0": (dict(headway_time=1.0, headway_gap=2.0), dict(v_des_flow=2.0)),
+        "flow+2,r1": (dict(rear_exempt_width=1.0), dict(v_des_flow=2.0)),
+        "flow+2,h0.5,r1": (
+            dict(headway_time=0.5, headway_gap=2.0, rear_exempt_width=1.0),
+            dict(v_des_flow=2.0),
+        ),
+        "flow+2,h1.0,r1": (
+            dict(headway_time=1.0, headway_gap=2.0, rear_exempt_width=1.0),
+            dict(v_des_flow=2.0),
+        ),
+        "flow+2,h0.25,g0,r1": (
+            dict(headway_time=0.25, headway_gap=0.0, rear_exempt_width=1.0),
+            dict(v_des_flow=2.0),
+        ),
+        "h0.5,r1": (
+            dict(headway_time=0.5, headway_gap=2.0, rear_exempt_width=1.0),
+            dict(v_des_flow=None),
+        ),
         "flow+2,h0.5,a0": (
             dict(headway_time=0.5, headway_gap=2.0, margin_ahead_scale=0.0),
             dict(v_des_flow=2.0),

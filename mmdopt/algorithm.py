@@ -165,10 +165,11 @@ class MMDOptConfig:
     RSS, and nuPlan's at-fault metric):
 
     * ``headway_time`` h (s), ``headway_gap`` d₀ (m): *behind* every obstacle point (the ego
-      behind it, Δs < 0) the longitudinal semi-axis grows by ``d₀ + h·ṡ_ego(t)``, the ego
-      sample's own planned speed at that step — a time-headway following distance
-      (gap ≥ d₀ + h·v, as in ACC/RSS).  A point beside the ego (|Δd| ≥ b) is unaffected, so it
-      acts on whoever is ahead in, or entering, the ego's lane;
+      behind it, Δs < 0) the longitudinal semi-axis is at least ``a + d₀ + h·ṡ_ego(t)``, with
+      the ego sample's own planned speed at that step — a time-headway following distance
+      (gap ≥ d₀ + h·v, as in ACC/RSS) as a floor under the planning margins (not added to
+      them).  A point beside the ego (|Δd| ≥ b) is unaffected, so it acts on whoever is ahead
+      in, or entering, the ego's lane;
     * ``margin_ahead_scale`` (default 1) scales the planning margins
       ``margin_long + margin_rate·t`` on the other side (Δs > 0, the ego ahead of the point);
     * ``rear_exempt_width`` w (m): a point behind the ego and in line with it (Δs > 0,
@@ -730,11 +731,13 @@ def planning_semi_axis(cfg: MMDOptConfig, t, dt=None, scale=1.0):
 
 def headway_semi_axis(cfg: MMDOptConfig, a, vs):
     """Longitudinal semi-axis behind an obstacle point with the following distance:
-    ``a + d₀ + h·max(ṡ, 0)`` (m), ``a`` the semi-axis ahead ((K,) or scalar), ``vs`` (B, K) the
-    ego samples' speeds; returns (B, K).  Time-headway gap ≥ d₀ + h·v (ACC/RSS-style), not in
-    the paper (:class:`MMDOptConfig`, "Following distance")."""
+    ``max(a_plan, a + d₀ + h·max(ṡ, 0))`` (m), ``a_plan`` the planning semi-axis ((K,) or
+    scalar: ``a`` plus the margins), ``vs`` (B, K) the ego samples' speeds; returns (B, K).  The
+    time-headway gap ≥ d₀ + h·v (ACC/RSS-style) is a floor under the prediction-spread margins,
+    not added to them; not in the paper (:class:`MMDOptConfig`)."""
     vs = jnp.asarray(vs)
-    return a + cfg.headway_gap + cfg.headway_time * jnp.maximum(vs, 0.0)
+    floor = cfg.a + cfg.headway_gap + cfg.headway_time * jnp.maximum(vs, 0.0)
+    return jnp.maximum(a, floor)
 
 
 def margin_ellipse_values(cfg: MMDOptConfig, s, d, centres, margins, vs=None):
@@ -751,8 +754,8 @@ def margin_ellipse_values(cfg: MMDOptConfig, s, d, centres, margins, vs=None):
     if cfg.asymmetric:
         if vs is None:
             raise ValueError("config.asymmetric needs the ego samples' speeds vs")
-        extra = headway_semi_axis(cfg, jnp.zeros((), dt), vs).astype(dt)  # (B, K)
-        behind = behind + extra[:, None, None, None, :]
+        floor = headway_semi_axis(cfg, cfg.a, vs).astype(dt) - cfg.a  # (B, K)
+        behind = jnp.maximum(behind, floor[:, None, None, None, :])
         ahead = cfg.margin_ahead_scale * ahead
     a = cfg.a + jnp.where(ds < 0, behind, ahead)
     b = cfg.b + mg[2][None]
