@@ -62,6 +62,56 @@ VARIANT_SETS = {
             dict(headway_time=0.25, headway_gap=0.0, rear_exempt_width=1.0),
             dict(v_des_flow=2.0),
         ),
+        "lead+2,h0.5,r1": (
+            dict(headway_time=0.5, headway_gap=2.0, rear_exempt_width=1.0),
+            dict(v_des_flow=2.0, flow_leader=True),
+        ),
+        "lead+2,r1": (dict(rear_exempt_width=1.0), dict(v_des_flow=2.0, flow_leader=True)),
+        "lead+3,h0.5,r1": (
+            dict(headway_time=0.5, headway_gap=2.0, rear_exempt_width=1.0),
+            dict(v_des_flow=3.0, flow_leader=True),
+        ),
+        "lead+2,h0.5,r1,m1-0": (
+            dict(
+                headway_time=0.5,
+                headway_gap=2.0,
+                rear_exempt_width=1.0,
+                margin_long=1.0,
+                margin_rate=0.0,
+            ),
+            dict(v_des_flow=2.0, flow_leader=True),
+        ),
+        "lead+2,h1.0,r1,m1-0": (
+            dict(
+                headway_time=1.0,
+                headway_gap=2.0,
+                rear_exempt_width=1.0,
+                margin_long=1.0,
+                margin_rate=0.0,
+            ),
+            dict(v_des_flow=2.0, flow_leader=True),
+        ),
+        "flow+2,h0.5,r1,m1-0": (
+            dict(
+                headway_time=0.5,
+                headway_gap=2.0,
+                rear_exempt_width=1.0,
+                margin_long=1.0,
+                margin_rate=0.0,
+            ),
+            dict(v_des_flow=2.0),
+        ),
+        "lead+2,h0.5,r1,m2.5-0.5": (
+            dict(headway_time=0.5, headway_gap=2.0, rear_exempt_width=1.0, margin_rate=0.5),
+            dict(v_des_flow=2.0, flow_leader=True),
+        ),
+        "lead+0,r1": (dict(rear_exempt_width=1.0), dict(v_des_flow=0.0, flow_leader=True)),
+        "lead+1,r1": (dict(rear_exempt_width=1.0), dict(v_des_flow=1.0, flow_leader=True)),
+        "flow+1,r1": (dict(rear_exempt_width=1.0), dict(v_des_flow=1.0)),
+        "flow+2,r1.5": (dict(rear_exempt_width=1.5), dict(v_des_flow=2.0)),
+        "flow+2,r2": (dict(rear_exempt_width=2.0), dict(v_des_flow=2.0)),
+        "lead+1,r1.5": (dict(rear_exempt_width=1.5), dict(v_des_flow=1.0, flow_leader=True)),
+        "lead+1,r2": (dict(rear_exempt_width=2.0), dict(v_des_flow=1.0, flow_leader=True)),
         "h0.5,r1": (
             dict(headway_time=0.5, headway_gap=2.0, rear_exempt_width=1.0),
             dict(v_des_flow=None),
@@ -145,6 +195,7 @@ def main(argv=None) -> None:
                 status=plan.status,
                 v0=float(b["ego"].vs),
                 v_flow=b["v_flow"],
+                v_leader=b["v_leader"],
                 v_des=float(cfg.v_des),
                 plan_time_s=wall,
             )

@@ -120,6 +120,8 @@ class NgsimParams:
         v_des_flow)`` with ``v_flow`` the median speed at t0 (observed, not the future) of the
         planned vehicles ahead of the ego within ``range_m`` (its lane and the neighbours);
         ``v_des`` alone when nobody is ahead (:func:`traffic_v_des`)
+    flow_leader : with ``v_des_flow``, the traffic speed is that of the ego lane's leader (the
+        nearest vehicle ahead within half a lane width of the ego's offset) when there is one
     bound_step : lane bounds are rounded to this step (m) so few projection problems compile
     obstacle_bucket : obstacle counts are padded with ghosts to a multiple of this (default:
         ``max_obstacles``, i.e. every plan sees the same O and Algorithm 1 compiles once per
@@ -139,6 +141,7 @@ class NgsimParams:
     lane_keep_margin: float = 0.5
     v_des: float | None = 25.0
     v_des_flow: float | None = None
+    flow_leader: bool = False
     bound_step: float = 0.5
     obstacle_bucket: int | None = None
     brake_threshold: float = BRAKE_THRESHOLD
@@ -275,12 +278,17 @@ def build_task(task: dict, params: NgsimParams, config: mmdopt.MMDOptConfig) -> 
     hist = history_at(sc, obs, k, params.history)
     lane_w = sc.lanes[int(sc.lane_of[v, k])].width
     # speed of the traffic ahead, observed at t0 (for the traffic-aware desired speed)
-    s_obs, _ = path.to_frenet(sc.xy[obs, k, 0], sc.xy[obs, k, 1])
-    ahead = obs[np.asarray(s_obs) > ego.s]
-    v_ahead = sc.speed[ahead, k]
-    v_ahead = v_ahead[np.isfinite(v_ahead)]
+    s_obs, d_obs = (np.asarray(a) for a in path.to_frenet(sc.xy[obs, k, 0], sc.xy[obs, k, 1]))
+    sel = (s_obs > ego.s) & np.isfinite(sc.speed[obs, k])
+    v_flow = float(np.median(sc.speed[obs[sel], k])) if np.any(sel) else None
+    in_lane = sel & (np.abs(d_obs - ego.d) < 0.5 * lane_w)
+    v_leader = None
+    if np.any(in_lane):
+        lead = np.flatnonzero(in_lane)[np.argmin(s_obs[in_lane])]
+        v_leader = float(sc.speed[obs[lead], k])
     return dict(
-        v_flow=float(np.median(v_ahead)) if len(v_ahead) else None,
+        v_flow=v_flow,
+        v_leader=v_leader,
         scene=sc,
         v=v,
         k=k,
@@ -296,23 +304,28 @@ def build_task(task: dict, params: NgsimParams, config: mmdopt.MMDOptConfig) -> 
     )
 
 
-def traffic_v_des(v_flow: float | None, params: NgsimParams) -> float | None:
-    """The desired speed of a task (m/s): ``params.v_des``, capped at ``v_flow +
-    params.v_des_flow`` when ``v_des_flow`` is set and someone is ahead (``v_flow``: median
-    speed at t0 of the vehicles ahead within range); ``None``: keep the config's."""
+def traffic_v_des(
+    v_flow: float | None, params: NgsimParams, v_leader: float | None = None
+) -> float | None:
+    """The desired speed of a task (m/s): ``params.v_des``, capped at ``v + params.v_des_flow``
+    when ``v_des_flow`` is set, with ``v`` the traffic's speed at t0: ``v_flow`` (median speed
+    of the vehicles ahead within range), or the ego lane's leader ``v_leader`` when
+    ``params.flow_leader`` and there is one; no cap when nobody is ahead.  ``None``: keep the
+    config's."""
     if params.v_des is None:
         return None
-    if params.v_des_flow is None or v_flow is None:
+    v = v_leader if (params.flow_leader and v_leader is not None) else v_flow
+    if params.v_des_flow is None or v is None:
         return float(params.v_des)
-    if not np.isfinite(v_flow) or v_flow < 0:
-        raise ValueError(f"v_flow must be a finite speed >= 0, got {v_flow!r}")
-    return float(min(params.v_des, v_flow + params.v_des_flow))
+    if not np.isfinite(v) or v < 0:
+        raise ValueError(f"v_flow / v_leader must be a finite speed >= 0, got {v!r}")
+    return float(min(params.v_des, v + params.v_des_flow))
 
 
 def task_config(b: dict, params: NgsimParams, config: mmdopt.MMDOptConfig) -> mmdopt.MMDOptConfig:
     """The planner config of one built task (:func:`build_task`): ``config`` with the task's
     desired speed (:func:`traffic_v_des`)."""
-    v = traffic_v_des(b.get("v_flow"), params)
+    v = traffic_v_des(b.get("v_flow"), params, b.get("v_leader"))
     return config if v is None else config.replace(v_des=v)
 
 

@@ -262,3 +262,36 @@ def test_traffic_aware_desired_speed():
         NgsimParams(v_des_flow=-1.0)
     with pytest.raises(ValueError, match="v_des_flow"):
         NgsimParams(v_des=None, v_des_flow=2.0)
+
+
+def test_plan_keeps_the_time_headway_to_a_slower_leader():
+    """A leader 25 m ahead at 10 m/s, the ego at 15 m/s wanting 25 m/s (lane keeping): with a
+    1 s headway the plan stays behind the leader's samples by a + d₀ + h·v at every step; with
+    the option off (the plain planning ellipse) it closes in well inside that distance."""
+    import jax
+
+    import frenet
+    import mmdopt
+    from mmdopt.bench.ngsim import ngsim_config
+
+    t = np.linspace(0.0, 5.0, 51)
+    rng = np.random.default_rng(0)
+    s_lead = 25.0 + (10.0 + 0.3 * rng.standard_normal(20))[:, None] * t[None]  # (n, K)
+    obs = np.stack([s_lead, 0.05 * rng.standard_normal(s_lead.shape)], -1)[None]
+    ego = frenet.EgoState(s=0.0, d=0.0, vs=15.0)
+    road = mmdopt.Road(y_lb=-0.3, y_ub=0.3)
+    small = dict(
+        n_samples=60, n_cem=20, n_elite=8, n_brake=4, iterations=6, reduced_set_size=5,
+        reduced_set=mmdopt.ReducedSetConfig(population=16, n_elite=4, iterations=3), v_des=25.0,
+    )  # fmt: skip
+    off = dict(headway_time=0.0, headway_gap=0.0, rear_exempt_width=0.0, margin_ahead_scale=1.0)
+    gaps = {}
+    for name, over in (("on", dict(headway_time=1.0, headway_gap=2.0)), ("off", off)):
+        cfg = ngsim_config(**small, **over)
+        assert cfg.asymmetric == (name == "on")
+        p = mmdopt.plan_frenet(ego, road, obs, config=cfg, key=jax.random.PRNGKey(0))
+        assert p.feasible and not p.fallback, p.status
+        # the leader's rear circle (2.5 m behind its centre) to the ego point, minus the rule
+        gaps[name] = np.mean(s_lead, 0) - 2.5 - p.s - (cfg.a + 2.0 + 1.0 * p.vs)
+    assert gaps["on"].min() >= -0.5, gaps["on"].min()
+    assert gaps["off"].min() < -3.0, gaps["off"].min()
