@@ -10,7 +10,7 @@ the benchmark's own at-fault rule; per variant it prints at-fault / any contacts
 and the progress ratio to the human (sum, min, median).  Rows are cached in ``--out`` (resume).
 
     python -m benchmarks.ngsim_safety_tuning --data ../shared/data/ngsim_us101 \\
-        --variant-set main --files one-per-recording --out results/ngsim_tuning
+        --files all --variants "before;flow+2;flow+2,r2,c5" --out results/ngsim_tuning
 """
 
 from __future__ import annotations
@@ -41,11 +41,14 @@ from mmdopt.bench.ngsim.scene import future_at
 
 #: name -> (MMDOptConfig overrides on top of ngsim_config's *before* this change, NgsimParams
 #: overrides).  "before" is the configuration of the first held-out run (docs/ngsim.md).
-OFF = dict(headway_time=0.0, headway_gap=0.0)
+#: every variant starts from these (the planner and benchmark before this change) and sets
+#: what it names on top, so a variant means the same whatever today's defaults are
+OFF = dict(headway_time=0.0, headway_gap=0.0, rear_exempt_width=0.0, margin_ahead_scale=1.0)
+P_OFF = dict(v_des_flow=None, flow_leader=False, min_change_speed=0.0)
 VARIANT_SETS = {
     "main": {
-        "before": (OFF, dict(v_des_flow=None)),
-        "flow+2": (OFF, dict(v_des_flow=2.0)),
+        "before": ({}, {}),
+        "flow+2": ({}, dict(v_des_flow=2.0)),
         "h1.0": (dict(headway_time=1.0, headway_gap=2.0), dict(v_des_flow=None)),
         "flow+2,h0.5": (dict(headway_time=0.5, headway_gap=2.0), dict(v_des_flow=2.0)),
         "flow+2,h1.0": (dict(headway_time=1.0, headway_gap=2.0), dict(v_des_flow=2.0)),
@@ -112,6 +115,11 @@ VARIANT_SETS = {
         "flow+2,r2": (dict(rear_exempt_width=2.0), dict(v_des_flow=2.0)),
         "lead+1,r1.5": (dict(rear_exempt_width=1.5), dict(v_des_flow=1.0, flow_leader=True)),
         "lead+1,r2": (dict(rear_exempt_width=2.0), dict(v_des_flow=1.0, flow_leader=True)),
+        "flow+2,r2,c5": (dict(rear_exempt_width=2.0), dict(v_des_flow=2.0, min_change_speed=5.0)),
+        "lead+1,r2,c5": (
+            dict(rear_exempt_width=2.0),
+            dict(v_des_flow=1.0, flow_leader=True, min_change_speed=5.0),
+        ),
         "h0.5,r1": (
             dict(headway_time=0.5, headway_gap=2.0, rear_exempt_width=1.0),
             dict(v_des_flow=None),
@@ -166,8 +174,8 @@ def main(argv=None) -> None:
             f = out / f"{name}__{a.method}__{stem}__{task['ego_id']}__{task['k']}.json"
             if f.exists():
                 continue
-            p = dataclasses.replace(base_p, **p_over)
-            cfg0 = ngsim_config(**cfg_over)
+            p = dataclasses.replace(base_p, **{**P_OFF, **p_over})
+            cfg0 = ngsim_config(**{**OFF, **cfg_over})
             if b is None:
                 b = build_task(task, p, cfg0)
                 key = jax.random.fold_in(jax.random.PRNGKey(p.seed), _task_seed(task))

@@ -122,6 +122,10 @@ class NgsimParams:
         ``v_des`` alone when nobody is ahead (:func:`traffic_v_des`)
     flow_leader : with ``v_des_flow``, the traffic speed is that of the ego lane's leader (the
         nearest vehicle ahead within half a lane width of the ego's offset) when there is one
+    min_change_speed : below this speed (m/s) at t0 the ego keeps its lane (bounds
+        ±``lane_keep_margin`` around the lane centre, widened to its offset): the planner's
+        Frenet model has no turning-radius limit, so a lateral move while crawling is a sideways
+        slide, and lane changes in stop-and-go traffic are where cut-in contacts happen
     bound_step : lane bounds are rounded to this step (m) so few projection problems compile
     obstacle_bucket : obstacle counts are padded with ghosts to a multiple of this (default:
         ``max_obstacles``, i.e. every plan sees the same O and Algorithm 1 compiles once per
@@ -140,8 +144,9 @@ class NgsimParams:
     n_validation: int = 1000
     lane_keep_margin: float = 0.5
     v_des: float | None = 25.0
-    v_des_flow: float | None = None
+    v_des_flow: float | None = 2.0
     flow_leader: bool = False
+    min_change_speed: float = 5.0
     bound_step: float = 0.5
     obstacle_bucket: int | None = None
     brake_threshold: float = BRAKE_THRESHOLD
@@ -154,6 +159,10 @@ class NgsimParams:
                 raise ValueError(
                     f"NgsimParams.{name} must be None or a finite number >= 0, got {v!r}"
                 )
+        if not (np.isfinite(self.min_change_speed) and self.min_change_speed >= 0):
+            raise ValueError(
+                f"NgsimParams.min_change_speed must be finite and >= 0, got {self.min_change_speed}"
+            )
         if self.v_des_flow is not None and self.v_des is None:
             raise ValueError("NgsimParams.v_des_flow needs v_des (the cap without traffic)")
 
@@ -180,7 +189,15 @@ def ngsim_config(**overrides) -> mmdopt.MMDOptConfig:
     n_e 20, 10 iterations, reduced sets of m = 10 (selection CEM: population 50, 10 elites,
     20 iterations) — with the paper's sizes (1000/150/50, 20 iterations, m = 20, selection
     100/20/75) one plan against 10 obstacles took 7.5 s vs 1.1 s here on the loaded 2-core VM
-    (docs/ngsim.md).  Pass the paper's sizes through ``overrides`` (or ``--config``)."""
+    (docs/ngsim.md).  Pass the paper's sizes through ``overrides`` (or ``--config``).
+
+    Responsibility (issue 12's at-fault bar; :class:`mmdopt.MMDOptConfig`, responsibility-aware
+    longitudinal model): ``rear_exempt_width = 2.0`` m — obstacle points behind the ego and
+    within 2 m of its offset (a follower in its lane) cost nothing, so the plan neither dodges
+    a closing follower sideways into the next lane nor races ahead of it.  The time-headway
+    floor (``headway_time``, ``headway_gap``) is available but off: on the training scenes it
+    cost progress without removing an at-fault contact (docs/ngsim.md, "Tuning").  Chosen on
+    the training recordings only (``benchmarks/ngsim_safety_tuning.py``)."""
     base = dict(
         horizon=5.0,
         num_steps=51,
@@ -194,6 +211,7 @@ def ngsim_config(**overrides) -> mmdopt.MMDOptConfig:
         iterations=10,
         reduced_set_size=10,
         reduced_set=mmdopt.ReducedSetConfig(iterations=20, population=50, n_elite=10),
+        rear_exempt_width=2.0,
     )
     base.update(overrides)
     return mmdopt.MMDOptConfig(**base)
@@ -263,6 +281,9 @@ def build_task(task: dict, params: NgsimParams, config: mmdopt.MMDOptConfig) -> 
     st = params.bound_step
     y_ub = round(off_l / st) * st if off_l is not None else params.lane_keep_margin
     y_lb = round(off_r / st) * st if off_r is not None else -params.lane_keep_margin
+    if ego.vs < params.min_change_speed:
+        # crawling: keep the lane (a Frenet lateral move at ~0 speed is a sideways slide)
+        y_ub, y_lb = params.lane_keep_margin, -params.lane_keep_margin
     y_ub = max(y_ub, _quantise(ego.d + 0.1, st, up=True))
     y_lb = min(y_lb, _quantise(ego.d - 0.1, st, up=False))
     road = mmdopt.Road(path=path, y_lb=y_lb, y_ub=y_ub)
