@@ -118,7 +118,8 @@ class NgsimParams:
     v_des : desired speed (m/s) of the cost (None: the config's)
     v_des_flow : if set (m/s), the desired speed respects the traffic: ``min(v_des, v_flow +
         v_des_flow)`` with ``v_flow`` the median speed at t0 (observed, not the future) of the
-        planned vehicles ahead of the ego within ``range_m`` (its lane and the neighbours);
+        planned vehicles ahead of the ego within ``range_m`` in the lanes it may use (lateral
+        offset within the lane bounds ± half a lane width: its lane and the neighbours);
         ``v_des`` alone when nobody is ahead (:func:`traffic_v_des`)
     flow_leader : with ``v_des_flow``, the traffic speed is that of the ego lane's leader (the
         nearest vehicle ahead within half a lane width of the ego's offset) when there is one
@@ -300,7 +301,10 @@ def build_task(task: dict, params: NgsimParams, config: mmdopt.MMDOptConfig) -> 
     lane_w = sc.lanes[int(sc.lane_of[v, k])].width
     # speed of the traffic ahead, observed at t0 (for the traffic-aware desired speed)
     s_obs, d_obs = (np.asarray(a) for a in path.to_frenet(sc.xy[obs, k, 0], sc.xy[obs, k, 1]))
+    # only the lanes the ego may use (its lane and the neighbours within its bounds): a queue
+    # two lanes over (an exit, the HOV lane) is not the ego's traffic
     sel = (s_obs > ego.s) & np.isfinite(sc.speed[obs, k])
+    sel &= (d_obs >= y_lb - 0.5 * lane_w) & (d_obs <= y_ub + 0.5 * lane_w)
     v_flow = float(np.median(sc.speed[obs[sel], k])) if np.any(sel) else None
     in_lane = sel & (np.abs(d_obs - ego.d) < 0.5 * lane_w)
     v_leader = None

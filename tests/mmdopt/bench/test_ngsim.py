@@ -214,7 +214,7 @@ def test_following_distance_and_rear_exemption_shape_the_ellipse():
     from mmdopt.collision import ellipse_values
 
     # one obstacle point at s = 0, d = 0; ego points at Δs = -8 (behind it), +2 (just ahead,
-    # in line: a follower's view) and +2 with Δd = 2 (beside)
+    # in line: a follower's view) and +2 with Δd = 1.5 (beside)
     s = jnp.array([[-8.0, 2.0, 2.0]])
     d = jnp.array([[0.0, 0.0, 1.5]])
     centres = jnp.zeros((1, 1, 1, 3, 2))
