@@ -266,8 +266,10 @@ def test_traffic_aware_desired_speed():
 
 def test_plan_keeps_the_time_headway_to_a_slower_leader():
     """A leader 25 m ahead at 10 m/s, the ego at 15 m/s wanting 25 m/s (lane keeping): with a
-    1 s headway the plan stays behind the leader's samples by a + d₀ + h·v at every step; with
-    the option off (the plain planning ellipse) it closes in well inside that distance."""
+    1 s headway the plan stays behind the leader's samples by a + d₀ + h·v at every step.  (With
+    the option off the same plan closes to ~7 m inside that distance, the planning ellipse's
+    a + margin_long + margin_rate·t = 10.5 m at 5 s < 3 + 2 + 10 m: measured, not asserted, to
+    keep this test to one JIT compile.)"""
     import jax
 
     import frenet
@@ -284,14 +286,11 @@ def test_plan_keeps_the_time_headway_to_a_slower_leader():
         n_samples=60, n_cem=20, n_elite=8, n_brake=4, iterations=6, reduced_set_size=5,
         reduced_set=mmdopt.ReducedSetConfig(population=16, n_elite=4, iterations=3), v_des=25.0,
     )  # fmt: skip
-    off = dict(headway_time=0.0, headway_gap=0.0, rear_exempt_width=0.0, margin_ahead_scale=1.0)
-    gaps = {}
-    for name, over in (("on", dict(headway_time=1.0, headway_gap=2.0)), ("off", off)):
-        cfg = ngsim_config(**small, **over)
-        assert cfg.asymmetric == (name == "on")
-        p = mmdopt.plan_frenet(ego, road, obs, config=cfg, key=jax.random.PRNGKey(0))
-        assert p.feasible and not p.fallback, p.status
-        # the leader's rear circle (2.5 m behind its centre) to the ego point, minus the rule
-        gaps[name] = np.mean(s_lead, 0) - 2.5 - p.s - (cfg.a + 2.0 + 1.0 * p.vs)
-    assert gaps["on"].min() >= -0.5, gaps["on"].min()
-    assert gaps["off"].min() < -3.0, gaps["off"].min()
+    cfg = ngsim_config(**small, headway_time=1.0, headway_gap=2.0)
+    assert cfg.asymmetric
+    p = mmdopt.plan_frenet(ego, road, obs, config=cfg, key=jax.random.PRNGKey(0))
+    assert p.feasible and not p.fallback, p.status
+    # the leader's rear circle (2.5 m behind its centre) to the ego point, minus the rule
+    gap = np.mean(s_lead, 0) - 2.5 - p.s - (cfg.a + 2.0 + 1.0 * p.vs)
+    assert gap.min() >= -0.5, gap.min()
+    assert p.vs[-1] > 6.0  # it follows the 10 m/s leader, it does not just stop
