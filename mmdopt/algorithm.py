@@ -68,6 +68,7 @@ from .collision import (
     ELLIPSE_B,
     collision_cost,
     mmd_cost,
+    rear_exempt,
     saa_cost,
     scenario_cost,
     taylor_terms,
@@ -89,6 +90,7 @@ __all__ = [
     "shift",
     "planning_semi_axis",
     "margin_ellipse_values",
+    "headway_semi_axis",
     "n_taylor_terms",
     "check_backend",
 ]
@@ -155,6 +157,28 @@ class MMDOptConfig:
     reduced-set selection; ``rs_lateral_scale``
     multiplies the samples' lateral offsets in the selection's kernel features (an anisotropic
     kernel: lateral intents count more than longitudinal spread).
+
+    **Responsibility-aware longitudinal model** (not in the paper; off by default, switched on
+    by any of the four values below, which sets the static ``asymmetric`` flag — the default
+    config compiles the same program as without it).  The ego is responsible for its distance
+    to what is ahead and for what it moves beside, not for a follower (the rule of the road,
+    RSS, and nuPlan's at-fault metric):
+
+    * ``headway_time`` h (s), ``headway_gap`` d₀ (m): *behind* every obstacle point (the ego
+      behind it, Δs < 0) the longitudinal semi-axis is at least ``a + d₀ + h·ṡ_ego(t)``, with
+      the ego sample's own planned speed at that step — a time-headway following distance
+      (gap ≥ d₀ + h·v, as in ACC/RSS) as a floor under the planning margins (not added to
+      them).  A point beside the ego (|Δd| ≥ b) is unaffected, so it acts on whoever is ahead
+      in, or entering, the ego's lane;
+    * ``margin_ahead_scale`` (default 1) scales the planning margins
+      ``margin_long + margin_rate·t`` on the other side (Δs > 0, the ego ahead of the point);
+    * ``rear_exempt_width`` w (m): a point behind the ego and in line with it (Δs > 0,
+      |Δd| < w) costs nothing: ``f ← min(f, (|Δd| − w)/b)`` there — a follower that closes in
+      is the follower's fault, and dodging it sideways into the next lane is the ego's; points
+      beside the ego (|Δd| ≥ w) keep their ellipse.
+
+    These apply to every method's collision term (they are rules of the road, not
+    prediction-spread margins, so ``baseline_margin_scale`` does not scale them).
     """
 
     # static: sizes and modes
@@ -176,6 +200,7 @@ class MMDOptConfig:
     margin_mode: str = _static("linear")
     coverage_knn: int = _static(0)
     reselect: int = _static(0)
+    asymmetric: bool = _static(False)
     # leaves: optimiser
     gamma: float = 0.9
     eta: float = 0.6
@@ -205,12 +230,29 @@ class MMDOptConfig:
     risk_eps: float = 0.005
     w_cover: float = 0.0
     coverage_prior: float = 2.0
+    headway_time: float = 0.0
+    headway_gap: float = 0.0
+    margin_ahead_scale: float = 1.0
+    rear_exempt_width: float = 0.0
     reduced_set: ReducedSetConfig = field(default_factory=ReducedSetConfig)
 
     def replace(self, **kw) -> MMDOptConfig:
         return dataclasses.replace(self, **kw)
 
     def __post_init__(self) -> None:
+        for name, off in (
+            ("headway_time", 0.0),
+            ("headway_gap", 0.0),
+            ("margin_ahead_scale", 1.0),
+            ("rear_exempt_width", 0.0),
+        ):
+            v = getattr(self, name)
+            if _concrete(v) and not (math.isfinite(float(v)) and float(v) >= 0):
+                raise ValueError(f"MMDOptConfig.{name} must be finite and >= 0, got {v}")
+            if _concrete(v) and float(v) != off and not self.asymmetric:
+                object.__setattr__(self, "asymmetric", True)
+        if not isinstance(self.asymmetric, bool):
+            raise ValueError(f"MMDOptConfig.asymmetric must be a bool, got {self.asymmetric!r}")
         ints = (
             "n_samples",
             "n_cem",
@@ -561,12 +603,19 @@ def _sample(cfg: MMDOptConfig, key, mu, cov, elites, problem: Problem):
     return jnp.clip(d, problem.lo, problem.hi)
 
 
-def _collision_term(cfg: MMDOptConfig, prob: CEMProblem, s, dd, obstacles: ObstacleSet, dt):
-    """The method's collision term and its weight (eq. c_aug), per ego sample (B,)."""
+def _collision_term(
+    cfg: MMDOptConfig, prob: CEMProblem, s, dd, obstacles: ObstacleSet, dt, vs=None
+):
+    """The method's collision term and its weight (eq. c_aug), per ego sample (B,); ``vs``
+    (B, K) the samples' speeds (needed when ``cfg.asymmetric``)."""
     mode = obstacles.mode
+    if cfg.asymmetric and vs is None:
+        raise ValueError("config.asymmetric needs the ego samples' speeds vs")
     if obstacles.margins is not None:
         # sample-driven coverage margins (issue 11, mmdopt.risk): per-point ellipses
-        f = margin_ellipse_values(cfg, s, dd, obstacles.centres.astype(dt), obstacles.margins)
+        f = margin_ellipse_values(
+            cfg, s, dd, obstacles.centres.astype(dt), obstacles.margins, vs=vs
+        )
         if mode == "mmd":
             coll = mmd_cost(
                 f, obstacles.weights.astype(dt), cfg.bandwidth, cfg.f_scale, obstacles.n_terms
@@ -581,6 +630,12 @@ def _collision_term(cfg: MMDOptConfig, prob: CEMProblem, s, dd, obstacles: Obsta
         coll, _ = saa_cost(f, obstacles.mask, cfg.saa_eps, cfg.saa_temperature)
         return coll, cfg.w_saa
     scale = 1.0 if mode == "mmd" else cfg.baseline_margin_scale
+    a_plan = planning_semi_axis(cfg, prob.t(), dt, scale)
+    a_behind = rear_w = None
+    if cfg.asymmetric:
+        a_behind = headway_semi_axis(cfg, a_plan, vs)
+        a_plan = planning_semi_axis(cfg, prob.t(), dt, scale * cfg.margin_ahead_scale)
+        rear_w = cfg.rear_exempt_width
     coll = collision_cost(
         mode,
         s,
@@ -588,8 +643,10 @@ def _collision_term(cfg: MMDOptConfig, prob: CEMProblem, s, dd, obstacles: Obsta
         obstacles.centres.astype(dt),
         obstacles.weights.astype(dt),
         obstacles.mask,
-        planning_semi_axis(cfg, prob.t(), dt, scale),
+        a_plan,
         cfg.b + scale * cfg.margin_lat,
+        a_behind=a_behind,
+        rear_exempt_width=rear_w,
         bandwidth=cfg.bandwidth,
         f_scale=cfg.f_scale,
         n_terms=obstacles.n_terms,
@@ -618,7 +675,7 @@ def _evaluate(state: CEMState, prob: CEMProblem, obstacles: ObstacleSet, d, cx, 
     # --- cost, eq. (c_aug) + residual
     j_speed = jnp.mean((vs - cfg.v_des) ** 2, axis=1)
     j_acc = jnp.mean(as_ * as_ + ad * ad, axis=1)
-    coll, w = _collision_term(cfg, prob, s, dd, obstacles, dt)
+    coll, w = _collision_term(cfg, prob, s, dd, obstacles, dt, vs=vs)
     cost = cfg.w_speed * j_speed + cfg.w_accel * j_acc + w * coll + cfg.w_res * res_c
     cost = jnp.where(jnp.isfinite(cost), cost, jnp.asarray(1e30, dt))
     # --- EliteSet and the MPPI-weighted update, eqs. (mean_update), (cov_update), (s_formula)
@@ -672,18 +729,40 @@ def planning_semi_axis(cfg: MMDOptConfig, t, dt=None, scale=1.0):
     return cfg.a + scale * (cfg.margin_long + cfg.margin_rate * t)
 
 
-def margin_ellipse_values(cfg: MMDOptConfig, s, d, centres, margins):
+def headway_semi_axis(cfg: MMDOptConfig, a, vs):
+    """Longitudinal semi-axis behind an obstacle point with the following distance:
+    ``max(a_plan, a + d₀ + h·max(ṡ, 0))`` (m), ``a_plan`` the planning semi-axis ((K,) or
+    scalar: ``a`` plus the margins), ``vs`` (B, K) the ego samples' speeds; returns (B, K).  The
+    time-headway gap ≥ d₀ + h·v (ACC/RSS-style) is a floor under the prediction-spread margins,
+    not added to them; not in the paper (:class:`MMDOptConfig`)."""
+    vs = jnp.asarray(vs)
+    floor = cfg.a + cfg.headway_gap + cfg.headway_time * jnp.maximum(vs, 0.0)
+    return jnp.maximum(a, floor)
+
+
+def margin_ellipse_values(cfg: MMDOptConfig, s, d, centres, margins, vs=None):
     """Collision function with per-point, per-step sample-driven margins (issue 11):
     ``f = 1 − Δs²/a_±² − Δd²/(b + m_lat)²`` with ``a_− = a + m_behind`` when the ego is behind
     the point (Δs < 0) and ``a_+ = a + m_ahead`` otherwise.  ``s, d`` (B, K); ``centres``
-    (O, J, C, K, 2); ``margins`` (3, O, J, K).  Returns (B, O, J, C, K)."""
+    (O, J, C, K, 2); ``margins`` (3, O, J, K); with ``cfg.asymmetric`` the following distance
+    ``d₀ + h·ṡ`` of ``vs`` (B, K) is added to ``a_−``.  Returns (B, O, J, C, K)."""
     dt = centres.dtype
     mg = margins.astype(dt)[:, :, :, None, :]  # (3, O, J, 1, K)
     ds = s[:, None, None, None, :] - centres[None, ..., 0]
     dd = d[:, None, None, None, :] - centres[None, ..., 1]
-    a = cfg.a + jnp.where(ds < 0, mg[0][None], mg[1][None])
+    behind, ahead = mg[0][None], mg[1][None]
+    if cfg.asymmetric:
+        if vs is None:
+            raise ValueError("config.asymmetric needs the ego samples' speeds vs")
+        floor = headway_semi_axis(cfg, cfg.a, vs).astype(dt) - cfg.a  # (B, K)
+        behind = jnp.maximum(behind, floor[:, None, None, None, :])
+        ahead = cfg.margin_ahead_scale * ahead
+    a = cfg.a + jnp.where(ds < 0, behind, ahead)
     b = cfg.b + mg[2][None]
-    return 1.0 - ds * ds / (a * a) - dd * dd / (b * b)
+    f = 1.0 - ds * ds / (a * a) - dd * dd / (b * b)
+    if cfg.asymmetric:
+        f = rear_exempt(f, ds, dd, b, cfg.rear_exempt_width)
+    return f
 
 
 def planner_output(prob: CEMProblem, d, state, dt):

@@ -641,17 +641,26 @@ def _assemble(ctx: _Ctx, cx, cy, dvec, cost, best_iter, fallback, status, state)
             f"{float(config.res_tol):g}"
         )
     ob = ctx.obstacles
+    vs1 = jnp.asarray(vs[None]) if config.asymmetric else None
     if ob.margins is not None:
         f = alg.margin_ellipse_values(
-            config, jnp.asarray(s[None]), jnp.asarray(d[None]), ob.centres, ob.margins
+            config, jnp.asarray(s[None]), jnp.asarray(d[None]), ob.centres, ob.margins, vs=vs1
         )
     else:
+        a_plan = planning_semi_axis(config, prob.t())
+        a_behind = rear_w = None
+        if config.asymmetric:
+            a_behind = alg.headway_semi_axis(config, a_plan, vs1)
+            a_plan = planning_semi_axis(config, prob.t(), scale=config.margin_ahead_scale)
+            rear_w = config.rear_exempt_width
         f = ellipse_values(
             jnp.asarray(s[None]),
             jnp.asarray(d[None]),
             ob.centres,
-            planning_semi_axis(config, prob.t()),
+            a_plan,
             config.b + config.margin_lat,
+            a_behind=a_behind,
+            rear_exempt_width=rear_w,
         )
     mmd_val = float(
         _mmd_cost_jit(f, ob.weights, config.bandwidth, config.f_scale, n_taylor_terms(config))[0]

@@ -56,6 +56,7 @@ __all__ = [
     "ellipse_f",
     "f_bar",
     "ellipse_values",
+    "rear_exempt",
     "mmd_cost",
     "scenario_cost",
     "saa_cost",
@@ -146,7 +147,7 @@ def circle_centres(
 
 
 # ------------------------------------------------- Algorithm 1's collision terms (Frenet, batched)
-def ellipse_values(s, d, centres, a, b):
+def ellipse_values(s, d, centres, a, b, a_behind=None, rear_exempt_width=None):
     """Collision function ``f = 1 − Δs²/a² − Δd²/b²`` of ego points against circle centres.
 
     Parameters
@@ -154,6 +155,10 @@ def ellipse_values(s, d, centres, a, b):
     s, d : (B, K) ego Frenet positions (m)
     centres : (O, J, C, K, 2) obstacle circle centres (m)
     a, b : ellipse semi-axes (m)
+    a_behind : optional (B, K) longitudinal semi-axis used where the ego is behind the centre
+        (Δs < 0): a following distance (:func:`mmdopt.algorithm.headway_semi_axis`)
+    rear_exempt_width : optional w (m): points behind the ego in line with it (Δs > 0,
+        |Δd| < w) cost nothing (:func:`rear_exempt`)
 
     Returns
     -------
@@ -161,7 +166,20 @@ def ellipse_values(s, d, centres, a, b):
     """
     ds = s[:, None, None, None, :] - centres[None, ..., 0]
     dd = d[:, None, None, None, :] - centres[None, ..., 1]
-    return 1.0 - ds * ds / (a * a) - dd * dd / (b * b)
+    if a_behind is not None:
+        a = jnp.where(ds < 0, jnp.asarray(a_behind)[:, None, None, None, :], a)
+    f = 1.0 - ds * ds / (a * a) - dd * dd / (b * b)
+    if rear_exempt_width is not None:
+        f = rear_exempt(f, ds, dd, b, rear_exempt_width)
+    return f
+
+
+def rear_exempt(f, ds, dd, b, width):
+    """Points behind the ego and in line with it cost nothing: ``f ← min(f, (|Δd| − w)/b)``
+    where Δs > 0 (the ego ahead of the point); ``width`` w = 0 leaves ``f`` as it is
+    (:class:`mmdopt.MMDOptConfig`, responsibility-aware longitudinal model)."""
+    side = (jnp.abs(dd) - width) / b
+    return jnp.where((ds > 0) & (width > 0), jnp.minimum(f, side), f)
 
 
 def scenario_cost(f, mask):
@@ -605,11 +623,15 @@ def collision_cost(
     n_terms: int = 0,
     saa_eps=0.02,
     saa_temperature=0.05,
+    a_behind=None,
+    rear_exempt_width=None,
 ) -> jax.Array:
     """A method's collision term (eq. l_dist / scenario / SAA) summed over obstacles, (B,).
 
     ``s, d`` (B, K) ego Frenet positions; ``centres`` (O, J, C, K, 2); ``weights``, ``mask``
-    (O, J); ``a`` the longitudinal semi-axis (scalar or (K,)), ``b`` the lateral one (scalar).
+    (O, J); ``a`` the longitudinal semi-axis (scalar or (K,)), ``b`` the lateral one (scalar);
+    ``a_behind`` optional (B, K) semi-axis where the ego is behind a centre (following
+    distance, :func:`ellipse_values`); ``rear_exempt_width`` see :func:`rear_exempt`.
 
     Every term is a sum of per-obstacle terms that are exactly 0 when no ego point of the batch
     enters the obstacle's ellipses (MMD and scenario: every f̄ = 0; SAA: every sample's smoothed
@@ -623,7 +645,13 @@ def collision_cost(
         raise ValueError(f"mode must be one of {COLLISION_MODES}, got {mode!r}")
     kw = (bandwidth, f_scale, n_terms, saa_eps, saa_temperature)
     if centres.shape[0] == 1:
-        return _term(mode, ellipse_values(s, d, centres, a, b), weights, mask, *kw)
+        return _term(
+            mode,
+            ellipse_values(s, d, centres, a, b, a_behind, rear_exempt_width),
+            weights,
+            mask,
+            *kw,
+        )
 
     def reaches(fmax):
         if mode == "saa":  # π̂ ≤ sigmoid(max f / τ) < ε ⇒ max(0, π̂ − ε) = 0
@@ -633,12 +661,14 @@ def collision_cost(
     # per step, the interval of the batch's ego positions (computed once for all obstacles)
     box = (jnp.min(s, 0), jnp.max(s, 0), jnp.min(d, 0), jnp.max(d, 0))
     zero = jnp.zeros(s.shape[:1], jnp.result_type(s, centres))
+    # the bound needs the largest semi-axis of any candidate (the rear exemption only lowers f)
+    a_bound = a if a_behind is None else jnp.maximum(a, jnp.max(jnp.asarray(a_behind), axis=0))
 
     def one(xs):
         c, w, m = xs
 
         def exact():
-            f = ellipse_values(s, d, c[None], a, b)  # (B, 1, J, C, K)
+            f = ellipse_values(s, d, c[None], a, b, a_behind, rear_exempt_width)  # (B, 1, J, C, K)
             return lax.cond(
                 reaches(jnp.max(f)),
                 lambda: _term(mode, f, w[None], m[None], *kw).astype(zero.dtype),
@@ -646,7 +676,7 @@ def collision_cost(
             )
 
         # cheap bound first: O(B·K + J·C·K) instead of the O(B·J·C·K) ellipse values
-        return lax.cond(reaches(_max_f_bound(box, c, a, b)), exact, lambda: zero)
+        return lax.cond(reaches(_max_f_bound(box, c, a_bound, b)), exact, lambda: zero)
 
     return jnp.sum(lax.map(one, (centres, weights, mask)), axis=0)
 

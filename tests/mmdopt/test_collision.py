@@ -253,6 +253,11 @@ def test_reach_bound_never_misses_a_collision_and_gated_costs_equal_ungated():
         box = (s.min(0), s.max(0), d.min(0), d.max(0))
         bound = float(_max_f_bound(box, jnp.asarray(c), a, 2.0))
         assert bound >= float(jnp.max(ellipse_values(s, d, c[None], a, 2.0))) - 1e-12
+        # following distance (per-candidate semi-axis behind a centre) and rear exemption
+        a_behind = rng.uniform(2, 15, (8, 5))
+        f = ellipse_values(s, d, c[None], a, 2.0, a_behind, 2.0)
+        bound = float(_max_f_bound(box, jnp.asarray(c), np.maximum(a, a_behind.max(0)), 2.0))
+        assert bound >= float(jnp.max(f)) - 1e-12
     # two ego candidates on opposite corners; the obstacle sits on the empty corner
     K = 10
     s = jnp.asarray(np.stack([np.zeros(K), np.full(K, 40.0)]))

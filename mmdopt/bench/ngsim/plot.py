@@ -11,7 +11,14 @@ import mmdopt
 from mmdopt.bench.plots import METHOD_COLOURS, METHOD_LABELS, _plt
 
 from .metric import rect_corners
-from .runner import NgsimParams, _pad_ghosts, _predictor, build_task, ngsim_config
+from .runner import (
+    NgsimParams,
+    _pad_ghosts,
+    _predictor,
+    build_task,
+    ngsim_config,
+    task_config,
+)
 from .scene import future_at
 
 __all__ = ["ngsim_scene_figure", "timing_vs_obstacles_figure"]
@@ -32,9 +39,8 @@ def ngsim_scene_figure(
     plt = _plt()
     p = NgsimParams() if params is None else params
     cfg = ngsim_config() if config is None else config
-    if p.v_des is not None:
-        cfg = cfg.replace(v_des=float(p.v_des))
     b = build_task(task, p, cfg)
+    cfg = task_config(b, p, cfg)
     sc, v, k, times = b["scene"], b["v"], b["k"], b["times"]
     key = jax.random.PRNGKey(p.seed)
     samples = _predictor(predictor).sample(b["hist"], b["ctx"], p.n_samples, key)

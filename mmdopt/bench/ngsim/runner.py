@@ -66,6 +66,8 @@ __all__ = [
     "ngsim_config",
     "select_tasks",
     "build_task",
+    "traffic_v_des",
+    "task_config",
     "run_task",
     "run_ngsim",
     "timing_vs_obstacles",
@@ -114,6 +116,17 @@ class NgsimParams:
     n_samples, n_validation : predictor samples per obstacle for planning / for the metric
     lane_keep_margin : lateral freedom (m) on a side without a same-direction lane
     v_des : desired speed (m/s) of the cost (None: the config's)
+    v_des_flow : if set (m/s), the desired speed respects the traffic: ``min(v_des, v_flow +
+        v_des_flow)`` with ``v_flow`` the median speed at t0 (observed, not the future) of the
+        planned vehicles ahead of the ego within ``range_m`` in the lanes it may use (lateral
+        offset within the lane bounds ± half a lane width: its lane and the neighbours);
+        ``v_des`` alone when nobody is ahead (:func:`traffic_v_des`)
+    flow_leader : with ``v_des_flow``, the traffic speed is that of the ego lane's leader (the
+        nearest vehicle ahead within half a lane width of the ego's offset) when there is one
+    min_change_speed : below this speed (m/s) at t0 the ego keeps its lane (bounds
+        ±``lane_keep_margin`` around the lane centre, widened to its offset): the planner's
+        Frenet model has no turning-radius limit, so a lateral move while crawling is a sideways
+        slide, and lane changes in stop-and-go traffic are where cut-in contacts happen
     bound_step : lane bounds are rounded to this step (m) so few projection problems compile
     obstacle_bucket : obstacle counts are padded with ghosts to a multiple of this (default:
         ``max_obstacles``, i.e. every plan sees the same O and Algorithm 1 compiles once per
@@ -132,10 +145,27 @@ class NgsimParams:
     n_validation: int = 1000
     lane_keep_margin: float = 0.5
     v_des: float | None = 25.0
+    v_des_flow: float | None = 2.0
+    flow_leader: bool = False
+    min_change_speed: float = 5.0
     bound_step: float = 0.5
     obstacle_bucket: int | None = None
     brake_threshold: float = BRAKE_THRESHOLD
     seed: int = 0
+
+    def __post_init__(self) -> None:
+        for name in ("v_des", "v_des_flow"):
+            v = getattr(self, name)
+            if v is not None and not (isinstance(v, int | float) and np.isfinite(v) and v >= 0):
+                raise ValueError(
+                    f"NgsimParams.{name} must be None or a finite number >= 0, got {v!r}"
+                )
+        if not (np.isfinite(self.min_change_speed) and self.min_change_speed >= 0):
+            raise ValueError(
+                f"NgsimParams.min_change_speed must be finite and >= 0, got {self.min_change_speed}"
+            )
+        if self.v_des_flow is not None and self.v_des is None:
+            raise ValueError("NgsimParams.v_des_flow needs v_des (the cap without traffic)")
 
     @classmethod
     def from_dict(cls, d: dict) -> NgsimParams:
@@ -160,7 +190,15 @@ def ngsim_config(**overrides) -> mmdopt.MMDOptConfig:
     n_e 20, 10 iterations, reduced sets of m = 10 (selection CEM: population 50, 10 elites,
     20 iterations) — with the paper's sizes (1000/150/50, 20 iterations, m = 20, selection
     100/20/75) one plan against 10 obstacles took 7.5 s vs 1.1 s here on the loaded 2-core VM
-    (docs/ngsim.md).  Pass the paper's sizes through ``overrides`` (or ``--config``)."""
+    (docs/ngsim.md).  Pass the paper's sizes through ``overrides`` (or ``--config``).
+
+    Responsibility (issue 12's at-fault bar; :class:`mmdopt.MMDOptConfig`, responsibility-aware
+    longitudinal model): ``rear_exempt_width = 2.0`` m — obstacle points behind the ego and
+    within 2 m of its offset (a follower in its lane) cost nothing, so the plan neither dodges
+    a closing follower sideways into the next lane nor races ahead of it.  The time-headway
+    floor (``headway_time``, ``headway_gap``) is available but off: on the training scenes it
+    cost progress without removing an at-fault contact (docs/ngsim.md, "Tuning").  Chosen on
+    the training recordings only (``benchmarks/ngsim_safety_tuning.py``)."""
     base = dict(
         horizon=5.0,
         num_steps=51,
@@ -174,6 +212,7 @@ def ngsim_config(**overrides) -> mmdopt.MMDOptConfig:
         iterations=10,
         reduced_set_size=10,
         reduced_set=mmdopt.ReducedSetConfig(iterations=20, population=50, n_elite=10),
+        rear_exempt_width=2.0,
     )
     base.update(overrides)
     return mmdopt.MMDOptConfig(**base)
@@ -243,6 +282,9 @@ def build_task(task: dict, params: NgsimParams, config: mmdopt.MMDOptConfig) -> 
     st = params.bound_step
     y_ub = round(off_l / st) * st if off_l is not None else params.lane_keep_margin
     y_lb = round(off_r / st) * st if off_r is not None else -params.lane_keep_margin
+    if ego.vs < params.min_change_speed:
+        # crawling: keep the lane (a Frenet lateral move at ~0 speed is a sideways slide)
+        y_ub, y_lb = params.lane_keep_margin, -params.lane_keep_margin
     y_ub = max(y_ub, _quantise(ego.d + 0.1, st, up=True))
     y_lb = min(y_lb, _quantise(ego.d - 0.1, st, up=False))
     road = mmdopt.Road(path=path, y_lb=y_lb, y_ub=y_ub)
@@ -257,7 +299,21 @@ def build_task(task: dict, params: NgsimParams, config: mmdopt.MMDOptConfig) -> 
     ctx = context_at(sc_wo, obs, k, times)
     hist = history_at(sc, obs, k, params.history)
     lane_w = sc.lanes[int(sc.lane_of[v, k])].width
+    # speed of the traffic ahead, observed at t0 (for the traffic-aware desired speed)
+    s_obs, d_obs = (np.asarray(a) for a in path.to_frenet(sc.xy[obs, k, 0], sc.xy[obs, k, 1]))
+    # only the lanes the ego may use (its lane and the neighbours within its bounds): a queue
+    # two lanes over (an exit, the HOV lane) is not the ego's traffic
+    sel = (s_obs > ego.s) & np.isfinite(sc.speed[obs, k])
+    sel &= (d_obs >= y_lb - 0.5 * lane_w) & (d_obs <= y_ub + 0.5 * lane_w)
+    v_flow = float(np.median(sc.speed[obs[sel], k])) if np.any(sel) else None
+    in_lane = sel & (np.abs(d_obs - ego.d) < 0.5 * lane_w)
+    v_leader = None
+    if np.any(in_lane):
+        lead = np.flatnonzero(in_lane)[np.argmin(s_obs[in_lane])]
+        v_leader = float(sc.speed[obs[lead], k])
     return dict(
+        v_flow=v_flow,
+        v_leader=v_leader,
         scene=sc,
         v=v,
         k=k,
@@ -271,6 +327,31 @@ def build_task(task: dict, params: NgsimParams, config: mmdopt.MMDOptConfig) -> 
         off_l=off_l,
         off_r=off_r,
     )
+
+
+def traffic_v_des(
+    v_flow: float | None, params: NgsimParams, v_leader: float | None = None
+) -> float | None:
+    """The desired speed of a task (m/s): ``params.v_des``, capped at ``v + params.v_des_flow``
+    when ``v_des_flow`` is set, with ``v`` the traffic's speed at t0: ``v_flow`` (median speed
+    of the vehicles ahead within range), or the ego lane's leader ``v_leader`` when
+    ``params.flow_leader`` and there is one; no cap when nobody is ahead.  ``None``: keep the
+    config's."""
+    if params.v_des is None:
+        return None
+    v = v_leader if (params.flow_leader and v_leader is not None) else v_flow
+    if params.v_des_flow is None or v is None:
+        return float(params.v_des)
+    if not np.isfinite(v) or v < 0:
+        raise ValueError(f"v_flow / v_leader must be a finite speed >= 0, got {v!r}")
+    return float(min(params.v_des, v + params.v_des_flow))
+
+
+def task_config(b: dict, params: NgsimParams, config: mmdopt.MMDOptConfig) -> mmdopt.MMDOptConfig:
+    """The planner config of one built task (:func:`build_task`): ``config`` with the task's
+    desired speed (:func:`traffic_v_des`)."""
+    v = traffic_v_des(b.get("v_flow"), params, b.get("v_leader"))
+    return config if v is None else config.replace(v_des=v)
 
 
 def _score_recorded(b: dict, plan, params: NgsimParams) -> dict:
@@ -327,7 +408,7 @@ def run_task(
     samples = pred.sample(b["hist"], b["ctx"], params.n_samples, k_pred)
     predict_s = time.perf_counter() - t1
     val = pred.sample(b["hist"], b["ctx"], params.n_validation, k_val)
-    cfg = config if params.v_des is None else config.replace(v_des=float(params.v_des))
+    cfg = task_config(b, params, config)
     planned = _pad_ghosts(
         samples, b["road"], b["ego"], params.max_obstacles, params.obstacle_bucket
     )
@@ -411,9 +492,8 @@ def timing_vs_obstacles(
     first call (``first_s``, includes the JIT compile) and the median of ``repeats`` more."""
     p = NgsimParams(max_obstacles=max(counts)) if params is None else params
     cfg = ngsim_config() if config is None else config
-    if p.v_des is not None:
-        cfg = cfg.replace(v_des=float(p.v_des))
     b = build_task(task, p, cfg)
+    cfg = task_config(b, p, cfg)
     samples = _predictor(predictor).sample(
         b["hist"], b["ctx"], p.n_samples, jax.random.PRNGKey(p.seed)
     )

@@ -205,3 +205,92 @@ def test_run_ngsim_rejects_bad_arguments(tmp_path):
         run_ngsim([tmp_path], tmp_path / "out", predictor="cv")
     with pytest.raises(ValueError, match="unknown NgsimParams"):
         run_ngsim([tmp_path], tmp_path / "out", config={"bench": {"egos": 3}})
+
+
+# ------------------------------------------------- following distance, rear exemption, v_des
+def test_following_distance_and_rear_exemption_shape_the_ellipse():
+    import jax.numpy as jnp
+
+    from mmdopt.collision import ellipse_values
+
+    # one obstacle point at s = 0, d = 0; ego points at Δs = -8 (behind it), +2 (just ahead,
+    # in line: a follower's view) and +2 with Δd = 1.5 (beside)
+    s = jnp.array([[-8.0, 2.0, 2.0]])
+    d = jnp.array([[0.0, 0.0, 1.5]])
+    centres = jnp.zeros((1, 1, 1, 3, 2))
+    a, b = 3.0, 2.4
+    plain = np.asarray(ellipse_values(s, d, centres, a, b))[0, 0, 0, 0]
+    assert plain[0] < 0 < plain[1] and plain[2] > 0
+    v = jnp.full((1, 3), 15.0)
+    a_behind = a + 2.0 + 0.5 * v  # d0 + h·v = 9.5 m behind the point
+    f = np.asarray(ellipse_values(s, d, centres, a, b, a_behind, 1.0))[0, 0, 0, 0]
+    assert f[0] > 0  # 8 m behind at 15 m/s violates the 0.5 s headway
+    assert f[1] <= 0  # in line ahead of the point: the follower's business
+    assert f[2] == pytest.approx(plain[2])  # beside: unchanged
+    # off (None / zero width) is the plain ellipse
+    f0 = np.asarray(ellipse_values(s, d, centres, a, b, None, 0.0))[0, 0, 0, 0]
+    np.testing.assert_array_equal(f0, plain)
+
+
+def test_responsibility_options_validated_and_off_by_default():
+    import mmdopt
+    from mmdopt.bench.ngsim import ngsim_config
+
+    assert not mmdopt.MMDOptConfig().asymmetric
+    cfg = ngsim_config()
+    assert cfg.asymmetric and cfg.rear_exempt_width > 0
+    assert mmdopt.MMDOptConfig(headway_time=0.5).asymmetric
+    for name in ("headway_time", "headway_gap", "margin_ahead_scale", "rear_exempt_width"):
+        with pytest.raises(ValueError, match=name):
+            mmdopt.MMDOptConfig(**{name: -1.0})
+        with pytest.raises(ValueError, match=name):
+            mmdopt.MMDOptConfig(**{name: float("nan")})
+
+
+def test_traffic_aware_desired_speed():
+    from mmdopt.bench.ngsim import NgsimParams
+    from mmdopt.bench.ngsim.runner import traffic_v_des
+
+    p = NgsimParams(v_des=25.0, v_des_flow=2.0)
+    assert traffic_v_des(12.0, p) == pytest.approx(14.0)
+    assert traffic_v_des(30.0, p) == pytest.approx(25.0)  # capped by v_des
+    assert traffic_v_des(None, p) == pytest.approx(25.0)  # nobody ahead
+    assert traffic_v_des(12.0, NgsimParams(v_des=25.0, v_des_flow=None)) == 25.0
+    with pytest.raises(ValueError, match="v_flow"):
+        traffic_v_des(float("nan"), p)
+    with pytest.raises(ValueError, match="v_des_flow"):
+        NgsimParams(v_des_flow=-1.0)
+    with pytest.raises(ValueError, match="v_des_flow"):
+        NgsimParams(v_des=None, v_des_flow=2.0)
+
+
+def test_plan_keeps_the_time_headway_to_a_slower_leader():
+    """A leader 25 m ahead at 10 m/s, the ego at 15 m/s wanting 25 m/s (lane keeping): with a
+    1 s headway the plan stays behind the leader's samples by a + d₀ + h·v at every step.  (With
+    the option off the same plan closes to ~7 m inside that distance, the planning ellipse's
+    a + margin_long + margin_rate·t = 10.5 m at 5 s < 3 + 2 + 10 m: measured, not asserted, to
+    keep this test to one JIT compile.)"""
+    import jax
+
+    import frenet
+    import mmdopt
+    from mmdopt.bench.ngsim import ngsim_config
+
+    t = np.linspace(0.0, 5.0, 51)
+    rng = np.random.default_rng(0)
+    s_lead = 25.0 + (10.0 + 0.3 * rng.standard_normal(20))[:, None] * t[None]  # (n, K)
+    obs = np.stack([s_lead, 0.05 * rng.standard_normal(s_lead.shape)], -1)[None]
+    ego = frenet.EgoState(s=0.0, d=0.0, vs=15.0)
+    road = mmdopt.Road(y_lb=-0.3, y_ub=0.3)
+    small = dict(
+        n_samples=60, n_cem=20, n_elite=8, n_brake=4, iterations=6, reduced_set_size=5,
+        reduced_set=mmdopt.ReducedSetConfig(population=16, n_elite=4, iterations=3), v_des=25.0,
+    )  # fmt: skip
+    cfg = ngsim_config(**small, headway_time=1.0, headway_gap=2.0)
+    assert cfg.asymmetric
+    p = mmdopt.plan_frenet(ego, road, obs, config=cfg, key=jax.random.PRNGKey(0))
+    assert p.feasible and not p.fallback, p.status
+    # the leader's rear circle (2.5 m behind its centre) to the ego point, minus the rule
+    gap = np.mean(s_lead, 0) - 2.5 - p.s - (cfg.a + 2.0 + 1.0 * p.vs)
+    assert gap.min() >= -0.5, gap.min()
+    assert p.vs[-1] > 6.0  # it follows the 10 m/s leader, it does not just stop
