@@ -24,9 +24,15 @@ TUTORIALS = ("01_quickstart", "02_qp_backends", "03_reduced_set", "04_projection
 BUILD_TIMEOUT_S = 1200  # four notebooks executed on a loaded 2-core CI machine
 
 
-@pytest.fixture(scope="module")
-def site(tmp_path_factory) -> Path:
-    out = tmp_path_factory.mktemp("site")
+API_NAMES = {
+    "solvers": ["solvers.QP", "solvers.solve", "solvers.Solution"],
+    "frenet": ["frenet.ReferencePath", "frenet.ProjectionProblem", "frenet.EgoState"],
+    "mmdopt": ["mmdopt.plan", "mmdopt.Plan", "mmdopt.Road", "mmdopt.select_reduced_set"],
+    "bench": ["mmdopt.bench.scenes.make_scene", "mmdopt.bench.results.load_results"],
+}
+
+
+def _build(out: Path) -> None:
     env = dict(os.environ)
     env.update(MMDOPT_NB_SMALL="1", MPLBACKEND="Agg", NO_MKDOCS_2_WARNING="1")
     # the notebook kernels import the packages of this checkout even when it is not installed
@@ -40,34 +46,26 @@ def site(tmp_path_factory) -> Path:
         timeout=BUILD_TIMEOUT_S,
     )
     assert proc.returncode == 0, f"mkdocs build --strict failed:\n{proc.stdout}\n{proc.stderr}"
-    return out
 
 
 @pytest.mark.slow
-@pytest.mark.parametrize("name", TUTORIALS)
-def test_tutorial_rendered_executed_with_plots(site, name):
-    html = (site / "notebooks" / name / "index.html").read_text(encoding="utf-8")
-    assert "CHECKS PASSED" in html, f"{name}: the executed notebook's final checks are not shown"
-    assert "data:image/png" in html, f"{name}: no plot rendered"
-
-
-@pytest.mark.slow
-@pytest.mark.parametrize(
-    "page, names",
-    [
-        ("solvers", ["solvers.QP", "solvers.solve", "solvers.Solution"]),
-        ("frenet", ["frenet.ReferencePath", "frenet.ProjectionProblem", "frenet.EgoState"]),
-        ("mmdopt", ["mmdopt.plan", "mmdopt.Plan", "mmdopt.Road", "mmdopt.select_reduced_set"]),
-        ("bench", ["mmdopt.bench.scenes.make_scene", "mmdopt.bench.results.load_results"]),
-    ],
-)
-def test_api_reference_documents_the_public_api(site, page, names):
-    html = (site / "api" / page / "index.html").read_text(encoding="utf-8")
-    for n in names:
-        assert f'id="{n}"' in html, f"API page {page} does not document {n}"
-
-
-@pytest.mark.slow
-def test_pages_present(site):
-    for page in ("index.html", "getting-started", "architecture", "benchmarks"):
-        assert (site / page).exists(), page
+def test_site_builds_strict_with_executed_tutorials_and_api_reference(tmp_path):
+    """One build (one test, so that parallel test workers do not each build the site): every
+    tutorial rendered with its final checks and a plot, every API page documenting its public
+    names, the narrative pages present."""
+    _build(tmp_path)
+    problems = []
+    for name in TUTORIALS:
+        html = (tmp_path / "notebooks" / name / "index.html").read_text(encoding="utf-8")
+        if "CHECKS PASSED" not in html:
+            problems.append(f"{name}: the executed notebook's final checks are not shown")
+        if "data:image/png" not in html:
+            problems.append(f"{name}: no plot rendered")
+    for page, names in API_NAMES.items():
+        html = (tmp_path / "api" / page / "index.html").read_text(encoding="utf-8")
+        missing = [n for n in names if f'id="{n}"' not in html]
+        problems += [f"API page {page} does not document {n}" for n in missing]
+    for page in ("index.html", "getting-started", "architecture", "benchmarks", "frontier"):
+        if not (tmp_path / page).exists():
+            problems.append(f"page {page} missing")
+    assert not problems, problems
