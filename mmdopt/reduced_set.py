@@ -395,6 +395,14 @@ def reduced_set_objective(
 _CEM_DTYPE = jnp.float32
 
 
+def _keep_elites(elites, ecost, new, new_cost, E: int):
+    """The E best of the kept elites and the new candidates (elitism), with their costs."""
+    pop = jnp.concatenate([elites, new], axis=0)
+    c = jnp.concatenate([ecost, new_cost])
+    order = _smallest(c, E)
+    return pop[order], c[order]
+
+
 def _cem_alpha(key, K: jax.Array, m: int, cfg: ReducedSetConfig) -> jax.Array:
     """CEM over α ∈ ℝⁿ for eq. (red_set_opt_proposed); returns the best α seen."""
     n = K.shape[0]
@@ -440,10 +448,7 @@ def _cem_alpha(key, K: jax.Array, m: int, cfg: ReducedSetConfig) -> jax.Array:
     def step(carry, z):
         mu, cov, elites, ecost = carry
         new = mu + z @ jnp.linalg.cholesky(cov).T
-        pop = jnp.concatenate([elites, new], axis=0)
-        c = jnp.concatenate([ecost, cost(new)])
-        order = _smallest(c, E)
-        elites, ecost = pop[order], c[order]
+        elites, ecost = _keep_elites(elites, ecost, new, cost(new), E)
         mu_new, cov_new = stats(elites)
         mu = (1.0 - s) * mu_new + s * mu
         cov = (1.0 - s) * cov_new + s * cov
@@ -500,10 +505,7 @@ def _cem_factor(key, cost, n: int, dtype, cfg: ReducedSetConfig) -> jax.Array:
         mu, a, F, elites, ecost = carry
         z, g = zg
         new = mu + jnp.sqrt(a) * z + g @ F.reshape(W * E, n)
-        pop = jnp.concatenate([elites, new], axis=0)
-        c = jnp.concatenate([ecost, cost(new)])
-        order = _smallest(c, E)
-        elites, ecost = pop[order], c[order]
+        elites, ecost = _keep_elites(elites, ecost, new, cost(new), E)
         mu_new, C = stats(elites)
         mu = (1.0 - s) * mu_new + s * mu
         a, F = _factor_update(a, F, C, s, r)
