@@ -35,65 +35,21 @@ __all__ = ["main", "build_parser"]
 from mmdopt.algorithm import PLANNER_BACKEND
 from mmdopt.baselines import METHODS as PLAN_METHODS
 
-from .executors import EXECUTORS, Interrupted, stop_on_signals
+from .argtypes import (
+    add_executor,
+    existing_file,
+    int_list,
+    method_list,
+    nonneg_int,
+    positive_int,
+)
+from .executors import Interrupted, stop_on_signals
 
 REDUCED_SET_METHODS = ("mmd", "herding", "degroot", "random")
 
 
 # ---------------------------------------------------------------------------------------------
 # argument types
-
-
-def _methods(allowed: Sequence[str]):
-    def parse(s: str) -> list[str]:
-        ms = [m.strip() for m in s.split(",") if m.strip()]
-        if not ms:
-            raise argparse.ArgumentTypeError("needs at least one method")
-        bad = [m for m in ms if m not in allowed]
-        if bad:
-            raise argparse.ArgumentTypeError(
-                f"unknown method(s) {', '.join(bad)}; choose from {', '.join(allowed)}"
-            )
-        return list(dict.fromkeys(ms))
-
-    return parse
-
-
-def _positive_int(s: str) -> int:
-    try:
-        v = int(s)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"expected a positive integer, got {s!r}") from None
-    if v < 1:
-        raise argparse.ArgumentTypeError(f"expected a positive integer, got {v}")
-    return v
-
-
-def _nonneg_int(s: str) -> int:
-    try:
-        v = int(s)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"expected an integer >= 0, got {s!r}") from None
-    if v < 0:
-        raise argparse.ArgumentTypeError(f"expected an integer >= 0, got {v}")
-    return v
-
-
-def _int_list(s: str) -> list[int]:
-    try:
-        v = [int(x) for x in s.split(",") if x.strip()]
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"expected comma-separated integers, got {s!r}") from None
-    if not v or min(v) < 1:
-        raise argparse.ArgumentTypeError(f"expected positive integers, got {s!r}")
-    return v
-
-
-def _existing_file(s: str) -> Path:
-    p = Path(s)
-    if not p.is_file():
-        raise argparse.ArgumentTypeError(f"file {s!r} does not exist")
-    return p
 
 
 def _backend(s: str) -> str:
@@ -107,20 +63,6 @@ def _backend(s: str) -> str:
             f"backend {s!r} is not available; available: {', '.join(avail)}"
         )
     return s
-
-
-def _add_executor(q) -> None:
-    q.add_argument(
-        "--executor",
-        choices=EXECUTORS,
-        default="local",
-        help="local process pool (default) or ray (pip install 'mmdopt[ray]')",
-    )
-    q.add_argument(
-        "--address",
-        default=None,
-        help="with --executor ray: address of an existing Ray cluster (default: a local one)",
-    )
 
 
 def _presets() -> list[str]:
@@ -161,7 +103,7 @@ def build_parser() -> argparse.ArgumentParser:
     d.add_argument("--out", default="out/demo", help="output folder (default: out/demo)")
     d.add_argument(
         "--methods",
-        type=_methods(PLAN_METHODS),
+        type=method_list(PLAN_METHODS),
         default=["mmd", "degroot"],
         help="comma-separated planning methods (default: mmd,degroot)",
     )
@@ -179,11 +121,11 @@ def build_parser() -> argparse.ArgumentParser:
     def common(q, scenes_default):
         q.add_argument(
             "--scenes",
-            type=_positive_int,
+            type=positive_int,
             default=scenes_default,
             help="number of scenes (default: the preset's)",
         )
-        q.add_argument("--seed", type=_nonneg_int, default=0, help="sweep seed (default 0)")
+        q.add_argument("--seed", type=nonneg_int, default=0, help="sweep seed (default 0)")
         q.add_argument(
             "--preset",
             choices=_presets(),
@@ -192,7 +134,7 @@ def build_parser() -> argparse.ArgumentParser:
         )
         q.add_argument(
             "--scene-params",
-            type=_existing_file,
+            type=existing_file,
             default=None,
             metavar="FILE.json",
             help="JSON object overriding scene-generator parameters (see README)",
@@ -202,7 +144,7 @@ def build_parser() -> argparse.ArgumentParser:
         )
         q.add_argument(
             "--config",
-            type=_existing_file,
+            type=existing_file,
             default=None,
             metavar="FILE.json",
             help="JSON object overriding MMDOptConfig fields, e.g. "
@@ -210,19 +152,19 @@ def build_parser() -> argparse.ArgumentParser:
         )
         q.add_argument(
             "--jobs",
-            type=_positive_int,
+            type=positive_int,
             default=os.cpu_count() or 1,
             help="parallel worker processes (default: number of cores)",
         )
         q.add_argument("--no-progress", action="store_true", help="no progress bar")
-        _add_executor(q)
+        add_executor(q)
 
     s = bs.add_parser("synthetic", help="MMD-Opt vs baselines on synthetic scenes (paper Fig. 5)")
     common(s, None)
     s.add_argument("--out", required=True, help="output folder (resumable)")
     s.add_argument(
         "--methods",
-        type=_methods(PLAN_METHODS),
+        type=method_list(PLAN_METHODS),
         default=["mmd", "degroot", "random", "saa"],
         help="comma-separated methods (default: mmd,degroot,random,saa)",
     )
@@ -232,7 +174,7 @@ def build_parser() -> argparse.ArgumentParser:
     fr.add_argument("--out", required=True, help="output folder (resumable)")
     fr.add_argument(
         "--methods",
-        type=_methods(PLAN_METHODS),
+        type=method_list(PLAN_METHODS),
         default=list(PLAN_METHODS),
         help="comma-separated methods (default: all five)",
     )
@@ -250,13 +192,13 @@ def build_parser() -> argparse.ArgumentParser:
     r.add_argument("--out", required=True, help="output folder (resumable)")
     r.add_argument(
         "--random-sets",
-        type=_positive_int,
+        type=positive_int,
         default=20,
         help="random reduced sets per scene: the near-exhaustive search (default 20)",
     )
     r.add_argument(
         "--methods",
-        type=_methods(REDUCED_SET_METHODS),
+        type=method_list(REDUCED_SET_METHODS),
         default=list(REDUCED_SET_METHODS),
         help="reduced-set selection methods (default: mmd,herding,degroot,random)",
     )
@@ -265,19 +207,19 @@ def build_parser() -> argparse.ArgumentParser:
     t.add_argument("--out", required=True, help="output folder")
     t.add_argument(
         "--sizes",
-        type=_int_list,
+        type=int_list,
         default=[10, 20, 30, 40, 50],
         help="reduced-set sizes (default 10,20,30,40,50)",
     )
     t.add_argument(
         "--samples",
-        type=_int_list,
+        type=int_list,
         default=[50, 100, 200],
         help="numbers of planning samples n (default 50,100,200)",
     )
     t.add_argument(
         "--repeats",
-        type=_positive_int,
+        type=positive_int,
         default=5,
         help="timed calls per setting; the median is reported (default 5)",
     )
@@ -286,7 +228,7 @@ def build_parser() -> argparse.ArgumentParser:
     )
     t.add_argument(
         "--obstacles",
-        type=_int_list,
+        type=int_list,
         default=None,
         help="also time plan() against these numbers of obstacles, e.g. 1,5,10,20 "
         "(timing_obstacles.csv)",
@@ -296,14 +238,14 @@ def build_parser() -> argparse.ArgumentParser:
     f = bs.add_parser("figure", help="qualitative scene figure (paper Fig. 3)")
     f.add_argument(
         "--scene",
-        type=_nonneg_int,
+        type=nonneg_int,
         default=None,
         help="scene index in the preset (default: the built-in demo scene)",
     )
-    f.add_argument("--seed", type=_nonneg_int, default=0)
+    f.add_argument("--seed", type=nonneg_int, default=0)
     f.add_argument("--preset", choices=_presets(), default="reference36")
-    f.add_argument("--scene-params", type=_existing_file, default=None, metavar="FILE.json")
-    f.add_argument("--methods", type=_methods(PLAN_METHODS), default=["degroot", "mmd"])
+    f.add_argument("--scene-params", type=existing_file, default=None, metavar="FILE.json")
+    f.add_argument("--methods", type=method_list(PLAN_METHODS), default=["degroot", "mmd"])
     f.add_argument("--backend", type=_backend, default=PLANNER_BACKEND)
     f.add_argument("--out", required=True, help="output folder")
 

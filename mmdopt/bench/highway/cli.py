@@ -3,64 +3,15 @@
 from __future__ import annotations
 
 import json
-import math
 from collections.abc import Sequence
 from pathlib import Path
 
-from ..executors import EXECUTORS
+from ..argtypes import add_executor, method_list, nonneg_int, positive_float, positive_int
 from .runner import run_highway, summarize, write_video
 from .settings import METHODS, PREDICTORS, HighwaySettings, highway_available, highway_config
 
 
 # ------------------------------------------------------------------------------------------ CLI
-def _pos_int(s: str) -> int:
-    import argparse
-
-    try:
-        v = int(s)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"expected a positive integer, got {s!r}") from None
-    if v < 1:
-        raise argparse.ArgumentTypeError(f"expected a positive integer, got {v}")
-    return v
-
-
-def _nonneg_int(s: str) -> int:
-    import argparse
-
-    try:
-        v = int(s)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"expected an integer >= 0, got {s!r}") from None
-    if v < 0:
-        raise argparse.ArgumentTypeError(f"expected an integer >= 0, got {v}")
-    return v
-
-
-def _pos_float(s: str) -> float:
-    import argparse
-
-    try:
-        v = float(s)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"expected a positive number, got {s!r}") from None
-    if not (math.isfinite(v) and v > 0):
-        raise argparse.ArgumentTypeError(f"expected a positive number, got {s!r}")
-    return v
-
-
-def _method_list(s: str) -> list[str]:
-    import argparse
-
-    ms = [m.strip() for m in s.split(",") if m.strip()]
-    bad = [m for m in ms if m not in METHODS]
-    if not ms or bad:
-        raise argparse.ArgumentTypeError(
-            f"unknown method(s) {', '.join(bad) or '(none)'}; choose from {', '.join(METHODS)}"
-        )
-    return list(dict.fromkeys(ms))
-
-
 def add_highway_parser(bench_subparsers):
     """Add ``highway`` to the ``mmdopt bench`` sub-commands; returns the parser."""
     h = bench_subparsers.add_parser(
@@ -69,14 +20,14 @@ def add_highway_parser(bench_subparsers):
         description="Receding-horizon MMD-Opt and baselines driving in highway-env; "
         "resumable, one JSON per episode, DIR/episodes.csv.",
     )
-    h.add_argument("--episodes", type=_pos_int, default=20, help="episodes (default 20)")
-    h.add_argument("--seed", type=_nonneg_int, default=0, help="episode i uses seed S + i")
-    h.add_argument("--duration", type=_pos_float, default=20.0, help="seconds per episode")
+    h.add_argument("--episodes", type=positive_int, default=20, help="episodes (default 20)")
+    h.add_argument("--seed", type=nonneg_int, default=0, help="episode i uses seed S + i")
+    h.add_argument("--duration", type=positive_float, default=20.0, help="seconds per episode")
     h.add_argument("--out", required=True, help="output folder (resumable)")
     h.add_argument("--env", default="highway-v0", help="highway-env id (default highway-v0)")
     h.add_argument(
         "--methods",
-        type=_method_list,
+        type=method_list(METHODS),
         default=["mmd", "degroot", "cv", "idm"],
         help="comma-separated: mmd,degroot,cv,idm (default all)",
     )
@@ -87,23 +38,15 @@ def add_highway_parser(bench_subparsers):
         metavar="FILE.json",
         help="JSON object of MMDOptConfig fields on top of the highway defaults",
     )
-    h.add_argument("--dt", type=_pos_float, default=0.5, help="replan period δ (s, default 0.5)")
-    h.add_argument("--samples", type=_pos_int, default=20, help="predictor samples per car")
     h.add_argument(
-        "--executor",
-        choices=EXECUTORS,
-        default="local",
-        help="local process pool (default) or ray (pip install 'mmdopt[ray]')",
+        "--dt", type=positive_float, default=0.5, help="replan period δ (s, default 0.5)"
     )
-    h.add_argument(
-        "--address",
-        default=None,
-        help="with --executor ray: address of an existing Ray cluster (default: a local one)",
-    )
-    h.add_argument("--jobs", type=_pos_int, default=1, help="parallel episodes (default 1)")
+    h.add_argument("--samples", type=positive_int, default=20, help="predictor samples per car")
+    add_executor(h)
+    h.add_argument("--jobs", type=positive_int, default=1, help="parallel episodes (default 1)")
     h.add_argument(
         "--video",
-        type=_nonneg_int,
+        type=nonneg_int,
         default=None,
         metavar="EPISODE",
         help="also write DIR/video_EPISODE_METHOD.gif (or .mp4) of this episode",

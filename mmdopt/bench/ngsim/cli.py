@@ -22,6 +22,8 @@ import time
 from collections.abc import Sequence
 from pathlib import Path
 
+from ..argtypes import add_executor, existing_path, method_list, positive_int
+
 __all__ = [
     "add_ngsim_parser",
     "cmd_ngsim",
@@ -40,38 +42,9 @@ def default_data_dir() -> Path:
     return Path(root) / "ngsim_us101" if root else Path("../shared/data/ngsim_us101")
 
 
-def _methods(s: str) -> list[str]:
-    from mmdopt.baselines import METHODS
-
-    ms = [m.strip() for m in s.split(",") if m.strip()]
-    bad = [m for m in ms if m not in METHODS]
-    if not ms or bad:
-        raise argparse.ArgumentTypeError(
-            f"unknown method(s) {bad or s!r}; choose from {', '.join(METHODS)}"
-        )
-    return list(dict.fromkeys(ms))
-
-
-def _positive_int(s: str) -> int:
-    try:
-        v = int(s)
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"expected a positive integer, got {s!r}") from None
-    if v < 1:
-        raise argparse.ArgumentTypeError(f"expected a positive integer, got {v}")
-    return v
-
-
-def _existing(s: str) -> Path:
-    p = Path(s)
-    if not p.exists():
-        raise argparse.ArgumentTypeError(f"{s!r} does not exist")
-    return p
-
-
 def add_ngsim_parser(bench_subparsers) -> argparse.ArgumentParser:
     """``bench ngsim``: MMD-Opt in recorded US-101 traffic (CommonRoad scenes)."""
-    from mmdopt.bench.executors import EXECUTORS
+    from mmdopt.baselines import METHODS
     from mmdopt.predict import PREDICTORS
 
     q = bench_subparsers.add_parser(
@@ -80,7 +53,7 @@ def add_ngsim_parser(bench_subparsers) -> argparse.ArgumentParser:
     q.add_argument(
         "--scenarios",
         nargs="+",
-        type=_existing,
+        type=existing_path,
         required=True,
         metavar="PATH",
         help="CommonRoad .xml files or folders of them",
@@ -88,23 +61,22 @@ def add_ngsim_parser(bench_subparsers) -> argparse.ArgumentParser:
     q.add_argument("--out", required=True, help="output folder (resumable)")
     q.add_argument(
         "--methods",
-        type=_methods,
+        type=method_list(METHODS),
         default=["mmd", "degroot"],
         help="comma-separated planning methods (default: mmd,degroot)",
     )
     q.add_argument("--predictor", choices=PREDICTORS, default="learned")
     q.add_argument(
         "--config",
-        type=_existing,
+        type=existing_path,
         default=None,
         metavar="FILE.json",
         help="MMDOptConfig fields over the benchmark's defaults; a 'bench' sub-object sets "
         "NgsimParams (egos per time, range, samples, ...)",
     )
-    q.add_argument("--executor", choices=EXECUTORS, default="local")
-    q.add_argument("--address", default=None, help="with --executor ray: cluster address")
-    q.add_argument("--jobs", type=_positive_int, default=1)
-    q.add_argument("--max-tasks", type=_positive_int, default=None, help="first N tasks only")
+    add_executor(q)
+    q.add_argument("--jobs", type=positive_int, default=1)
+    q.add_argument("--max-tasks", type=positive_int, default=None, help="first N tasks only")
     return q
 
 
@@ -166,17 +138,17 @@ def add_train_parser(subparsers) -> argparse.ArgumentParser:
     p = subparsers.add_parser("predictor", help="train / evaluate the learned predictor")
     ps = p.add_subparsers(dest="predictor_command", required=True, metavar="{train,eval}")
     t = ps.add_parser("train", help="train the MDN predictor on the training split")
-    t.add_argument("--data", type=_existing, default=None, help="folder of the US-101 scenes")
+    t.add_argument("--data", type=existing_path, default=None, help="folder of the US-101 scenes")
     t.add_argument(
         "--out",
         default=None,
         help="weights path without suffix (default: the package's shipped weights)",
     )
-    t.add_argument("--steps", type=_positive_int, default=2000)
+    t.add_argument("--steps", type=positive_int, default=2000)
     t.add_argument("--seed", type=int, default=0)
     t.add_argument("--no-eval", action="store_true", help="skip the held-out evaluation")
     e = ps.add_parser("eval", help="minADE/minFDE@20 and NLL of all predictors, held-out split")
-    e.add_argument("--data", type=_existing, default=None)
+    e.add_argument("--data", type=existing_path, default=None)
     e.add_argument("--weights", default=None, help="learned weights (default: shipped)")
     e.add_argument("--out", default=None, help="write the table as JSON here")
     return p
