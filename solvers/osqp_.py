@@ -27,7 +27,7 @@ import scipy.sparse as sp
 from .base import Backend, failed_solution
 from .errors import InvalidSettingError
 from .problem import QP, QPBatch
-from .settings import SettingsSpec
+from .settings import OSQP_NATIVE, SettingsSpec
 from .solution import BatchSolution, Solution, Status
 
 __all__ = ["OSQPBackend", "make_backend"]
@@ -44,39 +44,7 @@ _STATUS = {
     # OSQP_TIME_LIMIT_REACHED, OSQP_NON_CVX, OSQP_SIGINT, OSQP_UNSOLVED -> ERROR (the default)
 }
 #: OSQP's own setting names (osqp 1.x)
-NATIVE = frozenset(
-    {
-        "adaptive_rho",
-        "adaptive_rho_fraction",
-        "adaptive_rho_interval",
-        "adaptive_rho_tolerance",
-        "alpha",
-        "cg_max_iter",
-        "cg_precond",
-        "cg_tol_fraction",
-        "cg_tol_reduction",
-        "check_dualgap",
-        "check_termination",
-        "delta",
-        "device",
-        "eps_abs",
-        "eps_dual_inf",
-        "eps_prim_inf",
-        "eps_rel",
-        "linsys_solver",
-        "max_iter",
-        "polish_refine_iter",
-        "polishing",
-        "rho",
-        "rho_is_vec",
-        "scaled_termination",
-        "scaling",
-        "sigma",
-        "time_limit",
-        "verbose",
-        "warm_starting",
-    }
-)
+NATIVE = OSQP_NATIVE
 #: the common vocabulary: OSQP's names are the common ones
 COMMON = {k: (k,) for k in ("eps_abs", "eps_rel", "max_iter", "time_limit", "verbose")}
 SPEC = SettingsSpec(

@@ -30,7 +30,7 @@ import scipy.sparse as sp
 from .base import Backend, failed_solution
 from .errors import UnknownBackendError
 from .problem import QP
-from .settings import SettingsSpec
+from .settings import OSQP_NATIVE, SettingsSpec
 from .solution import Solution, Status
 
 __all__ = [
@@ -68,40 +68,7 @@ EXCLUDED: dict[str, str] = {
 _EXCLUDED = EXCLUDED
 
 _C = ("eps_abs", "eps_rel", "max_iter", "time_limit", "verbose")
-_OSQP_NATIVE = frozenset(
-    {
-        "adaptive_rho",
-        "adaptive_rho_fraction",
-        "adaptive_rho_interval",
-        "adaptive_rho_tolerance",
-        "alpha",
-        "cg_max_iter",
-        "cg_precond",
-        "cg_tol_fraction",
-        "cg_tol_reduction",
-        "check_dualgap",
-        "check_termination",
-        "delta",
-        "device",
-        "eps_abs",
-        "eps_dual_inf",
-        "eps_prim_inf",
-        "eps_rel",
-        "linsys_solver",
-        "max_iter",
-        "polish_refine_iter",
-        "polishing",
-        "rho",
-        "rho_is_vec",
-        "scaled_termination",
-        "scaling",
-        "sigma",
-        "time_limit",
-        "verbose",
-        "warm_starting",
-        "raise_error",
-    }
-)
+_OSQP_NATIVE = OSQP_NATIVE | {"raise_error"}  # qpsolvers adds raise_error
 #: per qpsolvers solver: common -> native names, native names (None: unchecked), whether a warm
 #: start (qpsolvers' ``initvals``) is used, stated tolerance keys and defaults
 SPECS: dict[str, tuple[dict, frozenset | None, bool, tuple, tuple]] = {

@@ -48,6 +48,42 @@ COMMON_SETTINGS: tuple[str, ...] = (
 #: what the recorded settings say for a common setting the backend cannot honour
 IGNORED = "ignored"
 
+#: OSQP's own setting names (osqp 1.x): the native ``osqp`` backend and qpsolvers' ``osqp``
+#: both pass them through (kept here, free of the ``osqp`` import, for both)
+OSQP_NATIVE = frozenset(
+    {
+        "adaptive_rho",
+        "adaptive_rho_fraction",
+        "adaptive_rho_interval",
+        "adaptive_rho_tolerance",
+        "alpha",
+        "cg_max_iter",
+        "cg_precond",
+        "cg_tol_fraction",
+        "cg_tol_reduction",
+        "check_dualgap",
+        "check_termination",
+        "delta",
+        "device",
+        "eps_abs",
+        "eps_dual_inf",
+        "eps_prim_inf",
+        "eps_rel",
+        "linsys_solver",
+        "max_iter",
+        "polish_refine_iter",
+        "polishing",
+        "rho",
+        "rho_is_vec",
+        "scaled_termination",
+        "scaling",
+        "sigma",
+        "time_limit",
+        "verbose",
+        "warm_starting",
+    }
+)
+
 
 @dataclass(frozen=True)
 class SettingsSpec:
