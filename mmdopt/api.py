@@ -29,6 +29,7 @@ import frenet
 import solvers
 
 from . import algorithm as alg
+from ._checks import check_key
 from ._x64 import x64
 from .algorithm import PLANNER_BACKEND, MMDOptConfig, n_taylor_terms, planning_semi_axis
 from .baselines import COST_MODE, METHODS, SELECTION, select_for_method
@@ -252,15 +253,7 @@ def _check_common(ego, road, method, config, backend, key):
             f"backend {backend!r} is not available; available: "
             f"{[PLANNER_BACKEND, *solvers.available_backends()]}"
         )
-    try:
-        k = jnp.asarray(key)
-        ok = jnp.issubdtype(k.dtype, jax.dtypes.prng_key) or (
-            k.dtype == jnp.uint32 and k.shape == (2,)
-        )
-    except (TypeError, ValueError):
-        ok = False
-    if not ok:
-        raise ValueError("key must be a jax PRNG key (jax.random.PRNGKey(seed) or jax.random.key)")
+    check_key(key)
 
 
 def _check_obstacles(obstacles, config: MMDOptConfig, method: str, name="obstacles"):

@@ -23,9 +23,9 @@ from __future__ import annotations
 from dataclasses import dataclass
 from typing import Protocol, runtime_checkable
 
-import jax
-import jax.numpy as jnp
 import numpy as np
+
+from .._checks import check_key
 
 __all__ = [
     "GAP_NONE",
@@ -164,19 +164,6 @@ def check_n(n) -> int:
     if isinstance(n, bool) or not isinstance(n, int | np.integer) or n < 1:
         raise ValueError(f"n must be a positive int, got {n!r}")
     return int(n)
-
-
-def check_key(key):
-    try:
-        k = jnp.asarray(key)
-        ok = jnp.issubdtype(k.dtype, jax.dtypes.prng_key) or (
-            k.dtype == jnp.uint32 and k.shape == (2,)
-        )
-    except (TypeError, ValueError):
-        ok = False
-    if not ok:
-        raise ValueError("key must be a jax PRNG key (jax.random.PRNGKey(seed) or jax.random.key)")
-    return key
 
 
 # ------------------------------------------------------------------------------- lane frame
