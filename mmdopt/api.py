@@ -573,11 +573,9 @@ def _reselect_pass(ctx: _Ctx, state, problem, key, backend, backend_settings):
     r = min(int(config.reselect), n - idx0.shape[1])
     if r <= 0:
         return state
-    extra = np.empty((O, r), idx0.dtype)
-    for o in range(O):
-        d = depth[o].copy()
-        d[idx0[o]] = -np.inf
-        extra[o] = np.argsort(-d, kind="stable")[:r]
+    d = depth.copy()
+    np.put_along_axis(d, idx0, -np.inf, axis=1)  # already in the reduced set
+    extra = np.argsort(-d, axis=1, kind="stable")[:, :r].astype(idx0.dtype)
     idx = np.concatenate([idx0, extra], axis=1)
     w = np.concatenate(
         [np.asarray(ctx.rs.weights, np.float64) * (1.0 - r / n), np.full((O, r), 1.0 / n)], 1
