@@ -235,6 +235,13 @@ def mmd_cost(f, weights, bandwidth, f_scale, n_terms: int):
     With ``n_terms`` from :func:`taylor_terms` for ``max t = s/σ`` (f̄ ≤ 1) the truncation error
     is below 1e-9 relative.
 
+    A point (ego sample, obstacle, step) where no obstacle sample is entered (every f̄_j = 0)
+    contributes exactly 0, and most points are such once the CEM has moved away from the
+    obstacles (5–10 % remain on the demo scene): the points with some f̄_j > 0 are gathered
+    first (``_compact``) and the features evaluated on them only, at the smallest capacity of a
+    ladder ``P/16, P/8, P/4, P/2`` that holds them, or on all P points.  The result is the same
+    sum up to float rounding (the order of the additions over the steps), and deterministic.
+
     Parameters
     ----------
     f : (B, O, J, C, K) collision-function values
@@ -242,29 +249,70 @@ def mmd_cost(f, weights, bandwidth, f_scale, n_terms: int):
     bandwidth, f_scale : kernel σ and the scale s of f̄
     n_terms : static number of Taylor features
     """
+    B, O, J, _, K = f.shape
+    # depths per point p = (b, o, k) with the samples j leading: the sums over j are then
+    # element-wise adds of contiguous rows (measured 1.9× faster than reducing an inner axis)
     t = jnp.maximum(jnp.max(f, axis=3), 0.0) * (f_scale / bandwidth)  # (B, O, J, K)
+    t = jnp.moveaxis(t, 2, 0).reshape(J, B * O * K)
     # materialise t once: otherwise XLA fuses the collision function into each of t's consumers
     # and evaluates it (B·O·J·C·K values) several times
     t = jax.lax.optimization_barrier(t)
+    P = B * O * K
+    w_pt = weights.T.astype(t.dtype)  # (J, O): the weights of point p are column p // K % O
+    c = jnp.asarray([1.0 / math.sqrt(n) for n in range(1, n_terms + 1)], t.dtype)
+
+    def dense():
+        w = jnp.broadcast_to(w_pt[:, None, :, None], (J, B, O, K)).reshape(J, P)
+        return jnp.sum(_point_mmd(t, w, c).reshape(B, O * K), axis=1)
+
+    caps = [P // r for r in (16, 8, 4, 2) if P // r >= 64]
+    if not caps:
+        return dense()
+    active = jnp.any(t > 0.0, axis=0)  # (P,)
+    nnz = jnp.sum(active.astype(jnp.int32))
+    # positions of the active points, ascending (an associative scan: XLA's CPU cumsum is
+    # ≈ 2.6× slower at P = 15 000)
+    pos = lax.associative_scan(jnp.add, active.astype(jnp.int32)) - 1
+
+    def sparse(cap):
+        def run():
+            # scatter with unique targets (deterministic); empty slots hold P (dropped below)
+            idx = jnp.full((cap,), P, jnp.int32).at[jnp.where(active, pos, cap)].set(
+                jnp.arange(P, dtype=jnp.int32), mode="drop"
+            )
+            valid = idx < P
+            tc = jnp.where(valid[None, :], t[:, jnp.minimum(idx, P - 1)], 0.0)
+            wc = w_pt[:, (jnp.minimum(idx, P - 1) // K) % O]
+            v = jnp.where(valid, _point_mmd(tc, wc, c), 0.0)
+            per_point = jnp.zeros((P,), t.dtype).at[idx].set(v, mode="drop")
+            return jnp.sum(per_point.reshape(B, O * K), axis=1)
+
+        return run
+
+    branch = jnp.sum((nnz > jnp.asarray(caps, jnp.int32)).astype(jnp.int32))
+    return lax.switch(branch, [sparse(cap) for cap in caps] + [dense])
+
+
+def _point_mmd(t, w, c):
+    """MMD² to the Dirac per point (eq. l_dist): ``t, w`` (J, P) scaled depths and weights,
+    ``c`` (n_terms,) the factors 1/√n of the Taylor features; returns (P,)."""
     h = 0.5 * t * t
-    w = weights[None, :, :, None]
-    first = jnp.sum(w * (-jnp.expm1(-h)), axis=2) ** 2  # (B, O, K)
-    # φ_n(t) = tⁿ/√n! by running products in a scan over n: one pass per term, no (…, N) array
+    first = jnp.sum(w * (-jnp.expm1(-h)), axis=0) ** 2
+    if c.shape[0] < 1:
+        return first
+    # φ_n(t) = tⁿ/√n! by running products in a scan over n: one pass per term, no (N, …) array
     # (an unrolled Python loop lets XLA re-fuse the whole product chain into every term's
     # reduction, O(n_terms²) work: measured 1.45× slower at B = 150, J = 20, K = 100)
     g = w * jnp.exp(-h)
-    if n_terms < 1:
-        return jnp.sum(first, axis=(1, 2))
-    c = jnp.asarray([1.0 / math.sqrt(n) for n in range(1, n_terms + 1)], t.dtype)
 
     def term(carry, cn):
         g, acc = carry
         g = g * t * cn
-        proj = jnp.sum(g, axis=2)  # (B, O, K)
+        proj = jnp.sum(g, axis=0)  # (P,)
         return (g, acc + proj * proj), None
 
     (_, second), _ = jax.lax.scan(term, (g, jnp.zeros(first.shape, first.dtype)), c)
-    return jnp.sum(first + second, axis=(1, 2))
+    return first + second
 
 
 # ------------------------------------------------------------- the reference surrogate (any frame)
