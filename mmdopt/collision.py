@@ -277,8 +277,10 @@ def mmd_cost(f, weights, bandwidth, f_scale, n_terms: int):
     def sparse(cap):
         def run():
             # scatter with unique targets (deterministic); empty slots hold P (dropped below)
-            idx = jnp.full((cap,), P, jnp.int32).at[jnp.where(active, pos, cap)].set(
-                jnp.arange(P, dtype=jnp.int32), mode="drop"
+            idx = (
+                jnp.full((cap,), P, jnp.int32)
+                .at[jnp.where(active, pos, cap)]
+                .set(jnp.arange(P, dtype=jnp.int32), mode="drop")
             )
             valid = idx < P
             tc = jnp.where(valid[None, :], t[:, jnp.minimum(idx, P - 1)], 0.0)
