@@ -589,12 +589,18 @@ def _cast(tree, dt):
 
 
 # ------------------------------------------------------------------------------------ one step
-def _sample(cfg: MMDOptConfig, key, mu, cov, elites, problem: Problem):
-    """Batch of behavioural inputs: [elites; brake rows; fresh draws], clipped to the bounds."""
-    n_new = cfg.n_samples - cfg.n_elite - cfg.n_brake
+def _normals(cfg: MMDOptConfig, key, dt):
+    """The standard normal draws of one iteration, (n_samples − n_elite − n_brake, D)."""
+    return jax.random.normal(key, (cfg.n_samples - cfg.n_elite - cfg.n_brake, cfg.d_dim), dt)
+
+
+def _sample(cfg: MMDOptConfig, key, mu, cov, elites, problem: Problem, z=None):
+    """Batch of behavioural inputs: [elites; brake rows; fresh draws], clipped to the bounds
+    (``z``: this iteration's :func:`_normals` when drawn beforehand)."""
     D = mu.shape[0]
     L = jnp.linalg.cholesky(cov)
-    z = jax.random.normal(key, (n_new, D), mu.dtype)
+    if z is None:
+        z = _normals(cfg, key, mu.dtype)
     new = mu + z @ L.T
     # order matters: residuals within res_tol tie and ties go to the lower index, so the previous
     # elites and the brake rows always reach the ConstraintEliteSet when feasible, and the fresh
@@ -790,13 +796,14 @@ def project_fixed(prob: CEMProblem, cx_bar, cy_bar, state):
     return out.cx, out.cy, out.residual
 
 
-def _step(state: CEMState, obstacles: ObstacleSet) -> CEMState:
-    """One iteration with the ``admm-fixed`` projection (traceable)."""
+def _step(state: CEMState, obstacles: ObstacleSet, z=None) -> CEMState:
+    """One iteration with the ``admm-fixed`` projection (traceable); ``z`` optionally this
+    iteration's normal draws (the same numbers as drawn from its key here)."""
     cfg = state.config
     prob = build_problem(cfg, state.problem.bounds)
     dt = jnp.dtype(cfg.dtype)
     k = state.keys[state.iteration]
-    d = _sample(cfg, k, state.mu, state.cov, state.elites, state.problem)
+    d = _sample(cfg, k, state.mu, state.cov, state.elites, state.problem, z)
     cx_bar, cy_bar = planner_output(prob, d, state.problem.state, dt)
     cx, cy, res = project_fixed(prob, cx_bar, cy_bar, state.problem.state)
     return _evaluate(state, prob, obstacles, d, cx, cy, res.astype(dt))
@@ -845,7 +852,12 @@ _step_jit = jax.jit(_step)
 def _run_fixed(cfg: MMDOptConfig, problem: Problem, obstacles: ObstacleSet, key, warm_start):
     """The whole of Algorithm 1 as one jitted function (``lax.scan`` over the iterations)."""
     state = _init(cfg, problem, key, warm_start)
-    state, _ = lax.scan(lambda s, _: (_step(s, obstacles), None), state, None, cfg.iterations)
+    # every iteration's normal draws in one vmapped call (bit-identical to drawing them from
+    # each iteration's key inside the loop, ≈ 2.4× cheaper: threefry on CPU is dispatch-bound
+    # at 940 × 8 values)
+    dt = jnp.dtype(cfg.dtype)
+    z_all = jax.vmap(lambda k: _normals(cfg, k, dt))(state.keys)
+    state, _ = lax.scan(lambda s, z: (_step(s, obstacles, z), None), state, z_all)
     return state
 
 

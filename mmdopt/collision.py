@@ -218,6 +218,10 @@ def taylor_terms(max_ratio: float, rel_tol: float = 1e-9) -> int:
             return n
 
 
+#: capacities of the compacted MMD evaluation, as divisors of the number of points P
+_CAPACITY_DIVISORS = (16, 8, 4, 2)
+
+
 def mmd_cost(f, weights, bandwidth, f_scale, n_terms: int):
     """eq. (l_dist) per ego sample: ``Σ_o Σ_k MMD²(Σ_j ᾱ_j φ(s·f̄_j), (Σ_j ᾱ_j) δ_0)`` (B,).
 
@@ -265,7 +269,7 @@ def mmd_cost(f, weights, bandwidth, f_scale, n_terms: int):
         w = jnp.broadcast_to(w_pt[:, None, :, None], (J, B, O, K)).reshape(J, P)
         return jnp.sum(_point_mmd(t, w, c).reshape(B, O * K), axis=1)
 
-    caps = [P // r for r in (16, 8, 4, 2) if P // r >= 64]
+    caps = [P // r for r in _CAPACITY_DIVISORS if P // r >= 64]
     if not caps:
         return dense()
     active = jnp.any(t > 0.0, axis=0)  # (P,)
