@@ -557,8 +557,10 @@ def _plan_impl(
 
 def _reselect_pass(ctx: _Ctx, state, problem, key, backend, backend_settings):
     """Second pass of Algorithm 1 (``config.reselect`` > 0): the reduced set plus the
-    ``reselect`` samples in deepest conflict with the first pass's plan (weight 1/n each), new
-    coverage margins, warm-started from the first pass; ``ctx`` is updated in place."""
+    ``reselect`` samples in deepest conflict with the first pass's plan (weight 1/n each) after
+    the ⌊ε·n⌋ deepest (``ε = config.risk_eps``: the conflicts a chance constraint at level ε may
+    leave, as in sampling-and-discarding), new coverage margins, warm-started from the first
+    pass; ``ctx`` is updated in place."""
     from .risk import coverage_margins
 
     config, prob, obs_fr = ctx.config, ctx.prob, ctx.obs_fr
@@ -570,12 +572,16 @@ def _reselect_pass(ctx: _Ctx, state, problem, key, backend, backend_settings):
     f = ellipse_values(jnp.asarray(s1[None]), jnp.asarray(d1[None]), centres, config.a, config.b)
     depth = np.asarray(jnp.max(f[0], axis=(2, 3)))  # (O, n) deepest conflict over time
     idx0 = np.asarray(ctx.rs.indices)
-    r = min(int(config.reselect), n - idx0.shape[1])
+    # sampling and discarding (Campi & Garatti 2011): a plan that may collide with probability ε
+    # may leave the ⌊ε·n⌋ deepest conflicts of the n samples unresolved; the next r are added
+    k = int(math.floor(float(config.risk_eps) * n))
+    r = min(int(config.reselect), n - idx0.shape[1] - k)
     if r <= 0:
         return state
     d = depth.copy()
     np.put_along_axis(d, idx0, -np.inf, axis=1)  # already in the reduced set
-    extra = np.argsort(-d, axis=1, kind="stable")[:, :r].astype(idx0.dtype)
+    order = np.argsort(-d, axis=1, kind="stable").astype(idx0.dtype)
+    extra = order[:, k : k + r]
     idx = np.concatenate([idx0, extra], axis=1)
     w = np.concatenate(
         [np.asarray(ctx.rs.weights, np.float64) * (1.0 - r / n), np.full((O, r), 1.0 / n)], 1
@@ -592,6 +598,8 @@ def _reselect_pass(ctx: _Ctx, state, problem, key, backend, backend_settings):
     obstacles = alg.ObstacleSet.create(config, cen, w, COST_MODE[ctx.method], margins=margins)
     ctx.obstacles = obstacles
     ctx.diag["reselected"] = extra
+    ctx.diag["discarded"] = order[:, :k]
+    ctx.diag["conflict_depth"] = depth
     warm = alg.shift(state, 0.0)
     out = alg.run(
         config, problem, obstacles, jax.random.fold_in(key, 1), backend, warm_start=warm,

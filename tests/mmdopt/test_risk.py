@@ -93,3 +93,26 @@ def test_plan_risk_knob_trades_progress_for_safety():
     assert not set(extra[0].tolist()) & set(np.asarray(tight.reduced_set.indices)[0].tolist())
     with pytest.raises(ValueError, match="risk"):
         mmdopt.plan(EGO, road, X, method="mmd", config=SMALL, key=key, risk=0.7)
+
+
+def test_reselection_leaves_the_eps_n_deepest_conflicts_to_the_chance_level():
+    """Sampling and discarding: at risk ε the second pass skips the ⌊ε·n⌋ samples in deepest
+    conflict with the first plan and adds the next ones."""
+    X = _two_clusters()
+    n = X.shape[1]
+    road = mmdopt.Road()
+    key = jax.random.PRNGKey(0)
+    for risk in (0.001, 0.05, 0.2):
+        p = mmdopt.plan(EGO, road, X, method="mmd", config=SMALL, key=key, risk=risk)
+        assert p.feasible and not p.fallback
+        k = int(np.floor(risk * n))
+        extra, dropped = p.diagnostics["reselected"], p.diagnostics["discarded"]
+        depth = p.diagnostics["conflict_depth"][0]
+        assert dropped.shape == (1, k)
+        assert extra.shape == (1, min(SMALL.reduced_set_size // 2, n - SMALL.reduced_set_size - k))
+        chosen = set(np.asarray(p.reduced_set.indices)[0].tolist())
+        assert not (set(extra[0].tolist()) | set(dropped[0].tolist())) & chosen
+        assert not set(extra[0].tolist()) & set(dropped[0].tolist())
+        if k:
+            # every dropped sample conflicts at least as deeply as every added one
+            assert depth[dropped[0]].min() >= depth[extra[0]].max()
