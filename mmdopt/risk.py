@@ -10,7 +10,8 @@ method              what ε sets
 ==================  =====================================================================
 ``"mmd"``           (also: a second, warm-started pass of Algorithm 1 with the m/2
                     samples in deepest conflict with the first plan added to the reduced
-                    set, ``reselect``)
+                    set, ``reselect``, after skipping the ⌊ε·n⌋ deepest: the conflicts
+                    a chance constraint at level ε may leave)
                     sample-driven margins (``margin_mode="samples"``): every reduced-set
 ``"random"``        point's ellipse is inflated, per time step, to contain the planning
 ``"degroot"``       samples of its cluster (the samples nearer to it than to any other
