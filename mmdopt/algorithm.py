@@ -763,9 +763,16 @@ def margin_ellipse_values(cfg: MMDOptConfig, s, d, centres, margins, vs=None):
         floor = headway_semi_axis(cfg, cfg.a, vs).astype(dt) - cfg.a  # (B, K)
         behind = jnp.maximum(behind, floor[:, None, None, None, :])
         ahead = cfg.margin_ahead_scale * ahead
-    a = cfg.a + jnp.where(ds < 0, behind, ahead)
+    # reciprocals per (point, step) before broadcasting over the ego samples (one division
+    # per step, not per value); with the headway floor (per ego sample) per value
+    if cfg.asymmetric:
+        a = cfg.a + jnp.where(ds < 0, behind, ahead)
+        ia = 1.0 / (a * a)
+    else:
+        ia_b, ia_a = 1.0 / ((cfg.a + behind) ** 2), 1.0 / ((cfg.a + ahead) ** 2)
+        ia = jnp.where(ds < 0, ia_b, ia_a)
     b = cfg.b + mg[2][None]
-    f = 1.0 - ds * ds / (a * a) - dd * dd / (b * b)
+    f = 1.0 - ds * ds * ia - dd * dd * (1.0 / (b * b))
     if cfg.asymmetric:
         f = rear_exempt(f, ds, dd, b, cfg.rear_exempt_width)
     return f
