@@ -247,8 +247,9 @@ def mmd_cost(f, weights, bandwidth, f_scale, n_terms: int):
     A point (ego sample, obstacle, step) where no obstacle sample is entered (every f̄_j = 0)
     contributes exactly 0, and most points are such once the CEM has moved away from the
     obstacles (5–10 % remain on the demo scene): the points with some f̄_j > 0 are gathered
-    first (``_compact``) and the features evaluated on them only, at the smallest capacity of a
-    ladder ``P/16, P/8, P/4, P/2`` that holds them, or on all P points.  The result is the same
+    first (a scan of their positions, a scatter) and the features evaluated on them only, at
+    the smallest capacity of a ladder ``P/16, P/8, P/4, P/2`` that holds them, or on all P
+    points.  The result is the same
     sum up to float rounding (the order of the additions over the steps), and deterministic.
 
     Parameters
