@@ -690,6 +690,7 @@ def _assemble(ctx: _Ctx, cx, cy, dvec, cost, best_iter, fallback, status, state)
             iteration_min_cost=np.asarray(state.iter_min_cost, np.float64),
             iteration_mean_elite_cost=np.asarray(state.iter_mean_elite_cost, np.float64),
             n_feasible=np.asarray(state.n_feasible),
+            n_projected=np.asarray(state.n_projected),
             collision_term=float(state.best.coll)
             if not fallback
             else float(state.least_violating.coll),

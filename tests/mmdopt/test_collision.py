@@ -284,12 +284,12 @@ def test_reach_bound_never_misses_a_collision_and_gated_costs_equal_ungated():
 
 @pytest.mark.parametrize("share", [0.0, 0.03, 0.1, 0.2, 0.4, 0.9])
 def test_mmd_cost_on_the_active_points_equals_the_pairwise_formula(share):
-    """The compacted evaluation (only points where some sample is entered, at each capacity of
-    the ladder P/16 … P/2, or all points) gives the pairwise kernel formula's value."""
+    """The compacted evaluation (only points where some sample is entered, in pages of P/16:
+    none, one, several or all pages) gives the pairwise kernel formula's value."""
     from mmdopt.kernels import mmd2_to_dirac
 
     rng = np.random.default_rng(int(share * 100))
-    B, O, J, C, K = 8, 2, 5, 3, 64  # P = 1024 points: capacities 64, 128, 256, 512
+    B, O, J, C, K = 8, 2, 5, 3, 64  # P = 1024 points: pages of 64
     f = rng.uniform(-1.0, 1.0, size=(B, O, J, C, K))
     live = rng.random((B, O, 1, 1, K)) < share
     f = jnp.asarray(np.where(live, f, -0.3))

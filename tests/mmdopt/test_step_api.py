@@ -17,13 +17,13 @@ from mmdopt.collision import OBSTACLE_FOOTPRINT, circle_centres
 from .test_algorithm import EGO, SMALL, _obstacle
 
 
-def _inputs(method_mode="mmd"):
+def _inputs(method_mode="mmd", config=SMALL):
     road = mmdopt.Road()
     obs = _obstacle(jitter=0.5)[0]  # (n, K, 2), Frenet = Cartesian on the default road
     centres = np.asarray(circle_centres(obs[None], OBSTACLE_FOOTPRINT))
     w = np.full((1, obs.shape[0]), 1.0 / obs.shape[0])
-    problem = alg.Problem.create(SMALL, EGO, road.bounds())
-    obstacles = alg.ObstacleSet.create(SMALL, centres, w, method_mode)
+    problem = alg.Problem.create(config, EGO, road.bounds())
+    obstacles = alg.ObstacleSet.create(config, centres, w, method_mode)
     return problem, obstacles
 
 
@@ -42,6 +42,39 @@ def test_init_update_loop_equals_run(mode):
     np.testing.assert_allclose(state.best.d, ran.best.d, rtol=1e-5, atol=1e-5)
     with pytest.raises(ValueError, match="iterations"):
         alg.update(state, obstacles)
+
+
+@pytest.mark.parametrize("hard", [False, True])
+def test_run_projects_and_scores_only_what_the_elite_sets_need_with_the_same_plan(hard):
+    """run() plans and projects the batch chunk by chunk until n_cem rows are feasible, and
+    reuses the elites' and brake rows' costs (same obstacles in every iteration); the plan is
+    the one of projecting every row (project_chunk = n_samples) and of scoring every row of the
+    ConstraintEliteSet (init/update, no cost cache), to float rounding.  ``hard``: one ADMM
+    iteration and a wide prior leave many rows infeasible, so several chunks are projected
+    (and at iteration 0, every iteration, the costs are scored in several chunks)."""
+    cfg = SMALL.replace(admm_iters=1, speed_std0=15.0, lateral_std_scale=6.0) if hard else SMALL
+    chunk = alg.project_chunk_size(cfg)
+    assert chunk == cfg.n_cem + cfg.n_elite < cfg.n_samples
+    problem, obstacles = _inputs(config=cfg)
+    key = jax.random.PRNGKey(7)
+    ran = alg.run(cfg, problem, obstacles, key)
+    full = alg.run(cfg.replace(project_chunk=cfg.n_samples), problem, obstacles, key)
+    state = alg.init(cfg, problem, key)
+    for _ in range(cfg.iterations):
+        state = alg.update(state, obstacles)
+    np.testing.assert_array_equal(full.n_projected, cfg.n_samples)
+    n_proj = np.asarray(ran.n_projected)
+    assert np.all(n_proj % chunk == 0) and np.all(np.asarray(ran.n_feasible) >= cfg.n_cem)
+    if hard:
+        assert n_proj.max() > chunk
+    else:
+        np.testing.assert_array_equal(n_proj, chunk)  # one chunk was enough
+    for other in (full, state):
+        np.testing.assert_allclose(ran.cost_trace, other.cost_trace, rtol=1e-5)
+        np.testing.assert_allclose(ran.iter_mean_elite_cost, other.iter_mean_elite_cost, rtol=1e-5)
+        np.testing.assert_allclose(ran.best.d, other.best.d, rtol=1e-4, atol=1e-4)
+    with pytest.raises(ValueError, match="project_chunk"):
+        SMALL.replace(project_chunk=-1)
 
 
 def test_shift_then_run_is_deterministic_and_moves_set_points():
