@@ -97,6 +97,7 @@ __all__ = [
     "check_backend",
     "project_rows",
     "project_chunk_size",
+    "cost_chunk_size",
 ]
 
 #: the planner's default projection: the jitted fixed-budget ADMM projector inside the CEM step
