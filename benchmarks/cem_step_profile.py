@@ -5,7 +5,8 @@ carry no per-call dispatch cost.  The CEM state is a real one: the demo scene's 
 iterations.  Stages:
 
 * ``project_rows``: planner + projection + residual, chunk by chunk (one chunk of
-  ``n_cem + n_elite`` rows on this scene);
+  ``n_cem + n_elite`` rows on this scene; inside ``run`` the elites' and brake rows' projections
+  are reused and the chunk is ``n_elite + n_brake`` rows shorter: see the whole step);
 * ``row costs``: cost of the rows a cached iteration of ``run`` scores
   (``n_cem − n_elite − n_brake``): trajectories, the ellipse values, the MMD term;
 * ``ellipse + max over circles`` and ``mmd_cost from f``: the two halves of the collision term;
@@ -89,7 +90,8 @@ def main() -> None:
         lambda f: collision.mmd_cost(f, w, cfg.bandwidth, cfg.f_scale, obstacles.n_terms),
         jnp.stack([f0] * R),
     )
-    cache = alg._empty_cache(cfg, dt)._replace(valid=jnp.ones((nc,), bool))
+    # the cache of run after one iteration: elites and brake rows scored and projected
+    _, cache = alg._step(st, obstacles, None, alg._empty_cache(cfg, prob.nvar, dt))
 
     def with_keys(k):
         return st._replace(keys=jnp.stack([k] * cfg.iterations))

@@ -681,7 +681,7 @@ def _collision_term(
 
 
 class _CostCache(NamedTuple):
-    """Costs carried between the iterations of :func:`run` (obstacles fixed): rows
+    """What carries over between the iterations of :func:`run` (obstacles fixed): rows
     ``0 … n_elite + n_brake − 1`` of the next batch are the elites and the brake rows, whose
     behavioural inputs, projections and hence costs do not change from one iteration to the
     next."""
@@ -689,11 +689,17 @@ class _CostCache(NamedTuple):
     cost: Any  # (n_elite + n_brake,) total cost of those rows
     coll: Any  # (n_elite + n_brake,) their collision term
     valid: Any  # (n_elite + n_brake,) bool: the row has been scored against these obstacles
+    cx: Any  # (n_elite + n_brake, nvar) their projections
+    cy: Any  # (n_elite + n_brake, nvar)
+    res: Any  # (n_elite + n_brake,) their residuals
+    known: Any  # () int32: rows 0 … known − 1 have the projections above (a prefix)
 
 
-def _empty_cache(cfg: MMDOptConfig, dt) -> _CostCache:
+def _empty_cache(cfg: MMDOptConfig, n: int, dt) -> _CostCache:
     nc = cfg.n_elite + cfg.n_brake
-    return _CostCache(jnp.zeros((nc,), dt), jnp.zeros((nc,), dt), jnp.zeros((nc,), bool))
+    z = jnp.zeros((nc,), dt)
+    zx = jnp.zeros((nc, n), dt)
+    return _CostCache(z, z, jnp.zeros((nc,), bool), zx, zx, z, jnp.asarray(0, jnp.int32))
 
 
 def cost_chunk_size(cfg: MMDOptConfig) -> int:
@@ -754,21 +760,30 @@ def _cached_costs(cfg, prob, obstacles, ces, cx_c, cy_c, res_c, cache: _CostCach
     return cost, coll
 
 
-def _next_cache(cfg: MMDOptConfig, ces, cost, coll, el, cache: _CostCache) -> _CostCache:
-    """The cache for the next batch: the new elites (rows 0 … n_elite − 1, in EliteSet order)
-    and the brake rows scored so far (in this CES or before)."""
+def _next_cache(
+    cfg: MMDOptConfig, ces, cost, coll, el, cx, cy, res, end, cache: _CostCache
+) -> _CostCache:
+    """The cache for the next batch: the new elites (rows 0 … n_elite − 1, in EliteSet order;
+    their projections are known, as every CES row's) and the brake rows scored so far (in this
+    CES or before) and projected so far (rows below ``end`` of this batch)."""
     ne, nb = cfg.n_elite, cfg.n_brake
-    e = _CostCache(cost[el], coll[el], jnp.ones((ne,), bool))
+    i = ces[el]
     if nb == 0:
-        return e
+        e = jnp.ones((ne,), bool)
+        return _CostCache(cost[el], coll[el], e, cx[i], cy[i], res[i], jnp.asarray(ne, jnp.int32))
     inces = ces[None, :] == (ne + jnp.arange(nb, dtype=ces.dtype))[:, None]  # (nb, n_cem)
     seen = jnp.any(inces, axis=1)
     bc = jnp.where(seen, jnp.sum(jnp.where(inces, cost[None], 0.0), 1), cache.cost[ne:])
     bk = jnp.where(seen, jnp.sum(jnp.where(inces, coll[None], 0.0), 1), cache.coll[ne:])
+    rows = slice(ne, ne + nb)
     return _CostCache(
-        jnp.concatenate([e.cost, bc]),
-        jnp.concatenate([e.coll, bk]),
-        jnp.concatenate([e.valid, seen | cache.valid[ne:]]),
+        jnp.concatenate([cost[el], bc]),
+        jnp.concatenate([coll[el], bk]),
+        jnp.concatenate([jnp.ones((ne,), bool), seen | cache.valid[ne:]]),
+        jnp.concatenate([cx[i], cx[rows]]),
+        jnp.concatenate([cy[i], cy[rows]]),
+        jnp.concatenate([res[i], res[rows]]),
+        (ne + jnp.clip(end - ne, 0, nb)).astype(jnp.int32),
     )
 
 
@@ -782,6 +797,7 @@ def _evaluate(
     res,
     n_projected=None,
     cache: _CostCache | None = None,
+    end=None,
 ):
     """ConstraintEliteSet, cost, EliteSet, distribution update, best-so-far (one iteration);
     rows not projected (:func:`project_rows`) carry ``res = inf``.  With ``cache`` (inside
@@ -848,7 +864,7 @@ def _evaluate(
     )
     if cache is None:
         return new
-    return new, _next_cache(cfg, ces, cost, coll, el, cache)
+    return new, _next_cache(cfg, ces, cost, coll, el, cx, cy, res, end, cache)
 
 
 def planning_semi_axis(cfg: MMDOptConfig, t, dt=None, scale=1.0):
@@ -944,24 +960,46 @@ def project_rows(cfg: MMDOptConfig, prob: CEMProblem, d, ego, dt):
     batch-wide test before the last iteration).  The later fresh draws would be planned and
     projected only to be discarded; on the tuning scenes ≥ 99 % of all rows are feasible, so
     one chunk of ``n_cem + n_elite`` rows almost always suffices (docs/benchmarks.md)."""
+    cx, cy, res, n_proj, _ = _project_rows(cfg, prob, d, ego, dt)
+    return cx, cy, res, n_proj
+
+
+def _project_rows(cfg: MMDOptConfig, prob: CEMProblem, d, ego, dt, cache=None):
+    """:func:`project_rows`; with ``cache`` (:func:`run`) the first ``cache.known`` rows (the
+    elites and brake rows, projected in an earlier iteration) are taken from it and the chunks,
+    ``n_elite + n_brake`` rows shorter, start after them.  Also returns the end of the known
+    prefix of rows."""
     B, D = d.shape
     C = min(project_chunk_size(cfg), B)
     if C >= B:
         cx_bar, cy_bar = planner_output(prob, d, ego, dt)
         cx, cy, res = project_fixed(prob, cx_bar, cy_bar, ego)
-        return cx, cy, res.astype(dt), jnp.asarray(B, jnp.int32)
-    nc = -(-B // C)
-    pad = nc * C - B
-    dp = jnp.concatenate([d, jnp.broadcast_to(d[-1:], (pad, D))], axis=0) if pad else d
+        n = jnp.asarray(B, jnp.int32)
+        return cx, cy, res.astype(dt), n, n
     n = prob.nvar
     inf = jnp.asarray(jnp.inf, dt)
+    L = -(-B // C) * C  # rows of the padded batch
+    zero, i0 = jnp.zeros((L, n), dt), jnp.asarray(0, jnp.int32)
+    cx0, cy0, res0, nf0, base = zero, zero, jnp.full((L,), inf), i0, i0
+    if cache is not None:
+        nk = cache.res.shape[0]
+        C = max(C - nk, -(-C // 2))
+        L = B + C
+        base = cache.known
+        kn = jnp.arange(nk) < base
+        pad = ((0, L - nk), (0, 0))
+        cx0 = jnp.pad(jnp.where(kn[:, None], cache.cx, 0.0), pad)
+        cy0 = jnp.pad(jnp.where(kn[:, None], cache.cy, 0.0), pad)
+        res0 = jnp.pad(jnp.where(kn, cache.res, inf), (0, L - nk), constant_values=inf)
+        nf0 = jnp.sum(kn & (cache.res <= cfg.res_tol)).astype(jnp.int32)
+    dp = jnp.concatenate([d, jnp.broadcast_to(d[-1:], (L - B, D))], axis=0) if L > B else d
 
     def more(c):
-        return (c[0] < nc) & (c[1] < cfg.n_cem)
+        return (base + c[0] * C < B) & (c[1] < cfg.n_cem)
 
     def chunk(c):
         i, nf, cx, cy, res = c
-        start = i * C
+        start = base + i * C
         cx_bar, cy_bar = planner_output(prob, lax.dynamic_slice_in_dim(dp, start, C), ego, dt)
         cxi, cyi, ri = project_fixed(prob, cx_bar, cy_bar, ego)
         ri = jnp.where(start + jnp.arange(C) < B, ri.astype(dt), inf)  # padding: never chosen
@@ -971,10 +1009,9 @@ def project_rows(cfg: MMDOptConfig, prob: CEMProblem, d, ego, dt):
         res = lax.dynamic_update_slice_in_dim(res, ri, start, 0)
         return i + 1, nf, cx, cy, res
 
-    zero, i0 = jnp.zeros((nc * C, n), dt), jnp.asarray(0, jnp.int32)
-    c0 = (i0, i0, zero, zero, jnp.full((nc * C,), inf))
-    i, _, cx, cy, res = lax.while_loop(more, chunk, c0)
-    return cx[:B], cy[:B], res[:B], jnp.minimum(i * C, B)
+    i, _, cx, cy, res = lax.while_loop(more, chunk, (i0, nf0, cx0, cy0, res0))
+    end = jnp.minimum(base + i * C, B)
+    return cx[:B], cy[:B], res[:B], end - base, end
 
 
 def _step(state: CEMState, obstacles: ObstacleSet, z=None, cache: _CostCache | None = None):
@@ -986,8 +1023,8 @@ def _step(state: CEMState, obstacles: ObstacleSet, z=None, cache: _CostCache | N
     dt = jnp.dtype(cfg.dtype)
     k = state.keys[state.iteration]
     d = _sample(cfg, k, state.mu, state.cov, state.elites, state.problem, z)
-    cx, cy, res, n_proj = project_rows(cfg, prob, d, state.problem.state, dt)
-    return _evaluate(state, prob, obstacles, d, cx, cy, res, n_proj, cache)
+    cx, cy, res, n_proj, end = _project_rows(cfg, prob, d, state.problem.state, dt, cache)
+    return _evaluate(state, prob, obstacles, d, cx, cy, res, n_proj, cache, end)
 
 
 def _init(
@@ -1058,7 +1095,7 @@ def _run_fixed(cfg: MMDOptConfig, problem: Problem, obstacles: ObstacleSet, key,
     # over (_CostCache) and only the new rows of each ConstraintEliteSet are scored
     (state, _), _ = lax.scan(
         lambda c, z: (_step(c[0], obstacles, z, c[1]), None),
-        (state, _empty_cache(cfg, dt)),
+        (state, _empty_cache(cfg, build_problem(cfg, state.problem.bounds).nvar, dt)),
         z_all,
     )
     return state

@@ -284,9 +284,9 @@ def mmd_cost(f, weights, bandwidth, f_scale, n_terms: int):
     n_pages = -(-P // cap)
     active = jnp.any(t > 0.0, axis=0)  # (P,)
     nnz = jnp.sum(active.astype(jnp.int32))
-    # positions of the active points, ascending (an associative scan: XLA's CPU cumsum is
-    # ≈ 2.6× slower at P = 15 000)
-    pos = lax.associative_scan(jnp.add, active.astype(jnp.int32)) - 1
+    # positions of the active points, ascending (a cumsum: an associative scan runs ≈ 0.05 ms
+    # faster at P = 9000 on CPU but compiled ≈ 0.5 s slower inside Algorithm 1's loops)
+    pos = jnp.cumsum(active.astype(jnp.int32)) - 1
     # the active points' indices, in order (scatter with unique targets: deterministic); the
     # empty slots hold P (dropped below)
     order = (
