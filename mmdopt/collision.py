@@ -249,7 +249,7 @@ def mmd_cost(f, weights, bandwidth, f_scale, n_terms: int):
     A point (ego sample, obstacle, step) where no obstacle sample is entered (every f̄_j = 0)
     contributes exactly 0, and most points are such once the CEM has moved away from the
     obstacles (5–10 % remain on the demo scene): the positions of the points with some
-    f̄_j > 0 are listed first (a scan, a scatter), and the features are evaluated on them only,
+    f̄_j > 0 are listed first (a cumsum, a scatter), and the features are evaluated on them only,
     a page of ``P/16`` points at a time (a loop over ``⌈active/page⌉`` pages: one compiled page
     instead of a ladder of capacities, which cost ≈ 0.3 s of compile time per rung).  The
     result is the same sum up to float rounding (the order of the additions over the steps),
