@@ -69,6 +69,7 @@ from .collision import (
     ELLIPSE_A,
     ELLIPSE_B,
     collision_cost,
+    compact_order,
     mmd_cost,
     rear_exempt,
     saa_cost,
@@ -733,13 +734,7 @@ def _cached_costs(cfg, prob, obstacles, ces, cx_c, cy_c, res_c, cache: _CostCach
     hit = (ces < nc) & cache.valid[slot]
     miss = ~hit
     n_miss = jnp.sum(miss.astype(jnp.int32))
-    pos = jnp.cumsum(miss.astype(jnp.int32)) - 1
-    # positions in the CES of the rows to score, in CES order; −1: an empty slot
-    order = (
-        jnp.full((nq * U,), -1, jnp.int32)
-        .at[jnp.where(miss, pos, nq * U)]
-        .set(jnp.arange(nces, dtype=jnp.int32), mode="drop")
-    )
+    order = compact_order(miss, nq * U, -1)  # the CES positions to score; −1: an empty slot
     cost0 = jnp.where(hit, cache.cost[slot], 0.0)
     coll0 = jnp.where(hit, cache.coll[slot], 0.0)
 
@@ -768,9 +763,6 @@ def _next_cache(
     CES or before) and projected so far (rows below ``end`` of this batch)."""
     ne, nb = cfg.n_elite, cfg.n_brake
     i = ces[el]
-    if nb == 0:
-        e = jnp.ones((ne,), bool)
-        return _CostCache(cost[el], coll[el], e, cx[i], cy[i], res[i], jnp.asarray(ne, jnp.int32))
     inces = ces[None, :] == (ne + jnp.arange(nb, dtype=ces.dtype))[:, None]  # (nb, n_cem)
     seen = jnp.any(inces, axis=1)
     bc = jnp.where(seen, jnp.sum(jnp.where(inces, cost[None], 0.0), 1), cache.cost[ne:])

@@ -58,6 +58,7 @@ __all__ = [
     "ellipse_values",
     "rear_exempt",
     "mmd_cost",
+    "compact_order",
     "scenario_cost",
     "saa_cost",
     "taylor_terms",
@@ -229,6 +230,20 @@ _PAGE_DIVISOR = 16
 _MIN_PAGE = 64
 
 
+def compact_order(mask: jax.Array, size: int, fill: int) -> jax.Array:
+    """The indices where the 1-D ``mask`` is true, ascending, in a (size,) int32 array padded
+    with ``fill`` (a static-shape ``nonzero``): positions by a cumsum, then a scatter with
+    unique targets, so it is deterministic on every device.  (A cumsum rather than an
+    associative scan: the scan runs ≈ 0.05 ms faster at 9000 entries on CPU but compiled
+    ≈ 0.5 s slower inside Algorithm 1's loops.)"""
+    pos = jnp.cumsum(mask.astype(jnp.int32)) - 1
+    return (
+        jnp.full((size,), fill, jnp.int32)
+        .at[jnp.where(mask, pos, size)]
+        .set(jnp.arange(mask.shape[0], dtype=jnp.int32), mode="drop")
+    )
+
+
 def mmd_cost(f, weights, bandwidth, f_scale, n_terms: int):
     """eq. (l_dist) per ego sample: ``Σ_o Σ_k MMD²(Σ_j ᾱ_j φ(s·f̄_j), (Σ_j ᾱ_j) δ_0)`` (B,).
 
@@ -284,16 +299,7 @@ def mmd_cost(f, weights, bandwidth, f_scale, n_terms: int):
     n_pages = -(-P // cap)
     active = jnp.any(t > 0.0, axis=0)  # (P,)
     nnz = jnp.sum(active.astype(jnp.int32))
-    # positions of the active points, ascending (a cumsum: an associative scan runs ≈ 0.05 ms
-    # faster at P = 9000 on CPU but compiled ≈ 0.5 s slower inside Algorithm 1's loops)
-    pos = jnp.cumsum(active.astype(jnp.int32)) - 1
-    # the active points' indices, in order (scatter with unique targets: deterministic); the
-    # empty slots hold P (dropped below)
-    order = (
-        jnp.full((n_pages * cap,), P, jnp.int32)
-        .at[jnp.where(active, pos, n_pages * cap)]
-        .set(jnp.arange(P, dtype=jnp.int32), mode="drop")
-    )
+    order = compact_order(active, n_pages * cap, P)  # empty slots hold P (dropped below)
 
     def page(q, per_point):
         idx = lax.dynamic_slice_in_dim(order, q * cap, cap)
