@@ -18,6 +18,7 @@ from __future__ import annotations
 
 import jax
 import jax.numpy as jnp
+import numpy as np
 from numpy.typing import ArrayLike
 
 from ._x64 import x64
@@ -133,13 +134,21 @@ def median_heuristic(x: ArrayLike) -> jax.Array:
         return jnp.ones(
             x.shape[:-2], dtype=x.dtype if jnp.issubdtype(x.dtype, jnp.floating) else jnp.float64
         )
-    # every pair appears twice off the diagonal and the n diagonal zeros sort first, so the
-    # median of the sorted tail equals the median over the n(n−1)/2 distinct pairs
-    d = jnp.sqrt(sq_distances(x)).reshape(x.shape[:-2] + (n * n,))
-    npairs = n * (n - 1)
-    ranks = jnp.asarray([n + npairs // 2 - 1, n + npairs // 2])
-    lo_hi = _kth_smallest_nonneg(d, ranks)  # (jnp.sort costs ≈ 1 ms at n = 100 on CPU)
-    med = 0.5 * (lo_hi[..., 0] + lo_hi[..., 1])
+    # the n(n−1)/2 distinct pairs (i < j); squared distances (sqrt is monotone: the k-th
+    # smallest distance is the sqrt of the k-th smallest squared one)
+    iu, ju = np.triu_indices(n, k=1)
+    d2 = sq_distances(x)[..., iu, ju]  # (..., M)
+    M = iu.size
+    q1, q2 = (M - 1) // 2, M // 2  # the median's ranks (equal when M is odd)
+    lo = _kth_smallest_nonneg(d2, jnp.asarray([q1]))[..., 0]  # (jnp.sort: ≈ 1 ms at n = 100)
+    if q2 == q1:
+        hi = lo
+    else:  # the next rank: lo again if it repeats, else the smallest value above it
+        ties = jnp.sum(d2 <= lo[..., None], axis=-1) > q2
+        above = jnp.min(jnp.where(d2 > lo[..., None], d2, jnp.inf), axis=-1)
+        hi = jnp.where(ties, lo, above)
+    med = 0.5 * (jnp.sqrt(lo) + jnp.sqrt(hi))
+    d = jnp.sqrt(d2)
     nz = d > 0
     mean_nz = jnp.sum(d, axis=-1) / jnp.maximum(jnp.sum(nz, axis=-1), 1)
     out = jnp.where(med > 0, med, mean_nz)
