@@ -171,7 +171,9 @@ class ReducedSetConfig:
         if isinstance(self.weights, str) and self.weights not in WEIGHT_MODES:
             raise ValueError(f"weights must be one of {WEIGHT_MODES}, got {self.weights!r}")
         if not isinstance(self.gram, str) or self.gram not in GRAM_MODES:
-            raise ValueError(f"ReducedSetConfig.gram must be one of {GRAM_MODES}, got {self.gram!r}")
+            raise ValueError(
+                f"ReducedSetConfig.gram must be one of {GRAM_MODES}, got {self.gram!r}"
+            )
         if not isinstance(self.sampler, str) or self.sampler not in SAMPLERS:
             raise ValueError(
                 f"ReducedSetConfig.sampler must be one of {SAMPLERS}, got {self.sampler!r}"
