@@ -14,6 +14,8 @@ intent and the MMD² of the weighted reduced set against all samples.
     python benchmarks/reduced_set_timing.py --reference        # the reference's CEM settings too
     python benchmarks/reduced_set_timing.py --quality 40       # selection quality, 40 mixtures
     python benchmarks/reduced_set_timing.py --samplers 100 300 1000   # CEM Σ: Cholesky vs factor
+    python benchmarks/reduced_set_timing.py --grams 300 1000 --m 20   # CEM MMD²: full vs low rank
+    python benchmarks/reduced_set_timing.py --grams 1000 --m 20 --data paper100 --seeds 40
 """
 
 from __future__ import annotations
@@ -113,21 +115,38 @@ def quality(seeds: int, p_keep: float):
         )
 
 
-def samplers(ns, seeds: int, m: int, repeats: int):
-    """The MMD CEM's two ways to draw from N(μ, Σ) (``ReducedSetConfig.sampler``) at n samples:
-    steady time per selection (median over ``repeats`` keys, after a first call that compiles)
-    and, over ``seeds`` mixtures, the median MMD² of the refined set and the share of the set
-    from the likely intent.  Ratios factor ÷ Cholesky in the same run."""
+def paper100_samples(seed: int, n: int):
+    """The planning samples of ``paper100`` scene ``seed`` of the tuning seed 777 with n samples
+    per obstacle, and whether each is of the scene's likelier intent."""
+    import dataclasses
+
+    from mmdopt.bench.scenes import make_scene, preset
+
+    sc = make_scene(seed, 777, dataclasses.replace(preset("paper100"), n_samples=n))
+    X = np.asarray(sc.obstacles[0], np.float64)
+    return X, np.asarray(sc.intents) == int(np.argmax(sc.intent_probs))
+
+
+def samplers(
+    ns, seeds: int, m: int, repeats: int, field: str = "sampler", values=None, data=two_intent
+):
+    """The MMD CEM's two ways to draw from N(μ, Σ) (``ReducedSetConfig.sampler``) at n samples
+    (or, ``field="gram"``, its two ways to evaluate the population's MMD²: the full K or its
+    low-rank factor): steady time per selection (median over ``repeats`` keys, after a first
+    call that compiles) and, over ``seeds`` mixtures, the median MMD² of the refined set and the
+    share of the set from the likely intent.  Ratios to the first mode's in the same run."""
+    values = ("cholesky", "factor") if values is None else values
+    print(f"# data: {data.__name__}")
     print(
-        "| n | sampler | first call (s) | steady median (s) | time ÷ Cholesky's "
-        f"| median MMD² ({seeds} mixtures) | MMD² ÷ Cholesky's | share from likely intent |"
+        f"| n | {field} | first call (s) | steady median (s) | time ÷ {values[0]}'s "
+        f"| median MMD² ({seeds} mixtures) | MMD² ÷ {values[0]}'s | share from likely intent |"
     )
     print("|---|---|---|---|---|---|---|---|")
     for n in ns:
-        X, _ = two_intent(0, n=n)
+        X, _ = data(0, n=n)
         base = {}
-        for sampler in ("cholesky", "factor"):
-            cfg = ReducedSetConfig(sampler=sampler)
+        for value in values:
+            cfg = ReducedSetConfig(**{field: value})
             t0 = time.perf_counter()
             jax.block_until_ready(select_reduced_set(jax.random.key(0), X, m, "mmd", cfg))
             first = time.perf_counter() - t0
@@ -138,7 +157,7 @@ def samplers(ns, seeds: int, m: int, repeats: int):
                 times.append(time.perf_counter() - t0)
             mmd, share = [], []
             for seed in range(seeds):
-                Xs, keep = two_intent(seed, n=n)
+                Xs, keep = data(seed, n=n)
                 rs = select_reduced_set(jax.random.key(seed), Xs, m, "mmd", cfg)
                 mmd.append(float(rs.mmd2))
                 share.append(keep[np.asarray(rs.indices)].mean())
@@ -146,7 +165,7 @@ def samplers(ns, seeds: int, m: int, repeats: int):
             base.setdefault("t", t)
             base.setdefault("q", q)
             print(
-                f"| {n} | {sampler} | {first:.2f} | {t:.3f} | {t / base['t']:.2f} | {q:.2e} "
+                f"| {n} | {value} | {first:.2f} | {t:.3f} | {t / base['t']:.2f} | {q:.2e} "
                 f"| {q / base['q']:.2f} | {np.mean(share):.2f} |",
                 flush=True,
             )
@@ -177,10 +196,27 @@ def main():
         metavar="N",
         help="instead of timing, compare the CEM samplers (Cholesky / factor) at these n",
     )
-    ap.add_argument("--seeds", type=int, default=10, help="mixtures per n for --samplers")
+    ap.add_argument(
+        "--grams",
+        type=int,
+        nargs="+",
+        metavar="N",
+        help="instead of timing, compare the CEM's MMD² (full K / low-rank factor) at these n",
+    )
+    ap.add_argument("--seeds", type=int, default=10, help="mixtures per n for --samplers/--grams")
+    ap.add_argument(
+        "--data",
+        choices=("two_intent", "paper100"),
+        default="two_intent",
+        help="samples for --samplers/--grams: the two-intent mixture or paper100 tuning scenes",
+    )
     args = ap.parse_args()
     if args.samplers:
         samplers(args.samplers, args.seeds, args.m[0], args.repeats)
+        return
+    if args.grams:
+        data = two_intent if args.data == "two_intent" else paper100_samples
+        samplers(args.grams, args.seeds, args.m[0], args.repeats, "gram", ("full", "lowrank"), data)
         return
     if args.quality:
         quality(args.quality, args.p_keep)
