@@ -459,8 +459,14 @@ def _pivoted_cholesky(K: jax.Array, rank: int) -> tuple[jax.Array, jax.Array]:
     return L, jnp.max(diag)
 
 
-def _cem_alpha(key, K: jax.Array, m: int, cfg: ReducedSetConfig) -> jax.Array:
-    """CEM over α ∈ ℝⁿ for eq. (red_set_opt_proposed); returns the best α seen."""
+def _cem_alpha(
+    key, K: jax.Array, m: int, cfg: ReducedSetConfig, axis_name: str | None = None
+) -> jax.Array:
+    """CEM over α ∈ ℝⁿ for eq. (red_set_opt_proposed); returns the best α seen.
+
+    ``axis_name``: the vmapped axis of a batch of selections, if any; the low-rank test is then
+    taken over the whole batch, so that the choice of form stays a branch, not a select that
+    evaluates both forms."""
     n = K.shape[0]
     P, E = cfg.population, cfg.n_elite
     dtype = _CEM_DTYPE if jnp.finfo(K.dtype).bits > jnp.finfo(_CEM_DTYPE).bits else K.dtype
@@ -475,6 +481,8 @@ def _cem_alpha(key, K: jax.Array, m: int, cfg: ReducedSetConfig) -> jax.Array:
         # factor is computed in K's dtype (float64 under select_reduced_set), ranked in float32
         L, resid = _pivoted_cholesky(K, cfg.gram_rank)
         Lc = L.astype(dtype)
+        if axis_name is not None:
+            resid = jax.lax.pmax(resid, axis_name)
         use_lr = resid <= cfg.gram_tol
 
         def quad(d):  # (p, n) -> (p,): eq. (red_set_opt_proposed)'s MMD², low rank or full
@@ -593,7 +601,7 @@ def _cem_factor(key, cost, n: int, dtype, cfg: ReducedSetConfig) -> jax.Array:
     return elites[0]
 
 
-@partial(jax.jit, static_argnames=("m", "method"))
+@partial(jax.jit, static_argnames=("m", "method", "axis_name"))
 def select_reduced_set_unchecked(
     key: ArrayLike,
     samples: ArrayLike,
@@ -601,8 +609,12 @@ def select_reduced_set_unchecked(
     method: str = "mmd",
     config: ReducedSetConfig = ReducedSetConfig(),  # noqa: B008 (frozen, hashable)
     ego_guess: ArrayLike | None = None,
+    axis_name: str | None = None,
 ) -> ReducedSet:
-    """Jitted core of :func:`select_reduced_set`, without input validation (traceable)."""
+    """Jitted core of :func:`select_reduced_set`, without input validation (traceable).
+
+    ``axis_name``: when vmapped over obstacles with ``jax.vmap(..., axis_name=...)``, that name
+    (the CEM's choice between the low-rank and the full Gram is then made once for the batch)."""
     samples = jnp.asarray(samples)
     if not jnp.issubdtype(samples.dtype, jnp.floating):
         samples = samples.astype(float)
@@ -614,7 +626,7 @@ def select_reduced_set_unchecked(
     D = one_minus_gaussian_gram(feats, None, bw)
 
     if method == "mmd":
-        alpha = _cem_alpha(key, K, m, config)
+        alpha = _cem_alpha(key, K, m, config, axis_name)
         _, idx = jax.lax.top_k(jnp.abs(alpha), m)
     elif method == "herding":
         kbar = jnp.mean(K, axis=1)
@@ -735,9 +747,10 @@ def select_reduced_set(
 
 @partial(jax.jit, static_argnames=("m", "method"))
 def _select_many(keys, samples, m, method, config, ego_guess):
-    return jax.vmap(lambda k, s: select_reduced_set_unchecked(k, s, m, method, config, ego_guess))(
-        keys, samples
-    )
+    return jax.vmap(
+        lambda k, s: select_reduced_set_unchecked(k, s, m, method, config, ego_guess, "obstacles"),
+        axis_name="obstacles",
+    )(keys, samples)
 
 
 @x64
