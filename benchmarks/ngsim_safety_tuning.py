@@ -11,6 +11,8 @@ and the progress ratio to the human (sum, min, median).  Rows are cached in ``--
 
     python -m benchmarks.ngsim_safety_tuning --data ../shared/data/ngsim_us101 \\
         --files all --variants "before;flow+2;flow+2,r2,c5" --out results/ngsim_tuning
+    python -m benchmarks.ngsim_safety_tuning --data ../shared/data/ngsim_us101 --files all \\
+        --variants "flow+2,r2,c5" --predictor-spread 1.3 --out results/ngsim_tuning_spread1.3
 """
 
 from __future__ import annotations
@@ -153,6 +155,12 @@ def main(argv=None) -> None:
     ap.add_argument("--variants", default=None, help="semicolon-separated subset of the set")
     ap.add_argument("--method", default="mmd")
     ap.add_argument("--predictor", default="learned")
+    ap.add_argument(
+        "--predictor-spread",
+        type=float,
+        default=1.0,
+        help="learned predictor only: Learned(spread=...) (benchmarks/predictor_calibration.py)",
+    )
     ap.add_argument("--max-tasks", type=int, default=None)
     ap.add_argument("--out", default="results/ngsim_tuning")
     a = ap.parse_args(argv)
@@ -167,6 +175,10 @@ def main(argv=None) -> None:
         tasks = tasks[: a.max_tasks]
     print(f"{len(tasks)} training tasks, variants {list(variants)}", flush=True)
     pred = _predictor(a.predictor)
+    if a.predictor_spread != 1.0:
+        from mmdopt.predict import make_predictor
+
+        pred = make_predictor(a.predictor, spread=a.predictor_spread)
     for i, task in enumerate(tasks):
         b = None
         for name, (cfg_over, p_over) in variants.items():

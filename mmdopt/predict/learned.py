@@ -134,24 +134,32 @@ def mixture_nll(model: MDN, x, z):
 
 
 @eqx.filter_jit
-def _sample_coef(model: MDN, x, key, n_arr):
+def _sample_coef(model: MDN, x, key, n_arr, spread=1.0):
     n = n_arr.shape[0]
     logits, mean, log_std = jax.vmap(model)(x)  # (O, M), (O, M, C)
     O = x.shape[0]
     km, kz = jax.random.split(key)
     mode = jax.random.categorical(km, logits[:, None, :], axis=-1, shape=(O, n))
     mu = jnp.take_along_axis(mean, mode[..., None], axis=1)  # (O, n, C)
-    sd = jnp.exp(jnp.take_along_axis(log_std, mode[..., None], axis=1))
+    sd = jnp.exp(jnp.take_along_axis(log_std, mode[..., None], axis=1)) * spread
     return mu + sd * jax.random.normal(kz, mu.shape, dtype=mu.dtype)
 
 
 class Learned:
     """The MDN predictor (see the module docstring).  ``Learned()`` loads the shipped weights;
-    ``Learned(path)`` loads ``path.eqx`` + ``path.json`` written by :func:`save_weights`."""
+    ``Learned(path)`` loads ``path.eqx`` + ``path.json`` written by :func:`save_weights`.
+
+    ``spread`` (> 0, default 1) scales every mixture component's standard deviation when
+    sampling (a post-hoc dispersion calibration; ``benchmarks/predictor_calibration.py``)."""
 
     name = "learned"
 
-    def __init__(self, weights: str | Path | None = None):
+    def __init__(self, weights: str | Path | None = None, spread: float = 1.0):
+        if isinstance(spread, bool) or not isinstance(spread, int | float | np.number):
+            raise ValueError(f"spread must be a positive number, got {spread!r}")
+        if not (np.isfinite(spread) and spread > 0):
+            raise ValueError(f"spread must be a positive finite number, got {spread}")
+        self.spread = float(spread)
         base = DEFAULT_WEIGHTS if weights is None else Path(weights)
         base = base.with_suffix("") if base.suffix in (".eqx", ".json") else base
         meta_path, eqx_path = base.with_suffix(".json"), base.with_suffix(".eqx")
@@ -170,6 +178,7 @@ class Learned:
     @classmethod
     def from_model(cls, model: MDN, config: MDNConfig, norm: dict) -> Learned:
         self = cls.__new__(cls)
+        self.spread = 1.0
         self.model, self.config = model, config
         self.norm = {k: np.asarray(v, np.float64) for k, v in norm.items()}
         self.meta = {"config": asdict(config)}
@@ -188,7 +197,9 @@ class Learned:
             )
         x = (feats - self.norm["feat_mean"]) / self.norm["feat_std"]
         O = x.shape[0]
-        z = _sample_coef(self.model, jnp.asarray(pad_rows(x), jnp.float32), key, jnp.zeros(n))
+        z = _sample_coef(
+            self.model, jnp.asarray(pad_rows(x), jnp.float32), key, jnp.zeros(n), self.spread
+        )
         c = np.asarray(z[:O], np.float64) * self.norm["coef_std"] + self.norm["coef_mean"]
         B = cfg.n_basis
         phi = poly_basis(t, cfg.horizon, B)  # (K, B)

@@ -90,6 +90,27 @@ def test_learned_loads_shipped_weights_samples_finite_and_deterministic(learned)
     assert learned.meta["info"]["n_train"] > 1000
 
 
+def test_learned_spread_scales_the_sample_dispersion_and_is_validated(learned):
+    """``Learned(spread=s)`` scales every component's σ: the same modes and means (same key), the
+    spread of the travelled distance grows with s, and s = 1 is the default bit for bit."""
+    hist, ctx = _make(O=3)
+    key = jax.random.PRNGKey(2)
+    base = learned.sample(hist, ctx, 400, key)
+    np.testing.assert_array_equal(
+        make_predictor("learned", spread=1.0).sample(hist, ctx, 400, key), base
+    )
+
+    # the same key draws the same modes and normals: the deviation from the mode's mean
+    # trajectory (spread → 0) doubles at s = 2 (up to the curved lane's nonlinearity)
+    mean = make_predictor("learned", spread=1e-9).sample(hist, ctx, 400, key)
+    wide = make_predictor("learned", spread=2.0).sample(hist, ctx, 400, key)
+    np.testing.assert_allclose(wide - mean, 2.0 * (base - mean), rtol=0.2, atol=0.1)
+    assert np.abs(base - mean).max() > 1.0  # the components have a spread to scale
+    for bad in (0.0, -1.0, float("nan"), float("inf"), True, "2"):
+        with pytest.raises(ValueError, match="spread"):
+            make_predictor("learned", spread=bad)
+
+
 def test_learned_refuses_a_horizon_longer_than_it_was_trained_for(learned):
     hist, ctx = _make(O=2, times=np.linspace(0.0, 15.0, 100))
     with pytest.raises(ValueError, match="predicts only"):
