@@ -198,7 +198,11 @@ class Learned:
         x = (feats - self.norm["feat_mean"]) / self.norm["feat_std"]
         O = x.shape[0]
         z = _sample_coef(
-            self.model, jnp.asarray(pad_rows(x), jnp.float32), key, jnp.zeros(n), self.spread
+            self.model,
+            jnp.asarray(pad_rows(x), jnp.float32),
+            key,
+            jnp.zeros(n),
+            jnp.asarray(self.spread, jnp.float32),  # traced: one compilation for every spread
         )
         c = np.asarray(z[:O], np.float64) * self.norm["coef_std"] + self.norm["coef_mean"]
         B = cfg.n_basis

@@ -350,7 +350,8 @@ def test_low_rank_gram_falls_back_to_the_full_gram_when_k_is_not_low_rank():
 def test_batched_selection_takes_the_low_rank_form_only_when_every_obstacle_allows_it():
     """``select_reduced_sets`` decides once for the batch (a collective over the vmapped axis):
     one obstacle whose Gram is not low rank sends the whole batch to the full K, bit for bit the
-    ``gram="full"`` result; a batch of smooth obstacles selects valid sets with the low rank."""
+    ``gram="full"`` result; a batch of smooth obstacles uses the (here deliberately coarse)
+    factor, which gives a different, valid result."""
     # a deliberately coarse factor that tells the two apart: rank 8 leaves a residual of 0.24
     # for the smooth samples (accepted by gram_tol = 0.3: a visibly different objective) and 0.50
     # for white noise (K ≈ 0.6 + 0.4·I, rejected)
@@ -359,21 +360,17 @@ def test_batched_selection_takes_the_low_rank_form_only_when_every_obstacle_allo
     cfg = ReducedSetConfig(iterations=10, gram_rank=8, gram_tol=0.3)
     lo, full = cfg.replace(gram="lowrank"), cfg.replace(gram="full")
     key = jax.random.key(0)
-    k0 = jax.random.split(key, 2)[0]  # select_reduced_sets' key of obstacle 0
-    alone = select_reduced_set(k0, smooth, 10, "mmd", lo).alpha
-    assert not np.array_equal(
-        np.asarray(alone), select_reduced_set(k0, smooth, 10, "mmd", full).alpha
-    )
-    mixed = np.stack([smooth, noise])
+    pair = np.stack([smooth, smooth[::-1]])  # both accept the factor: the batch uses it
+    a = select_reduced_sets(key, pair, 10, "mmd", lo)
+    b = select_reduced_sets(key, pair, 10, "mmd", full)
+    assert not np.array_equal(np.asarray(a.alpha), np.asarray(b.alpha))
+    for o in range(2):
+        idx = np.asarray(a.indices[o])
+        assert len(set(idx.tolist())) == 10 and idx.max() < 300
+    mixed = np.stack([smooth, noise])  # (the same shapes: no new compilation)
     a = select_reduced_sets(key, mixed, 10, "mmd", lo)
     b = select_reduced_sets(key, mixed, 10, "mmd", full)
     np.testing.assert_array_equal(np.asarray(a.alpha), np.asarray(b.alpha))
-    both = np.stack([two_intent(s, n=300)[0] for s in (0, 1)])
-    rs = select_reduced_sets(jax.random.key(0), both, 10, "mmd", ReducedSetConfig(iterations=20))
-    for o in range(2):
-        idx = np.asarray(rs.indices[o])
-        assert len(set(idx.tolist())) == 10 and idx.max() < 300
-        np.testing.assert_allclose(float(jnp.sum(rs.weights[o])), 1.0, atol=1e-9)
 
 
 def test_gram_mode_is_validated():
