@@ -127,7 +127,7 @@ def paper100_samples(seed: int, n: int):
     return X, np.asarray(sc.intents) == int(np.argmax(sc.intent_probs))
 
 
-def samplers(
+def compare_modes(
     ns, seeds: int, m: int, repeats: int, field: str = "sampler", values=None, data=two_intent
 ):
     """The MMD CEM's two ways to draw from N(μ, Σ) (``ReducedSetConfig.sampler``) at n samples
@@ -212,11 +212,13 @@ def main():
     )
     args = ap.parse_args()
     if args.samplers:
-        samplers(args.samplers, args.seeds, args.m[0], args.repeats)
+        compare_modes(args.samplers, args.seeds, args.m[0], args.repeats)
         return
     if args.grams:
         data = two_intent if args.data == "two_intent" else paper100_samples
-        samplers(args.grams, args.seeds, args.m[0], args.repeats, "gram", ("full", "lowrank"), data)
+        compare_modes(
+            args.grams, args.seeds, args.m[0], args.repeats, "gram", ("full", "lowrank"), data
+        )
         return
     if args.quality:
         quality(args.quality, args.p_keep)

@@ -18,7 +18,6 @@ from __future__ import annotations
 
 import jax
 import jax.numpy as jnp
-import numpy as np
 from numpy.typing import ArrayLike
 
 from ._x64 import x64
@@ -134,11 +133,13 @@ def median_heuristic(x: ArrayLike) -> jax.Array:
         return jnp.ones(
             x.shape[:-2], dtype=x.dtype if jnp.issubdtype(x.dtype, jnp.floating) else jnp.float64
         )
-    # the n(n−1)/2 distinct pairs (i < j); squared distances (sqrt is monotone: the k-th
-    # smallest distance is the sqrt of the k-th smallest squared one)
-    iu, ju = np.triu_indices(n, k=1)
-    d2 = sq_distances(x)[..., iu, ju]  # (..., M)
-    M = iu.size
+    # the n(n−1)/2 distinct pairs (i < j), squared (sqrt is monotone: the k-th smallest distance
+    # is the sqrt of the k-th smallest squared one); the other entries are +inf, above them all
+    # (a mask, not a gather: no (M,) index constants in the program)
+    i = jnp.arange(n)
+    upper = i[:, None] < i[None, :]
+    d2 = jnp.where(upper, sq_distances(x), jnp.inf).reshape(x.shape[:-2] + (n * n,))
+    M = n * (n - 1) // 2
     q1, q2 = (M - 1) // 2, M // 2  # the median's ranks (equal when M is odd)
     lo = _kth_smallest_nonneg(d2, jnp.asarray([q1]))[..., 0]  # (jnp.sort: ≈ 1 ms at n = 100)
     if q2 == q1:
@@ -148,7 +149,7 @@ def median_heuristic(x: ArrayLike) -> jax.Array:
         above = jnp.min(jnp.where(d2 > lo[..., None], d2, jnp.inf), axis=-1)
         hi = jnp.where(ties, lo, above)
     med = 0.5 * (jnp.sqrt(lo) + jnp.sqrt(hi))
-    d = jnp.sqrt(d2)
+    d = jnp.where(jnp.isfinite(d2), jnp.sqrt(d2), 0.0)
     nz = d > 0
     mean_nz = jnp.sum(d, axis=-1) / jnp.maximum(jnp.sum(nz, axis=-1), 1)
     out = jnp.where(med > 0, med, mean_nz)
