@@ -154,7 +154,10 @@ class MMDOptConfig:
     spread of the planning samples it stands for (its cluster), to contain them with probability
     ``1 − risk_eps`` under a per-step Gaussian fit (longitudinally one-sided: behind / ahead of
     the point; laterally symmetric); ``coverage_prior`` is the pseudo-count of the pooled spread
-    a small cluster is shrunk towards; ``coverage_knn`` (0: ``n // reduced_set_size``) the
+    a small cluster is shrunk towards; ``coverage_bandwidth`` (0: off) adds a kernel-density
+    bandwidth ``coverage_bandwidth · 1.06 σ_s(t) n^(-1/5)`` (Silverman's rule over the obstacle's
+    n samples) in quadrature to every longitudinal spread (the tail beyond the extreme samples);
+    ``coverage_knn`` (0: ``n // reduced_set_size``) the
     neighbourhood size that stands for a sample's cluster when a method plans on all samples.
     The margins are computed in :func:`mmdopt.plan` and travel in the :class:`ObstacleSet`;
     ``reselect`` (0: off) > 0 runs Algorithm 1 a second time, warm-started, with the
@@ -240,6 +243,7 @@ class MMDOptConfig:
     risk_eps: float = 0.005
     w_cover: float = 0.0
     coverage_prior: float = 2.0
+    coverage_bandwidth: float = 0.0
     headway_time: float = 0.0
     headway_gap: float = 0.0
     margin_ahead_scale: float = 1.0
@@ -313,6 +317,9 @@ class MMDOptConfig:
         v = self.coverage_prior
         if _concrete(v) and not float(v) >= 0:
             raise ValueError(f"MMDOptConfig.coverage_prior must be >= 0, got {v}")
+        v = self.coverage_bandwidth
+        if _concrete(v) and not (math.isfinite(float(v)) and float(v) >= 0):
+            raise ValueError(f"MMDOptConfig.coverage_bandwidth must be finite and >= 0, got {v}")
         if self.dtype not in ("float32", "float64"):
             raise ValueError(f"dtype must be 'float32' or 'float64', got {self.dtype!r}")
         for name in (

@@ -502,6 +502,7 @@ def _plan_impl(
             lateral_scale=float(config.rs_lateral_scale),
             prior=float(config.coverage_prior),
             knn=knn,
+            bandwidth=float(config.coverage_bandwidth),
         )
         diag["margins_s"] = time.perf_counter() - t3
     obstacles = alg.ObstacleSet.create(
@@ -594,6 +595,7 @@ def _reselect_pass(ctx: _Ctx, state, problem, key, backend, backend_settings):
         float(config.risk_eps),
         lateral_scale=float(config.rs_lateral_scale),
         prior=float(config.coverage_prior),
+        bandwidth=float(config.coverage_bandwidth),
     )
     obstacles = alg.ObstacleSet.create(config, cen, w, COST_MODE[ctx.method], margins=margins)
     ctx.obstacles = obstacles

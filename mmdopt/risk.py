@@ -104,7 +104,7 @@ def config_for_risk(
     return cfg.replace(**kw)
 
 
-def _gauss_margins(dev_e, dev_u, member, z, prior):
+def _gauss_margins(dev_e, dev_u, member, z, prior, h_e=0.0):
     """Margins (3, J, K) from deviations (J, M, K) of the members (mask (J, M)) of each point."""
     w = member.astype(np.float64)[:, :, None]  # (J, M, 1)
     c = np.maximum(w.sum(1), 1.0)  # (J, 1)
@@ -115,7 +115,7 @@ def _gauss_margins(dev_e, dev_u, member, z, prior):
     # pooled within-cluster variance per step (clusters weighted by size)
     pool_e = (c * v_e).sum(0) / c.sum()
     pool_u = (c * v_u).sum(0) / c.sum()
-    sd_e = np.sqrt((c * v_e + prior * pool_e) / (c + prior))
+    sd_e = np.sqrt((c * v_e + prior * pool_e) / (c + prior) + h_e**2)
     sd_u = np.sqrt((c * v_u + prior * pool_u) / (c + prior))
     behind = np.maximum(z * sd_e - mu_e, 0.0)
     ahead = np.maximum(z * sd_e + mu_e, 0.0)
@@ -131,6 +131,7 @@ def coverage_margins(
     lateral_scale: float = 1.0,
     prior: float = 2.0,
     knn: int = 0,
+    bandwidth: float = 0.0,
 ) -> np.ndarray:
     """Sample-driven planning margins (m), shape (3, O, J, K): behind, ahead, lateral.
 
@@ -139,7 +140,12 @@ def coverage_margins(
     nearest point (trajectory distance, lateral offsets × ``lateral_scale`` as in the selection's
     kernel); with ``knn > 0`` point j's cluster is its ``knn`` nearest samples (for methods that
     plan on all samples).  ``eps`` the coverage risk (z = Φ⁻¹(1 − eps)), ``prior`` the shrinkage
-    pseudo-count.  Pure NumPy, O(O·J·n·K) (O·n·knn·K with ``knn``).
+    pseudo-count.  ``bandwidth`` > 0 adds ``h = bandwidth · 1.06 σ_s(k) n^(-1/5)`` (Silverman's
+    rule; σ_s(k) the spread of all n samples' arc length at step k) in quadrature to every
+    longitudinal spread: the Gaussian of each cluster convolved with the kernel of a density
+    estimate, so the margin of the extreme points extends past the extreme samples (a cluster of
+    a few samples of a rare intent understates that intent's tail; docs/frontier.md, Session 9).
+    Pure NumPy, O(O·J·n·K) (O·n·knn·K with ``knn``).
     """
     X = np.asarray(obstacles_frenet, np.float64)
     idx = np.asarray(indices)
@@ -158,6 +164,9 @@ def coverage_margins(
         raise ValueError(f"prior must be >= 0, got {prior}")
     if isinstance(knn, bool) or not isinstance(knn, int | np.integer) or knn < 0:
         raise ValueError(f"knn must be an integer >= 0, got {knn!r}")
+    bandwidth = float(bandwidth)
+    if not (math.isfinite(bandwidth) and bandwidth >= 0):
+        raise ValueError(f"bandwidth must be finite and >= 0, got {bandwidth}")
     scale = np.array([1.0, float(lateral_scale)])
     out = np.empty((3, O, idx.shape[1], K))
     for o in range(O):  # O is a handful of obstacles; everything inside is vectorised
@@ -175,7 +184,10 @@ def coverage_margins(
             nb = np.argpartition(sq, k - 1, axis=1)[:, :k]  # (J, k) incl. the point itself
             member = np.ones(nb.shape, bool)
             dev = X[o][nb] - anchor[:, None]  # (J, k, K, 2)
-        out[:, o] = _gauss_margins(dev[..., 0], dev[..., 1], member, z, prior)
+        h_e = 0.0
+        if bandwidth > 0:  # kernel-density smoothing of the tail (Silverman's rule, per step)
+            h_e = bandwidth * 1.06 * X[o][:, :, 0].std(axis=0) * n**-0.2  # (K,)
+        out[:, o] = _gauss_margins(dev[..., 0], dev[..., 1], member, z, prior, h_e)
     return out
 
 
