@@ -131,6 +131,27 @@ VARIANT_SETS = {
             dict(v_des_flow=2.0),
         ),
     },
+    # Session 9: issue 11's sample-driven margins (mmdopt.risk: coverage margins at 1 − ε, the
+    # coverage term and the re-selection pass of the "mmd" mapping; m = 10 here, so reselect 5)
+    # instead of the time-linear ones, on top of the chosen configuration
+    "risk": {
+        "flow+2,r2,c5": (dict(rear_exempt_width=2.0), dict(v_des_flow=2.0, min_change_speed=5.0)),
+        **{
+            f"chosen,eps{e:g}{',bw1' if bw else ''}": (
+                dict(
+                    rear_exempt_width=2.0,
+                    margin_mode="samples",
+                    risk_eps=e,
+                    w_cover=100.0,
+                    reselect=5,
+                    coverage_bandwidth=bw,
+                ),
+                dict(v_des_flow=2.0, min_change_speed=5.0),
+            )
+            for e in (0.005, 0.001)
+            for bw in (0.0, 1.0)
+        },
+    },
 }
 
 
