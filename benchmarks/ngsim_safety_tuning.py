@@ -130,6 +130,31 @@ VARIANT_SETS = {
             dict(headway_time=0.5, headway_gap=2.0, margin_ahead_scale=0.0),
             dict(v_des_flow=2.0),
         ),
+        # Session 10: the chosen configuration with a higher traffic-speed allowance (the
+        # training split's least progress ratio is 0.80, at the bar)
+        **{
+            f"flow+{v:g},r2,c5": (
+                dict(rear_exempt_width=2.0),
+                dict(v_des_flow=v, min_change_speed=5.0),
+            )
+            for v in (2.5, 3.0, 4.0)
+        },
+        # ... and smaller planning margins (margin_long, margin_rate) behind and ahead of points
+        **{
+            f"flow+2,r2,c5,L{ml:g},R{mr:g}": (
+                dict(rear_exempt_width=2.0, margin_long=ml, margin_rate=mr),
+                dict(v_des_flow=2.0, min_change_speed=5.0),
+            )
+            for ml, mr in ((1.5, 1.0), (2.5, 0.8), (1.5, 0.8), (2.5, 1.2))
+        },
+        # ... and the kinematic slip limit (MMDOptConfig.slip_ratio: no sideways slide at rest)
+        **{
+            f"flow+2,r2,c5,slip{r:g}": (
+                dict(rear_exempt_width=2.0, slip_ratio=r),
+                dict(v_des_flow=2.0, min_change_speed=5.0),
+            )
+            for r in (0.25, 0.5)
+        },
     },
     # Session 9: issue 11's sample-driven margins (mmdopt.risk: coverage margins at 1 − ε, the
     # coverage term and the re-selection pass of the "mmd" mapping; m = 10 here, so reselect 5)

@@ -15,6 +15,7 @@ brute-force scan.  Round trips are exact to ~1e-9 m wherever the nearest point i
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 from typing import TYPE_CHECKING
 
@@ -313,19 +314,42 @@ class ReferencePath:
         )
 
     def trajectory_to_cartesian(
-        self, s: ArrayLike, d: ArrayLike, vs: ArrayLike, vd: ArrayLike
+        self,
+        s: ArrayLike,
+        d: ArrayLike,
+        vs: ArrayLike,
+        vd: ArrayLike,
+        stop_speed: float = 0.05,
     ) -> tuple[NDArray[np.float64], NDArray[np.float64], NDArray[np.float64], NDArray[np.float64]]:
         """Frenet trajectories (…, K) with Frenet velocities → Cartesian ``(x, y, heading, speed)``.
 
         Uses ``ẋ_cart = (1 − dκ) ṡ t + ḋ n``: the heading is ``θ(s) + atan2(ḋ, (1 − dκ) ṡ)``.
+        Below ``stop_speed`` (m/s) the direction of motion is undefined (a solver's −10⁻³ m/s
+        would turn the car round): the heading relative to the path is held from the last step
+        at or above it along the last axis (0, the path's direction, before the first such
+        step) — a car at rest keeps its heading.  ``stop_speed = 0`` gives the raw formula.
         """
         s, d, vs, vd = _broadcast(("s", "d", "vs", "vd"), s, d, vs, vd)
         _check_finite("trajectory", s, d, vs, vd)
+        stop_speed = float(stop_speed)
+        if not (math.isfinite(stop_speed) and stop_speed >= 0):
+            raise ValueError(f"stop_speed must be finite and >= 0, got {stop_speed}")
         x, y = self.to_cartesian(s, d)
         k = self.curvature(s)
         vt = (1.0 - d * k) * vs
-        heading = wrap_angle(self.heading(s) + np.arctan2(vd, vt))
-        return x, y, heading, np.hypot(vt, vd)
+        speed = np.hypot(vt, vd)
+        rel = np.arctan2(vd, vt)
+        if stop_speed > 0 and rel.ndim > 0:
+            moving = speed >= stop_speed
+            # forward fill along the last axis: index of the last moving step so far (−1: none)
+            idx = np.where(moving, np.arange(rel.shape[-1]), -1)
+            idx = np.maximum.accumulate(idx, axis=-1)
+            held = np.take_along_axis(rel, np.maximum(idx, 0), axis=-1)
+            rel = np.where(idx >= 0, held, 0.0)
+        elif stop_speed > 0 and speed < stop_speed:
+            rel = np.zeros_like(rel)
+        heading = wrap_angle(self.heading(s) + rel)
+        return x, y, heading, speed
 
     def ego_state(
         self,

@@ -94,6 +94,8 @@ __all__ = [
     "planning_semi_axis",
     "margin_ellipse_values",
     "headway_semi_axis",
+    "slip_residual",
+    "INFEASIBLE_COST",
     "n_taylor_terms",
     "check_backend",
     "project_rows",
@@ -103,6 +105,10 @@ __all__ = [
 
 #: the planner's default projection: the jitted fixed-budget ADMM projector inside the CEM step
 PLANNER_BACKEND = "admm-fixed"
+
+
+#: added to the cost of a row beyond ``res_tol`` when ``MMDOptConfig.kinematic`` is on
+INFEASIBLE_COST = 1.0e12
 
 
 def _static(default):
@@ -191,6 +197,22 @@ class MMDOptConfig:
 
     These apply to every method's collision term (they are rules of the road, not
     prediction-spread margins, so ``baseline_margin_scale`` does not scale them).
+
+    **Kinematic slip limit** (not in the paper; off by default: ``slip_ratio = 0``; a value
+    > 0 sets the static ``kinematic`` flag).  The Frenet planner moves the offset ``d`` and the
+    arc length ``s`` independently, so a plan may stop (ṡ → 0) and still move sideways — a car
+    cannot: its velocity points along its heading, and the heading relative to the path is
+    ``atan2(ḋ, ṡ)``.  With ``slip_ratio`` r > 0 the constraint ``|ḋ_k| ≤ r·max(ṡ_k, 0)`` (a
+    heading within ``atan(r)`` of the path; r = 0.5: 27°, a lane change at 10 m/s needs ≈ 8°)
+    joins the projection's residual: every row's residual gains
+    ``(res_tol / slip_tol) · max_k max(0, |ḋ_k| − r·max(ṡ_k, 0) − v₀)``, ``v₀`` the initial
+    state's own excess (which no plan can undo at once) and ``slip_tol`` (m/s, default 0.01)
+    the excess lateral speed that alone uses up the feasibility tolerance, so the
+    ConstraintEliteSet, the feasibility flag and the fallback treat it like the lane and
+    acceleration bounds; in this mode a row beyond ``res_tol`` also costs ``INFEASIBLE_COST``
+    more (feasibility first: the ConstraintEliteSet holds infeasible rows when fewer than
+    ``n_cem`` are feasible, and a collision term of 10⁵–10⁶ would outweigh ``w_res·res``).
+    The brake rows keep their offset, so a slip-free candidate exists.
     """
 
     # static: sizes and modes
@@ -214,6 +236,7 @@ class MMDOptConfig:
     coverage_knn: int = _static(0)
     reselect: int = _static(0)
     asymmetric: bool = _static(False)
+    kinematic: bool = _static(False)
     # leaves: optimiser
     gamma: float = 0.9
     eta: float = 0.6
@@ -248,6 +271,8 @@ class MMDOptConfig:
     headway_gap: float = 0.0
     margin_ahead_scale: float = 1.0
     rear_exempt_width: float = 0.0
+    slip_ratio: float = 0.0
+    slip_tol: float = 0.01
     reduced_set: ReducedSetConfig = field(default_factory=ReducedSetConfig)
 
     def replace(self, **kw) -> MMDOptConfig:
@@ -265,6 +290,16 @@ class MMDOptConfig:
                 raise ValueError(f"MMDOptConfig.{name} must be finite and >= 0, got {v}")
             if _concrete(v) and float(v) != off and not self.asymmetric:
                 object.__setattr__(self, "asymmetric", True)
+        v = self.slip_ratio
+        if _concrete(v) and not (math.isfinite(float(v)) and float(v) >= 0):
+            raise ValueError(f"MMDOptConfig.slip_ratio must be finite and >= 0, got {v}")
+        v2 = self.slip_tol
+        if _concrete(v2) and not (math.isfinite(float(v2)) and float(v2) > 0):
+            raise ValueError(f"MMDOptConfig.slip_tol must be finite and > 0, got {v2}")
+        if _concrete(v) and float(v) != 0 and not self.kinematic:
+            object.__setattr__(self, "kinematic", True)
+        if not isinstance(self.kinematic, bool):
+            raise ValueError(f"MMDOptConfig.kinematic must be a bool, got {self.kinematic!r}")
         if not isinstance(self.asymmetric, bool):
             raise ValueError(f"MMDOptConfig.asymmetric must be a bool, got {self.asymmetric!r}")
         ints = (
@@ -726,6 +761,10 @@ def _row_costs(cfg: MMDOptConfig, prob: CEMProblem, obstacles: ObstacleSet, cx, 
     j_acc = jnp.mean(as_ * as_ + ad * ad, axis=1)
     coll, w = _collision_term(cfg, prob, s, dd, obstacles, dt, vs=vs)
     cost = cfg.w_speed * j_speed + cfg.w_accel * j_acc + w * coll + cfg.w_res * res
+    if cfg.kinematic:
+        # feasibility first (a hard slip limit; the collision term may reach 10⁶): a row whose
+        # residual, slip included, exceeds res_tol ranks after every row within it
+        cost = cost + jnp.where(res > cfg.res_tol, jnp.asarray(INFEASIBLE_COST, dt), 0.0)
     return jnp.where(jnp.isfinite(cost), cost, jnp.asarray(1e30, dt)), coll
 
 
@@ -807,6 +846,8 @@ def _evaluate(
     mu, cov, best, lv = state.mu, state.cov, state.best, state.least_violating
     dt = cx.dtype
     res = jnp.where(jnp.isfinite(res), res, jnp.asarray(1e30, dt))
+    if cfg.kinematic:
+        res = res + slip_residual(cfg, prob, state.problem.state, cx, cy)
     n_feas = jnp.sum(res <= cfg.res_tol)
     # --- ConstraintEliteSet: n_cem lowest residuals (within res_tol all count as 0: index order)
     rank = jnp.maximum(res - cfg.res_tol, 0.0)
@@ -864,6 +905,29 @@ def _evaluate(
     if cache is None:
         return new
     return new, _next_cache(cfg, ces, cost, coll, el, cx, cy, res, end, cache)
+
+
+def slip_residual(cfg: MMDOptConfig, prob: CEMProblem, ego_state, cx, cy):
+    """Kinematic slip limit (:class:`MMDOptConfig`, not in the paper): per row (B,) the largest
+    excess ``max_k max(0, |ḋ_k| − r·max(ṡ_k, 0) − v₀)`` (m/s) of the lateral speed over
+    ``r = slip_ratio`` times the longitudinal speed, ``v₀`` that of the initial state
+    ``ego_state`` (6,) = (s, d, ṡ, ḋ, s̈, d̈), in residual units (× ``res_tol / slip_tol``)."""
+    cx, cy = jnp.asarray(cx), jnp.asarray(cy)
+    if cx.ndim != 2 or cy.shape != cx.shape or cx.shape[1] != prob.Pdot.shape[1]:
+        raise ValueError(
+            f"cx and cy must both have shape (B, {prob.Pdot.shape[1]}), got {cx.shape} and "
+            f"{cy.shape}"
+        )
+    if jnp.shape(ego_state) != (6,):
+        raise ValueError(f"ego_state must have shape (6,), got {jnp.shape(ego_state)}")
+    dt = cx.dtype
+    Pd = jnp.asarray(prob.Pdot, dt)
+    vs, vd = cx @ Pd.T, cy @ Pd.T
+    r = jnp.asarray(cfg.slip_ratio, dt)
+    st = ego_state.astype(dt)
+    v0 = jnp.maximum(jnp.abs(st[3]) - r * jnp.maximum(st[2], 0.0), 0.0)
+    ex = jnp.abs(vd) - r * jnp.maximum(vs, 0.0) - v0
+    return jnp.max(jnp.maximum(ex, 0.0), axis=1) * (cfg.res_tol / cfg.slip_tol)
 
 
 def planning_semi_axis(cfg: MMDOptConfig, t, dt=None, scale=1.0):

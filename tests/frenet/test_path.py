@@ -73,6 +73,28 @@ def test_trajectory_to_cartesian_heading_follows_velocity():
     assert heading[0] == pytest.approx(0.3 + np.arctan2(4, 3))
 
 
+def test_trajectory_to_cartesian_holds_the_heading_at_rest():
+    """A plan that stops: below ``stop_speed`` the car keeps the heading it last moved with (a
+    solver's −10⁻³ m/s must not turn it round, a stopped start points along the path)."""
+    path = ReferencePath.straight(100.0, heading=0.3)
+    s = np.array([[0.0, 1.0, 1.5, 1.5, 1.5], [0.0, 0.0, 0.0, 0.5, 1.0]])
+    d = np.zeros_like(s)
+    vs = np.array([[2.0, 1.0, 0.01, -1e-3, 0.0], [0.0, 1e-3, 0.0, 1.0, 1.0]])
+    vd = np.array([[0.2, 0.1, 0.02, 0.0, 0.0], [0.0, 1e-3, 0.0, 0.1, 0.0]])
+    _, _, h, v = path.trajectory_to_cartesian(s, d, vs, vd)
+    rel = h - 0.3
+    assert rel[0, :2] == pytest.approx(np.arctan2(vd[0, :2], vs[0, :2]))
+    assert rel[0, 2:] == pytest.approx([np.arctan2(0.1, 1.0)] * 3)  # held from step 1
+    assert rel[1] == pytest.approx([0.0, 0.0, 0.0, np.arctan2(0.1, 1.0), 0.0])
+    assert v[0, 3] == pytest.approx(1e-3)  # the speed itself is not changed
+    _, _, raw, _ = path.trajectory_to_cartesian(s, d, vs, vd, stop_speed=0.0)
+    assert abs(raw[0, 3] - 0.3) == pytest.approx(np.pi)  # the raw formula turns it round
+    _, _, h0, _ = path.trajectory_to_cartesian(1.0, 0.0, 0.0, 0.01)  # a scalar at rest
+    assert float(h0) == pytest.approx(0.3)
+    with pytest.raises(ValueError, match="stop_speed"):
+        path.trajectory_to_cartesian(s, d, vs, vd, stop_speed=-1.0)
+
+
 def test_ego_state_on_straight_path():
     path = ReferencePath.straight(100.0)
     st = path.ego_state(3.0, 0.5, speed=10.0, heading=0.0)

@@ -148,3 +148,47 @@ def test_config_is_a_pytree_with_static_sizes():
     assert SMALL.gamma in leaves and SMALL.w_mmd in leaves
     assert all(not isinstance(v, str) for v in leaves)
     assert SMALL.replace(w_mmd=5.0).w_mmd == 5.0
+
+
+def test_slip_limit_is_validated_off_by_default_and_measures_sideways_motion_at_rest():
+    """The kinematic slip limit (``slip_ratio``): a row that stops and then moves sideways
+    exceeds it, a row that changes lane while driving does not, and the initial state's own
+    slip is allowed (no plan can undo it at once)."""
+    import jax.numpy as jnp
+
+    from mmdopt import algorithm as alg
+
+    assert not mmdopt.MMDOptConfig().kinematic
+    for bad in (-0.1, float("nan"), float("inf")):
+        with pytest.raises(ValueError, match="slip_ratio"):
+            mmdopt.MMDOptConfig(slip_ratio=bad)
+    with pytest.raises(ValueError, match="slip_tol"):
+        mmdopt.MMDOptConfig(slip_ratio=0.5, slip_tol=0.0)
+    cfg = mmdopt.MMDOptConfig(horizon=5.0, num_steps=51, slip_ratio=0.5)
+    assert cfg.kinematic
+    prob = alg.build_problem(cfg, mmdopt.Road().bounds())
+    t = prob.t()
+    P = np.asarray(prob.P)
+
+    def fit(x):  # Bernstein coefficients of a grid trajectory (least squares)
+        return np.linalg.lstsq(P, x, rcond=None)[0]
+
+    stop = np.minimum(t, 2.0) - 0.25 * np.minimum(t, 2.0) ** 2  # 1 m/s braking to rest at 2 s
+    slide = np.clip(t - 2.5, 0.0, 2.0) ** 2 * 0.1  # then 0.4 m sideways at rest
+    lane = 10.0 * t  # 10 m/s ...
+    u = np.clip(t / 4, 0, 1)
+    change = 3.5 * u**3 * (10 - 15 * u + 6 * u**2)  # ... changing lane in 4 s
+    cx = jnp.asarray(np.stack([fit(stop), fit(lane), fit(stop)]))
+    cy = jnp.asarray(np.stack([fit(slide), fit(change), fit(0 * t)]))
+    rest = jnp.asarray([0.0, 0.0, 1.0, 0.0, -0.5, 0.0])
+    r = np.asarray(alg.slip_residual(cfg, prob, rest, cx, cy))
+    assert r[0] > 10 * cfg.res_tol  # the slide at rest: far beyond the tolerance
+    assert r[1] <= cfg.res_tol and r[2] <= cfg.res_tol  # a lane change at speed, a stop
+    # a car that starts with 0.3 m/s of lateral slip at rest may keep it, not add to it
+    slipping = jnp.asarray([0.0, 0.0, 0.0, 0.3, 0.0, 0.0])
+    cy_keep = jnp.asarray(fit(0.3 * np.minimum(t, 0.5)))[None]
+    assert float(alg.slip_residual(cfg, prob, slipping, cx[2:], cy_keep)[0]) <= cfg.res_tol
+    with pytest.raises(ValueError, match="cx and cy"):
+        alg.slip_residual(cfg, prob, rest, cx, cy[:, :3])
+    with pytest.raises(ValueError, match="ego_state"):
+        alg.slip_residual(cfg, prob, rest[:4], cx, cy)

@@ -294,3 +294,48 @@ def test_plan_keeps_the_time_headway_to_a_slower_leader():
     gap = np.mean(s_lead, 0) - 2.5 - p.s - (cfg.a + 2.0 + 1.0 * p.vs)
     assert gap.min() >= -0.5, gap.min()
     assert p.vs[-1] > 6.0  # it follows the 10 m/s leader, it does not just stop
+
+
+@pytest.mark.slow  # one JIT compile of Algorithm 1 at the benchmark's sizes
+def test_crawling_ego_does_not_slide_sideways_at_rest(ngsim_dir):
+    """Stop-and-go traffic (training recording 4_1, ego 442 at 1.5 m/s, t0 = 5 s): without the
+    kinematic slip limit the plan stopped and then moved 0.4 m sideways, a sideways slide whose
+    footprint (heading atan2(ḋ, ṡ) ≈ −90°) touched the car beside it (an at-fault *front*
+    contact, docs/ngsim.md).  With ``ngsim_config()`` (slip_ratio 0.5) the lateral speed
+    stays within the limit at every step and the plan is clear of the recorded traffic."""
+    import jax
+
+    import mmdopt
+    from mmdopt.bench.ngsim.runner import (
+        NgsimParams,
+        _pad_ghosts,
+        _predictor,
+        _score_recorded,
+        _task_seed,
+        build_task,
+        ngsim_config,
+        task_config,
+    )
+
+    f = ngsim_dir / "USA_US101-4_1_T-1.xml"
+    if not f.is_file():
+        pytest.skip(f"{f} not found")
+    p = NgsimParams(egos_per_time=1)
+    task = dict(scenario=str(f), ego_id=442, k=50, t0=5.0)
+    cfg0 = ngsim_config()
+    assert cfg0.kinematic and cfg0.slip_ratio == 0.5
+    b = build_task(task, p, cfg0)
+    key = jax.random.fold_in(jax.random.PRNGKey(p.seed), _task_seed(task))
+    k_pred, _, k_plan = jax.random.split(key, 3)
+    samples = _predictor("learned").sample(b["hist"], b["ctx"], p.n_samples, k_pred)
+    planned = _pad_ghosts(samples, b["road"], b["ego"], p.max_obstacles)
+    cfg = task_config(b, p, cfg0)
+    plan = mmdopt.plan(b["ego"], b["road"], planned, method="mmd", config=cfg, key=k_plan)
+    assert plan.feasible and not plan.fallback, plan.status
+    e = b["ego"]
+    v0 = max(abs(e.vd) - cfg.slip_ratio * max(e.vs, 0.0), 0.0)
+    excess = np.abs(plan.vd) - cfg.slip_ratio * np.maximum(plan.vs, 0.0) - v0
+    assert excess.max() <= cfg.slip_tol + 1e-3, excess.max()
+    assert float(e.vs) < 2.0 and plan.vs[-1] < 0.5  # it is the crawling case: the plan stops
+    sc = _score_recorded(b, plan, p)
+    assert not sc["at_fault_collision"], sc
