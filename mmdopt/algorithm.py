@@ -208,7 +208,7 @@ class MMDOptConfig:
     ``(res_tol / slip_tol) · max_k max(0, |ḋ_k| − r·max(ṡ_k, 0) − v₀)``, ``v₀`` the initial
     state's own excess (which no plan can undo at once) and ``slip_tol`` (m/s, default 0.01)
     the excess lateral speed that alone uses up the feasibility tolerance, so the
-    ConstraintEliteSet, the feasibility flag and the fallback treat it like the lane and
+    ConstraintEliteSet and the least-violating fallback treat it like the lane and
     acceleration bounds; in this mode a row beyond ``res_tol`` also costs ``INFEASIBLE_COST``
     more (feasibility first: the ConstraintEliteSet holds infeasible rows when fewer than
     ``n_cem`` are feasible, and a collision term of 10⁵–10⁶ would outweigh ``w_res·res``).
@@ -846,8 +846,6 @@ def _evaluate(
     mu, cov, best, lv = state.mu, state.cov, state.best, state.least_violating
     dt = cx.dtype
     res = jnp.where(jnp.isfinite(res), res, jnp.asarray(1e30, dt))
-    if cfg.kinematic:
-        res = res + slip_residual(cfg, prob, state.problem.state, cx, cy)
     n_feas = jnp.sum(res <= cfg.res_tol)
     # --- ConstraintEliteSet: n_cem lowest residuals (within res_tol all count as 0: index order)
     rank = jnp.maximum(res - cfg.res_tol, 0.0)
@@ -1027,6 +1025,15 @@ def project_rows(cfg: MMDOptConfig, prob: CEMProblem, d, ego, dt):
     return cx, cy, res, n_proj
 
 
+def _project_fixed_slip(cfg: MMDOptConfig, prob: CEMProblem, cx_bar, cy_bar, ego):
+    """:func:`project_fixed`, its residual with the slip limit's added when ``cfg.kinematic``
+    (once, where the residual is made: cached rows carry it already)."""
+    cx, cy, res = project_fixed(prob, cx_bar, cy_bar, ego)
+    if cfg.kinematic:
+        res = res + slip_residual(cfg, prob, ego, cx, cy).astype(res.dtype)
+    return cx, cy, res
+
+
 def _project_rows(cfg: MMDOptConfig, prob: CEMProblem, d, ego, dt, cache=None):
     """:func:`project_rows`; with ``cache`` (:func:`run`) the first ``cache.known`` rows (the
     elites and brake rows, projected in an earlier iteration) are taken from it and the chunks,
@@ -1036,7 +1043,7 @@ def _project_rows(cfg: MMDOptConfig, prob: CEMProblem, d, ego, dt, cache=None):
     C = min(project_chunk_size(cfg), B)
     if C >= B:
         cx_bar, cy_bar = planner_output(prob, d, ego, dt)
-        cx, cy, res = project_fixed(prob, cx_bar, cy_bar, ego)
+        cx, cy, res = _project_fixed_slip(cfg, prob, cx_bar, cy_bar, ego)
         n = jnp.asarray(B, jnp.int32)
         return cx, cy, res.astype(dt), n, n
     n = prob.nvar
@@ -1064,7 +1071,7 @@ def _project_rows(cfg: MMDOptConfig, prob: CEMProblem, d, ego, dt, cache=None):
         i, nf, cx, cy, res = c
         start = base + i * C
         cx_bar, cy_bar = planner_output(prob, lax.dynamic_slice_in_dim(dp, start, C), ego, dt)
-        cxi, cyi, ri = project_fixed(prob, cx_bar, cy_bar, ego)
+        cxi, cyi, ri = _project_fixed_slip(cfg, prob, cx_bar, cy_bar, ego)
         ri = jnp.where(start + jnp.arange(C) < B, ri.astype(dt), inf)  # padding: never chosen
         nf = nf + jnp.sum(ri <= cfg.res_tol).astype(jnp.int32)
         cx = lax.dynamic_update_slice_in_dim(cx, cxi, start, 0)
@@ -1176,9 +1183,13 @@ def _sample_plan(state: CEMState):
 
 @jax.jit
 def _evaluate_host(state: CEMState, obstacles: ObstacleSet, d, cx, cy, res):
-    prob = build_problem(state.config, state.problem.bounds)
-    dt = jnp.dtype(state.config.dtype)
-    return _evaluate(state, prob, obstacles, d, cx.astype(dt), cy.astype(dt), res.astype(dt))
+    cfg = state.config
+    prob = build_problem(cfg, state.problem.bounds)
+    dt = jnp.dtype(cfg.dtype)
+    cx, cy, res = cx.astype(dt), cy.astype(dt), res.astype(dt)
+    if cfg.kinematic:  # the slip limit joins the backend's residual (as in _project_rows)
+        res = res + slip_residual(cfg, prob, state.problem.state, cx, cy)
+    return _evaluate(state, prob, obstacles, d, cx, cy, res)
 
 
 # ------------------------------------------------------------------------------------ public API

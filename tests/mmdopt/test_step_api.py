@@ -27,15 +27,18 @@ def _inputs(method_mode="mmd", config=SMALL):
     return problem, obstacles
 
 
-@pytest.mark.parametrize("mode", ["mmd", "scenario"])
-def test_init_update_loop_equals_run(mode):
-    problem, obstacles = _inputs(mode)
+@pytest.mark.parametrize("mode, slip", [("mmd", 0.0), ("scenario", 0.0), ("mmd", 0.05)])
+def test_init_update_loop_equals_run(mode, slip):
+    """``slip`` > 0: the kinematic slip limit, whose residual run() caches with the elites'
+    projections (added once, not again each iteration)."""
+    cfg = SMALL.replace(slip_ratio=slip)
+    problem, obstacles = _inputs(mode, config=cfg)
     key = jax.random.PRNGKey(4)
-    ran = alg.run(SMALL, problem, obstacles, key)
-    state = alg.init(SMALL, problem, key)
-    for _ in range(SMALL.iterations):
+    ran = alg.run(cfg, problem, obstacles, key)
+    state = alg.init(cfg, problem, key)
+    for _ in range(cfg.iterations):
         state = alg.update(state, obstacles)
-    assert int(state.iteration) == int(ran.iteration) == SMALL.iterations
+    assert int(state.iteration) == int(ran.iteration) == cfg.iterations
     # the same samples are drawn and scored: the same best sample (float32 loop: equal costs to
     # float32 resolution; XLA may fuse the scan and the separate steps differently)
     np.testing.assert_allclose(state.cost_trace, ran.cost_trace, rtol=1e-5)

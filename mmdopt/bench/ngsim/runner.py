@@ -202,7 +202,7 @@ def ngsim_config(**overrides) -> mmdopt.MMDOptConfig:
 
     Kinematic slip limit ``slip_ratio = 0.5`` (:class:`mmdopt.MMDOptConfig`): ``|ḋ| ≤ 0.5·ṡ``,
     so a crawling plan cannot stop and then slide sideways (a footprint turned by 90° in the
-    metric); on the training recordings it removed two of the three at-fault contacts
+    metric); on the training recordings it removed one of the three at-fault contacts
     (docs/ngsim.md, Session 10)."""
     base = dict(
         horizon=5.0,
