@@ -45,7 +45,14 @@ from mmdopt.bench.ngsim.scene import future_at
 #: overrides).  "before" is the configuration of the first held-out run (docs/ngsim.md).
 #: every variant starts from these (the planner and benchmark before this change) and sets
 #: what it names on top, so a variant means the same whatever today's defaults are
-OFF = dict(headway_time=0.0, headway_gap=0.0, rear_exempt_width=0.0, margin_ahead_scale=1.0)
+OFF = dict(
+    headway_time=0.0,
+    headway_gap=0.0,
+    rear_exempt_width=0.0,
+    margin_ahead_scale=1.0,
+    slip_ratio=0.0,
+    yaw_extent=0.0,
+)
 P_OFF = dict(v_des_flow=None, flow_leader=False, min_change_speed=0.0)
 VARIANT_SETS = {
     "main": {
@@ -154,6 +161,14 @@ VARIANT_SETS = {
                 dict(v_des_flow=2.0, min_change_speed=5.0),
             )
             for r in (0.25, 0.5)
+        },
+        # ... and the yaw-aware footprint (MMDOptConfig.yaw_extent: a turning car's corners)
+        **{
+            f"flow+2,r2,c5,slip0.5,yaw{e:g}": (
+                dict(rear_exempt_width=2.0, slip_ratio=0.5, yaw_extent=e),
+                dict(v_des_flow=2.0, min_change_speed=5.0),
+            )
+            for e in (2.5, 3.0)
         },
     },
     # Session 9: issue 11's sample-driven margins (mmdopt.risk: coverage margins at 1 − ε, the

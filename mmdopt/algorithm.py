@@ -109,6 +109,10 @@ PLANNER_BACKEND = "admm-fixed"
 
 #: added to the cost of a row beyond ``res_tol`` when ``MMDOptConfig.kinematic`` is on
 INFEASIBLE_COST = 1.0e12
+#: ego speed (m/s) under which the heading relative to the path is ill-defined: the floor in
+#: the yaw widening's ``|ḋ| / sqrt(ṡ² + ḋ² + v²)`` (the heading hold of
+#: :meth:`frenet.ReferencePath.trajectory_to_cartesian` uses the same speed)
+YAW_SPEED_FLOOR = 0.05
 
 
 def _static(default):
@@ -213,6 +217,18 @@ class MMDOptConfig:
     more (feasibility first: the ConstraintEliteSet holds infeasible rows when fewer than
     ``n_cem`` are feasible, and a collision term of 10⁵–10⁶ would outweigh ``w_res·res``).
     The brake rows keep their offset, so a slip-free candidate exists.
+
+    **Yaw-aware footprint** (not in the paper; off by default: ``yaw_extent = 0``; a value
+    > 0 sets the static ``yaw_aware`` flag).  The collision ellipse (eq. coll_constraints)
+    treats the ego as a point whose footprint stays aligned with the path, so a plan that
+    turns (heading ``Δθ_k = atan2(ḋ_k, ṡ_k)`` relative to the path) swings its front and rear
+    corners sideways unseen — at a crawl a few decimetres of lateral motion turn a car by 20°
+    and push a corner of a 5 m car 0.9 m into the next lane.  With ``yaw_extent`` e (m, the
+    footprint's extent ahead of and behind the reference point: half the car's length) every
+    method's lateral semi-axis at step k grows by ``e·|sin Δθ_k|``, computed as
+    ``e·|ḋ_k| / sqrt(ṡ_k² + ḋ_k² + v_f²)`` with ``v_f`` = ``YAW_SPEED_FLOOR`` (a lane change at
+    10 m/s, Δθ ≈ 8°, widens it by 0.14·e).  A rule of the geometry, not a prediction margin:
+    ``baseline_margin_scale`` does not scale it.
     """
 
     # static: sizes and modes
@@ -237,6 +253,7 @@ class MMDOptConfig:
     reselect: int = _static(0)
     asymmetric: bool = _static(False)
     kinematic: bool = _static(False)
+    yaw_aware: bool = _static(False)
     # leaves: optimiser
     gamma: float = 0.9
     eta: float = 0.6
@@ -273,6 +290,7 @@ class MMDOptConfig:
     rear_exempt_width: float = 0.0
     slip_ratio: float = 0.0
     slip_tol: float = 0.01
+    yaw_extent: float = 0.0
     reduced_set: ReducedSetConfig = field(default_factory=ReducedSetConfig)
 
     def replace(self, **kw) -> MMDOptConfig:
@@ -298,6 +316,13 @@ class MMDOptConfig:
             raise ValueError(f"MMDOptConfig.slip_tol must be finite and > 0, got {v2}")
         if _concrete(v) and float(v) != 0 and not self.kinematic:
             object.__setattr__(self, "kinematic", True)
+        v3 = self.yaw_extent
+        if _concrete(v3) and not (math.isfinite(float(v3)) and float(v3) >= 0):
+            raise ValueError(f"MMDOptConfig.yaw_extent must be finite and >= 0, got {v3}")
+        if _concrete(v3) and float(v3) != 0 and not self.yaw_aware:
+            object.__setattr__(self, "yaw_aware", True)
+        if not isinstance(self.yaw_aware, bool):
+            raise ValueError(f"MMDOptConfig.yaw_aware must be a bool, got {self.yaw_aware!r}")
         if not isinstance(self.kinematic, bool):
             raise ValueError(f"MMDOptConfig.kinematic must be a bool, got {self.kinematic!r}")
         if not isinstance(self.asymmetric, bool):
@@ -669,18 +694,33 @@ def _sample(cfg: MMDOptConfig, key, mu, cov, elites, problem: Problem, z=None):
     return jnp.clip(d, problem.lo, problem.hi)
 
 
+def yaw_widening(cfg: MMDOptConfig, vs, vd):
+    """Growth of the lateral semi-axis from the ego's heading relative to the path, (B, K):
+    ``yaw_extent·|ḋ| / sqrt(ṡ² + ḋ² + v_f²)`` = ``yaw_extent·|sin Δθ|`` (:class:`MMDOptConfig`,
+    yaw-aware footprint); ``vs``, ``vd`` (B, K) the samples' ṡ and ḋ."""
+    vs, vd = jnp.asarray(vs), jnp.asarray(vd)
+    if vs.ndim != 2 or vs.shape != vd.shape:
+        raise ValueError(f"vs and vd must both be (B, K), got {vs.shape} and {vd.shape}")
+    floor = jnp.asarray(YAW_SPEED_FLOOR * YAW_SPEED_FLOOR, vs.dtype)
+    return cfg.yaw_extent * jnp.abs(vd) / jnp.sqrt(vs * vs + vd * vd + floor)
+
+
 def _collision_term(
-    cfg: MMDOptConfig, prob: CEMProblem, s, dd, obstacles: ObstacleSet, dt, vs=None
+    cfg: MMDOptConfig, prob: CEMProblem, s, dd, obstacles: ObstacleSet, dt, vs=None, vd=None
 ):
-    """The method's collision term and its weight (eq. c_aug), per ego sample (B,); ``vs``
-    (B, K) the samples' speeds (needed when ``cfg.asymmetric``)."""
+    """The method's collision term and its weight (eq. c_aug), per ego sample (B,); ``vs``,
+    ``vd`` (B, K) the samples' ṡ and ḋ (needed when ``cfg.asymmetric`` / ``cfg.yaw_aware``)."""
     mode = obstacles.mode
     if cfg.asymmetric and vs is None:
         raise ValueError("config.asymmetric needs the ego samples' speeds vs")
+    if cfg.yaw_aware and (vs is None or vd is None):
+        raise ValueError("config.yaw_aware needs the ego samples' velocities vs, vd")
+    # the yaw-aware footprint: lateral semi-axis per sample and step (B, K), else none
+    wide = yaw_widening(cfg, vs, vd).astype(dt) if cfg.yaw_aware else None
     if obstacles.margins is not None:
         # sample-driven coverage margins (issue 11, mmdopt.risk): per-point ellipses
         f = margin_ellipse_values(
-            cfg, s, dd, obstacles.centres.astype(dt), obstacles.margins, vs=vs
+            cfg, s, dd, obstacles.centres.astype(dt), obstacles.margins, vs=vs, widen=wide
         )
         if mode == "mmd":
             coll = mmd_cost(
@@ -710,7 +750,7 @@ def _collision_term(
         obstacles.weights.astype(dt),
         obstacles.mask,
         a_plan,
-        cfg.b + scale * cfg.margin_lat,
+        cfg.b + scale * cfg.margin_lat + (0.0 if wide is None else wide),
         a_behind=a_behind,
         rear_exempt_width=rear_w,
         bandwidth=cfg.bandwidth,
@@ -759,7 +799,8 @@ def _row_costs(cfg: MMDOptConfig, prob: CEMProblem, obstacles: ObstacleSet, cx, 
     dd, ad = cy @ P.T, cy @ Pdd.T
     j_speed = jnp.mean((vs - cfg.v_des) ** 2, axis=1)
     j_acc = jnp.mean(as_ * as_ + ad * ad, axis=1)
-    coll, w = _collision_term(cfg, prob, s, dd, obstacles, dt, vs=vs)
+    vd = cy @ Pd.T if cfg.yaw_aware else None
+    coll, w = _collision_term(cfg, prob, s, dd, obstacles, dt, vs=vs, vd=vd)
     cost = cfg.w_speed * j_speed + cfg.w_accel * j_acc + w * coll + cfg.w_res * res
     if cfg.kinematic:
         # feasibility first (a hard slip limit; the collision term may reach 10⁶): a row whose
@@ -947,12 +988,13 @@ def headway_semi_axis(cfg: MMDOptConfig, a, vs):
     return jnp.maximum(a, floor)
 
 
-def margin_ellipse_values(cfg: MMDOptConfig, s, d, centres, margins, vs=None):
+def margin_ellipse_values(cfg: MMDOptConfig, s, d, centres, margins, vs=None, widen=None):
     """Collision function with per-point, per-step sample-driven margins (issue 11):
     ``f = 1 − Δs²/a_±² − Δd²/(b + m_lat)²`` with ``a_− = a + m_behind`` when the ego is behind
     the point (Δs < 0) and ``a_+ = a + m_ahead`` otherwise.  ``s, d`` (B, K); ``centres``
     (O, J, C, K, 2); ``margins`` (3, O, J, K); with ``cfg.asymmetric`` the following distance
-    ``d₀ + h·ṡ`` of ``vs`` (B, K) is added to ``a_−``.  Returns (B, O, J, C, K)."""
+    ``d₀ + h·ṡ`` of ``vs`` (B, K) is added to ``a_−``; ``widen`` (B, K) is added to the lateral
+    semi-axis (:func:`yaw_widening`).  Returns (B, O, J, C, K)."""
     dt = centres.dtype
     mg = margins.astype(dt)[:, :, :, None, :]  # (3, O, J, 1, K)
     ds = s[:, None, None, None, :] - centres[None, ..., 0]
@@ -973,6 +1015,8 @@ def margin_ellipse_values(cfg: MMDOptConfig, s, d, centres, margins, vs=None):
         ia_b, ia_a = 1.0 / ((cfg.a + behind) ** 2), 1.0 / ((cfg.a + ahead) ** 2)
         ia = jnp.where(ds < 0, ia_b, ia_a)
     b = cfg.b + mg[2][None]
+    if widen is not None:
+        b = b + widen[:, None, None, None, :]
     f = 1.0 - ds * ds * ia - dd * dd * (1.0 / (b * b))
     if cfg.asymmetric:
         f = rear_exempt(f, ds, dd, b, cfg.rear_exempt_width)

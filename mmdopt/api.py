@@ -643,10 +643,12 @@ def _assemble(ctx: _Ctx, cx, cy, dvec, cost, best_iter, fallback, status, state)
         )
     ob = ctx.obstacles
     vs1 = jnp.asarray(vs[None]) if config.asymmetric else None
+    wide = alg.yaw_widening(config, vs[None], vd[None]) if config.yaw_aware else None
     if ob.margins is not None:
         f = alg.margin_ellipse_values(
-            config, jnp.asarray(s[None]), jnp.asarray(d[None]), ob.centres, ob.margins, vs=vs1
-        )
+            config, jnp.asarray(s[None]), jnp.asarray(d[None]), ob.centres, ob.margins, vs=vs1,
+            widen=wide,
+        )  # fmt: skip
     else:
         a_plan = planning_semi_axis(config, prob.t())
         a_behind = rear_w = None
@@ -659,7 +661,7 @@ def _assemble(ctx: _Ctx, cx, cy, dvec, cost, best_iter, fallback, status, state)
             jnp.asarray(d[None]),
             ob.centres,
             a_plan,
-            config.b + config.margin_lat,
+            config.b + config.margin_lat + (0.0 if wide is None else wide),
             a_behind=a_behind,
             rear_exempt_width=rear_w,
         )

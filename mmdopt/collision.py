@@ -155,7 +155,7 @@ def ellipse_values(s, d, centres, a, b, a_behind=None, rear_exempt_width=None):
     ----------
     s, d : (B, K) ego Frenet positions (m)
     centres : (O, J, C, K, 2) obstacle circle centres (m)
-    a, b : ellipse semi-axes (m)
+    a, b : ellipse semi-axes (m); ``b`` scalar, (K,) or per ego sample (B, K)
     a_behind : optional (B, K) longitudinal semi-axis used where the ego is behind the centre
         (Δs < 0): a following distance (:func:`mmdopt.algorithm.headway_semi_axis`)
     rear_exempt_width : optional w (m): points behind the ego in line with it (Δs > 0,
@@ -171,6 +171,9 @@ def ellipse_values(s, d, centres, a, b, a_behind=None, rear_exempt_width=None):
     # division per step instead of two per value (measured 1.6× faster at B = 150, J = 20)
     a = jnp.asarray(a)
     ia = 1.0 / (a * a)
+    b = jnp.asarray(b)
+    if b.ndim == 2:  # per ego sample and step (the yaw-aware footprint)
+        b = b[:, None, None, None, :]
     if a_behind is not None:
         ab = jnp.asarray(a_behind)
         ia = jnp.where(ds < 0, (1.0 / (ab * ab))[:, None, None, None, :], ia)
@@ -699,7 +702,8 @@ def collision_cost(
     """A method's collision term (eq. l_dist / scenario / SAA) summed over obstacles, (B,).
 
     ``s, d`` (B, K) ego Frenet positions; ``centres`` (O, J, C, K, 2); ``weights``, ``mask``
-    (O, J); ``a`` the longitudinal semi-axis (scalar or (K,)), ``b`` the lateral one (scalar);
+    (O, J); ``a`` the longitudinal semi-axis (scalar or (K,)), ``b`` the lateral one;
+    ``b`` scalar or (B, K) per ego sample and step (:func:`mmdopt.algorithm.yaw_widening`);
     ``a_behind`` optional (B, K) semi-axis where the ego is behind a centre (following
     distance, :func:`ellipse_values`); ``rear_exempt_width`` see :func:`rear_exempt`.
 
@@ -733,6 +737,7 @@ def collision_cost(
     zero = jnp.zeros(s.shape[:1], jnp.result_type(s, centres))
     # the bound needs the largest semi-axis of any candidate (the rear exemption only lowers f)
     a_bound = a if a_behind is None else jnp.maximum(a, jnp.max(jnp.asarray(a_behind), axis=0))
+    b_bound = jnp.max(b, axis=0) if jnp.ndim(b) == 2 else b  # the widest sample per step
 
     def one(xs):
         c, w, m = xs
@@ -746,7 +751,7 @@ def collision_cost(
             )
 
         # cheap bound first: O(B·K + J·C·K) instead of the O(B·J·C·K) ellipse values
-        return lax.cond(reaches(_max_f_bound(box, c, a_bound, b)), exact, lambda: zero)
+        return lax.cond(reaches(_max_f_bound(box, c, a_bound, b_bound)), exact, lambda: zero)
 
     return jnp.sum(lax.map(one, (centres, weights, mask)), axis=0)
 

@@ -300,3 +300,56 @@ def test_mmd_cost_on_the_active_points_equals_the_pairwise_formula(share):
     ref = jnp.sum(mmd2_to_dirac(a, jnp.broadcast_to(w[None, :, None], a.shape), 0.5), axis=(1, 2))
     np.testing.assert_allclose(got, ref, rtol=1e-7, atol=1e-14)
     assert (share == 0.0) == bool(np.all(np.asarray(got) == 0.0))
+
+
+def test_a_turning_ego_sweeps_wider_and_per_sample_widths_keep_the_obstacle_sum():
+    """The yaw-aware footprint: a per-sample, per-step lateral semi-axis (B, K) reaches a car
+    in the next lane that a straight ego clears; the gated multi-obstacle sum, the reach bound
+    and the rear exemption take the per-sample widths."""
+    from mmdopt.collision import _max_f_bound, collision_cost, ellipse_values, taylor_terms
+
+    K = 20
+    s = jnp.asarray(np.stack([np.linspace(0.0, 1.0, K)] * 2))  # a crawl, (B = 2, K)
+    d = jnp.zeros_like(s)
+    b = np.full((2, K), 2.4)
+    b[1] += 2.67 * np.sin(np.radians(20.0))  # the second sample turns by 20°: +0.91 m
+    beside = np.broadcast_to(np.array([0.5, -2.7]), (1, 1, K, 2))  # next lane, 2.7 m across
+    far = beside + np.array([300.0, 0.0])
+    c = jnp.asarray(np.stack([beside, far]))  # (O = 2, J = 1, C = 1, K, 2)
+    w, m = jnp.ones((2, 1)), jnp.ones((2, 1), bool)
+    kw = dict(bandwidth=0.5, f_scale=1.0, n_terms=taylor_terms(2.0, 1e-12))
+    for mode in ("mmd", "scenario", "saa"):
+        total = np.asarray(collision_cost(mode, s, d, c, w, m, 3.0, jnp.asarray(b), **kw))
+        assert total[0] == 0.0 and total[1] > 0.0, mode  # only the turning sample collides
+        one = collision_cost(mode, s, d, c[:1], w[:1], m[:1], 3.0, jnp.asarray(b), **kw)
+        np.testing.assert_allclose(total, one, rtol=1e-12)
+        # per-sample widths equal scoring each sample with its own (K,) width
+        for i in range(2):
+            alone = collision_cost(mode, s[i : i + 1], d[i : i + 1], c, w, m, 3.0, b[i], **kw)
+            np.testing.assert_allclose(total[i], alone[0], rtol=1e-12)
+    box = (jnp.min(s, 0), jnp.max(s, 0), jnp.min(d, 0), jnp.max(d, 0))
+    f = ellipse_values(s, d, c[:1], 3.0, jnp.asarray(b), None, 2.0)
+    assert float(_max_f_bound(box, c[0], 3.0, b.max(0))) >= float(jnp.max(f)) - 1e-12
+
+
+def test_yaw_widening_is_validated_off_by_default_and_follows_the_heading():
+    """``MMDOptConfig.yaw_extent``: off by default (the static flag unset), validated, and the
+    widening is ``e·|sin Δθ|`` of the heading relative to the path — nothing when driving
+    straight, a little in a lane change at speed, much when turning at a crawl."""
+    from mmdopt import algorithm as alg
+
+    assert not mmdopt.MMDOptConfig().yaw_aware
+    for bad in (-0.1, float("nan"), float("inf")):
+        with pytest.raises(ValueError, match="yaw_extent"):
+            mmdopt.MMDOptConfig(yaw_extent=bad)
+    cfg = mmdopt.MMDOptConfig(yaw_extent=2.5)
+    assert cfg.yaw_aware and cfg.replace(yaw_extent=3.0).yaw_aware
+    vs = jnp.asarray([[10.0, 10.0, 1.0, 0.0]])
+    vd = jnp.asarray([[0.0, 10.0 * np.tan(np.radians(8.0)), np.tan(np.radians(20.0)), 0.0]])
+    wide = np.asarray(alg.yaw_widening(cfg, vs, vd))[0]
+    assert wide[0] == 0.0 and wide[3] == 0.0  # straight; at rest
+    np.testing.assert_allclose(wide[1], 2.5 * np.sin(np.radians(8.0)), rtol=1e-3)
+    np.testing.assert_allclose(wide[2], 2.5 * np.sin(np.radians(20.0)), rtol=2e-3)
+    assert np.all(wide <= 2.5)
+    with pytest.raises(ValueError, match="vs and vd"):
+        alg.yaw_widening(cfg, vs, vd[:, :2])

@@ -27,11 +27,14 @@ def _inputs(method_mode="mmd", config=SMALL):
     return problem, obstacles
 
 
-@pytest.mark.parametrize("mode, slip", [("mmd", 0.0), ("scenario", 0.0), ("mmd", 0.05)])
-def test_init_update_loop_equals_run(mode, slip):
+@pytest.mark.parametrize(
+    "mode, slip, yaw", [("mmd", 0.0, 0.0), ("scenario", 0.0, 0.0), ("mmd", 0.05, 2.5)]
+)
+def test_init_update_loop_equals_run(mode, slip, yaw):
     """``slip`` > 0: the kinematic slip limit, whose residual run() caches with the elites'
-    projections (added once, not again each iteration)."""
-    cfg = SMALL.replace(slip_ratio=slip)
+    projections (added once, not again each iteration); ``yaw`` > 0: the yaw-aware footprint
+    (per-sample lateral semi-axes in the cached and the fresh rows' costs)."""
+    cfg = SMALL.replace(slip_ratio=slip, yaw_extent=yaw)
     problem, obstacles = _inputs(mode, config=cfg)
     key = jax.random.PRNGKey(4)
     ran = alg.run(cfg, problem, obstacles, key)

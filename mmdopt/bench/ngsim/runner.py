@@ -203,7 +203,11 @@ def ngsim_config(**overrides) -> mmdopt.MMDOptConfig:
     Kinematic slip limit ``slip_ratio = 0.5`` (:class:`mmdopt.MMDOptConfig`): ``|ḋ| ≤ 0.5·ṡ``,
     so a crawling plan cannot stop and then slide sideways (a footprint turned by 90° in the
     metric); on the training recordings it removed one of the three at-fault contacts
-    (docs/ngsim.md, Session 10)."""
+    (docs/ngsim.md, Session 10).
+
+    Yaw-aware footprint ``yaw_extent = 2.5`` m (half a car's length, as ``a`` assumes): the
+    lateral semi-axis grows by ``2.5·|sin Δθ|`` where the plan turns from the path, so a
+    crawling plan does not swing a corner into the next lane (docs/ngsim.md, Session 11)."""
     base = dict(
         horizon=5.0,
         num_steps=51,
@@ -219,6 +223,7 @@ def ngsim_config(**overrides) -> mmdopt.MMDOptConfig:
         reduced_set=mmdopt.ReducedSetConfig(iterations=20, population=50, n_elite=10),
         rear_exempt_width=2.0,
         slip_ratio=0.5,
+        yaw_extent=2.5,
     )
     base.update(overrides)
     return mmdopt.MMDOptConfig(**base)

@@ -17,6 +17,15 @@ from .plot import timing_vs_obstacles_figure
 from .runner import NgsimParams, build_task, ngsim_config, select_tasks, timing_vs_obstacles
 
 
+def task_with_obstacles(scenario: Path, count: int, params: NgsimParams, cfg) -> dict | None:
+    """The first task of ``scenario`` (:func:`select_tasks` order) with at least ``count``
+    vehicles in range, or ``None``."""
+    for t in select_tasks([scenario], params, cfg):
+        if len(build_task(t, params, cfg)["obs"]) >= count:
+            return t
+    return None
+
+
 def main(argv: Sequence[str] | None = None) -> int:
     p = argparse.ArgumentParser(prog="python -m mmdopt.bench.ngsim.timing")
     p.add_argument("--scenario", required=True, type=Path)
@@ -29,11 +38,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     counts = tuple(int(c) for c in a.counts.split(","))
     params = NgsimParams(max_obstacles=max(counts), egos_per_time=50)
     cfg = ngsim_config()
-    task = None
-    for t in select_tasks([a.scenario], params, cfg):
-        if len(build_task(t, params, cfg)["obs"]) >= max(counts):
-            task = t
-            break
+    task = task_with_obstacles(a.scenario, max(counts), params, cfg)
     if task is None:
         raise SystemExit(f"no ego in {a.scenario} has {max(counts)} vehicles within range")
     rows = []

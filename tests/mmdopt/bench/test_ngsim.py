@@ -323,7 +323,7 @@ def test_crawling_ego_does_not_slide_sideways_at_rest(ngsim_dir):
     p = NgsimParams(egos_per_time=1)
     task = dict(scenario=str(f), ego_id=442, k=50, t0=5.0)
     cfg0 = ngsim_config()
-    assert cfg0.kinematic and cfg0.slip_ratio == 0.5
+    assert cfg0.kinematic and cfg0.slip_ratio == 0.5 and cfg0.yaw_aware
     b = build_task(task, p, cfg0)
     key = jax.random.fold_in(jax.random.PRNGKey(p.seed), _task_seed(task))
     k_pred, _, k_plan = jax.random.split(key, 3)
