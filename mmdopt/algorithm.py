@@ -297,36 +297,27 @@ class MMDOptConfig:
         return dataclasses.replace(self, **kw)
 
     def __post_init__(self) -> None:
-        for name, off in (
-            ("headway_time", 0.0),
-            ("headway_gap", 0.0),
-            ("margin_ahead_scale", 1.0),
-            ("rear_exempt_width", 0.0),
+        # the optional models' values (>= 0) and the static flag each one switches on when it
+        # leaves its "off" value (so the default config compiles the program without them)
+        for name, off, flag in (
+            ("headway_time", 0.0, "asymmetric"),
+            ("headway_gap", 0.0, "asymmetric"),
+            ("margin_ahead_scale", 1.0, "asymmetric"),
+            ("rear_exempt_width", 0.0, "asymmetric"),
+            ("slip_ratio", 0.0, "kinematic"),
+            ("yaw_extent", 0.0, "yaw_aware"),
         ):
             v = getattr(self, name)
             if _concrete(v) and not (math.isfinite(float(v)) and float(v) >= 0):
                 raise ValueError(f"MMDOptConfig.{name} must be finite and >= 0, got {v}")
-            if _concrete(v) and float(v) != off and not self.asymmetric:
-                object.__setattr__(self, "asymmetric", True)
-        v = self.slip_ratio
-        if _concrete(v) and not (math.isfinite(float(v)) and float(v) >= 0):
-            raise ValueError(f"MMDOptConfig.slip_ratio must be finite and >= 0, got {v}")
-        v2 = self.slip_tol
-        if _concrete(v2) and not (math.isfinite(float(v2)) and float(v2) > 0):
-            raise ValueError(f"MMDOptConfig.slip_tol must be finite and > 0, got {v2}")
-        if _concrete(v) and float(v) != 0 and not self.kinematic:
-            object.__setattr__(self, "kinematic", True)
-        v3 = self.yaw_extent
-        if _concrete(v3) and not (math.isfinite(float(v3)) and float(v3) >= 0):
-            raise ValueError(f"MMDOptConfig.yaw_extent must be finite and >= 0, got {v3}")
-        if _concrete(v3) and float(v3) != 0 and not self.yaw_aware:
-            object.__setattr__(self, "yaw_aware", True)
-        if not isinstance(self.yaw_aware, bool):
-            raise ValueError(f"MMDOptConfig.yaw_aware must be a bool, got {self.yaw_aware!r}")
-        if not isinstance(self.kinematic, bool):
-            raise ValueError(f"MMDOptConfig.kinematic must be a bool, got {self.kinematic!r}")
-        if not isinstance(self.asymmetric, bool):
-            raise ValueError(f"MMDOptConfig.asymmetric must be a bool, got {self.asymmetric!r}")
+            if _concrete(v) and float(v) != off and not getattr(self, flag):
+                object.__setattr__(self, flag, True)
+        v = self.slip_tol
+        if _concrete(v) and not (math.isfinite(float(v)) and float(v) > 0):
+            raise ValueError(f"MMDOptConfig.slip_tol must be finite and > 0, got {v}")
+        for flag in ("asymmetric", "kinematic", "yaw_aware"):
+            if not isinstance(getattr(self, flag), bool):
+                raise ValueError(f"MMDOptConfig.{flag} must be a bool, got {getattr(self, flag)!r}")
         ints = (
             "n_samples",
             "n_cem",
