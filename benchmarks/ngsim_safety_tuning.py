@@ -52,6 +52,7 @@ OFF = dict(
     margin_ahead_scale=1.0,
     slip_ratio=0.0,
     yaw_extent=0.0,
+    reselect=0,
 )
 P_OFF = dict(v_des_flow=None, flow_leader=False, min_change_speed=0.0)
 VARIANT_SETS = {
@@ -170,6 +171,30 @@ VARIANT_SETS = {
             )
             for e in (2.5, 3.0)
         },
+        # Session 12: ... and the re-selection pass with the time-linear margins
+        # (MMDOptConfig.reselect: the samples in deepest conflict with the first plan join the
+        # reduced set, Algorithm 1 runs again warm-started)
+        **{
+            f"flow+2,r2,c5,slip0.5,yaw2.5,rs{r}": (
+                dict(rear_exempt_width=2.0, slip_ratio=0.5, yaw_extent=2.5, reselect=r),
+                dict(v_des_flow=2.0, min_change_speed=5.0),
+            )
+            for r in (3, 5, 10)
+        },
+        # ... and smaller time-linear margins (with the follower rule of Session 12)
+        **{
+            f"flow+2,r2,c5,slip0.5,yaw2.5,L{ml:g},R{mr:g}": (
+                dict(
+                    rear_exempt_width=2.0,
+                    slip_ratio=0.5,
+                    yaw_extent=2.5,
+                    margin_long=ml,
+                    margin_rate=mr,
+                ),
+                dict(v_des_flow=2.0, min_change_speed=5.0),
+            )
+            for ml, mr in ((1.5, 0.5), (1.0, 0.5), (2.5, 0.5), (1.5, 0.75))
+        },
     },
     # Session 9: issue 11's sample-driven margins (mmdopt.risk: coverage margins at 1 − ε, the
     # coverage term and the re-selection pass of the "mmd" mapping; m = 10 here, so reselect 5)
@@ -223,6 +248,11 @@ def main(argv=None) -> None:
         help="learned predictor only: Learned(spread=...) (benchmarks/predictor_calibration.py)",
     )
     ap.add_argument("--max-tasks", type=int, default=None)
+    ap.add_argument(
+        "--only",
+        default=None,
+        help="comma-separated STEM:EGO_ID (e.g. USA_US101-4_1_T-1:442): only these tasks",
+    )
     ap.add_argument("--out", default="results/ngsim_tuning")
     a = ap.parse_args(argv)
     variants = VARIANT_SETS[a.variant_set]
@@ -232,6 +262,9 @@ def main(argv=None) -> None:
     out.mkdir(parents=True, exist_ok=True)
     base_p = NgsimParams(egos_per_time=1)
     tasks = select_tasks(_files(a.data, a.files), base_p, ngsim_config())
+    if a.only:
+        want = {tuple(x.rsplit(":", 1)) for x in a.only.split(",")}
+        tasks = [t for t in tasks if (Path(t["scenario"]).stem, str(t["ego_id"])) in want]
     if a.max_tasks:
         tasks = tasks[: a.max_tasks]
     print(f"{len(tasks)} training tasks, variants {list(variants)}", flush=True)

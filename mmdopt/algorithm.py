@@ -171,8 +171,9 @@ class MMDOptConfig:
     neighbourhood size that stands for a sample's cluster when a method plans on all samples.
     The margins are computed in :func:`mmdopt.plan` and travel in the :class:`ObstacleSet`;
     ``reselect`` (0: off) > 0 runs Algorithm 1 a second time, warm-started, with the
-    ``reselect`` samples in deepest conflict with the first plan added to a reduced set (weight
-    1/n each; the re-selection conditioned on the CEM solution of issue 11).
+    ``reselect`` samples in deepest conflict with the first plan (nominal ellipse) added to a
+    reduced set (weight 1/n each; the re-selection conditioned on the CEM solution of issue 11)
+    — in either ``margin_mode`` (before Session 12 it acted in the "samples" mode only).
     ``w_cover`` weighs the coverage term ``Σ_j Σ_k f̄_jk`` on these inflated ellipses that
     MMD-Opt adds to ``l_dist`` in this mode (any entry costs, whatever the point's weight ᾱ).
     ``margin_mode = "linear"`` keeps the constants above.  ``reduced_set`` configures the
@@ -194,10 +195,14 @@ class MMDOptConfig:
       in, or entering, the ego's lane;
     * ``margin_ahead_scale`` (default 1) scales the planning margins
       ``margin_long + margin_rate·t`` on the other side (Δs > 0, the ego ahead of the point);
-    * ``rear_exempt_width`` w (m): a point behind the ego and in line with it (Δs > 0,
-      |Δd| < w) costs nothing: ``f ← min(f, (|Δd| − w)/b)`` there — a follower that closes in
-      is the follower's fault, and dodging it sideways into the next lane is the ego's; points
-      beside the ego (|Δd| ≥ w) keep their ellipse.
+    * ``rear_exempt_width`` w (m): a follower costs nothing: ``f ← min(f, (|Δd| − w)/b)`` at
+      every step at which the point is in line with the ego (|Δd| < w) and has been so without
+      a break since a step at which it was behind the ego (Δs > 0) — a follower that closes in
+      is the follower's fault, and dodging it sideways into the next lane is the ego's; a
+      predicted follower that runs *through* the ego (the predictor does not know the ego)
+      stays a follower rather than becoming a leader the ego must race ahead of; points beside
+      the ego (|Δd| ≥ w), and a car that passes beside and cuts in ahead, keep their ellipse
+      (:func:`mmdopt.collision.rear_exempt`).
 
     These apply to every method's collision term (they are rules of the road, not
     prediction-spread margins, so ``baseline_margin_scale`` does not scale them).

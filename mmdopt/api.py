@@ -522,7 +522,7 @@ def _plan_impl(
         config, problem, obstacles, k_cem, backend, warm_start=warm_start, **backend_settings
     )
     state = jax.block_until_ready(state)
-    if config.reselect > 0 and SELECTION[method] is not None and config.margin_mode == "samples":
+    if config.reselect > 0 and SELECTION[method] is not None:
         state = _reselect_pass(ctx, state, problem, k_cem, backend, backend_settings)
     diag["cem_s"] = time.perf_counter() - t2
     best, lv = state.best, state.least_violating
@@ -560,17 +560,26 @@ def _reselect_pass(ctx: _Ctx, state, problem, key, backend, backend_settings):
     """Second pass of Algorithm 1 (``config.reselect`` > 0): the reduced set plus the
     ``reselect`` samples in deepest conflict with the first pass's plan (weight 1/n each) after
     the ⌊ε·n⌋ deepest (``ε = config.risk_eps``: the conflicts a chance constraint at level ε may
-    leave, as in sampling-and-discarding), new coverage margins, warm-started from the first
-    pass; ``ctx`` is updated in place."""
-    from .risk import coverage_margins
-
+    leave, as in sampling-and-discarding), warm-started from the first pass; ``ctx`` is updated
+    in place.  Conflict is measured on the nominal ellipse ``a, b`` with the geometry and
+    responsibility rules of the config (yaw widening, rear exemption), the margins of the
+    config's ``margin_mode`` then apply to the added samples as to every reduced-set point
+    (sample-driven coverage margins recomputed, or the time-linear ones)."""
     config, prob, obs_fr = ctx.config, ctx.prob, ctx.obs_fr
     O, n = obs_fr.shape[:2]
-    P = np.asarray(prob.P)
-    s1 = P @ np.asarray(state.best.cx, np.float64)
-    d1 = P @ np.asarray(state.best.cy, np.float64)
+    Bs = prob.basis
+    cx1 = np.asarray(state.best.cx, np.float64)
+    cy1 = np.asarray(state.best.cy, np.float64)
+    s1, d1 = (Bs.P @ cx1)[None], (Bs.P @ cy1)[None]
+    b = jnp.asarray(config.b)
+    if config.yaw_aware:
+        vs1, vd1 = (Bs.Pdot @ cx1)[None], (Bs.Pdot @ cy1)[None]
+        b = b + alg.yaw_widening(config, jnp.asarray(vs1), jnp.asarray(vd1))  # (1, K)
+    rear = float(config.rear_exempt_width) if config.asymmetric else None
     centres = circle_centres(jnp.asarray(obs_fr), OBSTACLE_FOOTPRINT)  # (O, n, C, K, 2)
-    f = ellipse_values(jnp.asarray(s1[None]), jnp.asarray(d1[None]), centres, config.a, config.b)
+    f = ellipse_values(
+        jnp.asarray(s1), jnp.asarray(d1), centres, config.a, b, rear_exempt_width=rear
+    )
     depth = np.asarray(jnp.max(f[0], axis=(2, 3)))  # (O, n) deepest conflict over time
     idx0 = np.asarray(ctx.rs.indices)
     # sampling and discarding (Campi & Garatti 2011): a plan that may collide with probability ε
@@ -589,14 +598,18 @@ def _reselect_pass(ctx: _Ctx, state, problem, key, backend, backend_settings):
     )
     sel = np.take_along_axis(obs_fr, idx[:, :, None, None], axis=1)
     cen = circle_centres(jnp.asarray(sel), OBSTACLE_FOOTPRINT)
-    margins = coverage_margins(
-        obs_fr,
-        idx,
-        float(config.risk_eps),
-        lateral_scale=float(config.rs_lateral_scale),
-        prior=float(config.coverage_prior),
-        bandwidth=float(config.coverage_bandwidth),
-    )
+    margins = None
+    if config.margin_mode == "samples":
+        from .risk import coverage_margins
+
+        margins = coverage_margins(
+            obs_fr,
+            idx,
+            float(config.risk_eps),
+            lateral_scale=float(config.rs_lateral_scale),
+            prior=float(config.coverage_prior),
+            bandwidth=float(config.coverage_bandwidth),
+        )
     obstacles = alg.ObstacleSet.create(config, cen, w, COST_MODE[ctx.method], margins=margins)
     ctx.obstacles = obstacles
     ctx.diag["reselected"] = extra

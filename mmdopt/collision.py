@@ -184,11 +184,25 @@ def ellipse_values(s, d, centres, a, b, a_behind=None, rear_exempt_width=None):
 
 
 def rear_exempt(f, ds, dd, b, width):
-    """Points behind the ego and in line with it cost nothing: ``f ← min(f, (|Δd| − w)/b)``
-    where Δs > 0 (the ego ahead of the point); ``width`` w = 0 leaves ``f`` as it is
-    (:class:`mmdopt.MMDOptConfig`, responsibility-aware longitudinal model)."""
+    """Followers cost nothing: ``f ← min(f, (|Δd| − w)/b)`` where the point is a follower of the
+    ego; ``width`` w = 0 leaves ``f`` as it is (:class:`mmdopt.MMDOptConfig`,
+    responsibility-aware longitudinal model).
+
+    A point is a follower at step k when it is in line with the ego (|Δd| < w) and has been so
+    without a break since a step at which it was behind the ego (Δs > 0, the ego ahead).  A
+    predicted follower that closes in and then runs *through* the ego (Δs turning negative
+    while in line: a rear-end collision the follower causes, because the predictor does not
+    know the ego) stays exempt instead of becoming a leader the ego must race ahead of; a
+    point that passes beside the ego (|Δd| ≥ w) and cuts in ahead of it is a leader again.
+    The time axis is the last one of ``f``, ``ds``, ``dd``."""
     side = (jnp.abs(dd) - width) / b
-    return jnp.where((ds > 0) & (width > 0), jnp.minimum(f, side), f)
+    inline = jnp.abs(dd) < width
+    k = jnp.arange(f.shape[-1], dtype=jnp.int32)
+    # last step <= k at which the point was out of line, and the last in line and behind
+    last_out = lax.cummax(jnp.where(inline, -1, k), axis=f.ndim - 1)
+    last_behind = lax.cummax(jnp.where(inline & (ds > 0), k, -1), axis=f.ndim - 1)
+    follower = inline & (last_behind > last_out)
+    return jnp.where(follower & (width > 0), jnp.minimum(f, side), f)
 
 
 def scenario_cost(f, mask):

@@ -2,13 +2,40 @@
 
 from __future__ import annotations
 
+import atexit
 import os
+import shutil
+import sys
+import tempfile
 from pathlib import Path
 
 import pytest
 
 REPO = Path(__file__).resolve().parents[1]
 SHARED_DATA = Path(os.environ.get("MMDOPT_SHARED_DATA", REPO.parent / "shared" / "data"))
+
+
+def _share_jax_compiles() -> None:
+    """One JAX persistent compilation cache for the whole run: the xdist workers and every
+    subprocess a test starts (process pools, Ray workers, CLI runs, notebook kernels) inherit the
+    environment, so each jitted program is compiled once per run instead of once per process.
+    A fresh folder per run (removed at exit); ``MMDOPT_TEST_JAX_CACHE=0`` turns it off, and a
+    ``JAX_COMPILATION_CACHE_DIR`` the caller set is used as is.  Results are unchanged: an entry
+    is keyed by the program, the compile options, the XLA flags and the JAX version."""
+    if os.environ.get("MMDOPT_TEST_JAX_CACHE", "1") == "0":
+        return
+    if "JAX_COMPILATION_CACHE_DIR" not in os.environ:
+        path = tempfile.mkdtemp(prefix="mmdopt-test-jax-cache-")
+        os.environ["JAX_COMPILATION_CACHE_DIR"] = path
+        atexit.register(shutil.rmtree, path, ignore_errors=True)
+    os.environ.setdefault("JAX_PERSISTENT_CACHE_MIN_COMPILE_TIME_SECS", "0.5")
+    if "jax" in sys.modules:  # imported before this file (a plugin): set it in-process too
+        import jax
+
+        jax.config.update("jax_compilation_cache_dir", os.environ["JAX_COMPILATION_CACHE_DIR"])
+
+
+_share_jax_compiles()
 
 
 @pytest.fixture(scope="session")

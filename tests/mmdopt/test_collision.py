@@ -353,3 +353,26 @@ def test_yaw_widening_is_validated_off_by_default_and_follows_the_heading():
     assert np.all(wide <= 2.5)
     with pytest.raises(ValueError, match="vs and vd"):
         alg.yaw_widening(cfg, vs, vd[:, :2])
+
+
+def test_a_follower_that_runs_through_the_ego_stays_exempt_but_a_cut_in_does_not():
+    """Rear exemption over time: a predicted follower that closes in and runs through the ego
+    (in line throughout: a rear-end collision the follower causes) costs nothing at any step;
+    a car that passes beside and cuts in ahead is a leader again; width 0 is the plain ellipse."""
+    K = 6
+    s = jnp.zeros((1, K))  # the ego stands at s = 0, d = 0
+    d = jnp.zeros((1, K))
+    s_pt = jnp.array([-6.0, -3.0, 0.0, 2.0, 4.0, 6.0])
+    through = jnp.stack([s_pt, jnp.zeros(K)], -1)  # in line all along
+    cut_in = jnp.stack([s_pt, jnp.array([3.5, 3.5, 3.5, 1.0, 0.0, 0.0])], -1)  # beside, then in
+    centres = jnp.stack([through, cut_in])[None, :, None]  # (O=1, J=2, C=1, K, 2)
+    a, b, w = 5.0, 2.4, 2.0
+    ev = collision.ellipse_values
+    plain = np.asarray(ev(s, d, centres, a, b))[0, 0, :, 0]  # (J, K)
+    f = np.asarray(ev(s, d, centres, a, b, rear_exempt_width=w))[0, 0, :, 0]
+    assert plain[0, 3] > 0  # the follower 2 m ahead of the ego: inside the plain ellipse
+    np.testing.assert_allclose(f[0], (0.0 - w) / b)  # exempt at every step, also once through
+    np.testing.assert_array_equal(f[1, 3:], plain[1, 3:])  # the cut-in ahead costs as before
+    assert f[1, 3] > 0
+    f0 = np.asarray(ev(s, d, centres, a, b, rear_exempt_width=0.0))[0, 0, :, 0]
+    np.testing.assert_array_equal(f0, plain)

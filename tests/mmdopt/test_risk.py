@@ -154,3 +154,27 @@ def test_reselection_leaves_the_eps_n_deepest_conflicts_to_the_chance_level():
         if k:
             # every dropped sample conflicts at least as deeply as every added one
             assert depth[dropped[0]].min() >= depth[extra[0]].max()
+
+
+def test_reselection_pass_also_runs_with_the_time_linear_margins():
+    """``reselect`` > 0 with ``margin_mode = "linear"``: the samples in deepest conflict with
+    the first plan join the reduced set (none of them already in it) and the plan that comes
+    back is feasible and keeps every planning sample at least as clear as without the pass."""
+    X = _two_clusters()
+    road = mmdopt.Road()
+    key = jax.random.PRNGKey(0)
+    cfg = SMALL.replace(reduced_set_size=4)
+    assert cfg.margin_mode == "linear"
+    one = mmdopt.plan(EGO, road, X, method="mmd", config=cfg, key=key)
+    two = mmdopt.plan(EGO, road, X, method="mmd", config=cfg.replace(reselect=3), key=key)
+    assert "reselected" not in one.diagnostics
+    for p in (one, two):
+        assert p.feasible and not p.fallback
+    extra = two.diagnostics["reselected"]
+    assert extra.shape == (1, 3)
+    assert not set(extra[0].tolist()) & set(np.asarray(two.reduced_set.indices)[0].tolist())
+    depth = two.diagnostics["conflict_depth"][0]
+    others = np.setdiff1d(np.arange(X.shape[1]), np.asarray(two.reduced_set.indices)[0])
+    assert depth[extra[0]].min() >= np.sort(depth[others])[-3]  # the three deepest
+    free = two.diagnostics["collision_free_planning"]
+    assert np.all(free >= one.diagnostics["collision_free_planning"] - 1)

@@ -183,7 +183,10 @@ def ngsim_config(**overrides) -> mmdopt.MMDOptConfig:
     cover its length, so the ego point must keep ``a = 3.0`` m (its half length + 0.5 m)
     along and ``b = 2.2`` m (two half widths + 0.2 m) across — the synthetic benchmark's
     4.5 × 3.5 m would make every car in the next lane (3.3–3.7 m away) and every close follower a
-    collision.  Planning margins: ``margin_lat = 0.2`` m, ``margin_rate = 1.0`` m/s.  The metric
+    collision.  Planning margins: ``margin_long = 1.5`` m, ``margin_rate = 0.5`` m/s,
+    ``margin_lat = 0.2`` m (Session 12, with the follower rule below: 1.5 + 0.5·t m; the
+    synthetic defaults 2.5 + 1.9·t, and 2.5 + 1.0·t before, made every plan in stop-and-go
+    traffic enter some margin, docs/ngsim.md).  The metric
     (``collision_free``) uses the same ``a``, ``b``.
 
     Sizes for 10–15 obstacles in real time on 2 cores: 300 behavioural samples, n_cem 60,
@@ -194,8 +197,9 @@ def ngsim_config(**overrides) -> mmdopt.MMDOptConfig:
 
     Responsibility (issue 12's at-fault bar; :class:`mmdopt.MMDOptConfig`, responsibility-aware
     longitudinal model): ``rear_exempt_width = 2.0`` m — obstacle points behind the ego and
-    within 2 m of its offset (a follower in its lane) cost nothing, so the plan neither dodges
-    a closing follower sideways into the next lane nor races ahead of it.  The time-headway
+    within 2 m of its offset (a follower in its lane) cost nothing, also once a predicted
+    follower runs through the ego, so the plan neither dodges a closing follower sideways into
+    the next lane nor races ahead of it.  The time-headway
     floor (``headway_time``, ``headway_gap``) is available but off: on the training scenes it
     cost progress without removing an at-fault contact (docs/ngsim.md, "Tuning").  Chosen on
     the training recordings only (``benchmarks/ngsim_safety_tuning.py``).
@@ -213,8 +217,9 @@ def ngsim_config(**overrides) -> mmdopt.MMDOptConfig:
         num_steps=51,
         a=3.0,
         b=2.2,
+        margin_long=1.5,
         margin_lat=0.2,
-        margin_rate=1.0,
+        margin_rate=0.5,
         n_samples=300,
         n_cem=60,
         n_elite=20,

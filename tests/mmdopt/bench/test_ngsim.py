@@ -339,3 +339,24 @@ def test_crawling_ego_does_not_slide_sideways_at_rest(ngsim_dir):
     assert float(e.vs) < 2.0 and plan.vs[-1] < 0.5  # it is the crawling case: the plan stops
     sc = _score_recorded(b, plan, p)
     assert not sc["at_fault_collision"], sc
+    # t0 = 3 s, the same ego: the follower's predicted samples run through the ego.  Before the
+    # follower rule (Session 12) they became leaders from that step on, and the plan raced ahead
+    # of them into the recorded leader, which stops (an at-fault *stopped-track* contact at
+    # 1.9 × the human's distance); now it is clear of every recorded car and still makes at
+    # least 80 % of the human's progress (the bar)
+    from mmdopt.bench.ngsim.scene import future_at
+
+    task = dict(scenario=str(f), ego_id=442, k=30, t0=3.0)
+    b = build_task(task, p, cfg0)
+    key = jax.random.fold_in(jax.random.PRNGKey(p.seed), _task_seed(task))
+    k_pred, _, k_plan = jax.random.split(key, 3)
+    samples = _predictor("learned").sample(b["hist"], b["ctx"], p.n_samples, k_pred)
+    planned = _pad_ghosts(samples, b["road"], b["ego"], p.max_obstacles)
+    cfg = task_config(b, p, cfg0)
+    plan = mmdopt.plan(b["ego"], b["road"], planned, method="mmd", config=cfg, key=k_plan)
+    assert plan.feasible and not plan.fallback, plan.status
+    sc = _score_recorded(b, plan, p)
+    assert not sc["any_collision"], sc
+    rec = future_at(b["scene"], [b["v"]], b["k"], b["times"])[0]
+    s_rec, _ = b["road"].path.to_frenet(rec[:, 0], rec[:, 1])
+    assert plan.progress >= 0.8 * float(s_rec[-1] - s_rec[0])
