@@ -321,17 +321,23 @@ def test_crawling_ego_does_not_slide_sideways_at_rest(ngsim_dir):
     if not f.is_file():
         pytest.skip(f"{f} not found")
     p = NgsimParams(egos_per_time=1)
-    task = dict(scenario=str(f), ego_id=442, k=50, t0=5.0)
     cfg0 = ngsim_config()
     assert cfg0.kinematic and cfg0.slip_ratio == 0.5 and cfg0.yaw_aware
-    b = build_task(task, p, cfg0)
-    key = jax.random.fold_in(jax.random.PRNGKey(p.seed), _task_seed(task))
-    k_pred, _, k_plan = jax.random.split(key, 3)
-    samples = _predictor("learned").sample(b["hist"], b["ctx"], p.n_samples, k_pred)
-    planned = _pad_ghosts(samples, b["road"], b["ego"], p.max_obstacles)
-    cfg = task_config(b, p, cfg0)
-    plan = mmdopt.plan(b["ego"], b["road"], planned, method="mmd", config=cfg, key=k_plan)
-    assert plan.feasible and not plan.fallback, plan.status
+
+    def plan_task(k: int, t0: float):
+        """The benchmark's plan of ego 442 at step k (its samples, key and config)."""
+        task = dict(scenario=str(f), ego_id=442, k=k, t0=t0)
+        b = build_task(task, p, cfg0)
+        key = jax.random.fold_in(jax.random.PRNGKey(p.seed), _task_seed(task))
+        k_pred, _, k_plan = jax.random.split(key, 3)
+        samples = _predictor("learned").sample(b["hist"], b["ctx"], p.n_samples, k_pred)
+        planned = _pad_ghosts(samples, b["road"], b["ego"], p.max_obstacles)
+        cfg = task_config(b, p, cfg0)
+        plan = mmdopt.plan(b["ego"], b["road"], planned, method="mmd", config=cfg, key=k_plan)
+        assert plan.feasible and not plan.fallback, plan.status
+        return b, cfg, plan
+
+    b, cfg, plan = plan_task(50, 5.0)
     e = b["ego"]
     v0 = max(abs(e.vd) - cfg.slip_ratio * max(e.vs, 0.0), 0.0)
     excess = np.abs(plan.vd) - cfg.slip_ratio * np.maximum(plan.vs, 0.0) - v0
@@ -346,15 +352,7 @@ def test_crawling_ego_does_not_slide_sideways_at_rest(ngsim_dir):
     # least 80 % of the human's progress (the issue's bar)
     from mmdopt.bench.ngsim.scene import future_at
 
-    task = dict(scenario=str(f), ego_id=442, k=30, t0=3.0)
-    b = build_task(task, p, cfg0)
-    key = jax.random.fold_in(jax.random.PRNGKey(p.seed), _task_seed(task))
-    k_pred, _, k_plan = jax.random.split(key, 3)
-    samples = _predictor("learned").sample(b["hist"], b["ctx"], p.n_samples, k_pred)
-    planned = _pad_ghosts(samples, b["road"], b["ego"], p.max_obstacles)
-    cfg = task_config(b, p, cfg0)
-    plan = mmdopt.plan(b["ego"], b["road"], planned, method="mmd", config=cfg, key=k_plan)
-    assert plan.feasible and not plan.fallback, plan.status
+    b, cfg, plan = plan_task(30, 3.0)
     sc = _score_recorded(b, plan, p)
     assert not sc["any_collision"], sc
     rec = future_at(b["scene"], [b["v"]], b["k"], b["times"])[0]
