@@ -23,23 +23,19 @@ import json
 import time
 from pathlib import Path
 
-import jax
 import numpy as np
 
 import mmdopt
 from mmdopt.bench.ngsim.data import split_files
 from mmdopt.bench.ngsim.runner import (
     NgsimParams,
-    _pad_ghosts,
     _predictor,
     _score_recorded,
-    _task_seed,
-    build_task,
     ngsim_config,
+    plan_inputs,
     select_tasks,
     task_config,
 )
-from mmdopt.bench.ngsim.scene import future_at
 
 #: name -> (MMDOptConfig overrides on top of ngsim_config's *before* this change, NgsimParams
 #: overrides).  "before" is the configuration of the first held-out run (docs/ngsim.md).
@@ -274,7 +270,7 @@ def main(argv=None) -> None:
 
         pred = make_predictor(a.predictor, spread=a.predictor_spread)
     for i, task in enumerate(tasks):
-        b = None
+        inp = None
         for name, (cfg_over, p_over) in variants.items():
             stem = Path(task["scenario"]).stem
             f = out / f"{name}__{a.method}__{stem}__{task['ego_id']}__{task['k']}.json"
@@ -282,18 +278,13 @@ def main(argv=None) -> None:
                 continue
             p = dataclasses.replace(base_p, **{**P_OFF, **p_over})
             cfg0 = ngsim_config(**{**OFF, **cfg_over})
-            if b is None:
-                b = build_task(task, p, cfg0)
-                key = jax.random.fold_in(jax.random.PRNGKey(p.seed), _task_seed(task))
-                k_pred, _, k_plan = jax.random.split(key, 3)
-                samples = pred.sample(b["hist"], b["ctx"], p.n_samples, k_pred)
-                planned = _pad_ghosts(samples, b["road"], b["ego"], p.max_obstacles)
-                rec = future_at(b["scene"], [b["v"]], b["k"], b["times"])[0]
-                s_rec, _ = b["road"].path.to_frenet(rec[:, 0], rec[:, 1])
+            if inp is None:  # the benchmark's samples and key, shared by the variants
+                inp = plan_inputs(task, p, cfg0, pred)
+            b = inp.task
             cfg = task_config(b, p, cfg0)
             t0 = time.perf_counter()
             plan = mmdopt.plan(
-                b["ego"], b["road"], planned, method=a.method, config=cfg, key=k_plan
+                b["ego"], b["road"], inp.planned, method=a.method, config=cfg, key=inp.key_plan
             )
             wall = time.perf_counter() - t0
             sc = _score_recorded(b, plan, p)
@@ -304,7 +295,7 @@ def main(argv=None) -> None:
                 t0=task["t0"],
                 **sc,
                 progress_m=plan.progress,
-                recorded_progress_m=float(s_rec[-1] - s_rec[0]),
+                recorded_progress_m=inp.recorded_progress_m,
                 feasible=bool(plan.feasible and not plan.fallback),
                 status=plan.status,
                 v0=float(b["ego"].vs),

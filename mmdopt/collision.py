@@ -158,8 +158,8 @@ def ellipse_values(s, d, centres, a, b, a_behind=None, rear_exempt_width=None):
     a, b : ellipse semi-axes (m); ``b`` scalar, (K,) or per ego sample (B, K)
     a_behind : optional (B, K) longitudinal semi-axis used where the ego is behind the centre
         (Δs < 0): a following distance (:func:`mmdopt.algorithm.headway_semi_axis`)
-    rear_exempt_width : optional w (m): points behind the ego in line with it (Δs > 0,
-        |Δd| < w) cost nothing (:func:`rear_exempt`)
+    rear_exempt_width : optional w (m): followers, points in line with the ego (|Δd| < w) since
+        a step at which they were behind it, cost nothing (:func:`rear_exempt`)
 
     Returns
     -------

@@ -32,7 +32,7 @@ import time
 import zlib
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
+from typing import Any, NamedTuple
 
 import jax
 import numpy as np
@@ -68,6 +68,8 @@ __all__ = [
     "build_task",
     "traffic_v_des",
     "task_config",
+    "PlanInputs",
+    "plan_inputs",
     "run_task",
     "run_ngsim",
     "timing_vs_obstacles",
@@ -412,25 +414,48 @@ def _score_recorded(b: dict, plan, params: NgsimParams) -> dict:
     )
 
 
-def run_task(
-    task: dict, methods, predictor: str, params: NgsimParams, config, backend: str = PLANNER_BACKEND
-) -> list[dict]:
-    """Plan one task with every method; one result row per method."""
+class PlanInputs(NamedTuple):
+    """What :func:`run_task` plans one task with (:func:`plan_inputs`)."""
+
+    task: dict  # the built task (:func:`build_task`)
+    config: mmdopt.MMDOptConfig  # with the task's desired speed (:func:`task_config`)
+    planned: np.ndarray  # (O', n, K, 2) planning samples, padded with ghosts
+    predictor: Any  # the predictor object that drew them
+    key_validation: Any  # PRNG key of the validation draws
+    key_plan: Any  # PRNG key of the plan
+    predict_s: float  # wall time of the planning draws
+    recorded_progress_m: float  # the human's arc length over the horizon
+
+
+def plan_inputs(task: dict, params: NgsimParams, config, predictor: Any = "learned") -> PlanInputs:
+    """The built task, config, planning samples and keys of one task exactly as ``mmdopt bench
+    ngsim`` plans it; ``predictor`` a name of :data:`mmdopt.predict.PREDICTORS` or a predictor
+    object (e.g. ``Learned(spread=...)``)."""
     b = build_task(task, params, config)
-    pred = _predictor(predictor)
+    pred = _predictor(predictor) if isinstance(predictor, str) else predictor
     key = jax.random.fold_in(jax.random.PRNGKey(params.seed), _task_seed(task))
     k_pred, k_val, k_plan = jax.random.split(key, 3)
     t1 = time.perf_counter()
     samples = pred.sample(b["hist"], b["ctx"], params.n_samples, k_pred)
     predict_s = time.perf_counter() - t1
-    val = pred.sample(b["hist"], b["ctx"], params.n_validation, k_val)
-    cfg = task_config(b, params, config)
     planned = _pad_ghosts(
         samples, b["road"], b["ego"], params.max_obstacles, params.obstacle_bucket
     )
-    sc, v, k, times = b["scene"], b["v"], b["k"], b["times"]
-    rec = future_at(sc, [v], k, times)[0]
+    rec = future_at(b["scene"], [b["v"]], b["k"], b["times"])[0]
     s_rec, _ = b["road"].path.to_frenet(rec[:, 0], rec[:, 1])
+    return PlanInputs(
+        b, task_config(b, params, config), planned, pred, k_val, k_plan, predict_s,
+        float(s_rec[-1] - s_rec[0]),
+    )  # fmt: skip
+
+
+def run_task(
+    task: dict, methods, predictor: str, params: NgsimParams, config, backend: str = PLANNER_BACKEND
+) -> list[dict]:
+    """Plan one task with every method; one result row per method."""
+    inp = plan_inputs(task, params, config, predictor)
+    b, cfg, planned, k_plan = inp.task, inp.config, inp.planned, inp.key_plan
+    val = inp.predictor.sample(b["hist"], b["ctx"], params.n_validation, inp.key_validation)
     rows = []
     for m in methods:
         plan = mmdopt.plan(
@@ -450,14 +475,14 @@ def run_task(
                 collision_free=cf,
                 n_validation=params.n_validation,
                 progress_m=plan.progress,
-                recorded_progress_m=float(s_rec[-1] - s_rec[0]),
+                recorded_progress_m=inp.recorded_progress_m,
                 feasible=bool(plan.feasible and not plan.fallback),
                 plan_time_s=plan.plan_time_s,
                 n_obstacles=len(b["obs"]),
                 fallback=bool(plan.fallback),
                 status=plan.status,
                 cem_s=float(plan.diagnostics.get("cem_s", np.nan)),
-                predict_s=predict_s,
+                predict_s=inp.predict_s,
                 v0=float(b["ego"].vs),
                 y_lb=b["road"].y_lb,
                 y_ub=b["road"].y_ub,

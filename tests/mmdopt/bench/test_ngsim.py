@@ -303,19 +303,8 @@ def test_crawling_ego_does_not_slide_sideways_at_rest(ngsim_dir):
     footprint (heading atan2(ḋ, ṡ) ≈ −90°) touched the car beside it (an at-fault *front*
     contact, docs/ngsim.md).  With ``ngsim_config()`` (slip_ratio 0.5) the lateral speed
     stays within the limit at every step and the plan is clear of the recorded traffic."""
-    import jax
-
     import mmdopt
-    from mmdopt.bench.ngsim.runner import (
-        NgsimParams,
-        _pad_ghosts,
-        _predictor,
-        _score_recorded,
-        _task_seed,
-        build_task,
-        ngsim_config,
-        task_config,
-    )
+    from mmdopt.bench.ngsim.runner import NgsimParams, _score_recorded, ngsim_config, plan_inputs
 
     f = ngsim_dir / "USA_US101-4_1_T-1.xml"
     if not f.is_file():
@@ -326,18 +315,16 @@ def test_crawling_ego_does_not_slide_sideways_at_rest(ngsim_dir):
 
     def plan_task(k: int, t0: float):
         """The benchmark's plan of ego 442 at step k (its samples, key and config)."""
-        task = dict(scenario=str(f), ego_id=442, k=k, t0=t0)
-        b = build_task(task, p, cfg0)
-        key = jax.random.fold_in(jax.random.PRNGKey(p.seed), _task_seed(task))
-        k_pred, _, k_plan = jax.random.split(key, 3)
-        samples = _predictor("learned").sample(b["hist"], b["ctx"], p.n_samples, k_pred)
-        planned = _pad_ghosts(samples, b["road"], b["ego"], p.max_obstacles)
-        cfg = task_config(b, p, cfg0)
-        plan = mmdopt.plan(b["ego"], b["road"], planned, method="mmd", config=cfg, key=k_plan)
+        inp = plan_inputs(dict(scenario=str(f), ego_id=442, k=k, t0=t0), p, cfg0, "learned")
+        b, cfg = inp.task, inp.config
+        plan = mmdopt.plan(
+            b["ego"], b["road"], inp.planned, method="mmd", config=cfg, key=inp.key_plan
+        )
         assert plan.feasible and not plan.fallback, plan.status
-        return b, cfg, plan
+        return inp, cfg, plan
 
-    b, cfg, plan = plan_task(50, 5.0)
+    inp, cfg, plan = plan_task(50, 5.0)
+    b = inp.task
     e = b["ego"]
     v0 = max(abs(e.vd) - cfg.slip_ratio * max(e.vs, 0.0), 0.0)
     excess = np.abs(plan.vd) - cfg.slip_ratio * np.maximum(plan.vs, 0.0) - v0
@@ -350,11 +337,7 @@ def test_crawling_ego_does_not_slide_sideways_at_rest(ngsim_dir):
     # of them into the recorded leader, which stops (an at-fault *stopped-track* contact at
     # 1.9 × the human's distance); now it is clear of every recorded car and still makes at
     # least 80 % of the human's progress (the issue's bar)
-    from mmdopt.bench.ngsim.scene import future_at
-
-    b, cfg, plan = plan_task(30, 3.0)
-    sc = _score_recorded(b, plan, p)
+    inp, cfg, plan = plan_task(30, 3.0)
+    sc = _score_recorded(inp.task, plan, p)
     assert not sc["any_collision"], sc
-    rec = future_at(b["scene"], [b["v"]], b["k"], b["times"])[0]
-    s_rec, _ = b["road"].path.to_frenet(rec[:, 0], rec[:, 1])
-    assert plan.progress >= 0.8 * float(s_rec[-1] - s_rec[0])
+    assert plan.progress >= 0.8 * inp.recorded_progress_m
