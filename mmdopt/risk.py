@@ -104,14 +104,9 @@ def config_for_risk(
     return cfg.replace(**kw)
 
 
-def _gauss_margins(dev_e, dev_u, member, z, prior, h_e=0.0):
-    """Margins (3, J, K) from deviations (J, M, K) of the members (mask (J, M)) of each point."""
-    w = member.astype(np.float64)[:, :, None]  # (J, M, 1)
-    c = np.maximum(w.sum(1), 1.0)  # (J, 1)
-    mu_e = (w * dev_e).sum(1) / c
-    mu_u = (w * dev_u).sum(1) / c
-    v_e = np.maximum((w * dev_e**2).sum(1) / c - mu_e**2, 0.0)
-    v_u = np.maximum((w * dev_u**2).sum(1) / c - mu_u**2, 0.0)
+def _margins_from_moments(c, mu_e, mu_u, v_e, v_u, z, prior, h_e=0.0):
+    """Margins (3, J, K) from each point's cluster size c (J, 1) and the mean μ and variance v
+    (J, K) of its members' deviations (longitudinal e, lateral u)."""
     # pooled within-cluster variance per step (clusters weighted by size)
     pool_e = (c * v_e).sum(0) / c.sum()
     pool_u = (c * v_u).sum(0) / c.sum()
@@ -121,6 +116,54 @@ def _gauss_margins(dev_e, dev_u, member, z, prior, h_e=0.0):
     ahead = np.maximum(z * sd_e + mu_e, 0.0)
     lat = np.abs(mu_u) + z * sd_u
     return np.stack([behind, ahead, lat])
+
+
+def _moment_margins(flat, idx, c, s1, s2, z, prior, h_e):
+    """Margins from the members' count c (J, 1), sum s1 and sum of squares s2 (J, 2K) of the
+    flattened positions ``flat`` (n, 2K: s and d interleaved) of each point's cluster."""
+    mean = s1 / c
+    mu = mean - flat[idx]  # mean deviation from the anchor
+    v = np.maximum(s2 / c - mean * mean, 0.0)  # variance is shift-invariant
+    return _margins_from_moments(
+        c, mu[:, 0::2], mu[:, 1::2], v[:, 0::2], v[:, 1::2], z, prior, h_e
+    )
+
+
+def _centred(Xo):
+    """(n, 2K) positions (s and d interleaved) minus their mean over the samples: the sums of
+    squares below then stay well conditioned far from the origin."""
+    flat = Xo.reshape(Xo.shape[0], -1)
+    return flat - flat.mean(axis=0)
+
+
+def _knn_margins(Xo, idx, nb, z, prior, h_e=0.0):
+    """Margins of k-nearest-neighbour clusters ``nb`` (J, k): the members' sums as two products
+    with the (J, n) membership matrix (no (J, k, K, 2) gather of deviations)."""
+    flat = _centred(Xo)
+    M = np.zeros((idx.shape[0], flat.shape[0]))
+    np.put_along_axis(M, nb, 1.0, axis=1)
+    c = np.full((idx.shape[0], 1), float(nb.shape[1]))
+    return _moment_margins(flat, idx, c, M @ flat, M @ (flat * flat), z, prior, h_e)
+
+
+def _voronoi_margins(Xo, idx, owner, z, prior, h_e=0.0):
+    """Margins of the nearest-point clusters from per-cluster sums: O(n·K), not O(J·n·K).
+
+    ``Xo`` (n, K, 2) samples, ``idx`` (J,) the points, ``owner`` (n,) each sample's nearest
+    point; every point also belongs to its own cluster (duplicated indices)."""
+    J = idx.shape[0]
+    flat = _centred(Xo)
+    s1 = np.zeros((J, flat.shape[1]))
+    s2 = np.zeros((J, flat.shape[1]))
+    np.add.at(s1, owner, flat)
+    np.add.at(s2, owner, flat * flat)
+    c = np.bincount(owner, minlength=J).astype(np.float64)
+    extra = np.flatnonzero(owner[idx] != np.arange(J))  # a point owned by a duplicate of it
+    if extra.size:
+        np.add.at(s1, extra, flat[idx[extra]])
+        np.add.at(s2, extra, flat[idx[extra]] ** 2)
+        np.add.at(c, extra, 1.0)
+    return _moment_margins(flat, idx, np.maximum(c, 1.0)[:, None], s1, s2, z, prior, h_e)
 
 
 def coverage_margins(
@@ -171,23 +214,21 @@ def coverage_margins(
     out = np.empty((3, O, idx.shape[1], K))
     for o in range(O):  # O is a handful of obstacles; everything inside is vectorised
         F = (X[o] * scale).reshape(n, -1)
+        F = F - F.mean(axis=0)  # centred: the expanded distances below keep their precision
         A = F[idx[o]]
         sq = (A * A).sum(1)[:, None] + (F * F).sum(1)[None, :] - 2.0 * A @ F.T  # (J, n)
-        anchor = X[o][idx[o]]  # (J, K, 2)
-        if knn == 0:
-            owner = np.argmin(sq, axis=0)  # (n,) nearest point of every sample
-            member = owner[None, :] == np.arange(idx.shape[1])[:, None]  # (J, n)
-            member[np.arange(idx.shape[1]), idx[o]] = True
-            dev = X[o][None] - anchor[:, None]  # (J, n, K, 2)
-        else:
-            k = min(int(knn), n)
-            nb = np.argpartition(sq, k - 1, axis=1)[:, :k]  # (J, k) incl. the point itself
-            member = np.ones(nb.shape, bool)
-            dev = X[o][nb] - anchor[:, None]  # (J, k, K, 2)
         h_e = 0.0
         if bandwidth > 0:  # kernel-density smoothing of the tail (Silverman's rule, per step)
             h_e = bandwidth * 1.06 * X[o][:, :, 0].std(axis=0) * n**-0.2  # (K,)
-        out[:, o] = _gauss_margins(dev[..., 0], dev[..., 1], member, z, prior, h_e)
+        if knn == 0:
+            # nearest point of every sample; a repeated point's samples go to its first copy
+            _, first = np.unique(idx[o], return_index=True)
+            owner = first[np.argmin(sq[first], axis=0)]  # (n,)
+            out[:, o] = _voronoi_margins(X[o], idx[o], owner, z, prior, h_e)
+        else:
+            k = min(int(knn), n)
+            nb = np.argpartition(sq, k - 1, axis=1)[:, :k]  # (J, k) incl. the point itself
+            out[:, o] = _knn_margins(X[o], idx[o], nb, z, prior, h_e)
     return out
 
 

@@ -59,6 +59,50 @@ def test_margins_grow_as_the_risk_falls_and_cover_the_cluster():
     assert risk_z(0.5 - 1e-12) == pytest.approx(0.0, abs=1e-9)
 
 
+def _direct_margins(X, idx, eps, prior=2.0, knn=0, lateral_scale=1.0):
+    """The margins' definition, point by point: each cluster's members, their deviations from
+    the point, mean and (biased) variance, shrunk to the pooled spread with ``prior``."""
+    z = risk_z(eps)
+    O, n, K, _ = X.shape
+    out = np.empty((3, O, idx.shape[1], K))
+    for o in range(O):
+        F = (X[o] * [1.0, lateral_scale]).reshape(n, -1)
+        D = ((F[idx[o]][:, None] - F[None]) ** 2).sum(-1)  # (J, n)
+        owner = D.argmin(0)
+        stats = []
+        for j, p in enumerate(idx[o]):
+            if knn:
+                members = np.argsort(D[j], kind="stable")[:knn]
+            else:
+                members = np.union1d(np.flatnonzero(owner == j), [p])
+            dev = X[o, members] - X[o, p]  # (c, K, 2)
+            stats.append((len(members), dev.mean(0), dev.var(0)))
+        c = np.array([st[0] for st in stats], float)
+        mu = np.stack([st[1] for st in stats])  # (J, K, 2)
+        v = np.stack([st[2] for st in stats])
+        pool = (c[:, None, None] * v).sum(0) / c.sum()
+        sd = np.sqrt((c[:, None, None] * v + prior * pool) / (c[:, None, None] + prior))
+        out[0, o] = np.maximum(z * sd[..., 0] - mu[..., 0], 0.0)
+        out[1, o] = np.maximum(z * sd[..., 0] + mu[..., 0], 0.0)
+        out[2, o] = np.abs(mu[..., 1]) + z * sd[..., 1]
+    return out
+
+
+@pytest.mark.parametrize("seed", range(6))
+def test_coverage_margins_equal_their_definition_far_from_the_origin(seed):
+    """The vectorised per-cluster sums give the margins of the definition, with clusters of
+    one, a duplicated point, k-NN clusters and coordinates a kilometre from the origin."""
+    rng = np.random.default_rng(seed)
+    O, n, K = 2, int(rng.integers(5, 60)), 9
+    X = rng.normal(size=(O, n, K, 2)) * [4.0, 0.8] + [1500.0, -40.0]
+    J = int(rng.integers(1, n))
+    idx = np.stack([rng.choice(n, J, replace=False) for _ in range(O)])
+    idx = np.concatenate([idx, idx[:, :1]], axis=1)  # a duplicated point: a cluster of one
+    for kw in (dict(), dict(knn=int(rng.integers(1, n + 1))), dict(lateral_scale=10.0)):
+        got = coverage_margins(X, idx, 0.01, **kw)
+        np.testing.assert_allclose(got, _direct_margins(X, idx, 0.01, **kw), rtol=0, atol=1e-9)
+
+
 def test_coverage_margins_check_their_inputs():
     X = _two_clusters()
     with pytest.raises(ValueError, match="obstacles_frenet"):
