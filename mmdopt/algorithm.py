@@ -113,6 +113,8 @@ INFEASIBLE_COST = 1.0e12
 #: the yaw widening's ``|ḋ| / sqrt(ṡ² + ḋ² + v²)`` (the heading hold of
 #: :meth:`frenet.ReferencePath.trajectory_to_cartesian` uses the same speed)
 YAW_SPEED_FLOOR = 0.05
+#: SAA's chance level in the "linear" margin mode when ``MMDOptConfig.saa_eps`` is ``None``
+SAA_EPS_LINEAR = 0.02
 
 
 def _static(default):
@@ -149,17 +151,20 @@ class MMDOptConfig:
     ``cov_reg`` ε = 0.01; initial sampling distribution ``speed_std0`` (m/s) around the ego's
     speed and ``lateral_std_scale`` × half the lane width around its offset; cost weights and
     kernel (see :mod:`mmdopt.algorithm` and ``docs/benchmarks.md`` for how they were chosen);
-    ``a``, ``b`` collision ellipse (m) plus the planning margins ``margin_long``, ``margin_lat``
+    ``a``, ``b`` collision ellipse (m) plus, in the ``margin_mode = "linear"`` (the default
+    before Session 13 of issue 11), the planning margins ``margin_long``, ``margin_lat``
     (m) and ``margin_rate`` (m/s: the longitudinal margin grows by this much per second) —
     part of MMD-Opt's surrogate design (they stand for the prediction spread a reduced set
     cannot represent); the scenario baselines (``degroot``, ``scenario_all``, ``saa``) use
     ``baseline_margin_scale`` × these margins, by default 0: the nominal ellipse, as de Groot et
     al. and the reference code plan (their worst-case sample set is their safety mechanism; see
     docs/benchmarks.md for both settings at matched progress);
-    ``res_tol`` feasibility tolerance of the residual; ``saa_eps``, ``saa_temperature`` for the
-    SAA baseline.
+    ``res_tol`` feasibility tolerance of the residual; ``saa_eps`` (``None``: follows the risk
+    knob, see :attr:`saa_level`), ``saa_temperature`` for the SAA baseline.
 
-    **Sample-driven margins** (``margin_mode = "samples"``, issue 11; :mod:`mmdopt.risk`): instead
+    **Sample-driven margins** (``margin_mode = "samples"``, **the default**, issue 11;
+    :mod:`mmdopt.risk`): the default config is every method's risk knob at ``risk_eps`` = 0.005
+    (``plan(..., method=m)`` plans as ``plan(..., method=m, risk=0.005)``): instead
     of the time-linear constants, every planning point's ellipse is inflated per time step by the
     spread of the planning samples it stands for (its cluster), to contain them with probability
     ``1 − risk_eps`` under a per-step Gaussian fit (longitudinally one-sided: behind / ahead of
@@ -170,13 +175,15 @@ class MMDOptConfig:
     ``coverage_knn`` (0: ``n // reduced_set_size``) the
     neighbourhood size that stands for a sample's cluster when a method plans on all samples.
     The margins are computed in :func:`mmdopt.plan` and travel in the :class:`ObstacleSet`;
-    ``reselect`` (0: off) > 0 runs Algorithm 1 a second time, warm-started, with the
+    ``reselect`` (-1, the default: ``reduced_set_size // 2`` for MMD-Opt in this mode, else 0;
+    :meth:`reselect_for`; 0: off) > 0 runs Algorithm 1 a second time, warm-started, with the
     ``reselect`` samples in deepest conflict with the first plan (nominal ellipse) added to a
     reduced set (weight 1/n each; the re-selection conditioned on the CEM solution of issue 11)
     — in either ``margin_mode`` (before Session 12 it acted in the "samples" mode only).
-    ``w_cover`` weighs the coverage term ``Σ_j Σ_k f̄_jk`` on these inflated ellipses that
+    ``w_cover`` (100) weighs the coverage term ``Σ_j Σ_k f̄_jk`` on these inflated ellipses that
     MMD-Opt adds to ``l_dist`` in this mode (any entry costs, whatever the point's weight ᾱ).
-    ``margin_mode = "linear"`` keeps the constants above.  ``reduced_set`` configures the
+    ``margin_mode = "linear"`` keeps the constants above (the tuned margins of the paper
+    reproduction, and of the NGSIM and highway settings).  ``reduced_set`` configures the
     reduced-set selection; ``rs_lateral_scale``
     multiplies the samples' lateral offsets in the selection's kernel features (an anisotropic
     kernel: lateral intents count more than longitudinal spread).
@@ -253,9 +260,9 @@ class MMDOptConfig:
     dtype: str = _static("float32")
     admm_rho: float | None = _static(None)
     project_chunk: int = _static(0)
-    margin_mode: str = _static("linear")
+    margin_mode: str = _static("samples")
     coverage_knn: int = _static(0)
-    reselect: int = _static(0)
+    reselect: int = _static(-1)
     asymmetric: bool = _static(False)
     kinematic: bool = _static(False)
     yaw_aware: bool = _static(False)
@@ -283,10 +290,10 @@ class MMDOptConfig:
     margin_lat: float = 0.4
     baseline_margin_scale: float = 0.0
     res_tol: float = 0.05
-    saa_eps: float = 0.02
+    saa_eps: float | None = None
     saa_temperature: float = 0.05
     risk_eps: float = 0.005
-    w_cover: float = 0.0
+    w_cover: float = 100.0
     coverage_prior: float = 2.0
     coverage_bandwidth: float = 0.0
     headway_time: float = 0.0
@@ -361,8 +368,10 @@ class MMDOptConfig:
             )
         if self.margin_mode not in ("linear", "samples"):
             raise ValueError(f"margin_mode must be 'linear' or 'samples', got {self.margin_mode!r}")
-        if self.reselect < 0:
-            raise ValueError(f"MMDOptConfig.reselect must be >= 0, got {self.reselect}")
+        if self.reselect < -1:
+            raise ValueError(
+                f"MMDOptConfig.reselect must be >= 0 (or -1: automatic), got {self.reselect}"
+            )
         if self.project_chunk < 0:
             raise ValueError(f"MMDOptConfig.project_chunk must be >= 0, got {self.project_chunk}")
         if self.coverage_knn < 0:
@@ -413,6 +422,24 @@ class MMDOptConfig:
     @property
     def d_dim(self) -> int:
         return 2 * self.num_segments
+
+    @property
+    def saa_level(self):
+        """SAA's chance level: ``saa_eps``, or when that is ``None`` the risk knob ``risk_eps``
+        in the "samples" margin mode and :data:`SAA_EPS_LINEAR` in the "linear" one."""
+        if self.saa_eps is not None:
+            return self.saa_eps
+        return self.risk_eps if self.margin_mode == "samples" else SAA_EPS_LINEAR
+
+    def reselect_for(self, method: str) -> int:
+        """The re-selection pass size ``method`` runs with: ``reselect``, or when that is -1
+        (automatic) ``max(1, reduced_set_size // 2)`` for "mmd" in the "samples" margin mode
+        and 0 otherwise (:func:`mmdopt.risk.config_for_risk`)."""
+        if self.reselect >= 0:
+            return self.reselect
+        if method == "mmd" and self.margin_mode == "samples":
+            return max(1, self.reduced_set_size // 2)
+        return 0
 
 
 def _concrete(v) -> bool:
@@ -729,7 +756,7 @@ def _collision_term(
             return cfg.w_mmd * coll + cfg.w_cover * cover, jnp.asarray(1.0, dt)
         if mode == "scenario":
             return scenario_cost(f, obstacles.mask), cfg.w_coll
-        coll, _ = saa_cost(f, obstacles.mask, cfg.saa_eps, cfg.saa_temperature)
+        coll, _ = saa_cost(f, obstacles.mask, cfg.saa_level, cfg.saa_temperature)
         return coll, cfg.w_saa
     scale = 1.0 if mode == "mmd" else cfg.baseline_margin_scale
     a_plan = planning_semi_axis(cfg, prob.t(), dt, scale)
@@ -752,7 +779,7 @@ def _collision_term(
         bandwidth=cfg.bandwidth,
         f_scale=cfg.f_scale,
         n_terms=obstacles.n_terms,
-        saa_eps=cfg.saa_eps,
+        saa_eps=cfg.saa_level,
         saa_temperature=cfg.saa_temperature,
     )
     w = {"mmd": cfg.w_mmd, "scenario": cfg.w_coll, "saa": cfg.w_saa}[mode]

@@ -317,7 +317,9 @@ def plan(
     obstacles : (O, n, K, 2) Cartesian ``(x, y)`` samples of each obstacle's future (m)
     method : "mmd" (MMD-Opt) | "degroot" | "random" | "saa" | "scenario_all"
         (:mod:`mmdopt.baselines`)
-    config : :class:`MMDOptConfig` (default: the paper's sizes and the tuned cost)
+    config : :class:`MMDOptConfig` (default: the paper's sizes, and the method's risk knob at
+        ε = ``risk_eps`` = 0.005 with sample-driven margins; ``MMDOptConfig(margin_mode=
+        "linear")`` plans with the time-linear tuned margins used before Session 13)
     backend : projection backend: ``"admm-fixed"`` (default) runs the whole algorithm in one jit
         with the fixed-budget ADMM projector; any :mod:`solvers` backend (``"admm"``,
         ``"clarabel"``, ``"osqp"``, ...) projects on the host each iteration
@@ -330,7 +332,8 @@ def plan(
         previous plan's ``state``): the sampling distribution and elites start from it
     risk : optional target collision probability ε in (0, 0.5), the method's risk knob: the
         method's margins and chance level follow from it (:func:`mmdopt.risk.config_for_risk`,
-        applied to ``config``); ``None``: ``config`` as given
+        applied to ``config``); ``None``: ``config`` as given (whose default is the knob at
+        0.005: ``plan(..., method=m)`` plans as ``plan(..., method=m, risk=0.005)``)
 
     Returns
     -------
@@ -396,11 +399,13 @@ def plan_frenet(
 
 
 def _apply_risk(method: str, risk: Any, config: MMDOptConfig) -> MMDOptConfig:
-    if risk is None:
-        return config
-    from .risk import config_for_risk
+    if risk is not None:
+        from .risk import config_for_risk
 
-    return config_for_risk(method, risk, config)
+        config = config_for_risk(method, risk, config)
+    if config.reselect < 0:  # automatic: the method's re-selection pass size
+        config = config.replace(reselect=config.reselect_for(method))
+    return config
 
 
 def _check_reduced_set(rs: Any, O: int, n: int, method: str) -> ReducedSet:

@@ -4,6 +4,10 @@ Every planning method of :mod:`mmdopt.baselines` takes the same knob, ``risk`` =
 probability that the plan collides with an obstacle's future** (1000 · (1 − ε) is the target
 collision-free count of the benchmarks' metric).  :func:`config_for_risk` derives that method's
 margins, weights and chance level from ε; :func:`mmdopt.plan` does it for ``plan(..., risk=ε)``.
+Since Session 13 the default :class:`~mmdopt.MMDOptConfig` *is* this mapping at ε =
+``risk_eps`` = 0.005 for every method (``margin_mode="samples"``, ``w_cover`` = 100, automatic
+``reselect`` and SAA chance level), so ``plan(..., method=m)`` plans as ``plan(..., method=m,
+risk=0.005)``; ``MMDOptConfig(margin_mode="linear")`` keeps the old time-linear constants.
 
 ==================  =====================================================================
 method              what ε sets
@@ -124,9 +128,7 @@ def _moment_margins(flat, idx, c, s1, s2, z, prior, h_e):
     mean = s1 / c
     mu = mean - flat[idx]  # mean deviation from the anchor
     v = np.maximum(s2 / c - mean * mean, 0.0)  # variance is shift-invariant
-    return _margins_from_moments(
-        c, mu[:, 0::2], mu[:, 1::2], v[:, 0::2], v[:, 1::2], z, prior, h_e
-    )
+    return _margins_from_moments(c, mu[:, 0::2], mu[:, 1::2], v[:, 0::2], v[:, 1::2], z, prior, h_e)
 
 
 def _centred(Xo):

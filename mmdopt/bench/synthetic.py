@@ -138,11 +138,9 @@ def _manifest(seed, params: SceneParams, backend, config, layout: str = "in-proc
 
 
 def _manifest_aliases(config) -> dict[str, list[Any]]:
-    """Older manifests recorded the default config as ``{}`` and had no ``workers`` key."""
-    out: dict[str, list[Any]] = {"workers": [MISSING]}
-    if config is None or config == mmdopt.MMDOptConfig():
-        out["config"] = [{}]
-    return out
+    """Older manifests had no ``workers`` key.  (They recorded the default config as ``{}``:
+    the time-linear margins, which are no longer the default, so such a folder is refused.)"""
+    return {"workers": [MISSING]}
 
 
 def check_sweep_config(

@@ -79,29 +79,31 @@ def test_saa_counts_the_fraction_of_colliding_samples():
 def test_baseline_margin_scale_inflates_only_the_baselines_ellipse(scene):
     """``baseline_margin_scale`` (default 0: the nominal ellipse, as de Groot et al.) scales the
     planning margins of the scenario baselines; at 1 de Groot keeps the margins MMD-Opt plans
-    with and falls further behind the obstacle it follows; MMD-Opt's plan is unaffected."""
+    with and falls further behind the obstacle it follows; MMD-Opt's plan is unaffected.  (The
+    time-linear margin mode: the sample-driven one has no such constants.)"""
+    lin = SMALL.replace(margin_mode="linear", reselect=0)
     with pytest.raises(ValueError, match="baseline_margin_scale"):
-        SMALL.replace(baseline_margin_scale=-0.5)
+        lin.replace(baseline_margin_scale=-0.5)
     t = np.linspace(0.0, 15.0, 5)
-    np.testing.assert_allclose(mmdopt.algorithm.planning_semi_axis(SMALL, t, scale=0.0), SMALL.a)
+    np.testing.assert_allclose(mmdopt.algorithm.planning_semi_axis(lin, t, scale=0.0), lin.a)
     key = jax.random.PRNGKey(0)
-    nominal = mmdopt.plan(EGO, mmdopt.Road(), scene, method="degroot", config=SMALL, key=key)
+    nominal = mmdopt.plan(EGO, mmdopt.Road(), scene, method="degroot", config=lin, key=key)
     inflated = mmdopt.plan(
         EGO,
         mmdopt.Road(),
         scene,
         method="degroot",
         key=key,
-        config=SMALL.replace(baseline_margin_scale=1.0),
+        config=lin.replace(baseline_margin_scale=1.0),
     )
     assert inflated.progress < nominal.progress - 5.0, (inflated.progress, nominal.progress)
-    m0 = mmdopt.plan(EGO, mmdopt.Road(), scene, method="mmd", config=SMALL, key=key)
+    m0 = mmdopt.plan(EGO, mmdopt.Road(), scene, method="mmd", config=lin, key=key)
     m1 = mmdopt.plan(
         EGO,
         mmdopt.Road(),
         scene,
         method="mmd",
         key=key,
-        config=SMALL.replace(baseline_margin_scale=1.0),
+        config=lin.replace(baseline_margin_scale=1.0),
     )
     np.testing.assert_array_equal(m0.x, m1.x)

@@ -7,6 +7,7 @@ import numpy as np
 import pytest
 
 import mmdopt
+from mmdopt.api import _apply_risk
 from mmdopt.risk import DEFAULT_RISK, config_for_risk, coverage_margins, risk_z
 
 from .test_algorithm import EGO, SMALL, _obstacle
@@ -25,11 +26,42 @@ def test_every_method_has_a_knob_with_a_default():
     for m in mmdopt.PLAN_METHODS:
         cfg = config_for_risk(m)
         assert cfg.margin_mode == "samples" and cfg.risk_eps == DEFAULT_RISK[m]
-        assert cfg.w_cover == (100.0 if m in ("mmd", "random") else 0.0)
-        assert cfg.reselect == (cfg.reduced_set_size // 2 if m == "mmd" else 0)
-    assert config_for_risk("saa", 0.03).saa_eps == 0.03
+        if m in ("mmd", "random"):  # the coverage term of the MMD cost
+            assert cfg.w_cover == 100.0
+        assert cfg.reselect_for(m) == (cfg.reduced_set_size // 2 if m == "mmd" else 0)
+    assert config_for_risk("saa", 0.03).saa_level == 0.03
     # the knob only changes what it maps to: the rest of the caller's config is kept
     assert config_for_risk("mmd", 0.01, SMALL).n_samples == SMALL.n_samples
+
+
+def test_the_default_config_is_every_methods_knob_at_its_default():
+    """``plan(..., method=m)`` plans as ``plan(..., method=m, risk=DEFAULT_RISK[m])``: the
+    sample-driven margins, the coverage term, the re-selection pass (MMD-Opt only) and SAA's
+    chance level all follow the knob; ``margin_mode="linear"`` keeps the old constants."""
+    X = _two_clusters()
+    road = mmdopt.Road()
+    key = jax.random.PRNGKey(3)
+    cfg = mmdopt.MMDOptConfig()
+    assert cfg.margin_mode == "samples" and cfg.risk_eps == 0.005 and cfg.w_cover == 100.0
+    assert cfg.reselect_for("mmd") == cfg.reduced_set_size // 2
+    assert [cfg.reselect_for(m) for m in ("random", "degroot", "saa", "scenario_all")] == [0] * 4
+    assert cfg.saa_level == cfg.risk_eps
+    assert cfg.replace(margin_mode="linear").saa_level == 0.02
+    assert cfg.replace(saa_eps=0.1).saa_level == 0.1
+    small = SMALL
+    for m in mmdopt.PLAN_METHODS:
+        # the config plan() runs with: the same, field by field (SAA's level made explicit)
+        a, b = (_apply_risk(m, r, small) for r in (None, DEFAULT_RISK[m]))
+        assert a.replace(saa_eps=a.saa_level) == b.replace(saa_eps=b.saa_level), m
+    for m in ("mmd", "saa"):  # and the plans (the automatic re-selection, SAA's level)
+        a = mmdopt.plan(EGO, road, X, method=m, config=small, key=key)
+        b = mmdopt.plan(EGO, road, X, method=m, config=small, key=key, risk=DEFAULT_RISK[m])
+        assert a.status == "ok", (m, a.status)
+        np.testing.assert_array_equal(a.s, b.s, err_msg=m)
+        np.testing.assert_array_equal(a.d, b.d, err_msg=m)
+        assert ("reselected" in a.diagnostics) == (m == "mmd")
+    with pytest.raises(ValueError, match="reselect"):
+        mmdopt.MMDOptConfig(reselect=-2)
 
 
 @pytest.mark.parametrize("bad", [0.0, 0.5, -0.1, float("nan"), float("inf"), "x", True, None])
@@ -207,8 +239,7 @@ def test_reselection_pass_also_runs_with_the_time_linear_margins():
     X = _two_clusters()
     road = mmdopt.Road()
     key = jax.random.PRNGKey(0)
-    cfg = SMALL.replace(reduced_set_size=4)
-    assert cfg.margin_mode == "linear"
+    cfg = SMALL.replace(reduced_set_size=4, margin_mode="linear", reselect=0)
     one = mmdopt.plan(EGO, road, X, method="mmd", config=cfg, key=key)
     two = mmdopt.plan(EGO, road, X, method="mmd", config=cfg.replace(reselect=3), key=key)
     assert "reselected" not in one.diagnostics

@@ -136,12 +136,14 @@ def test_plan_with_a_given_reduced_set_uses_it_and_validates_it():
 
 
 def test_demo_plan_is_unchanged_by_the_restructure():
-    """The demo scene's MMD-Opt plan, as computed before the restructure (commit a722a0c)."""
+    """The demo scene's MMD-Opt plan, as computed before the restructure (commit a722a0c), with
+    the config defaults of then: the time-linear margins and no re-selection pass."""
     from mmdopt.bench.scenes import demo_scene
     from mmdopt.bench.synthetic import scene_config
 
     sc = demo_scene()
-    p = mmdopt.plan(sc.ego(), sc.road(), sc.obstacles, config=scene_config(sc), key=sc.key())
+    cfg = scene_config(sc, mmdopt.MMDOptConfig(margin_mode="linear", reselect=0))
+    p = mmdopt.plan(sc.ego(), sc.road(), sc.obstacles, config=cfg, key=sc.key())
     assert p.cost == pytest.approx(25.484128952026367, rel=1e-6)
     assert p.progress == pytest.approx(78.05859374999413, rel=1e-6)
 

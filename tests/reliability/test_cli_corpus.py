@@ -256,11 +256,16 @@ def test_empty_config_equals_no_config_in_the_manifest(tmp_path):
     # a folder made without --config accepts --config {} and vice versa
     check_manifest(tmp_path, none)
     check_manifest(tmp_path, empty, aliases=_manifest_aliases(None))
-    # and a folder written before the manifest recorded the effective config ({} = default)
-    old = dict(none, config={})
+    # a folder written before the manifest had a workers key is accepted...
+    old = dict(none)
     old.pop("workers")
     (tmp_path / "run.json").write_text(json.dumps(old))
     check_manifest(tmp_path, empty, aliases=_manifest_aliases(None))
+    # ...but not one that recorded the default config as {}: that default was the time-linear
+    # margins, no longer the default (Session 13 of issue 11)
+    (tmp_path / "run.json").write_text(json.dumps(dict(old, config={})))
+    with pytest.raises(ValueError, match="config"):
+        check_manifest(tmp_path, empty, aliases=_manifest_aliases(None))
     # a different config is still refused
     with pytest.raises(ValueError, match="config"):
         other = cli.load_planner_config_from_dict({"w_mmd": 5.0})

@@ -33,6 +33,7 @@ CONFIG = {
     "n_brake": 5,
     "reduced_set_size": 5,
     "reduced_set": {"population": 20, "n_elite": 5, "iterations": 5},
+    "reselect": 0,  # one Algorithm 1 pass: one compiled program per process
 }
 SCENE_PARAMS = {"n_samples": 20, "n_validation": 50}
 SCENES = 6

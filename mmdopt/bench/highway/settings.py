@@ -29,6 +29,9 @@ HIGHWAY_PLANNER: dict[str, Any] = {
     "margin_lat": 0.4,
     "margin_long": 2.5,
     "margin_rate": 1.0,
+    # the time-linear margins above were chosen for this setting; not the sample-driven default
+    "margin_mode": "linear",
+    "reselect": 0,
 }
 
 

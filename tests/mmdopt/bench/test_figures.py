@@ -118,7 +118,9 @@ def test_every_png_the_cli_writes_is_readable(tmp_path, saved, capsys, monkeypat
     small = tmp_path / "small.json"
     small.write_text(json.dumps({"n_validation": 100}))
     tiny = tmp_path / "tiny.json"  # the figures are checked, not the planner: small sizes
-    tiny.write_text(json.dumps({"n_samples": 60, "n_cem": 20, "n_elite": 8, "iterations": 3}))
+    tiny.write_text(
+        json.dumps({"n_samples": 60, "n_cem": 20, "n_elite": 8, "iterations": 3, "reselect": 0})
+    )
     sweep = ["--scenes", "1", "--jobs", "1", "--no-progress", "--scene-params", str(small)]
     sweep += ["--config", str(tiny)]
     runs = [
