@@ -115,6 +115,8 @@ INFEASIBLE_COST = 1.0e12
 YAW_SPEED_FLOOR = 0.05
 #: SAA's chance level in the "linear" margin mode when ``MMDOptConfig.saa_eps`` is ``None``
 SAA_EPS_LINEAR = 0.02
+#: weight of the coverage term of the MMD cost in the "samples" margin mode (the default)
+W_COVER = 100.0
 
 
 def _static(default):
@@ -293,7 +295,7 @@ class MMDOptConfig:
     saa_eps: float | None = None
     saa_temperature: float = 0.05
     risk_eps: float = 0.005
-    w_cover: float = 100.0
+    w_cover: float = W_COVER
     coverage_prior: float = 2.0
     coverage_bandwidth: float = 0.0
     headway_time: float = 0.0

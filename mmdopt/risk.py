@@ -47,7 +47,7 @@ from statistics import NormalDist
 
 import numpy as np
 
-from .algorithm import MMDOptConfig
+from .algorithm import W_COVER, MMDOptConfig
 from .baselines import METHODS, SELECTION
 
 __all__ = ["DEFAULT_RISK", "config_for_risk", "coverage_margins", "risk_z", "check_risk"]
@@ -61,8 +61,6 @@ DEFAULT_RISK: dict[str, float] = {
     "scenario_all": 0.005,
     "saa": 0.005,
 }
-#: weight of the coverage term of the MMD cost in the "samples" margin mode (``w_cover``)
-W_COVER = 100.0
 
 
 def check_risk(risk: float, name: str = "risk") -> float:
@@ -102,9 +100,9 @@ def config_for_risk(
     if method in ("mmd", "random"):
         kw["w_cover"] = W_COVER
     if method == "mmd":
-        kw["reselect"] = max(1, cfg.reduced_set_size // 2)
+        kw["reselect"] = -1  # automatic: MMDOptConfig.reselect_for, m/2 in this mode
     if method == "saa":
-        kw["saa_eps"] = eps
+        kw["saa_eps"] = None  # the chance level follows risk_eps (MMDOptConfig.saa_level)
     return cfg.replace(**kw)
 
 
@@ -122,50 +120,15 @@ def _margins_from_moments(c, mu_e, mu_u, v_e, v_u, z, prior, h_e=0.0):
     return np.stack([behind, ahead, lat])
 
 
-def _moment_margins(flat, idx, c, s1, s2, z, prior, h_e):
-    """Margins from the members' count c (J, 1), sum s1 and sum of squares s2 (J, 2K) of the
-    flattened positions ``flat`` (n, 2K: s and d interleaved) of each point's cluster."""
-    mean = s1 / c
+def _cluster_margins(flat, idx, M, z, prior, h_e=0.0):
+    """Margins (3, J, K) of the clusters given by the (J, n) membership matrix ``M`` over the
+    centred positions ``flat`` (n, 2K: s and d interleaved) of the samples; ``idx`` (J,) the
+    points.  The members' count, sum and sum of squares are two products with ``M``."""
+    c = np.maximum(M.sum(1), 1.0)[:, None]
+    mean = (M @ flat) / c
     mu = mean - flat[idx]  # mean deviation from the anchor
-    v = np.maximum(s2 / c - mean * mean, 0.0)  # variance is shift-invariant
+    v = np.maximum((M @ (flat * flat)) / c - mean * mean, 0.0)  # variance is shift-invariant
     return _margins_from_moments(c, mu[:, 0::2], mu[:, 1::2], v[:, 0::2], v[:, 1::2], z, prior, h_e)
-
-
-def _centred(Xo):
-    """(n, 2K) positions (s and d interleaved) minus their mean over the samples: the sums of
-    squares below then stay well conditioned far from the origin."""
-    flat = Xo.reshape(Xo.shape[0], -1)
-    return flat - flat.mean(axis=0)
-
-
-def _knn_margins(Xo, idx, nb, z, prior, h_e=0.0):
-    """Margins of k-nearest-neighbour clusters ``nb`` (J, k): the members' sums as two products
-    with the (J, n) membership matrix (no (J, k, K, 2) gather of deviations)."""
-    flat = _centred(Xo)
-    M = np.zeros((idx.shape[0], flat.shape[0]))
-    np.put_along_axis(M, nb, 1.0, axis=1)
-    c = np.full((idx.shape[0], 1), float(nb.shape[1]))
-    return _moment_margins(flat, idx, c, M @ flat, M @ (flat * flat), z, prior, h_e)
-
-
-def _voronoi_margins(Xo, idx, owner, z, prior, h_e=0.0):
-    """Margins of the nearest-point clusters from per-cluster sums: O(n·K), not O(J·n·K).
-
-    ``Xo`` (n, K, 2) samples, ``idx`` (J,) the points, ``owner`` (n,) each sample's nearest
-    point; every point also belongs to its own cluster (duplicated indices)."""
-    J = idx.shape[0]
-    flat = _centred(Xo)
-    s1 = np.zeros((J, flat.shape[1]))
-    s2 = np.zeros((J, flat.shape[1]))
-    np.add.at(s1, owner, flat)
-    np.add.at(s2, owner, flat * flat)
-    c = np.bincount(owner, minlength=J).astype(np.float64)
-    extra = np.flatnonzero(owner[idx] != np.arange(J))  # a point owned by a duplicate of it
-    if extra.size:
-        np.add.at(s1, extra, flat[idx[extra]])
-        np.add.at(s2, extra, flat[idx[extra]] ** 2)
-        np.add.at(c, extra, 1.0)
-    return _moment_margins(flat, idx, np.maximum(c, 1.0)[:, None], s1, s2, z, prior, h_e)
 
 
 def coverage_margins(
@@ -213,24 +176,31 @@ def coverage_margins(
     if not (math.isfinite(bandwidth) and bandwidth >= 0):
         raise ValueError(f"bandwidth must be finite and >= 0, got {bandwidth}")
     scale = np.array([1.0, float(lateral_scale)])
-    out = np.empty((3, O, idx.shape[1], K))
+    J = idx.shape[1]
+    out = np.empty((3, O, J, K))
     for o in range(O):  # O is a handful of obstacles; everything inside is vectorised
-        F = (X[o] * scale).reshape(n, -1)
-        F = F - F.mean(axis=0)  # centred: the expanded distances below keep their precision
+        # centred (n, 2K) positions: the expanded distances and sums of squares keep their
+        # precision far from the origin
+        flat = X[o].reshape(n, -1)
+        flat = flat - flat.mean(axis=0)
+        F = flat * np.tile(scale, K)
         A = F[idx[o]]
         sq = (A * A).sum(1)[:, None] + (F * F).sum(1)[None, :] - 2.0 * A @ F.T  # (J, n)
         h_e = 0.0
         if bandwidth > 0:  # kernel-density smoothing of the tail (Silverman's rule, per step)
             h_e = bandwidth * 1.06 * X[o][:, :, 0].std(axis=0) * n**-0.2  # (K,)
+        M = np.zeros((J, n))  # cluster membership
         if knn == 0:
-            # nearest point of every sample; a repeated point's samples go to its first copy
+            # nearest point of every sample (a repeated point's samples go to its first copy),
+            # and every point belongs to its own cluster
             _, first = np.unique(idx[o], return_index=True)
-            owner = first[np.argmin(sq[first], axis=0)]  # (n,)
-            out[:, o] = _voronoi_margins(X[o], idx[o], owner, z, prior, h_e)
+            M[first[np.argmin(sq[first], axis=0)], np.arange(n)] = 1.0
+            M[np.arange(J), idx[o]] = 1.0
         else:
             k = min(int(knn), n)
             nb = np.argpartition(sq, k - 1, axis=1)[:, :k]  # (J, k) incl. the point itself
-            out[:, o] = _knn_margins(X[o], idx[o], nb, z, prior, h_e)
+            np.put_along_axis(M, nb, 1.0, axis=1)
+        out[:, o] = _cluster_margins(flat, idx[o], M, z, prior, h_e)
     return out
 
 
