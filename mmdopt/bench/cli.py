@@ -35,6 +35,7 @@ __all__ = ["main", "build_parser"]
 from mmdopt.algorithm import PLANNER_BACKEND
 from mmdopt.baselines import METHODS as PLAN_METHODS
 
+from ._optional import MissingExtra, install_hint, missing_for
 from .argtypes import (
     add_executor,
     existing_file,
@@ -744,6 +745,27 @@ def _cmd_ngsim(args) -> int:
     return cmd_ngsim(args)
 
 
+def _needs(args) -> list[str]:
+    """The optional modules (:mod:`._optional`) that the parsed command imports: matplotlib for
+    its figures, tqdm for its progress bar (none with ``--no-progress``)."""
+    what = args.experiment if args.command == "bench" else args.command
+    figures = what in ("demo", "synthetic", "frontier", "reduced-set", "timing", "figure")
+    bar = what in ("synthetic", "frontier", "reduced-set", "timing", "highway", "ngsim")
+    bar = bar and not getattr(args, "no_progress", False)
+    return [m for m, need in (("matplotlib", figures), ("tqdm", bar)) if need]
+
+
+def _missing_extra(args) -> str | None:
+    """One line naming the missing optional module and its extra, else ``None``."""
+    missing = missing_for(_needs(args))
+    if not missing:
+        return None
+    words = [args.command] + ([args.experiment] if args.command == "bench" else [])
+    what = "mmdopt " + " ".join(words)
+    hints = sorted({install_hint(m) for m in missing})
+    return f"{what} needs {' and '.join(missing)} (not installed): {'; '.join(hints)}"
+
+
 def main(argv: Sequence[str] | None = None) -> int:
     """Entry point of the ``mmdopt`` console script; returns the exit status.
 
@@ -775,10 +797,17 @@ def main(argv: Sequence[str] | None = None) -> int:
             "highway": lambda a, _: a.func(a),
             "ngsim": lambda a, _: _cmd_ngsim(a),
         }[args.experiment]
+    msg = _missing_extra(args)
+    if msg:
+        print(msg, file=sys.stderr)
+        return 2
     try:
         with stop_on_signals():
             _check_out(args, parser)
             return cmd(args, parser)
+    except MissingExtra as e:
+        print(f"mmdopt: {e}", file=sys.stderr)
+        return 2
     except Interrupted as e:
         where = getattr(args, "out", None)
         kept = f"; finished results are kept in {where} (run the same command to resume)"

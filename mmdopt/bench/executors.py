@@ -26,6 +26,7 @@ from collections.abc import Callable, Sequence
 from pathlib import Path
 from typing import Any
 
+from ._optional import progress_bar
 from .results import write_json
 
 __all__ = [
@@ -188,14 +189,12 @@ def run_tasks(
     :func:`stop_on_signals`, a task's error) cancels the queued tasks and terminates every
     worker before it propagates.  Raises ``ValueError`` for an unknown executor or ``jobs < 1``.
     """
-    from tqdm.auto import tqdm
-
     if executor not in EXECUTORS:
         raise ValueError(f"executor must be one of {EXECUTORS}, got {executor!r}")
     if isinstance(jobs, bool) or not isinstance(jobs, int) or jobs < 1:
         raise ValueError(f"jobs must be an integer >= 1, got {jobs!r}")
     tasks = list(tasks)
-    bar = tqdm(total=len(tasks), desc=desc, unit=unit, disable=not progress or not tasks)
+    bar = progress_bar(total=len(tasks), desc=desc, unit=unit, progress=progress and bool(tasks))
     if first_note and not bar.disable:
         bar.set_postfix_str(first_note)
     try:

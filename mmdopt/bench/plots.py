@@ -11,6 +11,8 @@ from typing import Any
 
 import numpy as np
 
+from ._optional import require
+
 __all__ = [
     "METHOD_LABELS",
     "METHOD_COLOURS",
@@ -40,7 +42,7 @@ METHOD_COLOURS = {
 
 
 def _plt():
-    import matplotlib
+    matplotlib = require("matplotlib", "plotting")
 
     if matplotlib.get_backend().lower() not in ("agg", "pdf", "svg", "cairo"):
         try:
@@ -84,10 +86,10 @@ def collision_box_violin(
     """Paper Fig. 5: box and violin plots of collision-free validation samples per method,
     with a third panel for progress (m) so a method cannot win by standing still.  One point per
     scene; every mark is explained in the panels' legends."""
+    plt = _plt()
     from matplotlib.lines import Line2D
     from matplotlib.patches import Patch
 
-    plt = _plt()
     methods = list(methods or dict.fromkeys(r["method"] for r in rows))
     data = [
         np.array([r["collision_free"] for r in rows if r["method"] == m], float) for m in methods

@@ -146,10 +146,9 @@ def load_results(path: str | Path, table: str | None = None) -> Any:
     ImportError
         if pandas is not installed.
     """
-    try:
-        import pandas as pd
-    except ImportError:  # pragma: no cover - pandas is in the [pandas] and [all] extras
-        raise ImportError('load_results needs pandas: pip install "mmdopt[pandas]"') from None
+    from ._optional import require
+
+    pd = require("pandas", "load_results")
     if table is not None and table not in RESULT_TABLES:
         raise ValueError(f"table must be one of {RESULT_TABLES}, got {table!r}")
     p = Path(path)

@@ -15,6 +15,7 @@ from mmdopt.algorithm import PLANNER_BACKEND
 from mmdopt.reduced_set import ReducedSetConfig, select_reduced_set
 
 from . import plots
+from ._optional import progress_bar
 from .results import write_results
 from .scenes import Scene, demo_scene, make_scene
 from .synthetic import scene_config
@@ -77,8 +78,6 @@ def run_timing(
     default planner's sample-driven margins and re-selection pass add to ``plan_s``
     (``benchmarks/plan_stages.py``).
     """
-    from tqdm.auto import tqdm
-
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
     base = demo_scene()
@@ -98,7 +97,7 @@ def run_timing(
     cfg0 = scene_config(base, _paper_algorithm() if config is None else config)
     rows = []
     scenes: dict[int, Scene] = {}
-    for m, n in tqdm(pairs, desc="timing", disable=not progress):
+    for m, n in progress_bar(pairs, desc="timing", progress=progress):
         if n not in scenes:
             scenes[n] = make_scene(base.index, base.seed, base.params.replace(n_samples=n))
         sc = scenes[n]
@@ -199,12 +198,10 @@ def run_obstacle_timing(
     """Median time of reduced-set selection, Algorithm 1 and the whole ``plan()`` call against
     1, 5, 10, 20 obstacles (:func:`traffic_scene`); writes ``out/timing_obstacles.csv``.
     ``config`` default: the paper's Algorithm 1, as in :func:`run_timing`."""
-    from tqdm.auto import tqdm
-
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
     rows = []
-    for O in tqdm([int(c) for c in counts], desc="obstacles", disable=not progress):
+    for O in progress_bar([int(c) for c in counts], desc="obstacles", progress=progress):
         sc, obs, inter = traffic_scene(O)
         cfg = scene_config(sc, _paper_algorithm() if config is None else config)
         rs_t, cem_t, plan_t = [], [], []
