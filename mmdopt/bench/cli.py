@@ -33,7 +33,7 @@ from pathlib import Path
 __all__ = ["main", "build_parser"]
 
 from mmdopt.algorithm import PLANNER_BACKEND
-from mmdopt.baselines import METHODS as PLAN_METHODS
+from mmdopt.baselines import PLAN_METHODS
 
 from ._optional import MissingExtra, install_hint, missing_for
 from .argtypes import (
@@ -89,95 +89,91 @@ def version() -> str:
         return mmdopt.__version__
 
 
-def build_parser() -> argparse.ArgumentParser:
-    p = argparse.ArgumentParser(
-        prog="mmdopt",
-        description="MMD-Opt: planning under multi-modal obstacle predictions - demo and "
-        "the paper's experiments.",
-    )
-    p.add_argument("--version", action="version", version=f"%(prog)s {version()}")
-    sub = p.add_subparsers(dest="command", required=True, metavar="{demo,bench,predictor}")
+def _add_backend(q: argparse.ArgumentParser, help: str | None = "projection QP backend") -> None:
+    q.add_argument("--backend", type=_backend, default=PLANNER_BACKEND, help=help)
 
+
+def _add_methods(q: argparse.ArgumentParser, choices, default: list[str], help: str | None) -> None:
+    q.add_argument("--methods", type=method_list(choices), default=default, help=help)
+
+
+def _add_no_progress(q: argparse.ArgumentParser) -> None:
+    q.add_argument("--no-progress", action="store_true", help="no progress bar")
+
+
+def _add_sweep_options(q: argparse.ArgumentParser, scenes_default: int | None) -> None:
+    """The options every scene sweep shares: scenes, seed, preset, scene parameters, backend,
+    planner config, jobs, progress and executor; then its resumable ``--out``."""
+    q.add_argument(
+        "--scenes",
+        type=positive_int,
+        default=scenes_default,
+        help="number of scenes (default: the preset's)",
+    )
+    q.add_argument("--seed", type=nonneg_int, default=0, help="sweep seed (default 0)")
+    q.add_argument(
+        "--preset",
+        choices=_presets(),
+        default="paper100",
+        help="scene preset (default paper100)",
+    )
+    q.add_argument(
+        "--scene-params",
+        type=existing_file,
+        default=None,
+        metavar="FILE.json",
+        help="JSON object overriding scene-generator parameters (see README)",
+    )
+    _add_backend(q)
+    q.add_argument(
+        "--config",
+        type=existing_file,
+        default=None,
+        metavar="FILE.json",
+        help="JSON object overriding MMDOptConfig fields, e.g. "
+        '{"baseline_margin_scale": 1.0} (see README)',
+    )
+    q.add_argument(
+        "--jobs",
+        type=positive_int,
+        default=os.cpu_count() or 1,
+        help="parallel worker processes (default: number of cores)",
+    )
+    _add_no_progress(q)
+    add_executor(q)
+    q.add_argument("--out", required=True, help="output folder (resumable)")
+
+
+def _add_demo_parser(sub) -> None:
     d = sub.add_parser(
         "demo", help="plan one built-in multi-modal scene; print a table, write a PNG"
     )
     d.add_argument("--out", default="out/demo", help="output folder (default: out/demo)")
-    d.add_argument(
-        "--methods",
-        type=method_list(PLAN_METHODS),
-        default=["mmd", "degroot"],
-        help="comma-separated planning methods (default: mmd,degroot)",
+    _add_methods(
+        d,
+        PLAN_METHODS,
+        ["mmd", "degroot"],
+        "comma-separated planning methods (default: mmd,degroot)",
     )
-    d.add_argument(
-        "--backend", type=_backend, default=PLANNER_BACKEND, help="projection QP backend"
-    )
+    _add_backend(d)
 
-    b = sub.add_parser("bench", help="the paper's experiments")
-    bs = b.add_subparsers(
-        dest="experiment",
-        required=True,
-        metavar="{synthetic,frontier,reduced-set,timing,figure,qp-backends,highway,ngsim}",
-    )
 
-    def common(q, scenes_default):
-        q.add_argument(
-            "--scenes",
-            type=positive_int,
-            default=scenes_default,
-            help="number of scenes (default: the preset's)",
-        )
-        q.add_argument("--seed", type=nonneg_int, default=0, help="sweep seed (default 0)")
-        q.add_argument(
-            "--preset",
-            choices=_presets(),
-            default="paper100",
-            help="scene preset (default paper100)",
-        )
-        q.add_argument(
-            "--scene-params",
-            type=existing_file,
-            default=None,
-            metavar="FILE.json",
-            help="JSON object overriding scene-generator parameters (see README)",
-        )
-        q.add_argument(
-            "--backend", type=_backend, default=PLANNER_BACKEND, help="projection QP backend"
-        )
-        q.add_argument(
-            "--config",
-            type=existing_file,
-            default=None,
-            metavar="FILE.json",
-            help="JSON object overriding MMDOptConfig fields, e.g. "
-            '{"baseline_margin_scale": 1.0} (see README)',
-        )
-        q.add_argument(
-            "--jobs",
-            type=positive_int,
-            default=os.cpu_count() or 1,
-            help="parallel worker processes (default: number of cores)",
-        )
-        q.add_argument("--no-progress", action="store_true", help="no progress bar")
-        add_executor(q)
-
+def _add_synthetic_parser(bs) -> None:
     s = bs.add_parser("synthetic", help="MMD-Opt vs baselines on synthetic scenes (paper Fig. 5)")
-    common(s, None)
-    s.add_argument("--out", required=True, help="output folder (resumable)")
-    s.add_argument(
-        "--methods",
-        type=method_list(PLAN_METHODS),
-        default=["mmd", "degroot", "random", "saa"],
-        help="comma-separated methods (default: mmd,degroot,random,saa)",
+    _add_sweep_options(s, None)
+    _add_methods(
+        s,
+        PLAN_METHODS,
+        ["mmd", "degroot", "random", "saa"],
+        "comma-separated methods (default: mmd,degroot,random,saa)",
     )
 
+
+def _add_frontier_parser(bs) -> None:
     fr = bs.add_parser("frontier", help="safety-progress frontier: each method's risk knob swept")
-    common(fr, None)
-    fr.add_argument("--out", required=True, help="output folder (resumable)")
-    fr.add_argument(
-        "--methods",
-        type=method_list(PLAN_METHODS),
-        default=list(PLAN_METHODS),
-        help="comma-separated methods (default: all five)",
+    _add_sweep_options(fr, None)
+    _add_methods(
+        fr, PLAN_METHODS, list(PLAN_METHODS), "comma-separated methods (default: all five)"
     )
     fr.add_argument(
         "--knobs",
@@ -186,24 +182,27 @@ def build_parser() -> argparse.ArgumentParser:
         "'mmd=0.001,0.005,0.02;saa=0.005,0.02' (default: mmdopt.bench.frontier.DEFAULT_KNOBS)",
     )
 
+
+def _add_reduced_set_parser(bs) -> None:
     r = bs.add_parser(
         "reduced-set", help="reduced-set selection vs random reduced sets and alternatives (Fig. 4)"
     )
-    common(r, 20)
-    r.add_argument("--out", required=True, help="output folder (resumable)")
+    _add_sweep_options(r, 20)
     r.add_argument(
         "--random-sets",
         type=positive_int,
         default=20,
         help="random reduced sets per scene: the near-exhaustive search (default 20)",
     )
-    r.add_argument(
-        "--methods",
-        type=method_list(REDUCED_SET_METHODS),
-        default=list(REDUCED_SET_METHODS),
-        help="reduced-set selection methods (default: mmd,herding,degroot,random)",
+    _add_methods(
+        r,
+        REDUCED_SET_METHODS,
+        list(REDUCED_SET_METHODS),
+        "reduced-set selection methods (default: mmd,herding,degroot,random)",
     )
 
+
+def _add_timing_parser(bs) -> None:
     t = bs.add_parser("timing", help="computation time vs reduced-set size and samples (Table II)")
     t.add_argument("--out", required=True, help="output folder")
     t.add_argument(
@@ -224,9 +223,7 @@ def build_parser() -> argparse.ArgumentParser:
         default=5,
         help="timed calls per setting; the median is reported (default 5)",
     )
-    t.add_argument(
-        "--backend", type=_backend, default=PLANNER_BACKEND, help="projection QP backend"
-    )
+    _add_backend(t)
     t.add_argument(
         "--obstacles",
         type=int_list,
@@ -234,8 +231,10 @@ def build_parser() -> argparse.ArgumentParser:
         help="also time plan() against these numbers of obstacles, e.g. 1,5,10,20 "
         "(timing_obstacles.csv)",
     )
-    t.add_argument("--no-progress", action="store_true", help="no progress bar")
+    _add_no_progress(t)
 
+
+def _add_figure_parser(bs) -> None:
     f = bs.add_parser("figure", help="qualitative scene figure (paper Fig. 3)")
     f.add_argument(
         "--scene",
@@ -246,22 +245,48 @@ def build_parser() -> argparse.ArgumentParser:
     f.add_argument("--seed", type=nonneg_int, default=0)
     f.add_argument("--preset", choices=_presets(), default="reference36")
     f.add_argument("--scene-params", type=existing_file, default=None, metavar="FILE.json")
-    f.add_argument("--methods", type=method_list(PLAN_METHODS), default=["degroot", "mmd"])
-    f.add_argument("--backend", type=_backend, default=PLANNER_BACKEND)
+    _add_methods(f, PLAN_METHODS, ["degroot", "mmd"], None)
+    _add_backend(f, None)
     f.add_argument("--out", required=True, help="output folder")
 
+
+def _add_qp_backends_parser(bs) -> None:
     q = bs.add_parser(
         "qp-backends", help="QP backend comparison (benchmarks/qp_backends.py)", add_help=False
     )
     q.add_argument("args", nargs=argparse.REMAINDER, help="arguments passed to the benchmark")
 
+
+def build_parser() -> argparse.ArgumentParser:
+    """The ``mmdopt`` argument parser: ``demo``, ``bench <experiment>`` and ``predictor``."""
     from .highway.cli import add_highway_parser
-
-    add_highway_parser(bs)
-
     from .ngsim.cli import add_ngsim_parser, add_train_parser
 
-    add_ngsim_parser(bs)
+    p = argparse.ArgumentParser(
+        prog="mmdopt",
+        description="MMD-Opt: planning under multi-modal obstacle predictions - demo and "
+        "the paper's experiments.",
+    )
+    p.add_argument("--version", action="version", version=f"%(prog)s {version()}")
+    sub = p.add_subparsers(dest="command", required=True, metavar="{demo,bench,predictor}")
+    _add_demo_parser(sub)
+    b = sub.add_parser("bench", help="the paper's experiments")
+    bs = b.add_subparsers(
+        dest="experiment",
+        required=True,
+        metavar="{synthetic,frontier,reduced-set,timing,figure,qp-backends,highway,ngsim}",
+    )
+    for add in (
+        _add_synthetic_parser,
+        _add_frontier_parser,
+        _add_reduced_set_parser,
+        _add_timing_parser,
+        _add_figure_parser,
+        _add_qp_backends_parser,
+        add_highway_parser,
+        add_ngsim_parser,
+    ):
+        add(bs)
     add_train_parser(sub)
     return p
 
