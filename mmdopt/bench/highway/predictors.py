@@ -184,33 +184,44 @@ class SimulatorPredictor:
         return traj
 
     def _vectorised(self, road, near, idx, ego_vehicle, steps, dt, n, rng):
+        params = self._params(near, idx, steps * dt, n, rng)
+        sim = _VectorisedTraffic(road, near, ego_vehicle, params, n)
+        traj = np.zeros((n, len(idx), steps + 1, 2))
+        traj[:, :, 0, 0], traj[:, :, 0, 1] = sim.x[:, idx], sim.y[:, idx]
+        t = 0.0
+        for k in range(steps):
+            t = sim.step(t, dt)
+            traj[:, :, k + 1, 0], traj[:, :, k + 1, 1] = sim.x[:, idx], sim.y[:, idx]
+        return traj
+
+
+class _VectorisedTraffic:
+    """``n`` rollouts of the ``N`` nearby cars stepped at once, as ``(n, N)`` arrays, on a road of
+    straight lanes along +x: the NumPy replica of highway-env's ``IDMVehicle`` described in
+    :class:`SimulatorPredictor` (``params`` from :meth:`SimulatorPredictor._params`)."""
+
+    def __init__(self, road, near, ego_vehicle, params, n: int) -> None:
         from highway_env.vehicle.behavior import IDMVehicle
 
         lanes = road.network.all_side_lanes(ego_vehicle.lane_index)
         yc = np.array([float(road.network.get_lane(li).position(0.0, 0.0)[1]) for li in lanes])
-        order = np.argsort(yc)
-        yc = yc[order]
-        L = len(yc)
-        half_w = 0.5 * float(road.network.get_lane(lanes[0]).width)
+        self.yc = yc[np.argsort(yc)]  # lane centres (m), bottom to top
+        self.L = len(self.yc)
+        self.half_w = 0.5 * float(road.network.get_lane(lanes[0]).width)
         speed_limit = road.network.get_lane(lanes[0]).speed_limit
-
-        def lane_no(y):
-            return np.argmin(np.abs(np.asarray(y)[..., None] - yc), axis=-1)
-
-        idm, p, lc_time, lc_side = self._params(near, idx, steps * dt, n, rng)
+        self.idm, p, self.lc_time, lc_side = params
         N = len(near)
         pos = np.array([v.position for v in near], float)
-        lane0 = lane_no(pos[:, 1])[None, :]
+        lane0 = self.lane_no(pos[:, 1])[None, :]
         lc_lane = lane0 + lc_side
-        lc_lane = np.where((lc_lane < 0) | (lc_lane >= L), lane0 - lc_side, lc_lane)
-        lc_lane = np.where((lc_side == 0) | (lc_lane < 0) | (lc_lane >= L), -1, lc_lane)
-        x = np.broadcast_to(pos[:, 0], (n, N)).copy()
-        y = np.broadcast_to(pos[:, 1], (n, N)).copy()
+        lc_lane = np.where((lc_lane < 0) | (lc_lane >= self.L), lane0 - lc_side, lc_lane)
+        self.lc_lane = np.where((lc_side == 0) | (lc_lane < 0) | (lc_lane >= self.L), -1, lc_lane)
+        self.x = np.broadcast_to(pos[:, 0], (n, N)).copy()
+        self.y = np.broadcast_to(pos[:, 1], (n, N)).copy()
         spd = np.array([float(v.speed) for v in near])
         hd = np.array([float(v.heading) for v in near])
-        v = np.broadcast_to(spd, (n, N)).copy()
-        vy0 = spd * np.sin(hd)
-        tgt = np.empty((n, N), np.int64)
+        self.v = np.broadcast_to(spd, (n, N)).copy()
+        self.tgt = np.empty((n, N), np.int64)
         for i, car in enumerate(near):
             ti = getattr(car, "target_lane_index", None)
             yt = (
@@ -218,173 +229,139 @@ class SimulatorPredictor:
                 if ti is not None and isinstance(car, IDMVehicle)
                 else car.position[1]
             )
-            tgt[:, i] = int(lane_no(yt))
+            self.tgt[:, i] = int(self.lane_no(yt))
         v0 = p["target_speed"]
-        if speed_limit is not None:
-            v0 = np.clip(v0, 0.0, speed_limit)
-        T, amax, bmin = p["TIME_WANTED"], p["COMFORT_ACC_MAX"], p["COMFORT_ACC_MIN"]
-        delta, pol, gain, timer = (
-            p["DELTA"],
-            p["POLITENESS"],
-            p["LANE_CHANGE_MIN_ACC_GAIN"],
-            p["timer"],
+        self.v0 = np.clip(v0, 0.0, speed_limit) if speed_limit is not None else v0
+        self.T, self.amax, self.bmin = p["TIME_WANTED"], p["COMFORT_ACC_MAX"], p["COMFORT_ACC_MIN"]
+        self.delta, self.pol = p["DELTA"], p["POLITENESS"]
+        self.gain, self.timer = p["LANE_CHANGE_MIN_ACC_GAIN"], p["timer"]
+        self.d0 = IDMVehicle.DISTANCE_WANTED
+        self.acc_max, self.delay = IDMVehicle.ACC_MAX, IDMVehicle.LANE_CHANGE_DELAY
+        self.brake_imposed = IDMVehicle.LANE_CHANGE_MAX_BRAKING_IMPOSED
+        self.length, self.width = IDMVehicle.LENGTH, IDMVehicle.WIDTH
+        self.ego_i = next((i for i, c in enumerate(near) if c is ego_vehicle), None)
+        self.ego_fn = _ego_motion(ego_vehicle) if self.ego_i is not None else None
+        self.passive = ~self.idm  # constant velocity (the ego is overwritten along its plan)
+        self.vx_passive, self.vy0 = spd * np.cos(hd), spd * np.sin(hd)
+        self.rows = np.arange(n)[:, None]
+        self.eye = np.eye(N, dtype=bool)[None]
+        self.crashed = np.broadcast_to(np.array([bool(c.crashed) for c in near]), (n, N)).copy()
+
+    def lane_no(self, y):
+        """Index of the lane whose centre is nearest to ``y``."""
+        return np.argmin(np.abs(np.asarray(y)[..., None] - self.yc), axis=-1)
+
+    def idm_acc(self, vi, v0i, gap, vf, has):
+        """``IDMVehicle.acceleration``: free-road term minus the interaction term (centre gap),
+        with the deciding car's parameters (highway-env's MOBIL convention)."""
+        ai, bi, di, Ti = self.amax, self.bmin, self.delta, self.T
+        free = ai * (1.0 - np.power(np.maximum(vi, 0.0) / np.maximum(np.abs(v0i), 1e-6), di))
+        ab = -ai * bi
+        dstar = self.d0 + vi * Ti + vi * (vi - vf) / (2.0 * np.sqrt(ab))
+        inter = ai * (dstar / np.where(np.abs(gap) > 1e-6, gap, 1e-6)) ** 2
+        return free - np.where(has, inter, 0.0)
+
+    def neighbours(self, lane_idx):
+        """Front / rear car of every car i in lane ``lane_idx[:, i]`` (``on_lane`` with its 1 m
+        margin): indices and whether there is one, each (n, N)."""
+        x, y = self.x, self.y
+        on = np.abs(y[:, None, :] - self.yc[lane_idx][:, :, None]) <= self.half_w + 1.0
+        on &= ~self.eye  # (n, i, j)
+        dx = x[:, None, :] - x[:, :, None]  # x_j - x_i
+        fr = np.where(on & (dx >= 0), dx, np.inf)
+        re = np.where(on & (dx < 0), -dx, np.inf)
+        jf, jr = np.argmin(fr, axis=2), np.argmin(re, axis=2)
+        hf = np.isfinite(np.take_along_axis(fr, jf[..., None], 2)[..., 0])
+        hr = np.isfinite(np.take_along_axis(re, jr[..., None], 2)[..., 0])
+        return jf, hf, jr, hr
+
+    def _behind(self, who, front, has_front):
+        """IDM acceleration of car ``who`` behind car ``front`` (index arrays (n, N))."""
+        x, v, rows = self.x, self.v, self.rows
+        vf, gap = v[rows, front], x[rows, front] - x[rows, who]
+        return self.idm_acc(v[rows, who], self.v0[rows, who], gap, vf, has_front)
+
+    def _mobil(self, lane, decide, jf, hf, jr, hr) -> None:
+        """MOBIL lane-change decisions of the cars in ``decide``: a side lane becomes the target
+        where the new follower brakes less than ``LANE_CHANGE_MAX_BRAKING_IMPOSED`` and the
+        politeness-weighted acceleration gain exceeds ``LANE_CHANGE_MIN_ACC_GAIN``."""
+        x, v, v0, rows = self.x, self.v, self.v0, self.rows
+        self_a = self.idm_acc(v, v0, x[rows, jf] - x, v[rows, jf], hf)
+        # old follower: behind me (jr) now, and with my front as its front
+        old_fol_a = np.where(
+            hr, self.idm_acc(v[rows, jr], v0[rows, jr], x - x[rows, jr], v, True), 0.0
         )
-        d0 = IDMVehicle.DISTANCE_WANTED
-        acc_max, delay = IDMVehicle.ACC_MAX, IDMVehicle.LANE_CHANGE_DELAY
-        brake_imposed = IDMVehicle.LANE_CHANGE_MAX_BRAKING_IMPOSED
-        ego_i = next((i for i, c in enumerate(near) if c is ego_vehicle), None)
-        ego_fn = _ego_motion(ego_vehicle) if ego_i is not None else None
-        passive = ~idm  # constant velocity (the ego is overwritten along its plan)
-        vx_passive = spd * np.cos(hd)
-        O = len(idx)
-        traj = np.zeros((n, O, steps + 1, 2))
-        traj[:, :, 0, 0], traj[:, :, 0, 1] = x[:, idx], y[:, idx]
-        rows = np.arange(n)[:, None]
-        eye = np.eye(N, dtype=bool)[None]
-        crashed = np.broadcast_to(np.array([bool(c.crashed) for c in near]), (n, N)).copy()
-        length, width = IDMVehicle.LENGTH, IDMVehicle.WIDTH
-
-        def idm_acc(vi, v0i, Ti, ai, bi, di, gap, vf, has):
-            # IDMVehicle.acceleration: free road term minus the interaction term (centre gap)
-            free = ai * (1.0 - np.power(np.maximum(vi, 0.0) / np.maximum(np.abs(v0i), 1e-6), di))
-            ab = -ai * bi
-            dstar = d0 + vi * Ti + vi * (vi - vf) / (2.0 * np.sqrt(ab))
-            inter = ai * (dstar / np.where(np.abs(gap) > 1e-6, gap, 1e-6)) ** 2
-            return free - np.where(has, inter, 0.0)
-
-        def neighbours(lane_idx):
-            # front / rear of every car i in lane lane_idx[:, i] (on_lane with a 1 m margin)
-            on = np.abs(y[:, None, :] - yc[lane_idx][:, :, None]) <= half_w + 1.0  # (n, i, j)
-            on &= ~eye
-            dx = x[:, None, :] - x[:, :, None]  # x_j - x_i
-            fr = np.where(on & (dx >= 0), dx, np.inf)
-            re = np.where(on & (dx < 0), -dx, np.inf)
-            jf, jr = np.argmin(fr, axis=2), np.argmin(re, axis=2)
-            hf = np.isfinite(np.take_along_axis(fr, jf[..., None], 2)[..., 0])
-            hr = np.isfinite(np.take_along_axis(re, jr[..., None], 2)[..., 0])
-            return jf, hf, jr, hr
-
-        def acc_of(who, front, has_front, exists, params_of):
-            # acceleration of car `who` (n, N indices) behind car `front`, with the parameters of
-            # the deciding car (params_of = identity index: highway-env's MOBIL convention)
-            vi = v[rows, who]
-            gap = x[rows, front] - x[rows, who]
-            vf = v[rows, front]
-            a = idm_acc(vi, v0[rows, who], T, amax, bmin, delta, gap, vf, has_front)
-            return np.where(exists, a, 0.0)
-
-        t = 0.0
-        for k in range(steps):
-            lane = lane_no(y)
-            # forced lane changes (the random modes)
-            fire = (t >= lc_time) & (lc_lane >= 0)
-            tgt = np.where(fire, lc_lane, tgt)
-            lc_time = np.where(fire, np.inf, lc_time)
-            # longitudinal: IDM in the current lane, min with the target lane while changing
-            jf, hf, jr, hr = neighbours(lane)
-            a = idm_acc(v, v0, T, amax, bmin, delta, x[rows, jf] - x, v[rows, jf], hf)
-            changing = lane != tgt
-            jft, hft, _, _ = neighbours(tgt)
-            a_t = idm_acc(v, v0, T, amax, bmin, delta, x[rows, jft] - x, v[rows, jft], hft)
-            a = np.where(changing, np.minimum(a, a_t), a)
-            a = np.clip(a, -acc_max, acc_max)
-            # lateral decision: MOBIL every LANE_CHANGE_DELAY seconds when not changing
-            decide = (~changing) & (timer > delay) & idm[None, :]
-            timer = np.where(decide, 0.0, timer)
-            if decide.any():
-                self_a = idm_acc(v, v0, T, amax, bmin, delta, x[rows, jf] - x, v[rows, jf], hf)
-                # old follower: behind me (jr) now, and with my front as its front
-                old_fol_a = np.where(
-                    hr,
-                    idm_acc(
-                        v[rows, jr], v0[rows, jr], T, amax, bmin, delta, x - x[rows, jr], v, True
-                    ),
-                    0.0,
-                )
-                old_fol_pred_a = np.where(
-                    hr,
-                    idm_acc(
-                        v[rows, jr],
-                        v0[rows, jr],
-                        T,
-                        amax,
-                        bmin,
-                        delta,
-                        x[rows, jf] - x[rows, jr],
-                        v[rows, jf],
-                        hf,
-                    ),
-                    0.0,
-                )
-                for side in (-1, 1):
-                    cand = lane + side
-                    valid = decide & (cand >= 0) & (cand < L) & (np.abs(v) >= 1.0)
-                    if not valid.any():
-                        continue
-                    cand_c = np.clip(cand, 0, L - 1)
-                    nf, hnf, nr, hnr = neighbours(cand_c)
-                    new_fol_a = np.where(
-                        hnr,
-                        idm_acc(
-                            v[rows, nr],
-                            v0[rows, nr],
-                            T,
-                            amax,
-                            bmin,
-                            delta,
-                            x[rows, nf] - x[rows, nr],
-                            v[rows, nf],
-                            hnf,
-                        ),
-                        0.0,
-                    )
-                    new_fol_pred_a = np.where(
-                        hnr,
-                        idm_acc(
-                            v[rows, nr],
-                            v0[rows, nr],
-                            T,
-                            amax,
-                            bmin,
-                            delta,
-                            x - x[rows, nr],
-                            v,
-                            True,
-                        ),
-                        0.0,
-                    )
-                    self_pred_a = idm_acc(
-                        v, v0, T, amax, bmin, delta, x[rows, nf] - x, v[rows, nf], hnf
-                    )
-                    jerk = (
-                        self_pred_a
-                        - self_a
-                        + pol * (new_fol_pred_a - new_fol_a + old_fol_pred_a - old_fol_a)
-                    )
-                    ok = valid & (new_fol_pred_a >= -brake_imposed) & (jerk >= gain)
-                    tgt = np.where(ok, cand_c, tgt)
-            # crashed cars brake to a stop (highway-env: acceleration −speed, no steering); a
-            # crash is an overlap of the 5 m × 2 m boxes (axis-aligned: lanes run along +x)
-            a = np.where(crashed, -v, a)
-            # lateral motion: first-order response to the target lane centre
-            vy = np.clip((yc[tgt] - y) / 0.55, -5.0, 5.0)
-            vy = np.where(crashed, 0.0, vy)
-            vy = np.where(passive[None, :], vy0[None, :], vy)
-            vx = np.where(passive[None, :], vx_passive[None, :], v)
-            x = x + vx * dt
-            y = y + vy * dt
-            v = np.where(passive[None, :], v, np.maximum(v + a * dt, 0.0))
-            timer = timer + dt
-            t += dt
-            if ego_fn is not None:
-                ex, ey, ev = ego_fn(t)
-                x[:, ego_i], y[:, ego_i], v[:, ego_i] = ex, ey, ev
-            hit = (np.abs(x[:, None, :] - x[:, :, None]) < length) & (
-                np.abs(y[:, None, :] - y[:, :, None]) < width
+        old_fol_pred_a = np.where(hr, self._behind(jr, jf, hf), 0.0)
+        for side in (-1, 1):
+            cand = lane + side
+            valid = decide & (cand >= 0) & (cand < self.L) & (np.abs(v) >= 1.0)
+            if not valid.any():
+                continue
+            cand_c = np.clip(cand, 0, self.L - 1)
+            nf, hnf, nr, hnr = self.neighbours(cand_c)
+            new_fol_a = np.where(hnr, self._behind(nr, nf, hnf), 0.0)
+            new_fol_pred_a = np.where(
+                hnr, self.idm_acc(v[rows, nr], v0[rows, nr], x - x[rows, nr], v, True), 0.0
             )
-            crashed |= np.any(hit & ~eye, axis=2)
-            traj[:, :, k + 1, 0], traj[:, :, k + 1, 1] = x[:, idx], y[:, idx]
-        return traj
+            self_pred_a = self.idm_acc(v, v0, x[rows, nf] - x, v[rows, nf], hnf)
+            jerk = (
+                self_pred_a
+                - self_a
+                + self.pol * (new_fol_pred_a - new_fol_a + old_fol_pred_a - old_fol_a)
+            )
+            ok = valid & (new_fol_pred_a >= -self.brake_imposed) & (jerk >= self.gain)
+            self.tgt = np.where(ok, cand_c, self.tgt)
+
+    def _accelerations(self, t: float):
+        """Longitudinal accelerations (n, N) at time ``t`` (s); updates the target lanes (the
+        forced changes that are due, then MOBIL) and the decision timers."""
+        x, v, rows = self.x, self.v, self.rows
+        lane = self.lane_no(self.y)
+        # forced lane changes (the random modes)
+        fire = (t >= self.lc_time) & (self.lc_lane >= 0)
+        self.tgt = np.where(fire, self.lc_lane, self.tgt)
+        self.lc_time = np.where(fire, np.inf, self.lc_time)
+        # longitudinal: IDM in the current lane, min with the target lane while changing
+        jf, hf, jr, hr = self.neighbours(lane)
+        a = self.idm_acc(v, self.v0, x[rows, jf] - x, v[rows, jf], hf)
+        changing = lane != self.tgt
+        jft, hft, _, _ = self.neighbours(self.tgt)
+        a_t = self.idm_acc(v, self.v0, x[rows, jft] - x, v[rows, jft], hft)
+        a = np.where(changing, np.minimum(a, a_t), a)
+        a = np.clip(a, -self.acc_max, self.acc_max)
+        # lateral decision: MOBIL every LANE_CHANGE_DELAY seconds when not changing
+        decide = (~changing) & (self.timer > self.delay) & self.idm[None, :]
+        self.timer = np.where(decide, 0.0, self.timer)
+        if decide.any():
+            self._mobil(lane, decide, jf, hf, jr, hr)
+        return a
+
+    def step(self, t: float, dt: float) -> float:
+        """Advance every rollout from ``t`` by ``dt`` (s); returns the new time."""
+        a = self._accelerations(t)
+        crashed, passive = self.crashed, self.passive[None, :]
+        # crashed cars brake to a stop (highway-env: acceleration −speed, no steering); a
+        # crash is an overlap of the 5 m × 2 m boxes (axis-aligned: lanes run along +x)
+        a = np.where(crashed, -self.v, a)
+        # lateral motion: first-order response to the target lane centre
+        vy = np.clip((self.yc[self.tgt] - self.y) / 0.55, -5.0, 5.0)
+        vy = np.where(crashed, 0.0, vy)
+        vy = np.where(passive, self.vy0[None, :], vy)
+        vx = np.where(passive, self.vx_passive[None, :], self.v)
+        self.x = self.x + vx * dt
+        self.y = self.y + vy * dt
+        self.v = np.where(passive, self.v, np.maximum(self.v + a * dt, 0.0))
+        self.timer = self.timer + dt
+        t += dt
+        x, y = self.x, self.y
+        if self.ego_fn is not None:
+            ex, ey, ev = self.ego_fn(t)
+            x[:, self.ego_i], y[:, self.ego_i], self.v[:, self.ego_i] = ex, ey, ev
+        hit = (np.abs(x[:, None, :] - x[:, :, None]) < self.length) & (
+            np.abs(y[:, None, :] - y[:, :, None]) < self.width
+        )
+        self.crashed |= np.any(hit & ~self.eye, axis=2)
+        return t
 
 
 def _straight_parallel(network) -> bool:
