@@ -1,10 +1,24 @@
 """QP problem/solution types and swappable backends.
 
-Backends: OSQP, Clarabel, qpsolvers, cvxpy and a batched, jitted ADMM in JAX.
+Backends by name: ``clarabel``, ``osqp``, ``cvxpy``, ``qpsolvers:<name>`` (every solver qpsolvers
+finds), and two batched, jitted solvers in JAX: ``admm`` (ADMM) and ``ipm`` (a primal–dual
+interior-point method).  ``available_backends()`` lists those installed.
 
 Knows nothing of vehicles.  Public contract::
 
     from solvers import QP, QPBatch, solve, solve_batch, solve_qp, available_backends, Status
+
+Habits kept from qpsolvers/OSQP::
+
+    sol = solve_qp(P, q, G, h, A, b, lb, ub, solver="osqp")   # solver= is an alias of backend=
+    print(sol.status)            # SOLVED  (an IntEnum: sol.status == 1 still holds)
+    sol.ok                       # True for SOLVED only
+    sol.is_optimal(1e-6)         # primal, dual residual and duality gap all ≤ 1e-6
+    sol.duality_gap()
+    repr(sol)                    # Solution(SOLVED, objective=-0.75, n=2, m=3, ..., backend='osqp')
+    batch = QPBatch.from_qpsolvers(P, qs, G, hs, lb=lb, ub=ub)   # qs (B, n), hs (B, k) or shared
+    sols = solve_batch(batch, solver="ipm")
+    sols.status_names, sols.ok   # ('SOLVED', ...), boolean array (B,)
 
 Importing :mod:`solvers` imports NumPy and SciPy only; each backend's package (JAX, osqp, cvxpy,
 qpsolvers, ...) is imported when that backend is first used.

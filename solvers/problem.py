@@ -6,6 +6,11 @@
 in ``q``, ``l`` and ``u`` (what the Frenet projection produces).  Both validate their inputs on
 construction: wrong shapes, NaN/inf in the matrices or in ``q``, NaN in the bounds and ``l > u``
 raise :class:`ValueError` naming the argument.
+
+From qpsolvers' form ``Gx ≤ h, Ax = b, lb ≤ x ≤ ub``: :meth:`QP.from_qpsolvers` for one problem,
+:meth:`QPBatch.from_qpsolvers` for many sharing ``P``, ``G``, ``A`` (``q, h, b, lb, ub`` shared or
+one row per QP); their errors name ``h``, ``lb``, ... as the user wrote them.  ``repr`` of either
+is one line of sizes, never the arrays.
 """
 
 from __future__ import annotations
@@ -182,6 +187,170 @@ def check_convex(P: Any, name: str = "P") -> None:
     )
 
 
+def _idx(bad: np.ndarray) -> list:
+    """The first 5 indices where ``bad`` holds (ints for 1-D, ``[k, i]`` pairs for a batch)."""
+    return np.flatnonzero(bad)[:5].tolist() if bad.ndim == 1 else np.argwhere(bad)[:5].tolist()
+
+
+def _from_qpsolvers_form(
+    P: Any,
+    q: Any,
+    G: Any,
+    h: Any,
+    A: Any,
+    b: Any,
+    lb: Any,
+    ub: Any,
+    *,
+    batched: bool,
+    batch_size: int | None = None,
+) -> tuple[Matrix, np.ndarray, np.ndarray, np.ndarray]:
+    """qpsolvers' ``(P, q, G, h, A, b, lb, ub)`` as OSQP's ``(A, q, l, u)``, rows ``[G; A; I]``.
+
+    ``batched=False``: ``q, h, b, lb, ub`` are 1-D and so are the returned ``q, l, u``.
+    ``batched=True``: each of them is 1-D (shared) or ``(B, ·)`` (one row per QP); ``B`` is the
+    common leading size (or ``batch_size``) and ``q, l, u`` come back as ``(B, ·)``.  Errors name
+    the user's argument (``h``, ``lb``, ...), never the internal ``l``/``u``.
+    """
+    if q is None:
+        raise ValueError("q is required, got None")
+    q = _real(q, "q")
+    if not batched and (q.ndim != 1 or q.shape[0] == 0):
+        raise ValueError(f"q must be a non-empty 1-D vector, got shape {q.shape}")
+    if batched and (q.ndim not in (1, 2) or q.shape[-1] == 0):
+        raise ValueError(
+            f"q must have shape (n,) (shared by every QP) or (B, n) (one row per QP) with n ≥ 1, "
+            f"got {q.shape}"
+        )
+    n = q.shape[-1]
+    sizes: dict[str, int] = {}  # argument -> its leading batch size, for the per-QP ones
+    if batched and q.ndim == 2:
+        sizes["q"] = q.shape[0]
+
+    def _rows(M: Any, name: str) -> sp.csc_matrix:
+        if not sp.issparse(M):
+            M = _real(M, name)
+            if M.ndim == 1:
+                M = M.reshape(1, -1)
+            if M.ndim != 2:
+                shared = " shared by every QP" if batched else ""
+                raise ValueError(f"{name} must be one 2-D matrix{shared}, got shape {M.shape}")
+        M = _as_matrix(M, name, (M.shape[0], n))
+        return sp.csc_matrix(M)
+
+    def _rhs(v: Any, name: str, k: int) -> np.ndarray:
+        v = _real(v, name)
+        if batched and v.ndim == 2:
+            if v.shape[1] != k:
+                raise ValueError(
+                    f"{name} has shape {v.shape}, expected ({k},) (shared by every QP) or "
+                    f"(B, {k}) (one row per QP)"
+                )
+            sizes[name] = v.shape[0]
+        elif batched and v.ndim > 2:
+            raise ValueError(
+                f"{name} has shape {v.shape}, expected ({k},) (shared by every QP) or (B, {k}) "
+                "(one row per QP)"
+            )
+        else:  # 1-D (or a scalar for one row); a single QP's column vector keeps its error
+            v = _as_vector(v.reshape(-1) if v.ndim <= 1 else v, name, k, allow_inf=True)
+        if np.any(np.isnan(v)):
+            raise ValueError(f"{name} contains NaN")
+        return v
+
+    rows: list[sp.csc_matrix] = []
+    rhs: list[tuple[str, np.ndarray, np.ndarray]] = []  # (argument, lower, upper)
+    for M, v, Mname, vname in ((G, h, "G", "h"), (A, b, "A", "b")):
+        if M is None and v is None:
+            continue
+        if M is None or v is None:
+            given, missing = (Mname, vname) if v is None else (vname, Mname)
+            raise ValueError(f"{missing} is required when {given} is given")
+        Ms = _rows(M, Mname)
+        vv = _rhs(v, vname, Ms.shape[0])
+        if vname == "b" and not np.all(np.isfinite(vv)):
+            raise ValueError("b contains inf: an equality at infinity can never be met")
+        if vname == "h" and np.any(vv == -np.inf):
+            raise ValueError(
+                f"h is -inf at index {_idx(vv == -np.inf)} (first 5 shown): G x ≤ -inf can "
+                "never be met"
+            )
+        rows.append(Ms)
+        rhs.append((vname, np.full(vv.shape, -np.inf) if vname == "h" else vv, vv))
+    if lb is not None or ub is not None:
+        lbv = np.full(n, -np.inf) if lb is None else _rhs(lb, "lb", n)
+        ubv = np.full(n, np.inf) if ub is None else _rhs(ub, "ub", n)
+        for name, v, bad_value, what in (
+            ("lb", lbv, np.inf, "x ≥ +inf"),
+            ("ub", ubv, -np.inf, "x ≤ -inf"),
+        ):
+            if np.any(v == bad_value):
+                raise ValueError(
+                    f"{name} is {bad_value:+} at index {_idx(v == bad_value)} (first 5 shown): "
+                    f"{what} can never be met"
+                )
+        bad = lbv > ubv
+        if np.any(bad):
+            raise ValueError(f"lb > ub at index {_idx(bad)} (first 5 shown)")
+        rows.append(sp.identity(n, format="csc"))
+        rhs.append(("lb/ub", lbv, ubv))
+    Acat = sp.vstack(rows, format="csc") if rows else sp.csc_matrix((0, n))
+    if P is not None and not sp.issparse(P):
+        Acat = Acat.toarray()
+    if not batched:
+        l = np.concatenate([lo for _, lo, _ in rhs]) if rhs else np.zeros(0)
+        u = np.concatenate([hi for _, _, hi in rhs]) if rhs else np.zeros(0)
+        return Acat, q, l, u
+    B = _batch_size(sizes, batch_size)
+    m = Acat.shape[0]
+    q = np.broadcast_to(q, (B, n)).copy()
+    l = np.concatenate([np.broadcast_to(lo, (B, lo.shape[-1])) for _, lo, _ in rhs], axis=1)
+    u = np.concatenate([np.broadcast_to(hi, (B, hi.shape[-1])) for _, _, hi in rhs], axis=1)
+    return Acat, q, l.reshape(B, m), u.reshape(B, m)
+
+
+def _batch_size(sizes: dict[str, int], batch_size: int | None) -> int:
+    """The common leading size ``B`` of the per-QP arguments ``sizes`` (argument -> size)."""
+    if batch_size is not None:
+        if isinstance(batch_size, bool) or not isinstance(batch_size, (int, np.integer)):
+            raise ValueError(f"batch_size must be a positive integer, got {batch_size!r}")
+        if batch_size < 1:
+            raise ValueError(f"batch_size must be a positive integer, got {batch_size!r}")
+        sizes = {"batch_size": int(batch_size), **sizes}
+    if not sizes:
+        raise ValueError(
+            "none of q, h, b, lb, ub has a leading batch axis (shape (B, ·)): give at least one "
+            "of them one row per QP, or pass batch_size=B to repeat one QP B times"
+        )
+    first, B = next(iter(sizes.items()))
+    for name, k in sizes.items():
+        if k != B:
+            raise ValueError(
+                f"{name} has {k} rows (one per QP) but {first} has {B}: every per-QP argument "
+                "needs the same leading batch size"
+            )
+    if B == 0:
+        raise ValueError(f"{first} has an empty batch axis: a batch needs at least one problem")
+    return B
+
+
+def _support(l: np.ndarray, u: np.ndarray, y: np.ndarray) -> np.ndarray:
+    """Elementwise ``u·max(y, 0) + l·min(y, 0)`` over the finite sides only (as qpsolvers'
+    duality gap leaves out infinite ``lb``/``ub``); NaN where ``y`` is NaN."""
+    up = np.where(np.isfinite(u), u, 0.0) * np.maximum(y, 0.0)
+    lo = np.where(np.isfinite(l), l, 0.0) * np.minimum(y, 0.0)
+    return up + lo
+
+
+def _problem_repr(kind: str, p: Any) -> str:
+    """One line: sizes, storage and the row kinds, never the arrays."""
+    eq = int(np.sum(p.l == p.u))
+    batch = f"B={p.l.shape[0]}, " if p.l.ndim == 2 else ""
+    storage = "sparse" if (sp.issparse(p.P) or sp.issparse(p.A)) else "dense"
+    rows = f" ({eq} equalities)" if eq and p.l.ndim == 1 else ""
+    return f"{kind}({batch}n={p.n}, m={p.m}{rows}, {storage})"
+
+
 @dataclass(frozen=True, eq=False)
 class QP:
     """One convex QP ``min ½xᵀPx + qᵀx s.t. l ≤ Ax ≤ u`` (OSQP's form).
@@ -307,6 +476,23 @@ class QP:
             r = r + self.A.T @ np.asarray(y, dtype=np.float64)
         return float(np.max(np.abs(r)))
 
+    def duality_gap(self, x: np.ndarray, y: np.ndarray) -> float:
+        """``|xᵀPx + qᵀx + S(y)|`` with ``S(y) = Σ u_i·max(y_i, 0) + l_i·min(y_i, 0)``.
+
+        Primal minus dual objective at ``(x, y)`` (OSQP's sign convention for ``y``), zero at an
+        optimum: qpsolvers' ``Solution.duality_gap`` in this form (``h``, ``b``, ``lb``, ``ub``
+        are the finite ``u``/``l`` of the rows ``[G; A; I]``).  Infinite sides are left out, as
+        qpsolvers leaves out infinite ``lb``/``ub``; NaN in ``x`` or ``y`` gives NaN.
+        """
+        x = np.asarray(x, dtype=np.float64)
+        y = np.asarray(y, dtype=np.float64)
+        return float(
+            np.abs(x @ (self.P @ x) + self.q @ x + _support(self.l, self.u, y).sum(axis=-1))
+        )
+
+    def __repr__(self) -> str:
+        return _problem_repr("QP", self)
+
     # -------------------------------------------------------------- formats
     @classmethod
     def from_qpsolvers(
@@ -326,7 +512,9 @@ class QP:
 
         Rows are stacked as ``[G; A; I]`` with bounds ``(−inf, h)``, ``(b, b)``, ``(lb, ub)``.
         Dense ``P`` gives a dense ``A``; sparse ``P`` a CSC one.  Each argument is checked and
-        named in errors (``G`` without ``h``, wrong lengths, NaN, complex data).
+        named in errors (``G`` without ``h``, wrong lengths, NaN, complex data, ``h = -inf``,
+        ``lb = +inf``, ``ub = -inf``, ``lb > ub``, ``b = ±inf``).  Many QPs that share ``P``,
+        ``G`` and ``A``: :meth:`QPBatch.from_qpsolvers`.
 
         Example::
 
@@ -335,53 +523,7 @@ class QP:
             >>> qp.m  # one inequality row and two bound rows
             3
         """
-        if q is None:
-            raise ValueError("q is required, got None")
-        q = _real(q, "q")
-        if q.ndim != 1 or q.shape[0] == 0:
-            raise ValueError(f"q must be a non-empty 1-D vector, got shape {q.shape}")
-        n = q.shape[0]
-        rows, lo, hi = [], [], []
-
-        def _rows(M: Any, name: str) -> sp.csc_matrix:
-            if not sp.issparse(M):
-                M = _real(M, name)
-                if M.ndim == 1:
-                    M = M.reshape(1, -1)
-            M = _as_matrix(M, name, (M.shape[0], n) if M.ndim == 2 else M.shape)
-            return sp.csc_matrix(M)
-
-        def _rhs(v: Any, name: str, k: int, *, allow_inf: bool) -> np.ndarray:
-            v = _real(v, name).reshape(-1) if np.ndim(v) <= 1 else _real(v, name)
-            return _as_vector(v, name, k, allow_inf=allow_inf)
-
-        for M, v, Mname, vname in ((G, h, "G", "h"), (A, b, "A", "b")):
-            if M is None and v is None:
-                continue
-            if M is None or v is None:
-                given, missing = (Mname, vname) if v is None else (vname, Mname)
-                raise ValueError(f"{missing} is required when {given} is given")
-            Ms = _rows(M, Mname)
-            vv = _rhs(v, vname, Ms.shape[0], allow_inf=(vname == "h"))
-            if vname == "b" and not np.all(np.isfinite(vv)):
-                raise ValueError("b contains inf: an equality at infinity can never be met")
-            rows.append(Ms)
-            lo.append(np.full(vv.shape, -np.inf) if vname == "h" else vv)
-            hi.append(vv)
-        if lb is not None or ub is not None:
-            lbv = np.full(n, -np.inf) if lb is None else _rhs(lb, "lb", n, allow_inf=True)
-            ubv = np.full(n, np.inf) if ub is None else _rhs(ub, "ub", n, allow_inf=True)
-            bad = lbv > ubv
-            if np.any(bad):
-                raise ValueError(f"lb > ub at index {np.flatnonzero(bad)[:5].tolist()}")
-            rows.append(sp.identity(n, format="csc"))
-            lo.append(lbv)
-            hi.append(ubv)
-        Acat = sp.vstack(rows, format="csc") if rows else sp.csc_matrix((0, n))
-        l = np.concatenate(lo) if lo else np.zeros(0)
-        u = np.concatenate(hi) if hi else np.zeros(0)
-        if P is not None and not sp.issparse(P):
-            Acat = Acat.toarray()
+        Acat, q, l, u = _from_qpsolvers_form(P, q, G, h, A, b, lb, ub, batched=False)
         return cls(P, q, Acat, l, u, check_convex=check_convex)
 
     def to_qpsolvers(self) -> dict[str, Any]:
@@ -454,7 +596,9 @@ class QPBatch:
     """Many QPs sharing ``P`` (n, n) and ``A`` (m, n); per-problem ``q`` (B, n), ``l``/``u`` (B, m).
 
     Iterating or indexing yields :class:`QP` objects, so any backend can loop over a batch.
-    Validated like :class:`QP` (``check_convex`` included, once for the shared ``P``).
+    Validated like :class:`QP` (``check_convex`` included, once for the shared ``P``).  From
+    qpsolvers' form (shared ``P``, ``G``, ``A``; per-QP ``q, h, b, lb, ub``):
+    :meth:`from_qpsolvers`.
     """
 
     P: Matrix
@@ -556,6 +700,43 @@ class QPBatch:
             check_convex=qps[0].check_convex,
         )
 
+    @classmethod
+    def from_qpsolvers(
+        cls,
+        P: Matrix,
+        q: np.ndarray,
+        G: Matrix | None = None,
+        h: np.ndarray | None = None,
+        A: Matrix | None = None,
+        b: np.ndarray | None = None,
+        lb: np.ndarray | None = None,
+        ub: np.ndarray | None = None,
+        *,
+        batch_size: int | None = None,
+        check_convex: bool = True,
+    ) -> QPBatch:
+        """Many QPs in qpsolvers' form ``min ½xᵀPx + qᵀx s.t. Gx ≤ h, Ax = b, lb ≤ x ≤ ub``.
+
+        ``P``, ``G`` and ``A`` are shared (one matrix each, dense or ``scipy.sparse``); each of
+        ``q``, ``h``, ``b``, ``lb``, ``ub`` is either shared (1-D) or one row per QP, shape
+        ``(B, ·)``.  ``B`` is inferred from the per-QP arguments (they must agree); when all are
+        shared, pass ``batch_size=B``.  Rows are stacked as in :meth:`QP.from_qpsolvers`, so
+        ``batch[i]`` is ``QP.from_qpsolvers`` of the ``i``-th rows.  Errors name the argument
+        (``h``, ``lb``, ...): wrong lengths, mismatched ``B``, ``h = -inf``, ``lb > ub``, ...
+
+        Example::
+
+            >>> qs = np.array([[1.0, -1.0], [-1.0, 1.0], [0.0, 0.0]])      # B = 3
+            >>> batch = QPBatch.from_qpsolvers(np.eye(2), qs, G=[[1.0, 1.0]], h=[0.5],
+            ...                                lb=[-1.0, -1.0], ub=[1.0, 1.0])
+            >>> batch.batch_size, batch.m
+            (3, 3)
+        """
+        Acat, q, l, u = _from_qpsolvers_form(
+            P, q, G, h, A, b, lb, ub, batched=True, batch_size=batch_size
+        )
+        return cls(P, Acat, q, l, u, check_convex=check_convex)
+
     def objective(self, x: np.ndarray) -> np.ndarray:
         """Per-problem objective ``½xᵀPx + qᵀx`` for ``x`` of shape (B, n)."""
         x = np.asarray(x, dtype=np.float64)
@@ -579,3 +760,14 @@ class QPBatch:
         if self.m:
             r = r + (self.A.T @ np.asarray(y, dtype=np.float64).T).T
         return np.abs(r).max(axis=1)
+
+    def duality_gap(self, x: np.ndarray, y: np.ndarray) -> np.ndarray:
+        """Per-problem :meth:`QP.duality_gap` for ``x`` (B, n), ``y`` (B, m)."""
+        x = np.asarray(x, dtype=np.float64)
+        y = np.asarray(y, dtype=np.float64)
+        xPx = np.einsum("bi,bi->b", x, (self.P @ x.T).T)
+        qx = np.einsum("bi,bi->b", self.q, x)
+        return np.abs(xPx + qx + _support(self.l, self.u, y).sum(axis=-1))
+
+    def __repr__(self) -> str:
+        return _problem_repr("QPBatch", self)

@@ -1,9 +1,15 @@
 """Backends by name, imported lazily.
 
 ``solve(qp, backend="clarabel")`` and ``solve_batch(batch, backend="admm")`` look the backend up
-here.  A backend whose package is missing raises :class:`BackendUnavailableError` naming the
-package and the extra that installs it.  ``qpsolvers:<name>`` selects any solver that the
-``qpsolvers`` package finds installed.  Users add their own with :func:`register_backend`.
+here.  Built in: ``clarabel``, ``osqp``, ``cvxpy``, ``admm`` and ``ipm`` (the last two batched
+and jitted in JAX).  A backend whose package is missing raises :class:`BackendUnavailableError`
+naming the package and the extra that installs it.  ``qpsolvers:<name>`` selects any solver that
+the ``qpsolvers`` package finds installed.  Users add their own with :func:`register_backend`.
+
+As in qpsolvers, ``solver=`` is accepted for ``backend=`` (``solve_qp(..., solver="osqp")``); a
+qpsolvers solver name that is not a backend here (``solver="piqp"``) means ``"qpsolvers:piqp"``.
+Both given and different is a :class:`ValueError` naming both, except for ``backend="cvxpy"``,
+whose own ``solver=`` setting picks cvxpy's solver (``solve(qp, "cvxpy", solver="OSQP")``).
 """
 
 from __future__ import annotations
@@ -29,6 +35,7 @@ __all__ = [
     "register_backend",
     "solve",
     "solve_batch",
+    "solve_qp",
 ]
 
 # name -> (module, packages it imports, pip extra that installs them)
@@ -143,6 +150,50 @@ def available_backends() -> list[str]:
     return names
 
 
+#: backends whose own ``solver=`` setting picks an inner solver: there ``solver=`` is that setting
+_SOLVER_IS_A_SETTING = frozenset({"cvxpy"})
+
+
+def _alias(solver: str) -> str:
+    """The backend a qpsolvers-style ``solver=`` name means."""
+    if solver in _USER or solver in _BUILTIN or solver.startswith("qpsolvers:"):
+        return solver
+    if solver in _QPSOLVERS_MODULES:
+        return f"qpsolvers:{solver}"
+    return solver  # unknown: get_backend names it and lists the available ones
+
+
+def _resolve_backend(
+    backend: str | None, solver: str | None, default: str, settings: dict[str, Any]
+) -> str:
+    """The backend named by ``backend=`` and/or its alias ``solver=`` (``default`` if neither);
+    for a backend in :data:`_SOLVER_IS_A_SETTING`, a different ``solver=`` goes to ``settings``."""
+    if solver is None:
+        return default if backend is None else backend
+    if not isinstance(solver, str):
+        raise TypeError(
+            f"solver must be a backend name (a string, an alias of backend=), got "
+            f"{type(solver).__name__}"
+        )
+    if backend is None:
+        return _alias(solver)
+    if solver == backend or (isinstance(backend, str) and _alias(solver) == backend):
+        return backend
+    if backend in _SOLVER_IS_A_SETTING:
+        settings["solver"] = solver
+        return backend
+    raise ValueError(
+        f"backend={backend!r} and solver={solver!r} name different backends: solver= is an "
+        "alias of backend= (as in qpsolvers); give one of them"
+    )
+
+
+def _attach(sol: Any, problem: QP | QPBatch) -> None:
+    """Record on the solution the problem it answers (for ``duality_gap``/``is_optimal``)."""
+    if isinstance(sol, (Solution, BatchSolution)) and sol.problem is None:
+        object.__setattr__(sol, "problem", problem)
+
+
 def _check_qp(qp: QP, check_convex: bool | None) -> None:
     if check_convex is True:
         qp.ensure_convex()
@@ -157,21 +208,24 @@ def _record_warm_start(settings: dict, given: bool, be: Backend) -> None:
 
 def solve(
     qp: QP,
-    backend: str = "clarabel",
+    backend: str | None = None,
     *,
+    solver: str | None = None,
     warm_start: Any = None,
     check_convex: bool | None = None,
     **settings: Any,
 ) -> Solution:
-    """Solve one QP with the named backend.
+    """Solve one QP with the named backend (``"clarabel"`` when none is named).
 
+    ``solver``: an alias of ``backend`` (qpsolvers' name for it; see the module docstring).
     ``settings``: the common names (``eps_abs``, ``eps_rel``, ``max_iter``, ``time_limit``,
     ``verbose``; see :mod:`solvers.settings`) and the solver's native names; anything else raises
     :class:`~solvers.errors.InvalidSettingError`.  ``warm_start``: a previous :class:`Solution`
     or a tuple ``(x, y)`` (recorded as ``"ignored"`` by backends that cannot use it).
     ``check_convex=True`` runs the convexity check now for a QP built with
     ``check_convex=False``.  A ``SOLVED`` whose primal residual fails the backend's stated
-    tolerance by orders of magnitude is flagged in ``extras["residual_check"]``.
+    tolerance by orders of magnitude is flagged in ``extras["residual_check"]``.  The solution
+    keeps ``qp`` as ``sol.problem`` (for ``sol.duality_gap()`` and ``sol.is_optimal(eps_abs)``).
 
     Example::
 
@@ -183,26 +237,30 @@ def solve(
     if not isinstance(qp, QP):
         raise TypeError(f"qp must be a solvers.QP, got {type(qp).__name__}")
     _check_qp(qp, check_convex)
-    be = get_backend(backend)
+    be = get_backend(_resolve_backend(backend, solver, "clarabel", settings))
     ws = as_warm_start(warm_start, qp.n, qp.m)
     sol = be.solve(qp, warm_start=ws, **settings)
     _record_warm_start(sol.settings, ws is not None, be)
     residual_check(be, qp, sol)
+    _attach(sol, qp)
     return sol
 
 
 def solve_batch(
     batch: QPBatch,
-    backend: str = "admm",
+    backend: str | None = None,
     *,
+    solver: str | None = None,
     warm_start: Any = None,
     check_convex: bool | None = None,
     **settings: Any,
 ) -> BatchSolution:
     """Solve a batch of QPs sharing ``P`` and ``A``; returns fields with a leading batch axis.
 
-    Settings and ``warm_start`` (a :class:`BatchSolution` or a tuple ``(x (B, n), y (B, m))``)
-    as in :func:`solve`.
+    ``backend`` defaults to ``"admm"``; ``solver`` is its alias, settings and ``warm_start`` (a
+    :class:`BatchSolution` or a tuple ``(x (B, n), y (B, m))``) as in :func:`solve`.  The result
+    keeps ``batch`` as ``sols.problem``; ``sols.status_names`` and ``sols.ok`` give the status
+    of each QP by name and as a boolean array.
     """
     if not isinstance(batch, QPBatch):
         raise TypeError(f"batch must be a solvers.QPBatch, got {type(batch).__name__}")
@@ -220,11 +278,12 @@ def solve_batch(
             raise ValueError(
                 f"warm_start has batch size {len(warm_start.x)}, the batch has {len(batch)}"
             )
-    be = get_backend(backend)
+    be = get_backend(_resolve_backend(backend, solver, "admm", settings))
     ws = as_warm_start(warm_start, batch.n, batch.m, batch=len(batch))
     sol = be.solve_batch(batch, warm_start=ws, **settings)
     _record_warm_start(sol.settings, ws is not None, be)
     residual_check(be, batch, sol)
+    _attach(sol, batch)
     return sol
 
 
@@ -237,8 +296,9 @@ def solve_qp(
     b: Any = None,
     lb: Any = None,
     ub: Any = None,
-    backend: str = "clarabel",
+    backend: str | None = None,
     *,
+    solver: str | None = None,
     warm_start: Any = None,
     check_convex: bool = True,
     **settings: Any,
@@ -246,9 +306,11 @@ def solve_qp(
     """One call, in qpsolvers' argument order: ``min ½xᵀPx + qᵀx s.t. Gx ≤ h, Ax = b,
     lb ≤ x ≤ ub``.
 
-    Builds :meth:`QP.from_qpsolvers` (every argument validated and named in errors) and calls
-    :func:`solve`; returns the same :class:`Solution` (``y`` over the rows ``[G; A; I]``, OSQP's
-    sign convention).  Settings as in :func:`solve`.
+    Builds :meth:`QP.from_qpsolvers` (every argument validated and named in errors: ``h``,
+    ``lb``, ... as given) and calls :func:`solve`; returns the same :class:`Solution` (``y`` over
+    the rows ``[G; A; I]``, OSQP's sign convention).  ``backend`` (default ``"clarabel"``) or its
+    qpsolvers alias ``solver`` (``solver="osqp"``, ``solver="piqp"``), settings as in
+    :func:`solve`.
 
     Example::
 
@@ -260,4 +322,4 @@ def solve_qp(
         ('SOLVED', array([-0.5,  0.5]))
     """
     qp = QP.from_qpsolvers(P, q, G, h, A, b, lb, ub, check_convex=check_convex)
-    return solve(qp, backend, warm_start=warm_start, **settings)
+    return solve(qp, backend, solver=solver, warm_start=warm_start, **settings)

@@ -1,18 +1,32 @@
-"""Solution types and the status enum shared by every backend."""
+"""Solution types and the status enum shared by every backend.
+
+Habits kept from qpsolvers: ``print(sol.status)`` shows the name (``SOLVED``), while
+``sol.status == 1`` and integer arrays of codes keep working; ``sol.ok`` is ``True`` for
+``SOLVED`` only; ``sol.is_optimal(eps_abs)`` and ``sol.duality_gap()`` check the returned point
+against the problem it solved; ``repr(sol)`` is one line (status, objective, sizes, backend,
+time), not the settings.
+"""
 
 from __future__ import annotations
 
 from dataclasses import dataclass, field
 from enum import IntEnum
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
+
+if TYPE_CHECKING:
+    from .problem import QP, QPBatch
 
 __all__ = ["Status", "Solution", "BatchSolution"]
 
 
 class Status(IntEnum):
-    """Outcome of a QP solve.  Integer codes so a batch can hold them in an array."""
+    """Outcome of a QP solve.  Integer codes so a batch can hold them in an array.
+
+    ``str()`` and f-strings give the name (``f"{sol.status}"`` is ``"SOLVED"``); a numeric format
+    (``f"{sol.status:d}"``) and comparisons with integers use the code.
+    """
 
     SOLVED = 1
     SOLVED_INACCURATE = 2
@@ -25,6 +39,28 @@ class Status(IntEnum):
     def ok(self) -> bool:
         """True for ``SOLVED`` only."""
         return self is Status.SOLVED
+
+    def __str__(self) -> str:
+        return self.name
+
+    def __format__(self, spec: str) -> str:
+        if spec and spec[-1] in "bcdoxXneEfFgG%":  # a numeric format: the integer code
+            return format(int(self), spec)
+        return format(self.name, spec)
+
+
+def _check_eps(eps_abs: Any) -> None:
+    if isinstance(eps_abs, bool) or not isinstance(eps_abs, (int, float, np.integer, np.floating)):
+        raise ValueError(f"eps_abs must be a number ≥ 0, got {eps_abs!r}")
+    if not eps_abs >= 0:
+        raise ValueError(f"eps_abs must be a number ≥ 0, got {eps_abs!r}")
+
+
+def _fmt_time(t: float) -> str:
+    """Seconds as a short string in s or ms."""
+    if not np.isfinite(t):
+        return "nan"
+    return f"{t * 1e3:.3g} ms" if t < 1.0 else f"{t:.3g} s"
 
 
 @dataclass(frozen=True, eq=False)
@@ -47,10 +83,58 @@ class Solution:
     backend: str
     settings: dict[str, Any] = field(default_factory=dict)
     extras: dict[str, Any] = field(default_factory=dict)
+    #: the QP this answers (attached by :func:`solvers.solve`/:func:`solvers.solve_qp`); used by
+    #: :meth:`duality_gap` and :meth:`is_optimal`
+    problem: QP | None = field(default=None, repr=False)
 
     @property
     def ok(self) -> bool:
+        """True when the backend reports ``SOLVED`` (the status only; see :meth:`is_optimal`
+        for a check of the point itself)."""
         return self.status is Status.SOLVED
+
+    def __repr__(self) -> str:
+        return (
+            f"Solution({getattr(self.status, 'name', self.status)}, "
+            f"objective={self.objective:.6g}, "
+            f"n={np.shape(self.x)[0]}, m={np.shape(self.y)[0]}, iterations={self.iterations}, "
+            f"backend={self.backend!r}, solve_time={_fmt_time(self.solve_time)})"
+        )
+
+    def _qp(self, qp: QP | None) -> QP:
+        qp = self.problem if qp is None else qp
+        if qp is None:
+            raise ValueError(
+                "qp is required: this Solution carries no problem (solutions returned by "
+                "solvers.solve / solve_qp / solve_batch do); pass qp=the QP it solves"
+            )
+        return qp
+
+    def duality_gap(self, qp: QP | None = None) -> float:
+        """``|xᵀPx + qᵀx + S(y)|``, ``S(y) = Σ u_i·max(y_i, 0) + l_i·min(y_i, 0)`` over the
+        finite sides of ``[l, u]``: primal minus dual objective at ``(x, y)``, as qpsolvers'
+        ``Solution.duality_gap`` (see :meth:`solvers.QP.duality_gap`); NaN when ``x`` or ``y``
+        is NaN.  ``qp`` defaults to the problem this solution was returned for.
+        """
+        return self._qp(qp).duality_gap(self.x, self.y)
+
+    def is_optimal(self, eps_abs: float, qp: QP | None = None) -> bool:
+        """Whether the primal residual ``max(0, l − Ax, Ax − u)``, the dual residual
+        ``‖Px + q + Aᵀy‖∞`` and :meth:`duality_gap` are all ``≤ eps_abs`` (as qpsolvers'
+        ``Solution.is_optimal``), recomputed in float64 from the problem.  A property of the point
+        ``(x, y)``, whatever the status says; ``False`` for NaN ``x`` or ``y``.
+        """
+        _check_eps(eps_abs)
+        qp = self._qp(qp)
+        x = np.asarray(self.x, dtype=np.float64)
+        y = np.asarray(self.y, dtype=np.float64)
+        if not (np.all(np.isfinite(x)) and np.all(np.isfinite(y))):
+            return False
+        return bool(
+            qp.constraint_violation(x) <= eps_abs
+            and qp.dual_residual(x, y) <= eps_abs
+            and qp.duality_gap(x, y) <= eps_abs
+        )
 
 
 @dataclass(frozen=True, eq=False)
@@ -73,9 +157,22 @@ class BatchSolution:
     total_time: float = float("nan")
     settings: dict[str, Any] = field(default_factory=dict)
     extras: dict[str, Any] = field(default_factory=dict)
+    #: the batch this answers (attached by :func:`solvers.solve_batch`)
+    problem: QPBatch | None = field(default=None, repr=False)
 
     def __len__(self) -> int:
         return self.x.shape[0]
+
+    def __repr__(self) -> str:
+        counts = ", ".join(f"{k} {v}" for k, v in self.status_counts().items())
+        obj = np.asarray(self.objective, dtype=np.float64)
+        fin = obj[np.isfinite(obj)]
+        rng = f"[{fin.min():.6g}, {fin.max():.6g}]" if fin.size else "nan"
+        return (
+            f"BatchSolution({counts}; B={len(self)}, n={self.x.shape[1]}, m={self.y.shape[1]}, "
+            f"objective in {rng}, backend={self.backend!r}, "
+            f"total_time={_fmt_time(self.total_time)})"
+        )
 
     def __getitem__(self, i: int) -> Solution:
         return Solution(
@@ -89,12 +186,51 @@ class BatchSolution:
             dual_residual=float(self.dual_residual[i]),
             backend=self.backend,
             settings=self.settings,
+            problem=None if self.problem is None else self.problem[i],
         )
 
     @property
     def solved(self) -> np.ndarray:
         """Boolean mask of problems with status ``SOLVED``."""
         return self.status == int(Status.SOLVED)
+
+    @property
+    def ok(self) -> np.ndarray:
+        """Boolean array (B,): ``True`` where the status is ``SOLVED`` (``Solution.ok`` per
+        problem; the same as :attr:`solved`)."""
+        return self.solved
+
+    @property
+    def status_names(self) -> tuple[str, ...]:
+        """The status of each problem by name, e.g. ``("SOLVED", "MAX_ITER")``."""
+        return tuple(Status(int(v)).name for v in np.asarray(self.status).ravel())
+
+    def _batch(self, batch: QPBatch | None) -> QPBatch:
+        batch = self.problem if batch is None else batch
+        if batch is None:
+            raise ValueError(
+                "batch is required: this BatchSolution carries no problem (those returned by "
+                "solvers.solve_batch do); pass batch=the QPBatch it solves"
+            )
+        return batch
+
+    def duality_gap(self, batch: QPBatch | None = None) -> np.ndarray:
+        """Per-problem :meth:`Solution.duality_gap`, shape (B,)."""
+        return self._batch(batch).duality_gap(self.x, self.y)
+
+    def is_optimal(self, eps_abs: float, batch: QPBatch | None = None) -> np.ndarray:
+        """Per-problem :meth:`Solution.is_optimal`, a boolean array (B,)."""
+        _check_eps(eps_abs)
+        batch = self._batch(batch)
+        x = np.asarray(self.x, dtype=np.float64)
+        y = np.asarray(self.y, dtype=np.float64)
+        with np.errstate(invalid="ignore"):
+            ok = (
+                (batch.constraint_violation(x) <= eps_abs)
+                & (batch.dual_residual(x, y) <= eps_abs)
+                & (batch.duality_gap(x, y) <= eps_abs)
+            )
+        return ok & np.all(np.isfinite(x), axis=1) & np.all(np.isfinite(y), axis=1)
 
     @property
     def n_solved(self) -> int:
