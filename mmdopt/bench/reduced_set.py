@@ -53,7 +53,7 @@ def _reduced_set_task(args) -> list[dict[str, Any]]:
     index, seed, params_dict, methods, random_sets, backend, out, config = args
     params = SceneParams.from_dict(params_dict)
     scene = make_scene(index, seed, params)
-    path = Path(out) / "scenes" / f"scene_{index:04d}__reduced_set.json"
+    path = _scene_path(out, index)
     if path.exists():
         return []
     cfg = scene_config(scene, config)
@@ -97,6 +97,20 @@ def _reduced_set_task(args) -> list[dict[str, Any]]:
     return len(rows)
 
 
+def _scene_path(out: str | Path, index: int) -> Path:
+    return Path(out) / "scenes" / f"scene_{index:04d}__reduced_set.json"
+
+
+def _check_scene_rows(rec: Any, index: int, want: int) -> str | None:
+    """Why a scene file does not hold ``want`` result rows of scene ``index``, else ``None``."""
+    if not isinstance(rec, list) or len(rec) != want:
+        return f"is not a list of {want} rows"
+    for r in rec:
+        if not isinstance(r, dict) or r.get("scene") != index or "collision_free" not in r:
+            return f"holds a row that is not of scene {index}"
+    return None
+
+
 def run_reduced_set(
     out: str | Path,
     *,
@@ -130,22 +144,10 @@ def run_reduced_set(
     remove_temp_files(out / "scenes")
     remove_temp_files(out)
     want = len([m for m in methods if m != "random"]) + (random_sets if "random" in methods else 0)
-
-    def check(rec, i):
-        if not isinstance(rec, list) or len(rec) != want:
-            return f"is not a list of {want} rows"
-        for r in rec:
-            if not isinstance(r, dict) or r.get("scene") != i or "collision_free" not in r:
-                return f"holds a row that is not of scene {i}"
-        return None
-
-    def path_of(i):
-        return out / "scenes" / f"scene_{i:04d}__reduced_set.json"
-
     todo = [
         (i, seed, params.to_dict(), list(methods), random_sets, backend, str(out), config)
         for i in range(n)
-        if load_task_file(path_of(i), lambda r, i=i: check(r, i)) is None
+        if load_task_file(_scene_path(out, i), lambda r, i=i: _check_scene_rows(r, i, want)) is None
     ]
     try:
         run_tasks(
@@ -164,7 +166,7 @@ def run_reduced_set(
         remove_temp_files(out / "scenes")
     rows = []
     for i in range(n):
-        rows += json.loads(path_of(i).read_text())
+        rows += json.loads(_scene_path(out, i).read_text())
     write_results(rows, out / "reduced_set.csv", REDUCED_SET_COLUMNS)
     sel = [m for m in methods if m != "random"]
     per_scene = {
@@ -179,6 +181,27 @@ def run_reduced_set(
         for i in range(n)
     ]
     nv = rows[0]["n_validation"] if rows else 1
+    table = _summary_table(rows, per_scene, rnd, nv, random_sets)
+    write_json(
+        out / "reduced_set_summary.json",
+        dict(table=table, scenes=n, seed=seed, random_sets=random_sets, params=params.to_dict()),
+    )
+    if any(rnd) and sel:
+        plots.reduced_set_figure(per_scene, rnd, out / "reduced_set.png", n_validation=nv)
+    return dict(rows=rows, table=table)
+
+
+def _summary_table(
+    rows: Sequence[dict[str, Any]],
+    per_scene: dict[str, list],
+    rnd: list[list],
+    nv: int,
+    random_sets: int,
+) -> list[dict[str, Any]]:
+    """The printed table: per selection method, collision-free mean / std (% of the ``nv``
+    validation samples) and min over scenes, mean progress and reduced-set MMD²; then the random
+    sets' mean and best (oracle) per scene and the share of them MMD selection matches."""
+    n = len(rnd)
 
     def prog(sel_name):
         return float(np.mean([r["progress_m"] for r in rows if r["selection"] == sel_name]))
@@ -187,8 +210,8 @@ def run_reduced_set(
         return float(np.mean([r["rs_mmd2"] for r in rows if r["selection"] == sel_name]))
 
     table = []
-    for m in sel:
-        a = np.asarray(per_scene[m], float)
+    for m, cf in per_scene.items():
+        a = np.asarray(cf, float)
         table.append(
             dict(
                 selection=m,
@@ -200,45 +223,40 @@ def run_reduced_set(
                 scenes=n,
             )
         )
-    if any(rnd):
-        mean_r = np.array([np.mean(r) for r in rnd]) / nv * 100
-        best_r = np.array([np.max(r) for r in rnd]) / nv * 100
-        table.append(
-            dict(
-                selection=f"random x{random_sets} (mean)",
-                mean_pct=mean_r.mean(),
-                std_pct=mean_r.std(),
-                min=float(np.min([np.min(r) for r in rnd])),
-                progress_m=prog("random"),
-                rs_mmd2=mmd2("random"),
-                scenes=n,
-            )
+    if not any(rnd):
+        return table
+    mean_r = np.array([np.mean(r) for r in rnd]) / nv * 100
+    best_r = np.array([np.max(r) for r in rnd]) / nv * 100
+    table.append(
+        dict(
+            selection=f"random x{random_sets} (mean)",
+            mean_pct=mean_r.mean(),
+            std_pct=mean_r.std(),
+            min=float(np.min([np.min(r) for r in rnd])),
+            progress_m=prog("random"),
+            rs_mmd2=mmd2("random"),
+            scenes=n,
         )
-        table.append(
-            dict(
-                selection=f"random x{random_sets} (best, oracle)",
-                mean_pct=best_r.mean(),
-                std_pct=best_r.std(),
-                min=float(np.min([np.max(r) for r in rnd])),
-                scenes=n,
-            )
-        )
-        if "mmd" in per_scene:
-            a = np.asarray(per_scene["mmd"], float)
-            frac = [np.mean(a[i] >= np.asarray(rnd[i])) for i in range(n)]
-            table.append(
-                dict(
-                    selection="mmd >= random set (share)",
-                    mean_pct=float(np.mean(frac)) * 100,
-                    std_pct=float(np.std(frac)) * 100,
-                    min=float(np.min(frac)),
-                    scenes=n,
-                )
-            )
-    write_json(
-        out / "reduced_set_summary.json",
-        dict(table=table, scenes=n, seed=seed, random_sets=random_sets, params=params.to_dict()),
     )
-    if any(rnd) and sel:
-        plots.reduced_set_figure(per_scene, rnd, out / "reduced_set.png", n_validation=nv)
-    return dict(rows=rows, table=table)
+    table.append(
+        dict(
+            selection=f"random x{random_sets} (best, oracle)",
+            mean_pct=best_r.mean(),
+            std_pct=best_r.std(),
+            min=float(np.min([np.max(r) for r in rnd])),
+            scenes=n,
+        )
+    )
+    if "mmd" in per_scene:
+        a = np.asarray(per_scene["mmd"], float)
+        frac = [np.mean(a[i] >= np.asarray(rnd[i])) for i in range(n)]
+        table.append(
+            dict(
+                selection="mmd >= random set (share)",
+                mean_pct=float(np.mean(frac)) * 100,
+                std_pct=float(np.std(frac)) * 100,
+                min=float(np.min(frac)),
+                scenes=n,
+            )
+        )
+    return table
