@@ -1,6 +1,6 @@
-"""Risk-knob variants of MMD-Opt on TUNING scenes (issue 11; never the validation seeds 0/1).
+"""Risk-level variants of MMD-Opt on tuning scenes (never the validation seeds 0/1).
 
-Each variant is a method, its knob ε (``mmdopt.risk.config_for_risk``) and config overrides applied
+Each variant is a method, its risk ε (``mmdopt.risk.config_for_risk``) and config overrides applied
 after the mapping (e.g. ``reselect=0`` to drop the re-selection pass, ``w_cover=0`` to drop the
 coverage term).  Prints, per variant, the mean and minimum collision-free count of 1000 fresh
 futures, the mean progress and the median plan time over the scenes.

@@ -7,8 +7,8 @@
     mmdopt bench synthetic   --scenes N --seed S --out DIR [--methods mmd,degroot,random,saa]
                              [--scene-params FILE.json] [--backend NAME] [--config FILE.json]
                              [--preset paper100|reference36|lanechange] [--jobs J]
-    mmdopt bench frontier    --out DIR [--knobs 'mmd=0.001,0.005;saa=0.02'] [--methods ...]
-                             (safety-progress frontier: every method's risk knob swept)
+    mmdopt bench frontier    --out DIR [--risks 'mmd=0.001,0.005;saa=0.02'] [--methods ...]
+                             (safety-progress frontier: every method's risk level swept)
     mmdopt bench reduced-set --scenes N --random-sets R --out DIR       (paper Fig. 4)
     mmdopt bench timing      --out DIR [--sizes 10,20,30,40,50] [--samples 50,100,200]
     mmdopt bench figure      --scene I --out DIR                        (paper Fig. 3)
@@ -64,6 +64,14 @@ def _backend(s: str) -> str:
             f"backend {s!r} is not available; available: {', '.join(avail)}"
         )
     return s
+
+
+class _DeprecatedRisks(argparse.Action):
+    """``--knobs``, the old name of ``--risks``: stores the value there, warns on stderr."""
+
+    def __call__(self, parser, namespace, values, option_string=None):
+        print(f"mmdopt: {option_string} is deprecated; use --risks (same values)", file=sys.stderr)
+        setattr(namespace, self.dest, values)
 
 
 def _presets() -> list[str]:
@@ -170,17 +178,19 @@ def _add_synthetic_parser(bs) -> None:
 
 
 def _add_frontier_parser(bs) -> None:
-    fr = bs.add_parser("frontier", help="safety-progress frontier: each method's risk knob swept")
+    fr = bs.add_parser("frontier", help="safety-progress frontier: each method's risk level swept")
     _add_sweep_options(fr, None)
     _add_methods(
         fr, PLAN_METHODS, list(PLAN_METHODS), "comma-separated methods (default: all five)"
     )
     fr.add_argument(
-        "--knobs",
+        "--risks",
         default=None,
-        help="knob grids (target collision probability) per method, e.g. "
-        "'mmd=0.001,0.005,0.02;saa=0.005,0.02' (default: mmdopt.bench.frontier.DEFAULT_KNOBS)",
+        help="risk grids (target collision probability): '0.1,0.02,0.005' for every method or "
+        "per method, e.g. 'mmd=0.001,0.005,0.02;saa=0.005,0.02' "
+        "(default: mmdopt.bench.frontier.DEFAULT_RISKS)",
     )
+    fr.add_argument("--knobs", dest="risks", action=_DeprecatedRisks, help=argparse.SUPPRESS)
 
 
 def _add_reduced_set_parser(bs) -> None:
@@ -587,17 +597,17 @@ def cmd_synthetic(args, parser) -> int:
 
 
 def cmd_frontier(args, parser) -> int:
-    from .frontier import TARGET_LEVELS, parse_knobs, run_frontier
+    from .frontier import TARGET_LEVELS, parse_risks, run_frontier
 
     params = _scene_params(args, parser)
     try:
-        knobs = parse_knobs(args.knobs, args.methods)
+        risks = parse_risks(args.risks, args.methods)
     except ValueError as e:
-        parser.error(f"argument --knobs: {e}")
+        parser.error(f"argument --risks: {e}")
     try:
         res = run_frontier(
             args.out,
-            knobs=knobs,
+            risks=risks,
             methods=args.methods,
             config=_planner_config(args, parser),
             scenes=args.scenes,
@@ -611,7 +621,7 @@ def cmd_frontier(args, parser) -> int:
         )
     except ValueError as e:
         parser.error(str(e))
-    cols = ["method", "knob", "scenes", "mean", "q1", "min", "progress_m", "plan_time_s"]
+    cols = ["method", "risk", "scenes", "mean", "q1", "min", "progress_m", "plan_time_s"]
     print(_table(res["points"], cols))
     lv = [f"{x:g}" for x in TARGET_LEVELS]
     rows = [

@@ -1,11 +1,12 @@
-"""Safety–progress frontier (issue 11): every method's risk knob swept over a grid of values.
+"""Safety–progress frontier: every method's risk level swept over a grid of values.
 
-Each method has one knob, the target collision probability ε (:mod:`mmdopt.risk`).
-:func:`run_frontier` plans every (scene, method, knob) and writes one JSON file per task into
+Each method has one risk level, the target collision probability ε (:mod:`mmdopt.risk`).
+:func:`run_frontier` plans every (scene, method, risk) and writes one JSON file per task into
 ``OUT/tasks/`` as soon as it is done (resumable, any executor of :mod:`.executors`), then
 ``OUT/frontier.csv`` (one row per task), ``OUT/frontier_summary.json`` (mean / LQ collision-free
-and mean progress per (method, knob), and each method's progress interpolated at the target
-levels) and ``OUT/frontier.png``.
+and mean progress per (method, risk), and each method's progress interpolated at the target
+levels) and ``OUT/frontier.png``.  Folders written when the ``risk`` column was called ``knob``
+are read with the old name mapped to the new one.
 """
 
 from __future__ import annotations
@@ -30,20 +31,20 @@ from .scenes import SceneParams, make_scene, num_scenes
 from .synthetic import config_overrides, run_scene
 
 __all__ = [
-    "DEFAULT_KNOBS",
+    "DEFAULT_RISKS",
     "FRONTIER_COLUMNS",
     "TARGET_LEVELS",
-    "parse_knobs",
+    "parse_risks",
     "run_frontier",
     "frontier_points",
     "interpolate_progress",
     "frontier_figure",
 ]
 
-#: default knob grid (target collision probability ε) per method: down to 1e-5, so that the
-#: printed target levels 995 and 999 lie inside the swept range (docs/frontier.md, Session 6)
+#: default risk grid (target collision probability ε) per method: down to 1e-5, so that the
+#: printed target levels 995 and 999 lie inside the swept range (docs/frontier.md)
 _GRID = (1e-5, 1e-4, 0.001, 0.005, 0.02, 0.1)
-DEFAULT_KNOBS: dict[str, tuple[float, ...]] = {
+DEFAULT_RISKS: dict[str, tuple[float, ...]] = {
     "mmd": _GRID,
     "degroot": _GRID,
     "random": _GRID,
@@ -53,7 +54,7 @@ DEFAULT_KNOBS: dict[str, tuple[float, ...]] = {
 #: columns of ``frontier.csv`` (the first eight are the outside contract)
 FRONTIER_COLUMNS = (
     "method",
-    "knob",
+    "risk",
     "scene",
     "collision_free",
     "n_validation",
@@ -68,52 +69,79 @@ FRONTIER_COLUMNS = (
 )
 #: target collision-free levels (of 1000) at which progress is interpolated
 TARGET_LEVELS = (990.0, 995.0, 999.0)
+#: the name the ``risk`` column had in older folders (task files and ``frontier.csv``)
+OLD_RISK_COLUMN = "knob"
 
 
-def parse_knobs(spec: str | None, methods: Sequence[str]) -> dict[str, list[float]]:
-    """``"mmd=0.001,0.005;saa=0.01"`` -> knob grid per method (the defaults for methods not
-    named).  Raises ``ValueError`` for an unknown or unselected method or a knob outside
-    (0, 0.5)."""
-    knobs = {m: list(DEFAULT_KNOBS[m]) for m in methods}
+def parse_risks(spec: str | None, methods: Sequence[str]) -> dict[str, list[float]]:
+    """Risk grid per method from ``"0.1,0.02"`` (every method) or ``"mmd=0.001,0.005;saa=0.01"``
+    (per method; the defaults for methods not named).  Raises ``ValueError`` for an unknown or
+    unselected method or a risk outside (0, 0.5)."""
+    risks = {m: list(DEFAULT_RISKS[m]) for m in methods}
     if not spec:
-        return knobs
+        return risks
+    if "=" not in spec:
+        return {m: _risk_grid(spec, m) for m in methods}
     for part in spec.split(";"):
         part = part.strip()
         if not part:
             continue
         if "=" not in part:
-            raise ValueError(f"knobs: expected METHOD=v1,v2,... got {part!r}")
+            raise ValueError(f"risks: expected METHOD=v1,v2,... got {part!r}")
         m, vals = (x.strip() for x in part.split("=", 1))
         if m not in METHODS:
-            raise ValueError(f"knobs: unknown method {m!r}; choose from {', '.join(METHODS)}")
+            raise ValueError(f"risks: unknown method {m!r}; choose from {', '.join(METHODS)}")
         if m not in methods:
-            raise ValueError(f"knobs: method {m!r} is not among --methods")
+            raise ValueError(f"risks: method {m!r} is not among --methods")
+        risks[m] = _risk_grid(vals, m)
+    return risks
+
+
+def _risk_grid(vals: str, method: str) -> list[float]:
+    """``"0.02,0.001"`` -> ``[0.001, 0.02]`` (each checked, duplicates dropped)."""
+    grid = []
+    for v in (v.strip() for v in vals.split(",")):
+        if not v:
+            continue
         try:
-            grid = [check_risk(float(v), f"knob of {m}") for v in vals.split(",") if v.strip()]
+            x = float(v)
+        except ValueError:
+            raise ValueError(
+                f"risks: {v!r} is not a number (expected v1,v2,... or METHOD=v1,v2,...;...)"
+            ) from None
+        try:
+            grid.append(check_risk(x, f"risk of {method}"))
         except ValueError as e:
-            raise ValueError(f"knobs: {e}") from None
-        if not grid:
-            raise ValueError(f"knobs: no values for {m!r}")
-        knobs[m] = sorted(set(grid))
-    return knobs
+            raise ValueError(f"risks: {e}") from None
+    if not grid:
+        raise ValueError(f"risks: no values for {method!r}")
+    return sorted(set(grid))
 
 
-def _task_path(out: Path, scene: int, method: str, knob: float) -> Path:
-    return out / "tasks" / f"scene_{scene:04d}__{method}__{knob:.6g}.json"
+def _task_path(out: Path, scene: int, method: str, risk: float) -> Path:
+    return out / "tasks" / f"scene_{scene:04d}__{method}__{risk:.6g}.json"
+
+
+def _read_task(path: Path) -> dict[str, Any]:
+    """One task's row; a row of an older folder has its ``knob`` renamed ``risk`` in place."""
+    row = json.loads(path.read_text())
+    if OLD_RISK_COLUMN in row and "risk" not in row:
+        row = {("risk" if k == OLD_RISK_COLUMN else k): v for k, v in row.items()}
+    return row
 
 
 def _frontier_task(args) -> int:
-    """Worker: scene ``index``, plan every missing (method, knob), one file per plan."""
+    """Worker: scene ``index``, plan every missing (method, risk), one file per plan."""
     index, seed, params_dict, todo, backend, out, config = args
     scene = make_scene(index, seed, SceneParams.from_dict(params_dict))
     done = 0
-    for method, knob in todo:
-        path = _task_path(Path(out), index, method, knob)
+    for method, risk in todo:
+        path = _task_path(Path(out), index, method, risk)
         if path.exists():
             continue
-        cfg = config_for_risk(method, knob, config)
+        cfg = config_for_risk(method, risk, config)
         row, _ = run_scene(scene, method, config=cfg, backend=backend)
-        row.update(knob=float(knob), seed=int(seed))
+        row.update(risk=float(risk), seed=int(seed))
         write_json(path, row)
         done += 1
     return done
@@ -122,7 +150,7 @@ def _frontier_task(args) -> int:
 def run_frontier(
     out: str | Path,
     *,
-    knobs: Mapping[str, Sequence[float]] | None = None,
+    risks: Mapping[str, Sequence[float]] | None = None,
     methods: Sequence[str] = METHODS,
     scenes: int | None = None,
     seed: int = 0,
@@ -135,7 +163,8 @@ def run_frontier(
     progress: bool = True,
     levels: Sequence[float] = TARGET_LEVELS,
 ) -> dict[str, Any]:
-    """Sweep every method's knob on the scenes; resumable (existing task files are reused).
+    """Sweep every method's risk level on the scenes; resumable (existing task files are reused;
+    ``risks``: the grid per method, default :data:`DEFAULT_RISKS`).
 
     Returns ``{"rows", "points", "interpolated", "computed", "reused", "wall_s"}``.
     """
@@ -145,11 +174,11 @@ def run_frontier(
     bad = [m for m in methods if m not in METHODS]
     if bad or not methods:
         raise ValueError(f"methods must be among {METHODS}, got {methods}")
-    knobs = {m: list(DEFAULT_KNOBS[m]) for m in methods} if knobs is None else dict(knobs)
+    risks = {m: list(DEFAULT_RISKS[m]) for m in methods} if risks is None else dict(risks)
     for m in methods:
-        if m not in knobs or not knobs[m]:
-            raise ValueError(f"no knob values for method {m!r}")
-        knobs[m] = [check_risk(k, f"knob of {m}") for k in knobs[m]]
+        if m not in risks or not risks[m]:
+            raise ValueError(f"no risk values for method {m!r}")
+        risks[m] = [check_risk(k, f"risk of {m}") for k in risks[m]]
     out = Path(out)
     (out / "tasks").mkdir(parents=True, exist_ok=True)
     check_manifest(
@@ -161,7 +190,7 @@ def run_frontier(
             config=config_overrides(config),
         ),
     )
-    pairs = [(m, k) for m in methods for k in knobs[m]]
+    pairs = [(m, k) for m in methods for k in risks[m]]
     tasks, reused = [], 0
     for i in range(n):
         todo = [(m, k) for m, k in pairs if not _task_path(out, i, m, k).exists()]
@@ -183,7 +212,7 @@ def run_frontier(
     rows = []
     for i in range(n):
         for m, k in pairs:
-            rows.append(json.loads(_task_path(out, i, m, k).read_text()))
+            rows.append(_read_task(_task_path(out, i, m, k)))
     write_results(rows, out / "frontier.csv", FRONTIER_COLUMNS)
     points = frontier_points(rows)
     interp = {m: interpolate_progress(points, m, levels) for m in methods}
@@ -203,18 +232,20 @@ def run_frontier(
 
 
 def frontier_points(rows: Sequence[Mapping[str, Any]]) -> list[dict[str, Any]]:
-    """Per (method, knob): scenes, mean / LQ / min collision-free (scaled to 1000 validation
-    samples), mean progress (m), median plan time (s), feasible share; sorted by method, knob."""
+    """Per (method, risk): scenes, mean / LQ / min collision-free (scaled to 1000 validation
+    samples), mean progress (m), median plan time (s), feasible share; sorted by method, risk.
+    Rows of an older folder may name the risk ``knob``."""
     groups: dict[tuple[str, float], list] = {}
     for r in rows:
-        groups.setdefault((r["method"], float(r["knob"])), []).append(r)
+        risk = r["risk"] if "risk" in r else r[OLD_RISK_COLUMN]
+        groups.setdefault((r["method"], float(risk)), []).append(r)
     pts = []
     for (m, k), rs in sorted(groups.items()):
         cf = np.array([1000.0 * float(r["collision_free"]) / float(r["n_validation"]) for r in rs])
         pts.append(
             dict(
                 method=m,
-                knob=k,
+                risk=k,
                 scenes=len(rs),
                 mean=float(cf.mean()),
                 q1=float(np.percentile(cf, 25)),
@@ -231,7 +262,7 @@ def interpolate_progress(
     points: Sequence[Mapping[str, Any]], method: str, levels: Sequence[float] = TARGET_LEVELS
 ) -> dict[str, float]:
     """``method``'s progress (m) at each target mean collision-free level: the most progress on
-    its piecewise-linear frontier (knob points joined in order of safety) with mean ≥ level;
+    its piecewise-linear frontier (risk points joined in order of safety) with mean ≥ level;
     NaN where no point of the sweep reaches the level."""
     pts = sorted(
         ((p["mean"], p["progress_m"]) for p in points if p["method"] == method),
@@ -251,24 +282,24 @@ def interpolate_progress(
 
 
 def frontier_figure(points: Sequence[Mapping[str, Any]], path: str | Path, title: str = "") -> Path:
-    """Mean collision-free (of 1000) against mean progress (m), one curve per method (knob
+    """Mean collision-free (of 1000) against mean progress (m), one curve per method (risk
     points in order), error bars down to the lower quartile."""
     from .plots import _label, _plt
 
     plt = _plt()
     fig, ax = plt.subplots(figsize=(7, 4.5))
     for m in dict.fromkeys(p["method"] for p in points):
-        ps = sorted((p for p in points if p["method"] == m), key=lambda p: p["knob"])
+        ps = sorted((p for p in points if p["method"] == m), key=lambda p: p["risk"])
         x = [p["progress_m"] for p in ps]
         y = [p["mean"] for p in ps]
         lo = [max(p["mean"] - p["q1"], 0.0) for p in ps]
         ax.errorbar(x, y, yerr=[lo, [0.0] * len(ps)], marker="o", capsize=3, label=_label(m))
         for p in ps:
-            ax.annotate(f"{p['knob']:g}", (p["progress_m"], p["mean"]), fontsize=7,
+            ax.annotate(f"{p['risk']:g}", (p["progress_m"], p["mean"]), fontsize=7,
                         xytext=(3, 3), textcoords="offset points")  # fmt: skip
     ax.set_xlabel("mean progress in 15 s (m)")
     ax.set_ylabel("mean collision-free validation samples (of 1000)")
-    ax.set_title(("safety–progress frontier; labels: knob ε; bars: to LQ" + "\n" + title).strip())
+    ax.set_title(("safety–progress frontier; labels: risk ε; bars: to LQ" + "\n" + title).strip())
     ax.grid(alpha=0.3)
     ax.legend()
     fig.tight_layout()

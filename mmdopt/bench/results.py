@@ -163,6 +163,9 @@ def load_results(path: str | Path, table: str | None = None) -> Any:
         looked = ", ".join(f"{t}.csv" for t in (RESULT_TABLES if table is None else (table,)))
         raise FileNotFoundError(f"{p} holds no benchmark table (looked for {looked})")
     frames = {t: pd.read_csv(f) for t, f in files.items()}
+    old = frames.get("frontier")
+    if old is not None and "knob" in old.columns and "risk" not in old.columns:
+        frames["frontier"] = old.rename(columns={"knob": "risk"})  # the column's older name
     if len(frames) == 1:
         return next(iter(frames.values()))
     return pd.concat(
