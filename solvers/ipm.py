@@ -64,6 +64,7 @@ from __future__ import annotations
 import dataclasses
 import hashlib
 import time
+from collections.abc import Callable
 from dataclasses import dataclass
 from typing import Any, NamedTuple
 
@@ -436,16 +437,69 @@ def _inf_norm(v):
     return jnp.max(jnp.abs(v), initial=0.0)
 
 
-def _ipm_one(st: IPMSetup, q, l, u):
-    """One QP (scaled, permuted ``q̄ (n,), l̄, ū (m,)``); vmapped by :func:`ipm_iterate`."""
-    ar = st.arrays
-    eps_abs, eps_rel, eps_pinf, eps_dinf, max_iter, tau, rho, delta = (
-        ar["params"][i] for i in range(len(_TUNABLE))
-    )
-    n, m, w = st.n, st.m, st.width
+class _Params(NamedTuple):
+    """The tunables of :data:`_TUNABLE` as traced scalars (array leaves of the setup)."""
+
+    eps_abs: Any
+    eps_rel: Any
+    eps_pinf: Any
+    eps_dinf: Any
+    max_iter: Any
+    tau: Any  # step fraction
+    rho: Any  # static primal regularisation ρ
+    delta: Any  # static dual regularisation δ (equality rows)
+
+
+class _Scaling(NamedTuple):
+    """Ruiz scaling ``x = D x̄``, ``y = E ȳ / c`` and the inverses of ``D``, ``E``."""
+
+    D: Any
+    E: Any
+    c: Any
+    Dinv: Any
+    Einv: Any
+
+
+class _Rows(NamedTuple):
+    """Row classes of one QP, from its own ``l̄, ū`` (the ``f*`` masks are float64 0/1)."""
+
+    fin_l: Any  # bool: finite lower side
+    fin_u: Any  # bool: finite upper side
+    eq: Any  # bool: equality row (l == u)
+    fl: Any  # lower inequality side (slack s_l, multiplier z_l)
+    fu: Any  # upper inequality side (slack s_u, multiplier z_u)
+    fe: Any  # equality (free multiplier y_e)
+    lf: Any  # l with its infinite entries zeroed
+    uf: Any  # u with its infinite entries zeroed
+    n_ineq: Any  # number of inequality sides (at least 1)
+
+
+def _classify_rows(l, u) -> _Rows:
     f64 = jnp.float64
-    D, E, c = ar["D"], ar["E"], ar["c"]
-    Dinv, Einv = 1.0 / D, 1.0 / E
+    fin_l, fin_u = jnp.isfinite(l), jnp.isfinite(u)
+    eq = fin_l & fin_u & (l == u)
+    fl = (fin_l & ~eq).astype(f64)
+    fu = (fin_u & ~eq).astype(f64)
+    fe = eq.astype(f64)
+    lf = jnp.where(fin_l, l, 0.0)
+    uf = jnp.where(fin_u, u, 0.0)
+    n_ineq = jnp.maximum(jnp.sum(fl) + jnp.sum(fu), 1.0)
+    return _Rows(fin_l, fin_u, eq, fl, fu, fe, lf, uf, n_ineq)
+
+
+class _LinAlg(NamedTuple):
+    """Products with the shared scaled matrices and the condensed matrix's factor and solve."""
+
+    Amul: Callable  # x ↦ Āx
+    ATmul: Callable  # y ↦ Āᵀy
+    Pmul: Callable  # x ↦ P̄x
+    factor: Callable  # d ↦ Cholesky factor of M = P̄ + ρI + Āᵀ diag(d) Ā
+    msolve: Callable  # (factor, r) ↦ M⁻¹r
+
+
+def _linear_algebra(st: IPMSetup, rho) -> _LinAlg:
+    """The closures of :class:`_LinAlg` for ``st``'s linear solver (banded or dense)."""
+    ar, n, w, f64 = st.arrays, st.n, st.width, jnp.float64
     Ad, Pd = ar["A"], ar["P"]
 
     # (dense products: under vmap XLA's batched matmul beats gathers over the nonzeros of A on
@@ -459,16 +513,6 @@ def _ipm_one(st: IPMSetup, q, l, u):
     def Pmul(x):
         return Pd @ x
 
-    fin_l, fin_u = jnp.isfinite(l), jnp.isfinite(u)
-    eq = fin_l & fin_u & (l == u)
-    fl = (fin_l & ~eq).astype(f64)
-    fu = (fin_u & ~eq).astype(f64)
-    fe = eq.astype(f64)
-    lf = jnp.where(fin_l, l, 0.0)
-    uf = jnp.where(fin_u, u, 0.0)
-    n_ineq = jnp.maximum(jnp.sum(fl) + jnp.sum(fu), 1.0)
-
-    # ---- the condensed matrix M = P + ρI + Aᵀ diag(d) A and solves with it
     if st.kind == "banded":
         Pb, coef, rows = ar["band_P"], ar["band_coef"], ar["band_rows"]
 
@@ -490,91 +534,161 @@ def _ipm_one(st: IPMSetup, q, l, u):
             t = jax.scipy.linalg.solve_triangular(L, r, lower=True)
             return jax.scipy.linalg.solve_triangular(L, t, lower=True, trans="T")
 
-    def kkt_solve(L, dI, r1, r2):
-        """Solve [H Aₑᵀ; Aₑ 0](dx, dyₑ) = (r1, r2), H = P + Aᵀ diag(dI) A.
+    return _LinAlg(Amul, ATmul, Pmul, factor, msolve)
 
-        The regularised solve (M = H + ρI + AₑᵀAₑ/δ, dyₑ = (Aₑdx − r2)/δ), then iterative
-        refinement on the unregularised system with the same factor.  Returns (dx, dyₑ, A dx).
-        """
-        dx = msolve(L, r1 + ATmul(fe * r2) / delta)
-        Adx = Amul(dx)
-        dye = fe * (Adx - r2) / delta
 
-        def refine(_, c_):
-            dx, dye, Adx = c_
-            e2 = fe * (r2 - Adx)
-            e = r1 - Pmul(dx) - ATmul(dI * Adx + fe * dye - e2 / delta)
-            cx = msolve(L, e)
-            Acx = Amul(cx)
-            return dx + cx, dye + fe * (Acx - e2) / delta, Adx + Acx
+class _QP(NamedTuple):
+    """One scaled QP as the iteration reads it."""
 
-        return lax.fori_loop(0, st.refine_iter, refine, (dx, dye, Adx))
+    q: Any  # (n,) q̄
+    l: Any  # (m,) l̄
+    u: Any  # (m,) ū
+    n: int
+    m: int
+    refine_iter: int
+    prm: _Params
+    sc: _Scaling
+    rows: _Rows
+    la: _LinAlg
 
-    # ---- unscaled residuals, termination and certificates (float64)
-    def check(x, y, Ax, Px, ATy, dxs, dys, Adx, Pdx, ATdy, it):
-        Ax_u = Einv * Ax
-        l_u, u_u = Einv * l, Einv * u
-        viol = jnp.maximum(jnp.maximum(l_u - Ax_u, Ax_u - u_u), 0.0)
-        prim = _inf_norm(viol)
-        proj = jnp.clip(Ax_u, l_u, u_u)
-        eps_p = eps_abs + eps_rel * jnp.maximum(_inf_norm(Ax_u), _inf_norm(proj))
-        Px_u, ATy_u, q_u = Dinv * Px / c, Dinv * ATy / c, Dinv * q / c
-        dual = _inf_norm(Px_u + q_u + ATy_u)
-        eps_d = eps_abs + eps_rel * jnp.maximum(
-            jnp.maximum(_inf_norm(Px_u), _inf_norm(ATy_u)), _inf_norm(q_u)
-        )
-        xPx, qx = x @ Px / c, q @ x / c
-        supp = jnp.sum(jnp.where(y > 0, uf * y, lf * y)) / c  # S(y): support function of [l, u]
-        pobj, dobj = 0.5 * xPx + qx, -0.5 * xPx - supp
-        gap = jnp.abs(pobj - dobj)
-        eps_g = eps_abs + eps_rel * jnp.maximum(jnp.abs(pobj), jnp.abs(dobj))
-        solved = (prim <= eps_p) & (dual <= eps_d) & (gap <= eps_g)
-        # primal infeasibility: δy (sign-projected on the finite sides) with Aᵀδy ≈ 0, S(δy) < 0
-        dy_u = E * dys / c
-        keep = jnp.where(fin_u, True, dy_u <= 0) & jnp.where(fin_l, True, dy_u >= 0)
-        ndy = _inf_norm(dy_u)
-        ATdy_n = _inf_norm(Dinv * ATdy / c)
-        supp_dy = jnp.sum(jnp.where(dy_u > 0, uf, lf) * Einv * dy_u)
-        pinf = (
-            jnp.all(keep)
-            & (ndy > 1e-300)
-            & (ATdy_n <= eps_pinf * ndy)
-            & (supp_dy <= -eps_pinf * ndy)
-        )
-        # dual infeasibility: δx with Pδx ≈ 0, qᵀδx < 0, Aδx in the recession cone of [l, u]
-        ndx = _inf_norm(D * dxs)
-        tol = eps_dinf * ndx
-        Adx_u = Einv * Adx
-        cone = jnp.all(jnp.where(fin_u, Adx_u <= tol, True) & jnp.where(fin_l, Adx_u >= -tol, True))
-        dinf = (ndx > 1e-300) & (_inf_norm(Dinv * Pdx / c) <= tol) & (q @ dxs / c <= -tol) & cone
-        bad = ~(jnp.all(jnp.isfinite(x)) & jnp.all(jnp.isfinite(y)))
-        status = jnp.where(
-            bad,
-            _ERROR,
+
+class _Carry(NamedTuple):
+    """Loop state of one QP (scaled iterates, products, iteration count, last check)."""
+
+    x: Any
+    sl: Any
+    su: Any
+    zl: Any
+    zu: Any
+    ye: Any
+    Ax: Any
+    Px: Any
+    ATy: Any
+    it: Any
+    status: Any
+    prim: Any
+    dual: Any
+    gap: Any
+
+
+def _kkt_solve(qp: _QP, L, dI, r1, r2):
+    """Solve [H Aₑᵀ; Aₑ 0](dx, dyₑ) = (r1, r2), H = P + Aᵀ diag(dI) A.
+
+    The regularised solve (M = H + ρI + AₑᵀAₑ/δ, dyₑ = (Aₑdx − r2)/δ), then iterative
+    refinement on the unregularised system with the same factor.  Returns (dx, dyₑ, A dx).
+    """
+    la, fe, delta = qp.la, qp.rows.fe, qp.prm.delta
+    dx = la.msolve(L, r1 + la.ATmul(fe * r2) / delta)
+    Adx = la.Amul(dx)
+    dye = fe * (Adx - r2) / delta
+
+    def refine(_, c_):
+        dx, dye, Adx = c_
+        e2 = fe * (r2 - Adx)
+        e = r1 - la.Pmul(dx) - la.ATmul(dI * Adx + fe * dye - e2 / delta)
+        cx = la.msolve(L, e)
+        Acx = la.Amul(cx)
+        return dx + cx, dye + fe * (Acx - e2) / delta, Adx + Acx
+
+    return lax.fori_loop(0, qp.refine_iter, refine, (dx, dye, Adx))
+
+
+# ---- unscaled residuals, termination and certificates (float64)
+def _termination(qp: _QP, x, y, Ax, Px, ATy):
+    """Bound violation, dual residual and duality gap on the unscaled problem, and whether all
+    three meet their tolerances.  Returns ``(solved, prim, dual, gap)``."""
+    p, sc, r = qp.prm, qp.sc, qp.rows
+    Dinv, Einv, c, q = sc.Dinv, sc.Einv, sc.c, qp.q
+    Ax_u = Einv * Ax
+    l_u, u_u = Einv * qp.l, Einv * qp.u
+    viol = jnp.maximum(jnp.maximum(l_u - Ax_u, Ax_u - u_u), 0.0)
+    prim = _inf_norm(viol)
+    proj = jnp.clip(Ax_u, l_u, u_u)
+    eps_p = p.eps_abs + p.eps_rel * jnp.maximum(_inf_norm(Ax_u), _inf_norm(proj))
+    Px_u, ATy_u, q_u = Dinv * Px / c, Dinv * ATy / c, Dinv * q / c
+    dual = _inf_norm(Px_u + q_u + ATy_u)
+    eps_d = p.eps_abs + p.eps_rel * jnp.maximum(
+        jnp.maximum(_inf_norm(Px_u), _inf_norm(ATy_u)), _inf_norm(q_u)
+    )
+    xPx, qx = x @ Px / c, q @ x / c
+    supp = jnp.sum(jnp.where(y > 0, r.uf * y, r.lf * y)) / c  # S(y): support function of [l, u]
+    pobj, dobj = 0.5 * xPx + qx, -0.5 * xPx - supp
+    gap = jnp.abs(pobj - dobj)
+    eps_g = p.eps_abs + p.eps_rel * jnp.maximum(jnp.abs(pobj), jnp.abs(dobj))
+    solved = (prim <= eps_p) & (dual <= eps_d) & (gap <= eps_g)
+    return solved, prim, dual, gap
+
+
+def _primal_infeasible(qp: _QP, dys, ATdy):
+    """δy (sign-projected on the finite sides) with Aᵀδy ≈ 0 and S(δy) < 0."""
+    sc, r, eps_pinf = qp.sc, qp.rows, qp.prm.eps_pinf
+    dy_u = sc.E * dys / sc.c
+    keep = jnp.where(r.fin_u, True, dy_u <= 0) & jnp.where(r.fin_l, True, dy_u >= 0)
+    ndy = _inf_norm(dy_u)
+    ATdy_n = _inf_norm(sc.Dinv * ATdy / sc.c)
+    supp_dy = jnp.sum(jnp.where(dy_u > 0, r.uf, r.lf) * sc.Einv * dy_u)
+    return (
+        jnp.all(keep) & (ndy > 1e-300) & (ATdy_n <= eps_pinf * ndy) & (supp_dy <= -eps_pinf * ndy)
+    )
+
+
+def _dual_infeasible(qp: _QP, dxs, Adx, Pdx):
+    """δx with Pδx ≈ 0, qᵀδx < 0 and Aδx in the recession cone of [l, u]."""
+    sc, r = qp.sc, qp.rows
+    ndx = _inf_norm(sc.D * dxs)
+    tol = qp.prm.eps_dinf * ndx
+    Adx_u = sc.Einv * Adx
+    cone = jnp.all(jnp.where(r.fin_u, Adx_u <= tol, True) & jnp.where(r.fin_l, Adx_u >= -tol, True))
+    return (
+        (ndx > 1e-300)
+        & (_inf_norm(sc.Dinv * Pdx / sc.c) <= tol)
+        & (qp.q @ dxs / sc.c <= -tol)
+        & cone
+    )
+
+
+def _check(qp: _QP, x, y, Ax, Px, ATy, dxs, dys, Adx, Pdx, ATdy, it):
+    """Status after a step (``dxs, dys`` and the products with them: the step itself, for the
+    infeasibility certificates).  Returns ``(status, prim, dual, gap)``."""
+    solved, prim, dual, gap = _termination(qp, x, y, Ax, Px, ATy)
+    pinf = _primal_infeasible(qp, dys, ATdy)
+    dinf = _dual_infeasible(qp, dxs, Adx, Pdx)
+    bad = ~(jnp.all(jnp.isfinite(x)) & jnp.all(jnp.isfinite(y)))
+    status = jnp.where(
+        bad,
+        _ERROR,
+        jnp.where(
+            solved,
+            _SOLVED,
             jnp.where(
-                solved,
-                _SOLVED,
-                jnp.where(
-                    pinf, _PINF, jnp.where(dinf, _DINF, jnp.where(it >= max_iter, _MAX_ITER, 0))
-                ),
+                pinf,
+                _PINF,
+                jnp.where(dinf, _DINF, jnp.where(it >= qp.prm.max_iter, _MAX_ITER, 0)),
             ),
-        )
-        return status.astype(jnp.int32), prim, dual, gap
+        ),
+    )
+    return status.astype(jnp.int32), prim, dual, gap
 
-    def max_step(v, dv, mask):
-        # largest α with v + α·dv ≥ 0 on the masked components
-        ratio = jnp.where((mask > 0) & (dv < 0), -v / jnp.where(dv < 0, dv, -1.0), jnp.inf)
-        return jnp.min(ratio, initial=jnp.inf)
 
-    # ---- starting point: minimise ½xᵀPx + qᵀx + ½Σ d₀(Ax − t)² (t: the middle of each row)
-    d0 = fl + fu - fl * fu + fe / delta
+def _max_step(v, dv, mask):
+    """Largest α with v + α·dv ≥ 0 on the masked components."""
+    ratio = jnp.where((mask > 0) & (dv < 0), -v / jnp.where(dv < 0, dv, -1.0), jnp.inf)
+    return jnp.min(ratio, initial=jnp.inf)
+
+
+def _starting_point(qp: _QP) -> _Carry:
+    """Minimise ½xᵀPx + qᵀx + ½Σ d₀(Ax − t)² (t: the middle of each row); slacks and
+    multipliers from it."""
+    r, la, f64 = qp.rows, qp.la, jnp.float64
+    fl, fu, fe, lf, uf, fin_l, fin_u = r.fl, r.fu, r.fe, r.lf, r.uf, r.fin_l, r.fin_u
+    d0 = fl + fu - fl * fu + fe / qp.prm.delta
     t = jnp.where(
-        eq,
+        r.eq,
         lf,
         jnp.where(fin_l & fin_u, 0.5 * (lf + uf), jnp.where(fin_l, lf, jnp.where(fin_u, uf, 0.0))),
     )
-    x0 = msolve(factor(d0), -q + ATmul(d0 * t))
-    Ax0 = Amul(x0)
+    x0 = la.msolve(la.factor(d0), -qp.q + la.ATmul(d0 * t))
+    Ax0 = la.Amul(x0)
     # slacks: the distance to each finite bound, floored at min(1, half the row's width);
     # multipliers: the penalty's estimate d₀(Ax₀ − t) split by sign, shifted as in Mehrotra (1992)
     width = jnp.where(fin_l & fin_u, uf - lf, jnp.inf)
@@ -588,86 +702,129 @@ def _ipm_one(st: IPMSetup, q, l, u):
     dz = 0.5 * sz / jnp.maximum(ssum, 1e-300)
     zl0 = fl * jnp.maximum(zl_t + dz, 1e-8)
     zu0 = fu * jnp.maximum(zu_t + dz, 1e-8)
-    ye0 = jnp.zeros(m, f64)
+    ye0 = jnp.zeros(qp.m, f64)
     y0 = zu0 - zl0
-    Px0, ATy0 = Pmul(x0), ATmul(y0)
+    Px0, ATy0 = la.Pmul(x0), la.ATmul(y0)
     inf = jnp.asarray(jnp.inf, f64)
     st0 = jnp.zeros((), jnp.int32)  # RUNNING: the first check follows the first step
     p0 = du0 = g0 = inf
     it0 = jnp.zeros((), jnp.int32)
-    init = (x0, sl0, su0, zl0, zu0, ye0, Ax0, Px0, ATy0, it0, st0, p0, du0, g0)
+    return _Carry(x0, sl0, su0, zl0, zu0, ye0, Ax0, Px0, ATy0, it0, st0, p0, du0, g0)
 
-    def cond(carry):
-        return carry[10] == _RUNNING
 
-    def body(carry):
-        x, sl, su, zl, zu, ye, Ax, Px, ATy, it, _, _, _, _ = carry
-        y = zu - zl + ye
-        rd = Px + q + ATy  # stationarity residual
-        rpl = fl * (Ax - sl - lf)
-        rpu = fu * (Ax + su - uf)
-        re = fe * (Ax - lf)
-        mu = (jnp.sum(fl * sl * zl) + jnp.sum(fu * su * zu)) / n_ineq
-        slr = jnp.where(fl > 0, sl, 1.0)
-        sur = jnp.where(fu > 0, su, 1.0)
-        dI = fl * zl / slr + fu * zu / sur
-        L = factor(dI + fe / delta)
+class _Newton(NamedTuple):
+    """The linearisation at the current iterate that both Mehrotra passes solve with."""
 
-        def alpha_max(dsl, dsu, dzl, dzu):
-            return jnp.minimum(
-                jnp.minimum(max_step(sl, dsl, fl), max_step(su, dsu, fu)),
-                jnp.minimum(max_step(zl, dzl, fl), max_step(zu, dzu, fu)),
-            )
+    sl: Any
+    su: Any
+    zl: Any
+    zu: Any
+    slr: Any  # s_l with 1 on the rows without a lower side (safe divisor)
+    sur: Any
+    mu: Any  # complementarity measure
+    dI: Any  # z_l/s_l + z_u/s_u
+    L: Any  # factor of the condensed matrix
+    rd: Any  # stationarity residual
+    rpl: Any  # primal residuals of the lower, upper and equality rows
+    rpu: Any
+    re: Any
 
-        def mehrotra(k, prev):
-            # pass 0, Mehrotra predictor (affine scaling): complementarity target 0.
-            # pass 1, corrector: target σμ with centering σ = (μ_aff/μ)³ and the second-order
-            # term Δs_aff∘Δz_aff of the predictor (one traced solve serves both passes).
-            _, dsla, dsua, dzla, dzua, _, _ = prev
-            aa = jnp.minimum(1.0, alpha_max(dsla, dsua, dzla, dzua))
-            mu_aff = (
-                jnp.sum(fl * (sl + aa * dsla) * (zl + aa * dzla))
-                + jnp.sum(fu * (su + aa * dsua) * (zu + aa * dzua))
-            ) / n_ineq
-            sigma = jnp.clip((mu_aff / jnp.maximum(mu, 1e-300)) ** 3, 0.0, 1.0)
-            sigma = jnp.where(k == 0, 0.0, sigma)
-            rcl = fl * (sl * zl + dsla * dzla - sigma * mu)
-            rcu = fu * (su * zu + dsua * dzua - sigma * mu)
-            # Newton step of the perturbed KKT system, condensed onto (dx, dyₑ)
-            g = fu * (-rcu + zu * rpu) / sur + fl * (rcl + zl * rpl) / slr
-            dx, dye, Adx = kkt_solve(L, dI, -rd - ATmul(g), -re)
-            dsl = fl * (Adx + rpl)
-            dsu = fu * (-Adx - rpu)
-            dzl = fl * (-rcl - zl * dsl) / slr
-            dzu = fu * (-rcu - zu * dsu) / sur
-            return dx, dsl, dsu, dzl, dzu, dye, Adx
 
-        zn, zm = jnp.zeros(n, f64), jnp.zeros(m, f64)
-        zero = (zn, zm, zm, zm, zm, zm, zm)
-        dx, dsl, dsu, dzl, dzu, dye, Adx = lax.fori_loop(0, 2, mehrotra, zero)
-        # step length: a fraction τ of the way to the boundary of s, z ≥ 0 (one α for all)
-        a = jnp.minimum(1.0, tau * alpha_max(dsl, dsu, dzl, dzu))
-        xn = x + a * dx
-        sln = jnp.where(fl > 0, sl + a * dsl, 1.0)
-        sun = jnp.where(fu > 0, su + a * dsu, 1.0)
-        zln = fl * (zl + a * dzl)
-        zun = fu * (zu + a * dzu)
-        yen = ye + a * dye
-        yn = zun - zln + yen
-        Axn, Pxn, ATyn = Amul(xn), Pmul(xn), ATmul(yn)
-        itn = it + 1
-        stn, prim, dual, gap = check(
-            xn, yn, Axn, Pxn, ATyn, xn - x, yn - y, Axn - Ax, Pxn - Px, ATyn - ATy, itn
-        )
-        return (xn, sln, sun, zln, zun, yen, Axn, Pxn, ATyn, itn, stn, prim, dual, gap)
-
-    out = lax.while_loop(cond, body, init)
-    x, zl, zu, ye, Px, it, status, prim, dual, gap = (
-        out[i] for i in (0, 3, 4, 5, 7, 9, 10, 11, 12, 13)
+def _alpha_max(qp: _QP, nw: _Newton, dsl, dsu, dzl, dzu):
+    """Largest step keeping ``s, z ≥ 0``."""
+    fl, fu = qp.rows.fl, qp.rows.fu
+    return jnp.minimum(
+        jnp.minimum(_max_step(nw.sl, dsl, fl), _max_step(nw.su, dsu, fu)),
+        jnp.minimum(_max_step(nw.zl, dzl, fl), _max_step(nw.zu, dzu, fu)),
     )
+
+
+def _predictor_corrector(qp: _QP, nw: _Newton):
+    """Mehrotra's direction ``(dx, dsl, dsu, dzl, dzu, dye, A dx)``.
+
+    Pass 0, the predictor (affine scaling): complementarity target 0.  Pass 1, the corrector:
+    target σμ with centering σ = (μ_aff/μ)³ and the second-order term Δs_aff∘Δz_aff of the
+    predictor (one traced solve serves both passes).
+    """
+    r, f64 = qp.rows, jnp.float64
+    fl, fu = r.fl, r.fu
+    sl, su, zl, zu, slr, sur, mu = nw.sl, nw.su, nw.zl, nw.zu, nw.slr, nw.sur, nw.mu
+
+    def mehrotra(k, prev):
+        _, dsla, dsua, dzla, dzua, _, _ = prev
+        aa = jnp.minimum(1.0, _alpha_max(qp, nw, dsla, dsua, dzla, dzua))
+        mu_aff = (
+            jnp.sum(fl * (sl + aa * dsla) * (zl + aa * dzla))
+            + jnp.sum(fu * (su + aa * dsua) * (zu + aa * dzua))
+        ) / r.n_ineq
+        sigma = jnp.clip((mu_aff / jnp.maximum(mu, 1e-300)) ** 3, 0.0, 1.0)
+        sigma = jnp.where(k == 0, 0.0, sigma)
+        rcl = fl * (sl * zl + dsla * dzla - sigma * mu)
+        rcu = fu * (su * zu + dsua * dzua - sigma * mu)
+        # Newton step of the perturbed KKT system, condensed onto (dx, dyₑ)
+        g = fu * (-rcu + zu * nw.rpu) / sur + fl * (rcl + zl * nw.rpl) / slr
+        dx, dye, Adx = _kkt_solve(qp, nw.L, nw.dI, -nw.rd - qp.la.ATmul(g), -nw.re)
+        dsl = fl * (Adx + nw.rpl)
+        dsu = fu * (-Adx - nw.rpu)
+        dzl = fl * (-rcl - zl * dsl) / slr
+        dzu = fu * (-rcu - zu * dsu) / sur
+        return dx, dsl, dsu, dzl, dzu, dye, Adx
+
+    zn, zm = jnp.zeros(qp.n, f64), jnp.zeros(qp.m, f64)
+    zero = (zn, zm, zm, zm, zm, zm, zm)
+    return lax.fori_loop(0, 2, mehrotra, zero)
+
+
+def _ipm_step(qp: _QP, carry: _Carry) -> _Carry:
+    """One interior-point iteration: linearise, Mehrotra's direction, step, check."""
+    r, la = qp.rows, qp.la
+    fl, fu, fe = r.fl, r.fu, r.fe
+    x, sl, su, zl, zu, ye, Ax, Px, ATy, it = carry[:10]
     y = zu - zl + ye
-    obj = (0.5 * x @ Px + q @ x) / c
-    return D * x, E * y / c, status, it, prim, dual, gap, obj
+    rd = Px + qp.q + ATy  # stationarity residual
+    rpl = fl * (Ax - sl - r.lf)
+    rpu = fu * (Ax + su - r.uf)
+    re = fe * (Ax - r.lf)
+    mu = (jnp.sum(fl * sl * zl) + jnp.sum(fu * su * zu)) / r.n_ineq
+    slr = jnp.where(fl > 0, sl, 1.0)
+    sur = jnp.where(fu > 0, su, 1.0)
+    dI = fl * zl / slr + fu * zu / sur
+    L = la.factor(dI + fe / qp.prm.delta)
+    nw = _Newton(sl, su, zl, zu, slr, sur, mu, dI, L, rd, rpl, rpu, re)
+    dx, dsl, dsu, dzl, dzu, dye, Adx = _predictor_corrector(qp, nw)
+    # step length: a fraction τ of the way to the boundary of s, z ≥ 0 (one α for all)
+    a = jnp.minimum(1.0, qp.prm.tau * _alpha_max(qp, nw, dsl, dsu, dzl, dzu))
+    xn = x + a * dx
+    sln = jnp.where(fl > 0, sl + a * dsl, 1.0)
+    sun = jnp.where(fu > 0, su + a * dsu, 1.0)
+    zln = fl * (zl + a * dzl)
+    zun = fu * (zu + a * dzu)
+    yen = ye + a * dye
+    yn = zun - zln + yen
+    Axn, Pxn, ATyn = la.Amul(xn), la.Pmul(xn), la.ATmul(yn)
+    itn = it + 1
+    stn, prim, dual, gap = _check(
+        qp, xn, yn, Axn, Pxn, ATyn, xn - x, yn - y, Axn - Ax, Pxn - Px, ATyn - ATy, itn
+    )
+    return _Carry(xn, sln, sun, zln, zun, yen, Axn, Pxn, ATyn, itn, stn, prim, dual, gap)
+
+
+def _ipm_one(st: IPMSetup, q, l, u):
+    """One QP (scaled, permuted ``q̄ (n,), l̄, ū (m,)``); vmapped by :func:`ipm_iterate`."""
+    ar = st.arrays
+    prm = _Params(*(ar["params"][i] for i in range(len(_TUNABLE))))
+    D, E, c = ar["D"], ar["E"], ar["c"]
+    sc = _Scaling(D, E, c, 1.0 / D, 1.0 / E)
+    rows = _classify_rows(l, u)
+    qp = _QP(q, l, u, st.n, st.m, st.refine_iter, prm, sc, rows, _linear_algebra(st, prm.rho))
+    out = lax.while_loop(
+        lambda carry: carry.status == _RUNNING,
+        lambda carry: _ipm_step(qp, carry),
+        _starting_point(qp),
+    )
+    y = out.zu - out.zl + out.ye
+    obj = (0.5 * out.x @ out.Px + q @ out.x) / c
+    return D * out.x, E * y / c, out.status, out.it, out.prim, out.dual, out.gap, obj
 
 
 def ipm_iterate(setup: IPMSetup, q: Any, l: Any, u: Any) -> IPMResult:
