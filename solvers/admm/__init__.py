@@ -1,7 +1,8 @@
 """Batched, jitted ADMM in JAX: the functional core and the registry's ``admm`` backend.
 
-* :mod:`solvers.admm.core` — :class:`ADMMSettings`, :func:`admm_factor`, :func:`admm_iterate`,
-  :class:`ADMMState` (pure JAX, for use inside your own ``jit``; the planner's projector uses it).
+* :mod:`solvers.admm.core` — :class:`ADMMSettings` (with :class:`PolishSettings`),
+  :func:`admm_factor`, :func:`admm_iterate`, :class:`ADMMState` (pure JAX, for use inside your
+  own ``jit``; the planner's projector uses it).
 * :mod:`solvers.admm.polish` — the float64 active-set polish and termination test (NumPy).
 * :mod:`solvers.admm.backend` — :class:`ADMMBackend`, what ``solve(..., backend="admm")`` runs.
 
@@ -13,6 +14,7 @@ from .core import (
     ADMMFactor,
     ADMMSettings,
     ADMMState,
+    PolishSettings,
     admm_factor,
     admm_iterate,
     flops_per_iteration,
@@ -24,6 +26,7 @@ __all__ = [
     "ADMMSettings",
     "ADMMFactor",
     "ADMMState",
+    "PolishSettings",
     "ADMMBackend",
     "DENSE_N_WARN",
     "admm_factor",

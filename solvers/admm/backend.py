@@ -29,7 +29,7 @@ Use::
     from solvers import solve_batch
     sol = solve_batch(batch, backend="admm", eps_abs=1e-5, polish=True, warm_start=prev)
 
-Settings are the fields of :class:`~solvers.admm.ADMMSettings` plus the common names
+Settings are the names of :meth:`~solvers.admm.ADMMSettings.names` plus the common names
 (``time_limit`` and ``verbose`` are recorded as ignored); unknown names raise
 :class:`~solvers.errors.InvalidSettingError`.  ``sol.extras`` holds the polish counts, the
 fallback count, timings and the per-QP final ``rho``.
@@ -77,7 +77,7 @@ DIVERGED = 1e8
 SPEC = SettingsSpec(
     backend="admm",
     common={"eps_abs": ("eps_abs",), "eps_rel": ("eps_rel",), "max_iter": ("max_iter",)},
-    native=frozenset(f.name for f in dataclasses.fields(ADMMSettings)),
+    native=frozenset(ADMMSettings.names()),
     warm_start=True,
     tolerance=("eps_abs", "eps_rel"),
     tolerance_defaults=(ADMMSettings.eps_abs, ADMMSettings.eps_rel),
@@ -153,132 +153,188 @@ class ADMMBackend(Backend):
                 "clarabel) is likely better",
                 stacklevel=3,
             )
-        q, l, u = batch.q, batch.l, batch.u
-        eq, free = rows_from_bounds(l, u)
+        eq, free = rows_from_bounds(batch.l, batch.u)
         factor, pd = self._factor(P, A, eq, free, s, s.polish)
         t_factor = time.perf_counter() - t0
+        run = _Run.start(batch, warm_start, s)
+        stage = s.max_iter if s.stage_iter is None else max(s.check_every, int(s.stage_iter))
+        todo = np.arange(len(batch))
+        done_iter = 0
+        first = True
+        while todo.size and (first or done_iter < s.max_iter):
+            first = False
+            k = min(stage, s.max_iter - done_iter)
+            todo = _run_stage(run, factor, pd, P, A, batch, todo, k, s)
+            done_iter += k
+        extras = run.extras(t_factor, s)
+        rejected = _recheck_certificates(batch, P, A, run.status, run.dx, run.dy, s)
+        run.status[rejected] = _MAX_ITER
+        extras["certificate_rejected"] = rejected
+        fb = 0
+        if s.fallback == "clarabel":
+            extras["fallback_attempted"], fb = _clarabel_fallback(batch, run)
+        extras["fallback_count"] = fb
+        return _batch_solution(self.name, batch, run, s, extras, t0)
+
+
+@dataclasses.dataclass(eq=False)
+class _Run:
+    """Per-QP results and counters of :meth:`ADMMBackend._solve_batch`, updated stage by stage
+    (``B`` QPs of ``n`` variables and ``m`` rows; unscaled, OSQP sign convention)."""
+
+    x: np.ndarray  # (B, n)
+    y: np.ndarray  # (B, m)
+    z: np.ndarray  # (B, m)
+    dx: np.ndarray  # (B, n) the last δx (dual infeasibility certificate)
+    dy: np.ndarray  # (B, m) the last δy (primal infeasibility certificate)
+    rho: np.ndarray  # (B,) each QP's final rho
+    status: np.ndarray  # (B,) int32, after the float64 re-check and the polish
+    admm_status: np.ndarray  # (B,) int32, as the iterations left it
+    iters: np.ndarray  # (B,) iterations each QP ran
+    polished: np.ndarray  # (B,) bool, the polished point was accepted
+    t_iter: float = 0.0
+    t_pol: float = 0.0
+    flops: float = 0.0
+    rung_mm: int = 0
+    iters_run: int = 0
+    attempted: int = 0
+
+    @classmethod
+    def start(cls, batch: QPBatch, warm_start, s: ADMMSettings) -> _Run:
         B, n, m = len(batch), batch.n, batch.m
         x = np.zeros((B, n))
         y = np.zeros((B, m))
         if warm_start is not None:
             x = np.nan_to_num(np.asarray(warm_start.x, float), nan=0.0, posinf=0.0, neginf=0.0)
             y = np.nan_to_num(np.asarray(warm_start.y, float), nan=0.0, posinf=0.0, neginf=0.0)
-        z = np.zeros((B, m))
-        dx, dy = np.zeros((B, n)), np.zeros((B, m))
-        rho = np.full(B, s.rho)
         status = np.full(B, _MAX_ITER, np.int32)
-        admm_status = status.copy()
-        iters = np.zeros(B, np.int64)
-        polished = np.zeros(B, bool)
-        stage = s.max_iter if s.stage_iter is None else max(s.check_every, int(s.stage_iter))
-        todo = np.arange(B)
-        done_iter = 0
-        t_iter = t_pol = flops = 0.0
-        rung_mm = iters_run = attempted = 0
-        first = True
-        while todo.size and (first or done_iter < s.max_iter):
-            first = False
-            k = min(stage, s.max_iter - done_iter)
-            Bs = todo.size if todo.size == B else min(B, 1 << (todo.size - 1).bit_length())
-            sub = np.concatenate([todo, np.repeat(todo[:1], Bs - todo.size)])  # padded
-            t1 = time.perf_counter()
-            st = _admm_iterate_jit(
-                factor, q[sub], l[sub], u[sub], x[sub], y[sub], iters=k, rho0=rho[sub]
-            )
-            st = jax.tree_util.tree_map(np.asarray, st)
-            t_iter += time.perf_counter() - t1
-            r = slice(0, todo.size)
-            x[todo] = st.x[r]
-            y[todo] = st.y[r]
-            z[todo] = st.z[r]
-            dx[todo], dy[todo] = st.delta_x[r], st.delta_y[r]
-            rho[todo] = st.rho[r]
-            iters[todo] += st.iterations[r]
-            stt = st.status[r].astype(np.int32)
-            admm_status[todo] = stt
-            status[todo] = stt
-            it_s = int(st.iterations.max(initial=0))
-            iters_run += it_s
-            rung_mm += int(st.rung_matmuls)
-            flops += _flops(n, m, Bs, it_s, int(st.rung_matmuls), s.check_every)
-            done_iter += k
-            # float64 re-check of what the iteration dtype declared solved
-            ok64, *_ = termination(P, A, q[todo], l[todo], u[todo], x[todo], y[todo], s)
-            status[todo[(stt == _SOLVED) & ~ok64]] = int(Status.SOLVED_INACCURATE)
-            t2 = time.perf_counter()
-            if s.polish:
-                cand = todo[~np.isin(stt, (_PINF, _DINF, _ERROR))]
-                if cand.size:
-                    acc, xp, yp, _, _ = polish(
-                        pd, P, A, q[cand], l[cand], u[cand], x[cand], z[cand], y[cand], s
-                    )
-                    ids = cand[acc]
-                    x[ids], y[ids] = xp[acc], yp[acc]
-                    status[ids] = _SOLVED
-                    polished[ids] = True
-                    attempted += int(cand.size)
-            t_pol += time.perf_counter() - t2
-            # only QPs that ran out of iterations and were not polished go on
-            todo = todo[(stt == _MAX_ITER) & ~polished[todo]]
-        extras: dict[str, Any] = {
-            "admm_status_counts": _counts(admm_status),
-            "iterations_run": iters_run,
-            "rung_matmuls": rung_mm,
-            "flops": flops,
-            "rho": rho,
-            "time_factor": t_factor,
-            "time_iterations": t_iter,
-            "time_polish": t_pol,
-            "polished": polished,
-        }
-        if s.polish:
-            extras["polish_attempted"] = attempted
-            extras["polish_accepted"] = int(polished.sum())
-        rejected = _recheck_certificates(batch, P, A, status, dx, dy, s)
-        status[rejected] = _MAX_ITER
-        extras["certificate_rejected"] = rejected
-        st = None
-        fb = 0
-        if s.fallback == "clarabel":
-            from ..clarabel_ import ClarabelBackend
-
-            need = np.flatnonzero(~np.isin(status, (_SOLVED, _PINF, _DINF)))
-            cb = ClarabelBackend()
-            for i in need:
-                r = cb.solve(batch[i])
-                if r.status in (Status.SOLVED, Status.PRIMAL_INFEASIBLE, Status.DUAL_INFEASIBLE):
-                    x[i], y[i], status[i] = r.x, r.y, int(r.status)
-                    fb += 1
-            extras["fallback_attempted"] = int(need.size)
-        extras["fallback_count"] = fb
-        total = time.perf_counter() - t0
-        finite = np.all(np.isfinite(x), axis=1)
-        status[~finite] = _ERROR
-        xs = np.where(finite[:, None], x, 0.0)
-        obj = np.where(finite, batch.objective(xs), np.nan)
-        prim = np.where(finite, batch.constraint_violation(xs), np.nan)
-        status, diverged, floor_failed = _final_check(batch, xs, prim, status, s)
-        extras["diverged"] = diverged
-        extras["floor_failed"] = floor_failed
-        yfin = np.all(np.isfinite(y), axis=1)
-        dual = np.where(
-            finite & yfin, batch.dual_residual(xs, np.where(yfin[:, None], y, 0.0)), np.nan
-        )
-        B = len(batch)
-        return BatchSolution(
+        return cls(
             x=x,
             y=y,
+            z=np.zeros((B, m)),
+            dx=np.zeros((B, n)),
+            dy=np.zeros((B, m)),
+            rho=np.full(B, s.rho),
             status=status,
-            objective=obj,
-            iterations=iters,
-            solve_time=np.full(B, total / B),
-            primal_residual=prim,
-            dual_residual=dual,
-            backend=self.name,
-            total_time=total,
-            settings=s.as_dict(),
-            extras=extras,
+            admm_status=status.copy(),
+            iters=np.zeros(B, np.int64),
+            polished=np.zeros(B, bool),
         )
+
+    def extras(self, t_factor: float, s: ADMMSettings) -> dict[str, Any]:
+        """The solution's extras so far: status counts, work, timings, polish counts."""
+        extras: dict[str, Any] = {
+            "admm_status_counts": _counts(self.admm_status),
+            "iterations_run": self.iters_run,
+            "rung_matmuls": self.rung_mm,
+            "flops": self.flops,
+            "rho": self.rho,
+            "time_factor": t_factor,
+            "time_iterations": self.t_iter,
+            "time_polish": self.t_pol,
+            "polished": self.polished,
+        }
+        if s.polish:
+            extras["polish_attempted"] = self.attempted
+            extras["polish_accepted"] = int(self.polished.sum())
+        return extras
+
+
+def _run_stage(run: _Run, factor, pd, P, A, batch: QPBatch, todo, k: int, s: ADMMSettings):
+    """One stage: ``k`` ADMM iterations on the QPs ``todo`` (a batch padded to a power of two
+    unless it is the whole batch), the float64 re-check of what they declared solved, then the
+    polish.  Updates ``run``; returns the QPs that go on (out of iterations and not polished)."""
+    q, l, u = batch.q, batch.l, batch.u
+    B, n, m = len(batch), batch.n, batch.m
+    Bs = todo.size if todo.size == B else min(B, 1 << (todo.size - 1).bit_length())
+    sub = np.concatenate([todo, np.repeat(todo[:1], Bs - todo.size)])  # padded
+    t1 = time.perf_counter()
+    st = _admm_iterate_jit(
+        factor, q[sub], l[sub], u[sub], run.x[sub], run.y[sub], iters=k, rho0=run.rho[sub]
+    )
+    st = jax.tree_util.tree_map(np.asarray, st)
+    run.t_iter += time.perf_counter() - t1
+    r = slice(0, todo.size)
+    run.x[todo] = st.x[r]
+    run.y[todo] = st.y[r]
+    run.z[todo] = st.z[r]
+    run.dx[todo], run.dy[todo] = st.delta_x[r], st.delta_y[r]
+    run.rho[todo] = st.rho[r]
+    run.iters[todo] += st.iterations[r]
+    stt = st.status[r].astype(np.int32)
+    run.admm_status[todo] = stt
+    run.status[todo] = stt
+    it_s = int(st.iterations.max(initial=0))
+    run.iters_run += it_s
+    run.rung_mm += int(st.rung_matmuls)
+    run.flops += _flops(n, m, Bs, it_s, int(st.rung_matmuls), s.check_every)
+    # float64 re-check of what the iteration dtype declared solved
+    ok64, *_ = termination(P, A, q[todo], l[todo], u[todo], run.x[todo], run.y[todo], s)
+    run.status[todo[(stt == _SOLVED) & ~ok64]] = int(Status.SOLVED_INACCURATE)
+    t2 = time.perf_counter()
+    if s.polish:
+        cand = todo[~np.isin(stt, (_PINF, _DINF, _ERROR))]
+        if cand.size:
+            acc, xp, yp, _, _ = polish(
+                pd, P, A, q[cand], l[cand], u[cand], run.x[cand], run.z[cand], run.y[cand], s
+            )
+            ids = cand[acc]
+            run.x[ids], run.y[ids] = xp[acc], yp[acc]
+            run.status[ids] = _SOLVED
+            run.polished[ids] = True
+            run.attempted += int(cand.size)
+    run.t_pol += time.perf_counter() - t2
+    # only QPs that ran out of iterations and were not polished go on
+    return todo[(stt == _MAX_ITER) & ~run.polished[todo]]
+
+
+def _clarabel_fallback(batch: QPBatch, run: _Run) -> tuple[int, int]:
+    """Re-solve with Clarabel every QP neither solved nor certified infeasible; keep the answers
+    Clarabel solves or certifies.  Returns ``(attempted, replaced)``."""
+    from ..clarabel_ import ClarabelBackend
+
+    need = np.flatnonzero(~np.isin(run.status, (_SOLVED, _PINF, _DINF)))
+    cb = ClarabelBackend()
+    fb = 0
+    for i in need:
+        r = cb.solve(batch[i])
+        if r.status in (Status.SOLVED, Status.PRIMAL_INFEASIBLE, Status.DUAL_INFEASIBLE):
+            run.x[i], run.y[i], run.status[i] = r.x, r.y, int(r.status)
+            fb += 1
+    return int(need.size), fb
+
+
+def _batch_solution(
+    name: str, batch: QPBatch, run: _Run, s: ADMMSettings, extras: dict[str, Any], t0: float
+) -> BatchSolution:
+    """The :class:`BatchSolution`: residuals on the returned points, the final status check."""
+    x, y, status = run.x, run.y, run.status
+    total = time.perf_counter() - t0
+    finite = np.all(np.isfinite(x), axis=1)
+    status[~finite] = _ERROR
+    xs = np.where(finite[:, None], x, 0.0)
+    obj = np.where(finite, batch.objective(xs), np.nan)
+    prim = np.where(finite, batch.constraint_violation(xs), np.nan)
+    status, diverged, floor_failed = _final_check(batch, xs, prim, status, s)
+    extras["diverged"] = diverged
+    extras["floor_failed"] = floor_failed
+    yfin = np.all(np.isfinite(y), axis=1)
+    dual = np.where(finite & yfin, batch.dual_residual(xs, np.where(yfin[:, None], y, 0.0)), np.nan)
+    B = len(batch)
+    return BatchSolution(
+        x=x,
+        y=y,
+        status=status,
+        objective=obj,
+        iterations=run.iters,
+        solve_time=np.full(B, total / B),
+        primal_residual=prim,
+        dual_residual=dual,
+        backend=name,
+        total_time=total,
+        settings=s.as_dict(),
+        extras=extras,
+    )
 
 
 def _recheck_certificates(batch: QPBatch, P, A, status, dx, dy, s: ADMMSettings) -> np.ndarray:

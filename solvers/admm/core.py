@@ -53,6 +53,7 @@ from ..solution import Status
 
 __all__ = [
     "ADMMSettings",
+    "PolishSettings",
     "ADMMFactor",
     "ADMMState",
     "admm_factor",
@@ -68,6 +69,27 @@ _PINF = int(Status.PRIMAL_INFEASIBLE)
 _DINF = int(Status.DUAL_INFEASIBLE)
 _ERROR = int(Status.ERROR)
 _RUNNING = 0
+
+
+class PolishSettings(NamedTuple):
+    """Numerics of the float64 active-set polish (:mod:`solvers.admm.polish`).
+
+    In the flat settings vocabulary of ``solve``/``solve_batch`` and
+    :meth:`ADMMSettings.from_kwargs` these are ``polish_delta``, ``polish_refine_iter`` and
+    ``polish_passes``.
+    """
+
+    delta: float = 1e-6  # regularisation δ of the reduced KKT system
+    refine_iter: int = 3  # iterative-refinement steps per solve
+    passes: int = 25  # active-set repair passes
+
+
+#: flat setting name -> field of :class:`PolishSettings`
+_POLISH_NAMES = {
+    "polish_delta": "delta",
+    "polish_refine_iter": "refine_iter",
+    "polish_passes": "passes",
+}
 
 
 @dataclass(frozen=True)
@@ -90,8 +112,11 @@ class ADMMSettings:
     adaptive_rho : re-pick each QP's rung at every check.
     scaling_iter : Ruiz equilibration passes (0 = no scaling).
     dtype : iteration dtype, ``"float32"`` or ``"float64"``.
-    polish, polish_delta, polish_refine_iter, polish_passes : float64 active-set polish; the
-        regularisation ``δ``, iterative-refinement steps, active-set repair passes.
+    polish : run the float64 active-set polish after the iterations.
+    polish_settings : its numerics, a :class:`PolishSettings` (the regularisation ``δ``,
+        iterative-refinement steps, active-set repair passes); given to ``solve``/``solve_batch``,
+        :meth:`from_kwargs` and :meth:`replace` by the flat names ``polish_delta``,
+        ``polish_refine_iter``, ``polish_passes``, which are also read-only attributes.
     stage_iter : ``None`` (one stage of ``max_iter``), or run ADMM in stages of this many
         iterations: after each stage the polish is tried, the QPs it accepts leave the batch and
         the rest continue (warm-started with their rho) in a smaller batch padded to a power of
@@ -116,14 +141,17 @@ class ADMMSettings:
     scaling_iter: int = 10
     dtype: str = "float32"
     polish: bool = True
-    polish_delta: float = 1e-6
-    polish_refine_iter: int = 3
-    polish_passes: int = 25
+    polish_settings: PolishSettings = PolishSettings()
     stage_iter: int | None = None
     fallback: str | None = None
 
     def __post_init__(self) -> None:
         object.__setattr__(self, "rho_ladder", tuple(sorted(float(r) for r in self.rho_ladder)))
+        if not isinstance(self.polish_settings, PolishSettings):
+            raise ValueError(
+                "polish_settings must be a PolishSettings, got "
+                f"{type(self.polish_settings).__name__}"
+            )
         if self.dtype not in ("float32", "float64"):
             raise ValueError(f"dtype must be 'float32' or 'float64', got {self.dtype!r}")
         if self.fallback not in (None, "clarabel"):
@@ -138,10 +166,43 @@ class ADMMSettings:
             if getattr(self, name) < 0:
                 raise ValueError(f"{name} must be ≥ 0")
 
+    # the flat names of the polish numerics (read-only)
+    @property
+    def polish_delta(self) -> float:
+        return self.polish_settings.delta
+
+    @property
+    def polish_refine_iter(self) -> int:
+        return self.polish_settings.refine_iter
+
+    @property
+    def polish_passes(self) -> int:
+        return self.polish_settings.passes
+
+    @classmethod
+    def names(cls) -> tuple[str, ...]:
+        """The flat setting names that :meth:`from_kwargs` (and the backend) accept."""
+        out: list[str] = []
+        for f in dataclasses.fields(cls):
+            out.extend(_POLISH_NAMES if f.name == "polish_settings" else (f.name,))
+        return tuple(out)
+
+    @staticmethod
+    def _nest(base: PolishSettings, kwargs: dict[str, Any]) -> dict[str, Any]:
+        """``kwargs`` with its flat ``polish_*`` names folded into a ``polish_settings`` entry."""
+        flat = {k: kwargs.pop(k) for k in list(kwargs) if k in _POLISH_NAMES}
+        if flat:
+            base = kwargs.get("polish_settings", base)
+            kwargs["polish_settings"] = base._replace(
+                **{_POLISH_NAMES[k]: v for k, v in flat.items()}
+            )
+        return kwargs
+
     @classmethod
     def from_kwargs(cls, **kwargs: Any) -> ADMMSettings:
-        """Build from keyword arguments; unknown names raise ``InvalidSettingError`` naming them."""
-        names = {f.name for f in dataclasses.fields(cls)}
+        """Build from keyword arguments (the flat names of :meth:`names`); unknown names raise
+        ``InvalidSettingError`` naming them."""
+        names = set(cls.names())
         unknown = sorted(set(kwargs) - names)
         if unknown:
             raise InvalidSettingError(
@@ -149,13 +210,22 @@ class ADMMSettings:
             )
         if "rho_ladder" in kwargs:
             kwargs["rho_ladder"] = tuple(kwargs["rho_ladder"])
-        return cls(**kwargs)
+        return cls(**cls._nest(PolishSettings(), kwargs))
 
     def replace(self, **kwargs: Any) -> ADMMSettings:
-        return dataclasses.replace(self, **kwargs)
+        """A copy with some settings changed (field names or the flat ``polish_*`` names)."""
+        return dataclasses.replace(self, **self._nest(self.polish_settings, kwargs))
 
     def as_dict(self) -> dict[str, Any]:
-        return dataclasses.asdict(self)
+        """The settings under their flat names (what ``solve_batch(..., **settings)`` takes)."""
+        out: dict[str, Any] = {}
+        for f in dataclasses.fields(self):
+            v = getattr(self, f.name)
+            if f.name == "polish_settings":
+                out.update({k: getattr(v, fld) for k, fld in _POLISH_NAMES.items()})
+            else:
+                out[f.name] = v
+        return out
 
 
 # ----------------------------------------------------------------------------- factor (host)
