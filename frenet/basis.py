@@ -10,7 +10,8 @@ Two bases are provided, both *derivative-consistent* (``Pdot`` is exactly the ti
 * :class:`TripleIntegratorBasis` – the exact zero-order-hold discrete triple integrator, state
   ``(p, v, a)``, input jerk ``u`` constant over each step.  ``c = (p₀, v₀, a₀, u₀ … u_{K−2})``,
   ``nvar = K + 2`` (102 for the paper's K = 100).  The reference code's version drops the
-  ``A⁰b`` term (SPEC §a, a dead last column and a 1.5Δ² velocity error); this one does not.
+  ``A⁰b`` term (which leaves a dead last column and a 1.5Δ² velocity error); this one does
+  not.
 * :class:`BernsteinBasis` – one polynomial of degree ``n`` over the whole horizon in Bernstein form,
   ``nvar = n + 1`` (11 for the default degree 10).  Few coefficients: the fast choice for
   batched projection.

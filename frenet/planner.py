@@ -1,4 +1,4 @@
-"""Behavioural (Frenet) planner: behavioural input ``d`` → trajectory (paper appendix, SPEC §c).
+"""Behavioural (Frenet) planner: behavioural input ``d`` → trajectory (paper Appendix).
 
 Behavioural input, for ``S = num_segments`` segments of the horizon (reference: 4 × 25 steps)::
 

@@ -69,7 +69,7 @@ def _per_step(v, K: int, name: str) -> np.ndarray:
 
 @dataclass(frozen=True)
 class ProjectionBounds:
-    """Kinematic and lane bounds (Frenet frame, SI units).  Defaults: the reference code (SPEC §d).
+    """Kinematic and lane bounds (Frenet frame, SI units); defaults as in the authors' code.
 
     Each bound is a scalar or a ``(K,)`` per-step array; ``±inf`` drops the corresponding rows.
 
@@ -240,6 +240,84 @@ class _Group:
     upper: np.ndarray | None
 
 
+class _RowBlocks:
+    """The row blocks of a constraint matrix being assembled, with their groups."""
+
+    def __init__(self) -> None:
+        self.blocks: list[np.ndarray] = []
+        self.groups: list[_Group] = []
+
+    def add(self, name: str, M, lo, hi) -> None:
+        """Append the rows ``M`` with bounds ``lo, hi`` (broadcast to one per row; rows unbounded
+        on both sides are dropped, and the whole group when none is left).  ``lo = None``: bounds
+        filled per sample (then no row is dropped)."""
+        if lo is not None:
+            lo = np.broadcast_to(np.asarray(lo, dtype=np.float64), (M.shape[0],))
+            hi = np.broadcast_to(np.asarray(hi, dtype=np.float64), (M.shape[0],))
+            keep = np.isfinite(lo) | np.isfinite(hi)
+            if not np.any(keep):
+                return
+            M, lo, hi = M[keep], lo[keep], hi[keep]
+        start = sum(x.shape[0] for x in self.blocks)
+        self.blocks.append(M)
+        self.groups.append(_Group(name, slice(start, start + M.shape[0]), lo, hi))
+
+
+def _sample_bounds(e: LinearConstraints, lo, hi, B: int) -> tuple[np.ndarray, np.ndarray]:
+    """``(lower, upper)`` of the user constraint set ``e`` as ``(B, r)`` arrays (checked)."""
+    r = e.num_rows
+    res = []
+    for nm, v in (("lower", lo), ("upper", hi)):
+        v = np.asarray(v, dtype=np.float64)
+        if v.ndim == 0:
+            v = np.full(r, float(v))
+        if v.ndim == 1:
+            v = v[None]
+        if v.shape[1] != r or v.shape[0] not in (1, B) or v.ndim != 2:
+            raise ValueError(
+                f"{e.name} {nm} bounds must be (r,) or (B, r) = ({B}, {r}), got {v.shape}"
+            )
+        if np.any(np.isnan(v)):
+            raise ValueError(f"{e.name} {nm} bounds contain NaN")
+        res.append(np.broadcast_to(v, (B, r)))
+    if np.any(res[0] > res[1]):
+        raise ValueError(f"{e.name}: lower > upper for some sample")
+    return res[0], res[1]
+
+
+def _constraint_tuple(extra) -> tuple[LinearConstraints, ...]:
+    """``extra`` (None, one :class:`LinearConstraints` or a sequence of them) as a tuple."""
+    if extra is None:
+        extra = ()
+    elif isinstance(extra, LinearConstraints):
+        extra = (extra,)
+    extra = tuple(extra)
+    for e in extra:
+        if not isinstance(e, LinearConstraints):
+            raise TypeError(f"extra must hold LinearConstraints, got {type(e).__name__}")
+    return extra
+
+
+def _check_modes(basis: Basis, metric: str, constraint_points: str) -> None:
+    if metric not in ("waypoint", "coefficient"):
+        raise ValueError(f"metric must be 'waypoint' or 'coefficient', got {metric!r}")
+    if constraint_points not in ("grid", "hull"):
+        raise ValueError(f"constraint_points must be 'grid' or 'hull', got {constraint_points!r}")
+    if constraint_points == "hull" and not hasattr(basis, "control_point_maps"):
+        raise ValueError("constraint_points='hull' needs a Bernstein basis (convex-hull property)")
+
+
+def _penalised_hessian(H: np.ndarray, rho: float, Aex: np.ndarray, Aey: np.ndarray) -> np.ndarray:
+    """``blockdiag(H + ρA_eq,xᵀA_eq,x, H + ρA_eq,yᵀA_eq,y)``."""
+    n = H.shape[0]
+    return np.block(
+        [
+            [H + rho * Aex.T @ Aex, np.zeros((n, n))],
+            [np.zeros((n, n)), H + rho * Aey.T @ Aey],
+        ]
+    )
+
+
 class ProjectionProblem:
     """The projection QP for one basis, set of bounds and optional user constraints.
 
@@ -278,26 +356,10 @@ class ProjectionProblem:
     ):
         self.basis = basis
         self.bounds = bounds if bounds is not None else ProjectionBounds()
-        if extra is None:
-            extra = ()
-        elif isinstance(extra, LinearConstraints):
-            extra = (extra,)
-        self.extra = tuple(extra)
-        for e in self.extra:
-            if not isinstance(e, LinearConstraints):
-                raise TypeError(f"extra must hold LinearConstraints, got {type(e).__name__}")
-        if metric not in ("waypoint", "coefficient"):
-            raise ValueError(f"metric must be 'waypoint' or 'coefficient', got {metric!r}")
+        self.extra = _constraint_tuple(extra)
+        _check_modes(basis, metric, constraint_points)
         self.metric = metric
         self.final_lateral_velocity = bool(final_lateral_velocity)
-        if constraint_points not in ("grid", "hull"):
-            raise ValueError(
-                f"constraint_points must be 'grid' or 'hull', got {constraint_points!r}"
-            )
-        if constraint_points == "hull" and not hasattr(basis, "control_point_maps"):
-            raise ValueError(
-                "constraint_points='hull' needs a Bernstein basis (convex-hull property)"
-            )
         self.constraint_points = constraint_points
         K, n = basis.num_steps, basis.nvar
         self.nvar = n
@@ -319,18 +381,13 @@ class ProjectionProblem:
         # Exact penalty ½ρ‖A_eq c − b‖² (zero on the feasible set: same optimum, same distance)
         # makes the Hessian positive definite (PᵀP is singular for the triple integrator).
         self._rho_eq = float(np.trace(H)) / n
-        self.P = np.block(
-            [
-                [H + self._rho_eq * Aex.T @ Aex, np.zeros((n, n))],
-                [np.zeros((n, n)), H + self._rho_eq * Aey.T @ Aey],
-            ]
-        )
+        self.P = _penalised_hessian(H, self._rho_eq, Aex, Aey)
         for M in (self.A, self.P, self._grid_A):
             M.setflags(write=False)
 
     def _build_rows(self, kind: str) -> tuple[np.ndarray, tuple[_Group, ...]]:
         """Constraint rows and their groups, at the grid steps or on Bernstein control points."""
-        basis, b, K, n = self.basis, self._bounds_k, self.basis.num_steps, self.nvar
+        basis, b = self.basis, self._bounds_k
         if kind == "grid":
             Mp, Mv, Ma = basis.P, basis.Pdot, basis.Pddot
 
@@ -343,20 +400,18 @@ class ProjectionProblem:
                 v = b[key]
                 return np.full(rows, v.max() if key in ("y_lb", "vx_min") else v.min())
 
-        blocks: list[np.ndarray] = []
-        groups: list[_Group] = []
+        rows = _RowBlocks()
+        Aex, Aey = self._Aex, self._Aey
+        eq_rows = np.block([[Aex, np.zeros_like(Aex)], [np.zeros_like(Aey), Aey]])
+        rows.add("boundary", eq_rows, None, None)
+        self._add_kinematic_rows(rows, Mp, Mv, Ma, bnd)
+        self._add_user_rows(rows)
+        return np.vstack(rows.blocks), tuple(rows.groups)
 
-        def add(name, M, lo, hi):
-            if lo is not None:
-                lo = np.broadcast_to(np.asarray(lo, dtype=np.float64), (M.shape[0],))
-                hi = np.broadcast_to(np.asarray(hi, dtype=np.float64), (M.shape[0],))
-                keep = np.isfinite(lo) | np.isfinite(hi)
-                if not np.any(keep):
-                    return
-                M, lo, hi = M[keep], lo[keep], hi[keep]
-            start = sum(x.shape[0] for x in blocks)
-            blocks.append(M)
-            groups.append(_Group(name, slice(start, start + M.shape[0]), lo, hi))
+    def _add_kinematic_rows(self, rows: _RowBlocks, Mp, Mv, Ma, bnd) -> None:
+        """The lane, speed and acceleration groups on the maps ``Mp, Mv, Ma`` (position,
+        velocity, acceleration samples) with ``bnd(key, num_rows)`` their bounds."""
+        n = self.nvar
 
         def xy(Mx_, My_):
             return (
@@ -365,21 +420,23 @@ class ProjectionProblem:
                 else np.hstack([np.zeros((My_.shape[0], n)), My_])
             )
 
-        Aex, Aey = self._Aex, self._Aey
-        eq_rows = np.block([[Aex, np.zeros_like(Aex)], [np.zeros_like(Aey), Aey]])
-        add("boundary", eq_rows, None, None)
         rp, rv, ra = Mp.shape[0], Mv.shape[0], Ma.shape[0]
-        add("lane", xy(None, Mp), bnd("y_lb", rp), bnd("y_ub", rp))
-        add("speed", xy(Mv, None), bnd("vx_min", rv), bnd("vx_max", rv))
-        add("lateral_velocity", xy(None, Mv), -bnd("vy_max", rv), bnd("vy_max", rv))
-        add("accel_x", xy(Ma, None), -bnd("ax_max", ra), bnd("ax_max", ra))
-        add("accel_y", xy(None, Ma), -bnd("ay_max", ra), bnd("ay_max", ra))
-        if "a_max" in b:
+        rows.add("lane", xy(None, Mp), bnd("y_lb", rp), bnd("y_ub", rp))
+        rows.add("speed", xy(Mv, None), bnd("vx_min", rv), bnd("vx_max", rv))
+        rows.add("lateral_velocity", xy(None, Mv), -bnd("vy_max", rv), bnd("vy_max", rv))
+        rows.add("accel_x", xy(Ma, None), -bnd("ax_max", ra), bnd("ax_max", ra))
+        rows.add("accel_y", xy(None, Ma), -bnd("ay_max", ra), bnd("ay_max", ra))
+        if "a_max" in self._bounds_k:
             m = int(self.bounds.accel_polygon_sides)
             phi = 2 * np.pi * np.arange(m) / m
-            rows = np.concatenate([np.hstack([np.cos(p) * Ma, np.sin(p) * Ma]) for p in phi])
-            add("accel_norm", rows, -np.inf, np.tile(bnd("a_max", ra) * np.cos(np.pi / m), m))
-        names = {g.name for g in groups}
+            poly = np.concatenate([np.hstack([np.cos(p) * Ma, np.sin(p) * Ma]) for p in phi])
+            rows.add("accel_norm", poly, -np.inf, np.tile(bnd("a_max", ra) * np.cos(np.pi / m), m))
+
+    def _add_user_rows(self, rows: _RowBlocks) -> None:
+        """One group per user constraint set (bounds filled per sample; a repeated name gets a
+        suffix ``_2``, ``_3``, …).  Per-sample rows enter as the first sample's rows."""
+        K = self.basis.num_steps
+        names = {g.name for g in rows.groups}
         for e in self.extra:
             if e.Gx.shape[-1] != K:
                 raise ValueError(
@@ -392,12 +449,9 @@ class ProjectionProblem:
                 i += 1
                 name = f"{e.name}_{i}"
             names.add(name)
-            M = getattr(basis, _QUANTITY[e.quantity])
-            start = sum(x.shape[0] for x in blocks)
+            M = getattr(self.basis, _QUANTITY[e.quantity])
             G0x, G0y = (e.Gx[0], e.Gy[0]) if e.per_sample else (e.Gx, e.Gy)  # placeholder rows
-            blocks.append(np.hstack([G0x @ M, G0y @ M]))
-            groups.append(_Group(name, slice(start, start + e.num_rows), None, None))
-        return np.vstack(blocks), tuple(groups)
+            rows.add(name, np.hstack([G0x @ M, G0y @ M]), None, None)
 
     # ------------------------------------------------------------------ helpers
     @property
@@ -436,24 +490,7 @@ class ProjectionProblem:
         out = []
         for i, e in enumerate(self.extra):
             lo, hi = (e.lower, e.upper) if extra_bounds is None else extra_bounds[i]
-            r = e.num_rows
-            res = []
-            for nm, v in (("lower", lo), ("upper", hi)):
-                v = np.asarray(v, dtype=np.float64)
-                if v.ndim == 0:
-                    v = np.full(r, float(v))
-                if v.ndim == 1:
-                    v = v[None]
-                if v.shape[1] != r or v.shape[0] not in (1, B) or v.ndim != 2:
-                    raise ValueError(
-                        f"{e.name} {nm} bounds must be (r,) or (B, r) = ({B}, {r}), got {v.shape}"
-                    )
-                if np.any(np.isnan(v)):
-                    raise ValueError(f"{e.name} {nm} bounds contain NaN")
-                res.append(np.broadcast_to(v, (B, r)))
-            if np.any(res[0] > res[1]):
-                raise ValueError(f"{e.name}: lower > upper for some sample")
-            out.append((res[0], res[1]))
+            out.append(_sample_bounds(e, lo, hi, B))
         return out
 
     def check_state(self, state: EgoState | ArrayLike) -> NDArray[np.float64]:
@@ -659,7 +696,7 @@ class ProjectionProblem:
         ``A`` are factored once here (float64, NumPy); each call runs a fixed budget of
         ``num_iters`` ADMM iterations (rounded up to a multiple of ``check_every``; it may stop
         earlier once every sample meets the tolerances), no polish.  ``settings`` are
-        :class:`solvers.admm.ADMMSettings` fields (e.g. ``rho=``, ``eps_abs=``); the defaults
+        :class:`solvers.admm.ADMMSettings` names (e.g. ``rho=``, ``eps_abs=``); the defaults
         here start at ``rho = 62.5`` on a ladder extended to 312.5, with adaptation (measured
         best at 25–500 iterations, docs/benchmarks.md).
 
@@ -746,18 +783,9 @@ def _axis_rows(M: np.ndarray, n: int) -> np.ndarray | None:
     return np.where(only_x, 0, 1)
 
 
-def _jax_projector(
-    problem: ProjectionProblem, num_iters: int, dtype: str, settings, split_axes=None
-):
-    import jax
-    import jax.numpy as jnp
-
-    try:
-        from solvers.admm import ADMMSettings, admm_factor, admm_iterate
-    except ImportError as exc:  # pragma: no cover - depends on the solvers package state
-        raise ImportError(
-            "ProjectionProblem.jax_projector needs solvers.admm.admm_factor/admm_iterate"
-        ) from exc
+def _projector_settings(problem: ProjectionProblem, num_iters, dtype, settings):
+    """Check the projector's arguments; the :class:`solvers.admm.ADMMSettings` it runs with."""
+    from solvers.admm import ADMMSettings
 
     if problem.per_sample_rows:
         raise ValueError(
@@ -781,7 +809,91 @@ def _jax_projector(
         rho_ladder=(0.1 / 125, 0.1 / 25, 0.1 / 5, 0.1, 0.5, 2.5, 12.5, 62.5, 312.5),
     )
     base.update(settings or {})
-    s = ADMMSettings.from_kwargs(**base)
+    return ADMMSettings.from_kwargs(**base)
+
+
+class _StaticRows(NamedTuple):
+    """What the projector knows of the rows before a call (numpy): the bounds at a zero state
+    with the user rows unbounded (the boundary and user rows are filled per call), for the rows
+    of ``A`` and for the grid rows of the residuals, and ``A``'s equality and free row masks."""
+
+    l0: np.ndarray
+    u0: np.ndarray
+    lg0: np.ndarray
+    ug0: np.ndarray
+    eq: np.ndarray
+    free: np.ndarray
+
+
+def _static_rows(problem: ProjectionProblem) -> _StaticRows:
+    unbounded = [(-np.inf, np.inf)] * len(problem.extra)
+    l0, u0 = problem.bounds_arrays(np.zeros((1, 6)), 1, unbounded)
+    lg0, ug0 = problem.bounds_arrays(np.zeros((1, 6)), 1, unbounded, grid=True)
+    l0, u0, lg0, ug0 = l0[0], u0[0], lg0[0], ug0[0]
+    eq = np.zeros(problem.num_rows, bool)
+    eq[problem.group_slices()["boundary"]] = True
+    free = ~eq & np.isinf(l0) & np.isinf(u0)
+    for g in problem._extra_groups:  # extra rows get their bounds per call: never "free"
+        free[g.rows] = False
+    return _StaticRows(l0, u0, lg0, ug0, eq, free)
+
+
+# -- traced pieces shared by both projectors
+def _boundary_values(st, final_lat: bool, dt):
+    """``(b_x, b_y, b_eq)``: the right-hand sides of the boundary rows from states ``st``."""
+    import jax.numpy as jnp
+
+    bx = st[:, jnp.array([0, 2, 4])]
+    by = st[:, jnp.array([1, 3, 5])]
+    if final_lat:
+        by = jnp.concatenate([by, jnp.zeros((st.shape[0], 1), dt)], axis=1)
+    return bx, by, jnp.concatenate([bx, by], axis=1)
+
+
+def _axis_linear_term(c_bar, Hj, rho, b, Ae, dt):
+    """``c̄ H + ρ bᵀA_eq`` for one axis: minus its block of the QP's ``q``."""
+    import jax.numpy as jnp
+
+    return c_bar @ Hj + rho * b @ jnp.asarray(Ae, dt)
+
+
+def _run_admm(factor, q, l, u, x0, y0, iters: int):
+    import jax
+    import jax.numpy as jnp
+
+    from solvers.admm import admm_iterate
+
+    fj = jax.tree_util.tree_map(jnp.asarray, factor)  # constants of the traced function
+    return admm_iterate(fj, q, l, u, x0=x0, y0=y0, iters=iters)
+
+
+def _correct_equalities(z, Ae, b, M, dt):
+    """The exact correction onto the boundary equalities ``A_eq c = b`` of one axis, in the
+    projection's metric: ``c ← c − M (A_eq c − b)``, ``M = P⁻¹A_eqᵀ(A_eq P⁻¹ A_eqᵀ)⁻¹``.  A fixed
+    ADMM budget leaves them satisfied only to ~1e-4; after this every trajectory starts at the
+    ego state to float precision (the inequality residual is measured afterwards)."""
+    import jax.numpy as jnp
+
+    return z - (z @ jnp.asarray(Ae.T, dt) - b) @ jnp.asarray(M.T, dt)
+
+
+def _violation(Az, lg, ug):
+    import jax.numpy as jnp
+
+    return jnp.maximum(jnp.maximum(lg - Az, Az - ug), 0.0)
+
+
+def _jax_projector(
+    problem: ProjectionProblem, num_iters: int, dtype: str, settings, split_axes=None
+):
+    try:
+        from solvers.admm import admm_factor, admm_iterate  # noqa: F401
+    except ImportError as exc:  # pragma: no cover - depends on the solvers package state
+        raise ImportError(
+            "ProjectionProblem.jax_projector needs solvers.admm.admm_factor/admm_iterate"
+        ) from exc
+
+    s = _projector_settings(problem, num_iters, dtype, settings)
     if split_axes not in (None, True, False):
         raise ValueError(f"split_axes must be None, True or False, got {split_axes!r}")
     if split_axes is not False:
@@ -795,36 +907,56 @@ def _jax_projector(
             )
         if can:
             return _split_projector(problem, s, axes, grid_axes)
-    n, m = problem.nvar, problem.num_rows
-    # static bounds (the boundary and extra rows are filled per call)
-    l0, u0 = problem.bounds_arrays(np.zeros((1, 6)), 1, [(-np.inf, np.inf)] * len(problem.extra))
-    l0, u0 = l0[0], u0[0]
-    eq = np.zeros(m, bool)
+    return _joint_projector(problem, s)
+
+
+def _joint_bounds(problem: ProjectionProblem, rows: _StaticRows, beq, extra_bounds, B: int, dt):
+    """Per-sample ``(l, u)`` of the rows of ``A`` and ``(l_g, u_g)`` of the grid rows: the
+    static bounds with the boundary rows set to ``b_eq`` and the user rows to their bounds."""
+    import jax.numpy as jnp
+
+    m = problem.num_rows
     bslice = problem.group_slices()["boundary"]
-    eq[bslice] = True
-    free = ~eq & np.isinf(l0) & np.isinf(u0)
-    for g in problem._extra_groups:  # extra rows get their bounds per call: never "free"
-        free[g.rows] = False
-    factor = admm_factor(problem.P, problem.A, s, eq_rows=eq, free_rows=free)
+    extra_slices = [g.rows for g in problem._extra_groups]
+    grid_extra = [g.rows for g in problem._grid_groups if g.lower is None and g.name != "boundary"]
+    gboundary = {g.name: g.rows for g in problem._grid_groups}["boundary"]
+    l = jnp.broadcast_to(jnp.asarray(rows.l0, dt), (B, m))
+    u = jnp.broadcast_to(jnp.asarray(rows.u0, dt), (B, m))
+    l = l.at[:, bslice].set(beq)
+    u = u.at[:, bslice].set(beq)
+    eb = [(e.lower, e.upper) for e in problem.extra] if extra_bounds is None else extra_bounds
+    if len(eb) != len(extra_slices):
+        raise ValueError(f"extra_bounds needs {len(extra_slices)} (lower, upper) pairs")
+    for sl, (lo, hi) in zip(extra_slices, eb, strict=True):
+        r = sl.stop - sl.start
+        l = l.at[:, sl].set(jnp.broadcast_to(jnp.asarray(lo, dt), (B, r)))
+        u = u.at[:, sl].set(jnp.broadcast_to(jnp.asarray(hi, dt), (B, r)))
+    lg = jnp.broadcast_to(jnp.asarray(rows.lg0, dt), (B, rows.lg0.shape[0]))
+    ug = jnp.broadcast_to(jnp.asarray(rows.ug0, dt), (B, rows.ug0.shape[0]))
+    lg = lg.at[:, gboundary].set(beq)
+    ug = ug.at[:, gboundary].set(beq)
+    for sl, gsl in zip(extra_slices, grid_extra, strict=True):
+        lg = lg.at[:, gsl].set(l[:, sl])
+        ug = ug.at[:, gsl].set(u[:, sl])
+    return l, u, lg, ug
+
+
+def _joint_projector(problem: ProjectionProblem, s):
+    """The projection as one QP in ``(c_x, c_y)`` (see :meth:`ProjectionProblem.jax_projector`)."""
+    import jax.numpy as jnp
+
+    from solvers.admm import admm_factor
+
+    n = problem.nvar
+    rows = _static_rows(problem)
+    factor = admm_factor(problem.P, problem.A, s, eq_rows=rows.eq, free_rows=rows.free)
     H = problem.metric_matrix
     Aex, Aey = problem._Aex, problem._Aey
     rho = problem._rho_eq
     A_grid = problem._grid_A
-    lg0, ug0 = problem.bounds_arrays(
-        np.zeros((1, 6)), 1, [(-np.inf, np.inf)] * len(problem.extra), grid=True
-    )
-    lg0, ug0 = lg0[0], ug0[0]
-    gslice = {g.name: g.rows for g in problem._grid_groups}
-    grid_extra = [g.rows for g in problem._grid_groups if g.lower is None and g.name != "boundary"]
     groups = [(g.name, g.rows) for g in problem._grid_groups]
-    extra_slices = [g.rows for g in problem._extra_groups]
-    extra_defaults = [(e.lower, e.upper) for e in problem.extra]
     final_lat = problem.final_lateral_velocity
-    iters = s.max_iter
-    # exact correction onto the boundary equalities A_eq c = b (the ego's initial state), in the
-    # projection's metric: c ← c − M (A_eq c − b), M = P⁻¹A_eqᵀ(A_eq P⁻¹ A_eqᵀ)⁻¹ per axis.  A
-    # fixed ADMM budget leaves them satisfied only to ~1e-4; after this every trajectory starts
-    # at the ego state to float precision (the inequality residual is measured afterwards).
+    dtype, iters = s.dtype, s.max_iter
     Mex = _equality_correction(problem.P[:n, :n], Aex)
     Mey = _equality_correction(problem.P[n:, n:], Aey)
 
@@ -834,53 +966,131 @@ def _jax_projector(
         cy_bar = jnp.asarray(cy_bar, dt)
         B = cx_bar.shape[0]
         st = jnp.broadcast_to(jnp.atleast_2d(jnp.asarray(state, dt)), (B, 6))
-        bx = st[:, jnp.array([0, 2, 4])]
-        by = st[:, jnp.array([1, 3, 5])]
-        if final_lat:
-            by = jnp.concatenate([by, jnp.zeros((B, 1), dt)], axis=1)
+        bx, by, beq = _boundary_values(st, final_lat, dt)
         Hj = jnp.asarray(H, dt)
         q = -jnp.concatenate(
             [
-                cx_bar @ Hj + rho * bx @ jnp.asarray(Aex, dt),
-                cy_bar @ Hj + rho * by @ jnp.asarray(Aey, dt),
+                _axis_linear_term(cx_bar, Hj, rho, bx, Aex, dt),
+                _axis_linear_term(cy_bar, Hj, rho, by, Aey, dt),
             ],
             axis=1,
         )
-        beq = jnp.concatenate([bx, by], axis=1)
-        l = jnp.broadcast_to(jnp.asarray(l0, dt), (B, m))
-        u = jnp.broadcast_to(jnp.asarray(u0, dt), (B, m))
-        l = l.at[:, bslice].set(beq)
-        u = u.at[:, bslice].set(beq)
-        eb = extra_defaults if extra_bounds is None else extra_bounds
-        if len(eb) != len(extra_slices):
-            raise ValueError(f"extra_bounds needs {len(extra_slices)} (lower, upper) pairs")
-        for sl, (lo, hi) in zip(extra_slices, eb, strict=True):
-            r = sl.stop - sl.start
-            l = l.at[:, sl].set(jnp.broadcast_to(jnp.asarray(lo, dt), (B, r)))
-            u = u.at[:, sl].set(jnp.broadcast_to(jnp.asarray(hi, dt), (B, r)))
-        lg = jnp.broadcast_to(jnp.asarray(lg0, dt), (B, lg0.shape[0]))
-        ug = jnp.broadcast_to(jnp.asarray(ug0, dt), (B, ug0.shape[0]))
-        lg = lg.at[:, gslice["boundary"]].set(beq)
-        ug = ug.at[:, gslice["boundary"]].set(beq)
-        for sl, gsl in zip(extra_slices, grid_extra, strict=True):
-            lg = lg.at[:, gsl].set(l[:, sl])
-            ug = ug.at[:, gsl].set(u[:, sl])
+        l, u, lg, ug = _joint_bounds(problem, rows, beq, extra_bounds, B, dt)
         x0 = y0 = None
         if warm_start is not None:
             x0, y0 = warm_start.x, warm_start.y
-        fj = jax.tree_util.tree_map(jnp.asarray, factor)  # constants of the traced function
-        out = admm_iterate(fj, q, l, u, x0=x0, y0=y0, iters=iters)
-        zx, zy = out.x[:, :n], out.x[:, n:]
-        zx = zx - (zx @ jnp.asarray(Aex.T, dt) - bx) @ jnp.asarray(Mex.T, dt)
-        zy = zy - (zy @ jnp.asarray(Aey.T, dt) - by) @ jnp.asarray(Mey.T, dt)
+        out = _run_admm(factor, q, l, u, x0, y0, iters)
+        zx = _correct_equalities(out.x[:, :n], Aex, bx, Mex, dt)
+        zy = _correct_equalities(out.x[:, n:], Aey, by, Mey, dt)
         z = jnp.concatenate([zx, zy], axis=1)
-        Az = z @ jnp.asarray(A_grid, dt).T
-        viol = jnp.maximum(jnp.maximum(lg - Az, Az - ug), 0.0)
+        viol = _violation(z @ jnp.asarray(A_grid, dt).T, lg, ug)
         grp = {name: jnp.max(viol[:, sl], axis=1, initial=0.0) for name, sl in groups}
         total = jnp.max(jnp.stack(list(grp.values())), axis=0)
         return JaxProjection(z[:, :n], z[:, n:], total, grp, out)
 
     return project
+
+
+def _ix(a):
+    """Index arrays as int32 whatever JAX's x64 mode (mixed widths fail to trace)."""
+    import jax.numpy as jnp
+
+    return jnp.asarray(a, jnp.int32)
+
+
+class _AxisPart(NamedTuple):
+    """One axis' QP of the split projector (numpy)."""
+
+    rows: np.ndarray  # its rows among the rows of A
+    factor: Any  # its ADMMFactor
+    Ae: np.ndarray  # its boundary rows A_eq
+    M: np.ndarray  # the equality correction of :func:`_correct_equalities`
+    l0: np.ndarray  # static bounds of its rows
+    u0: np.ndarray
+    b_pos: np.ndarray  # its boundary rows: positions among its rows ...
+    b_col: np.ndarray  # ... and columns of b_eq = [b_x, b_y]
+    G: np.ndarray  # its grid rows (residuals)
+    lg0: np.ndarray
+    ug0: np.ndarray
+    gb_pos: np.ndarray  # boundary grid rows: positions among its grid rows, columns of b_eq
+    gb_col: np.ndarray
+    groups: dict  # {group name: positions among its grid rows}
+
+
+def _axis_part(problem: ProjectionProblem, s, a: int, axes, grid_axes, static: _StaticRows):
+    from solvers.admm import admm_factor
+
+    n = problem.nvar
+    Ae = (problem._Aex, problem._Aey)[a]
+    Pa = problem.P[:n, :n] if a == 0 else problem.P[n:, n:]
+    bsl = problem.group_slices()["boundary"]
+    gsl = {g.name: g.rows for g in problem._grid_groups}
+    rows = np.flatnonzero(axes == a)
+    grows = np.flatnonzero(grid_axes == a)
+    cols = slice(a * n, (a + 1) * n)
+
+    def positions(idx, sl):
+        return [i for i, r in enumerate(idx) if sl.start <= r < sl.stop]
+
+    b_pos = positions(rows, bsl)
+    gb_pos = positions(grows, gsl["boundary"])
+    groups = {}
+    for name, sl in gsl.items():
+        pos = positions(grows, sl)
+        if pos:
+            groups[name] = np.asarray(pos)
+    eq, free = static.eq[rows], static.free[rows]
+    return _AxisPart(
+        rows=rows,
+        factor=admm_factor(Pa, problem.A[rows][:, cols], s, eq_rows=eq, free_rows=free),
+        Ae=Ae,
+        M=_equality_correction(Pa, Ae),
+        l0=static.l0[rows],
+        u0=static.u0[rows],
+        b_pos=np.asarray(b_pos, int),
+        b_col=np.asarray([int(r - bsl.start) for r in rows[b_pos]], int),
+        G=problem._grid_A[grows][:, cols],
+        lg0=static.lg0[grows],
+        ug0=static.ug0[grows],
+        gb_pos=np.asarray(gb_pos, int),
+        gb_col=np.asarray([int(r - gsl["boundary"].start) for r in grows[gb_pos]], int),
+        groups=groups,
+    )
+
+
+def _with_boundary(v0, pos, col, beq, Bs: int, dt):
+    """Static bounds ``v0`` as ``(Bs, ·)`` with the boundary entries ``pos`` set to ``b_eq``."""
+    import jax.numpy as jnp
+
+    v = jnp.broadcast_to(jnp.asarray(v0, dt), (Bs, v0.shape[0]))
+    return v.at[:, _ix(pos)].set(beq[:, _ix(col)])
+
+
+def _merge_axis_states(ox, oy, inv):
+    """The two axes' ADMM states as one, in the joint row order (``inv``: joint row ``r`` is
+    entry ``inv[r]`` of ``[x rows; y rows]``)."""
+    import jax.numpy as jnp
+
+    from solvers.admm import ADMMState
+    from solvers.admm.core import _SOLVED
+
+    def joint(fx, fy):  # per-row arrays in the joint row order
+        return jnp.concatenate([fx, fy], axis=1)[:, _ix(inv)]
+
+    status = jnp.where(ox.status == _SOLVED, oy.status, ox.status)
+    return ADMMState(
+        x=jnp.concatenate([ox.x, oy.x], axis=1),
+        z=joint(ox.z, oy.z),
+        y=joint(ox.y, oy.y),
+        prim_res=jnp.maximum(ox.prim_res, oy.prim_res),
+        dual_res=jnp.maximum(ox.dual_res, oy.dual_res),
+        status=status,
+        iterations=jnp.maximum(ox.iterations, oy.iterations),
+        rho=jnp.maximum(ox.rho, oy.rho),
+        delta_x=jnp.concatenate([ox.delta_x, oy.delta_x], axis=1),
+        delta_y=joint(ox.delta_y, oy.delta_y),
+        rung_matmuls=ox.rung_matmuls + oy.rung_matmuls,
+    )
 
 
 def _split_projector(problem: ProjectionProblem, s, axes: np.ndarray, grid_axes: np.ndarray):
@@ -889,135 +1099,58 @@ def _split_projector(problem: ProjectionProblem, s, axes: np.ndarray, grid_axes:
     iteration.  Bounds that every sample shares stay (1, m) (broadcast, not materialised)."""
     import jax.numpy as jnp
 
-    from solvers.admm import ADMMState, admm_factor, admm_iterate
-    from solvers.admm.core import _SOLVED
-
-    n, m = problem.nvar, problem.num_rows
-    A, G = problem.A, problem._grid_A
-    l0, u0 = problem.bounds_arrays(np.zeros((1, 6)), 1, [])
-    lg0, ug0 = problem.bounds_arrays(np.zeros((1, 6)), 1, [], grid=True)
-    l0, u0, lg0, ug0 = l0[0], u0[0], lg0[0], ug0[0]
-    bsl = problem.group_slices()["boundary"]
-    gsl = {g.name: g.rows for g in problem._grid_groups}
-    eq = np.zeros(m, bool)
-    eq[bsl] = True
-    free = ~eq & np.isinf(l0) & np.isinf(u0)
+    n = problem.nvar
+    static = _static_rows(problem)
     H = problem.metric_matrix
     rho_eq = problem._rho_eq
     final_lat = problem.final_lateral_velocity
     dtype = s.dtype
-    parts = []
-    for a, (Ae, Pa) in enumerate(
-        ((problem._Aex, problem.P[:n, :n]), (problem._Aey, problem.P[n:, n:]))
-    ):
-        rows = np.flatnonzero(axes == a)
-        grows = np.flatnonzero(grid_axes == a)
-        cols = slice(a * n, (a + 1) * n)
-        # boundary rows of this axis: positions among its rows and columns of b_eq = [bx, by]
-        b_pos = [i for i, r in enumerate(rows) if bsl.start <= r < bsl.stop]
-        b_col = [int(r - bsl.start) for r in rows[b_pos]]
-        gb_pos = [
-            i for i, r in enumerate(grows) if gsl["boundary"].start <= r < gsl["boundary"].stop
-        ]
-        gb_col = [int(r - gsl["boundary"].start) for r in grows[gb_pos]]
-        groups = {}
-        for name, sl in gsl.items():
-            pos = [i for i, r in enumerate(grows) if sl.start <= r < sl.stop]
-            if pos:
-                groups[name] = np.asarray(pos)
-        parts.append(
-            dict(
-                rows=rows,
-                factor=admm_factor(Pa, A[rows][:, cols], s, eq_rows=eq[rows], free_rows=free[rows]),
-                Ae=Ae,
-                M=_equality_correction(Pa, Ae),
-                l0=l0[rows],
-                u0=u0[rows],
-                b_pos=np.asarray(b_pos, int),
-                b_col=np.asarray(b_col, int),
-                G=G[grows][:, cols],
-                lg0=lg0[grows],
-                ug0=ug0[grows],
-                gb_pos=np.asarray(gb_pos, int),
-                gb_col=np.asarray(gb_col, int),
-                groups=groups,
-            )
-        )
-    order = np.concatenate([parts[0]["rows"], parts[1]["rows"]])
-    inv = np.argsort(order)  # joint row r is entry inv[r] of [x rows; y rows]
+    parts = [_axis_part(problem, s, a, axes, grid_axes, static) for a in (0, 1)]
+    inv = np.argsort(np.concatenate([parts[0].rows, parts[1].rows]))
     group_names = [g.name for g in problem._grid_groups]
 
-    def _ix(a):  # index arrays as int32 whatever JAX's x64 mode (mixed widths fail to trace)
-        return jnp.asarray(a, jnp.int32)
+    def project_axis(a, p: _AxisPart, c_bar, b, beq, Hj, warm_start, dt):
+        """One axis: ADMM, the equality correction, the grid rows' violations."""
+        Bs = beq.shape[0]
+        q = -_axis_linear_term(c_bar, Hj, rho_eq, b, p.Ae, dt)
+        l = _with_boundary(p.l0, p.b_pos, p.b_col, beq, Bs, dt)
+        u = _with_boundary(p.u0, p.b_pos, p.b_col, beq, Bs, dt)
+        x0 = y0 = None
+        if warm_start is not None:
+            x0 = warm_start.x[:, a * n : (a + 1) * n]
+            y0 = warm_start.y[:, _ix(p.rows)]
+        out = _run_admm(p.factor, q, l, u, x0, y0, s.max_iter)
+        z = _correct_equalities(out.x, p.Ae, b, p.M, dt)
+        Az = z @ jnp.asarray(p.G, dt).T
+        lg = _with_boundary(p.lg0, p.gb_pos, p.gb_col, beq, Bs, dt)
+        ug = _with_boundary(p.ug0, p.gb_pos, p.gb_col, beq, Bs, dt)
+        return out, z, _violation(Az, lg, ug)
 
     def project(cx_bar, cy_bar, state, extra_bounds=None, warm_start=None) -> JaxProjection:
-        import jax
-
         dt = jnp.dtype(dtype)
         if extra_bounds:
             raise ValueError("this projection has no user constraints: extra_bounds must be None")
         cb = (jnp.asarray(cx_bar, dt), jnp.asarray(cy_bar, dt))
         B = cb[0].shape[0]
         st = jnp.atleast_2d(jnp.asarray(state, dt))  # (1, 6) shared or (B, 6)
-        Bs = st.shape[0]
-        bx = st[:, jnp.array([0, 2, 4])]
-        by = st[:, jnp.array([1, 3, 5])]
-        if final_lat:
-            by = jnp.concatenate([by, jnp.zeros((Bs, 1), dt)], axis=1)
-        beq = jnp.concatenate([bx, by], axis=1)
+        bx, by, beq = _boundary_values(st, final_lat, dt)
         Hj = jnp.asarray(H, dt)
         outs, zs, viols = [], [], []
         for a, (p, b) in enumerate(zip(parts, (bx, by), strict=True)):
-            q = -(cb[a] @ Hj + rho_eq * b @ jnp.asarray(p["Ae"], dt))
-            l = jnp.broadcast_to(jnp.asarray(p["l0"], dt), (Bs, p["l0"].shape[0]))
-            u = jnp.broadcast_to(jnp.asarray(p["u0"], dt), (Bs, p["u0"].shape[0]))
-            l = l.at[:, _ix(p["b_pos"])].set(beq[:, _ix(p["b_col"])])
-            u = u.at[:, _ix(p["b_pos"])].set(beq[:, _ix(p["b_col"])])
-            x0 = y0 = None
-            if warm_start is not None:
-                x0 = warm_start.x[:, a * n : (a + 1) * n]
-                y0 = warm_start.y[:, _ix(p["rows"])]
-            fj = jax.tree_util.tree_map(jnp.asarray, p["factor"])
-            out = admm_iterate(fj, q, l, u, x0=x0, y0=y0, iters=s.max_iter)
-            # exact correction onto this axis' boundary equalities (see _jax_projector)
-            z = out.x - (out.x @ jnp.asarray(p["Ae"].T, dt) - b) @ jnp.asarray(p["M"].T, dt)
-            Az = z @ jnp.asarray(p["G"], dt).T
-            lg = jnp.broadcast_to(jnp.asarray(p["lg0"], dt), (Bs, p["lg0"].shape[0]))
-            ug = jnp.broadcast_to(jnp.asarray(p["ug0"], dt), (Bs, p["ug0"].shape[0]))
-            lg = lg.at[:, _ix(p["gb_pos"])].set(beq[:, _ix(p["gb_col"])])
-            ug = ug.at[:, _ix(p["gb_pos"])].set(beq[:, _ix(p["gb_col"])])
-            viols.append(jnp.maximum(jnp.maximum(lg - Az, Az - ug), 0.0))
+            out, z, viol = project_axis(a, p, cb[a], b, beq, Hj, warm_start, dt)
             outs.append(out)
             zs.append(z)
+            viols.append(viol)
         grp = {}
         for name in group_names:
             vs = [
-                jnp.max(v[:, _ix(p["groups"][name])], axis=1)
+                jnp.max(v[:, _ix(p.groups[name])], axis=1)
                 for p, v in zip(parts, viols, strict=True)
-                if name in p["groups"]
+                if name in p.groups
             ]
             grp[name] = vs[0] if len(vs) == 1 else jnp.maximum(vs[0], vs[1])
         total = jnp.maximum(jnp.max(viols[0], axis=1), jnp.max(viols[1], axis=1))
         total = jnp.broadcast_to(total, (B,))
-        ox, oy = outs
-
-        def joint(fx, fy):  # per-row arrays in the joint row order
-            return jnp.concatenate([fx, fy], axis=1)[:, _ix(inv)]
-
-        status = jnp.where(ox.status == _SOLVED, oy.status, ox.status)
-        admm = ADMMState(
-            x=jnp.concatenate([ox.x, oy.x], axis=1),
-            z=joint(ox.z, oy.z),
-            y=joint(ox.y, oy.y),
-            prim_res=jnp.maximum(ox.prim_res, oy.prim_res),
-            dual_res=jnp.maximum(ox.dual_res, oy.dual_res),
-            status=status,
-            iterations=jnp.maximum(ox.iterations, oy.iterations),
-            rho=jnp.maximum(ox.rho, oy.rho),
-            delta_x=jnp.concatenate([ox.delta_x, oy.delta_x], axis=1),
-            delta_y=joint(ox.delta_y, oy.delta_y),
-            rung_matmuls=ox.rung_matmuls + oy.rung_matmuls,
-        )
-        return JaxProjection(zs[0], zs[1], total, grp, admm)
+        return JaxProjection(zs[0], zs[1], total, grp, _merge_axis_states(*outs, inv))
 
     return project
