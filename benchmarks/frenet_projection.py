@@ -46,7 +46,7 @@ STATE = EgoState(s=0.0, d=0.0, vs=10.0, vd=0.0, as_=0.0, ad=0.0)
 
 
 def reference_d(num: int, seed: int = 0) -> np.ndarray:
-    """The reference sampler's initial batch (SPEC §c), last 10 rows zero as in the code."""
+    """The reference sampler's initial batch, last 10 rows zero as in the reference code."""
     rng = np.random.default_rng(seed)
     cov = np.diag([14.0] * 4 + [23.0] * 4)
     d = rng.multivariate_normal(np.zeros(8), cov, size=num)

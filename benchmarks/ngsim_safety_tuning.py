@@ -1,6 +1,6 @@
 """Tuning the following distance and the traffic-aware desired speed on the TRAINING scenes.
 
-The issue-12 bar (0 at-fault collisions with the recorded futures, progress ≥ 80 % of the human's
+The benchmark's bar (0 at-fault collisions with the recorded futures, progress ≥ 80 % of the human's
 per task, every plan feasible) is checked on held-out recordings; the constants of
 :func:`mmdopt.bench.ngsim.ngsim_config` (``headway_time``, ``headway_gap``) and of
 :class:`~mmdopt.bench.ngsim.NgsimParams` (``v_des_flow``) are chosen here, on the training split
@@ -134,7 +134,7 @@ VARIANT_SETS = {
             dict(headway_time=0.5, headway_gap=2.0, margin_ahead_scale=0.0),
             dict(v_des_flow=2.0),
         ),
-        # Session 10: the chosen configuration with a higher traffic-speed allowance (the
+        # the chosen configuration with a higher traffic-speed allowance (the
         # training split's least progress ratio is 0.80, at the bar)
         **{
             f"flow+{v:g},r2,c5": (
@@ -167,7 +167,7 @@ VARIANT_SETS = {
             )
             for e in (2.5, 3.0)
         },
-        # Session 12: ... and the re-selection pass with the time-linear margins
+        # ... and the re-selection pass with the time-linear margins
         # (MMDOptConfig.reselect: the samples in deepest conflict with the first plan join the
         # reduced set, Algorithm 1 runs again warm-started)
         **{
@@ -177,7 +177,7 @@ VARIANT_SETS = {
             )
             for r in (3, 5, 10)
         },
-        # ... and smaller time-linear margins (with the follower rule of Session 12)
+        # ... and smaller time-linear margins (with the follower rule of ngsim_config)
         **{
             f"flow+2,r2,c5,slip0.5,yaw2.5,L{ml:g},R{mr:g}": (
                 dict(
@@ -192,7 +192,7 @@ VARIANT_SETS = {
             for ml, mr in ((1.5, 0.5), (1.0, 0.5), (2.5, 0.5), (1.5, 0.75))
         },
     },
-    # Session 9: issue 11's sample-driven margins (mmdopt.risk: coverage margins at 1 − ε, the
+    # the sample-driven margins (mmdopt.risk: coverage margins at 1 − ε, the
     # coverage term and the re-selection pass of the "mmd" mapping; m = 10 here, so reselect 5)
     # instead of the time-linear ones, on top of the chosen configuration
     "risk": {

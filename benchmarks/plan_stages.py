@@ -1,4 +1,4 @@
-"""Where a plan's time goes, per method, at a given number of planning samples (issue 11).
+"""Where a plan's time goes, per method, at a given number of planning samples.
 
 Plans ``--scenes`` synthetic scenes (tuning seed by default) with every variant, one process,
 and prints the medians of ``Plan.plan_time_s`` and of its stages from ``Plan.diagnostics``

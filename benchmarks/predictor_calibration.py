@@ -1,5 +1,5 @@
 """Dispersion calibration of the learned predictor: probability integral transform (PIT) of the
-distance each recorded car travelled, among the predictor's samples (issue 12).
+distance each recorded car travelled, among the predictor's samples.
 
 For every vehicle of every window (``mmdopt.bench.ngsim.data.windows``, every 2 s) and a time
 t, u = the share of 200 samples that travelled less far from the current position than the car

@@ -1,4 +1,4 @@
-"""QP backends on batches of projection QPs (issues 2, 15): a thin script.
+"""QP backends on batches of projection QPs: a thin script.
 
 The benchmark lives in the package, :mod:`mmdopt.bench.qp_backends`, so that
 ``mmdopt bench qp-backends`` works from an installed wheel; this script only calls it::

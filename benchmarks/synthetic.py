@@ -1,4 +1,4 @@
-"""Paper Fig. 5 / issue 4: MMD-Opt vs the baselines on the synthetic multi-modal scenes.
+"""Paper Fig. 5 (§IV-C): MMD-Opt vs the baselines on the synthetic multi-modal scenes.
 
 A thin wrapper of the CLI (``mmdopt bench synthetic``), kept so that every benchmark question has
 a script in ``benchmarks/``.  Same options, e.g.::
@@ -7,8 +7,8 @@ a script in ``benchmarks/``.  Same options, e.g.::
     # = mmdopt bench synthetic --scenes 100 --seed 0 --out results/synthetic
 
 Writes ``OUT/results.csv`` (one row per scene and method), ``OUT/summary.json``,
-``OUT/collision_free.png`` and ``OUT/scenes/*.json`` (resumable); prints the summary table and the
-issue's bars.  Numbers and commands: ``docs/benchmarks.md``, section "Experiments (issue 4)".
+``OUT/collision_free.png`` and ``OUT/scenes/*.json`` (resumable); prints the summary table.
+Numbers and commands: ``docs/benchmarks.md``.
 """
 
 import sys

@@ -1,4 +1,4 @@
-"""The collision metric (paper §Benchmarks, SPEC §h) and the independent kinematic check.
+"""The collision metric (paper §IV-A, "Benchmarks and Metrics") and the independent kinematic check.
 
 A plan is scored by the number of validation samples it avoids: a sample *collides* if, at any
 time step, for any of its circles (default 3 at {0, ±2.5} m along its heading) the ellipse function

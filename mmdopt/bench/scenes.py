@@ -1,4 +1,4 @@
-"""Synthetic multi-modal driving scenes (paper §Benchmarks, SPEC §b).
+"""Synthetic multi-modal driving scenes (paper §IV-A, "Benchmarks and Metrics").
 
 One obstacle ahead of the ego on a straight road (Frenet frame = Cartesian frame).  Its future is
 multi-modal: every sample draws a discrete **lateral intent** (a lane offset ``y_d``, e.g. "stay
@@ -16,17 +16,17 @@ the metric counts).  Every random quantity comes from its own stream,
 1 = planning samples, 2 = validation samples, 3 = the planner's PRNG key: scenes are reproducible,
 independent of each other and of how many scenes are generated, and the validation samples are
 independent of the planning samples (the reference re-used the same speed draws in every scene
-and left the lateral draws unseeded, SPEC §8).
+and left the lateral draws unseeded).
 
 Presets (:data:`PRESETS`):
 
 ``paper100``     the paper's protocol: 100 scenes, ``x0 ~ U[45, 75]`` m, ``y0`` ∈ {−3, 0} m
                  (uniform), ``p ~ U[0.05, 0.30]``; ego lane bounds ±0.3 m (speed changes only).
-``reference36``  the reference code's grid (SPEC §b): ``x0 ∈ {45, 60, 75}`` × ``y0 ∈ {−3, 0}``
+``reference36``  the reference code's grid: ``x0 ∈ {45, 60, 75}`` × ``y0 ∈ {−3, 0}``
                  × ``p ∈ {5, 10, …, 30} %`` = 36 scenes (order: x0, then y0, then p).
 ``lanechange``   ``paper100`` with ego lane bounds spanning the ego lane and the left lane
                  (−0.3 … 3.8 m), so the ego may also change lanes (the reference's ±0.3 m bounds
-                 only allow speed modulation, SPEC §d).
+                 only allow speed modulation).
 
 Ego: origin, 10 m/s along +x, desired speed 10 m/s.  Any generator parameter can be overridden
 (``SceneParams.from_dict`` / the CLI's ``--scene-params FILE.json``); unknown keys are an error.

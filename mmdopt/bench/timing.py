@@ -150,7 +150,7 @@ def run_timing(
     return rows
 
 
-# ------------------------------------------------------------------------ many obstacles (issue 15)
+# ---------------------------------------------------------------------------------- many obstacles
 OBSTACLE_TIMING_COLUMNS = (
     "obstacles",
     "interacting",

@@ -1,4 +1,4 @@
-"""Bad-input corpus for the ``mmdopt`` command line (issue 16): every bad option or file exits
+"""Bad-input corpus for the ``mmdopt`` command line: every bad option or file exits
 with status 2, one ``error: argument --OPTION: …`` message naming the option (and the key of a
 bad ``--config``), no traceback, and nothing written into ``--out`` (no ``run.json`` that would
 lock the folder)."""
@@ -262,7 +262,7 @@ def test_empty_config_equals_no_config_in_the_manifest(tmp_path):
     (tmp_path / "run.json").write_text(json.dumps(old))
     check_manifest(tmp_path, empty, aliases=_manifest_aliases(None))
     # ...but not one that recorded the default config as {}: that default was the time-linear
-    # margins, no longer the default (Session 13 of issue 11)
+    # margins, no longer the default
     (tmp_path / "run.json").write_text(json.dumps(dict(old, config={})))
     with pytest.raises(ValueError, match="config"):
         check_manifest(tmp_path, empty, aliases=_manifest_aliases(None))

@@ -1,4 +1,4 @@
-"""Bad-input corpus (issue 16): every public entry point of ``frenet`` and ``mmdopt`` fed wrong
+"""Bad-input corpus: every public entry point of ``frenet`` and ``mmdopt`` fed wrong
 shapes, NaN/inf, wrong types and out-of-range values.  Each case asserts the exact outcome: the
 error type and the argument its message names (or, for planning, the plan's status).
 

@@ -1,4 +1,4 @@
-"""Sweeps that stop and recover cleanly (issue 16, items 7, 8 and 12).
+"""Sweeps that stop and recover cleanly.
 
 A small ``bench synthetic`` sweep (tiny planner config, small scenes) is interrupted with SIGTERM
 or SIGINT as soon as its first result file exists, with ``--jobs 2`` and ``--jobs 1``: the CLI

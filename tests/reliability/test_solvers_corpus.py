@@ -1,4 +1,4 @@
-"""A table-driven bad-input corpus for :mod:`solvers` (issue 16): every public entry point
+"""A table-driven bad-input corpus for :mod:`solvers`: every public entry point
 (``QP``, ``QPBatch``, ``QP.from_qpsolvers``, ``solve``, ``solve_batch``, ``solve_qp``) on every
 available backend.  Each case states its exact outcome: the error type and the argument the
 message names, or the set of statuses allowed.  Over the corpus no answer is a wrong ``SOLVED``.
@@ -73,7 +73,7 @@ def _batch(**kw: Any) -> QPBatch:
     return QPBatch(**args)
 
 
-INDEFINITE = np.diag([1.0, -1.0])  # the issue's saddle: x = 0 is stationary, x = (0, ±1) better
+INDEFINITE = np.diag([1.0, -1.0])  # a saddle: x = 0 is stationary, x = (0, ±1) better
 
 # ---------------------------------------------------------------- problem construction (QP)
 QP_CASES = [

@@ -1,5 +1,5 @@
 """No backend says SOLVED when its own answer's unscaled primal residual exceeds its stated
-tolerance by orders of magnitude, unless the answer is flagged (issue 16, item 3).
+tolerance by orders of magnitude, unless the answer is flagged.
 
 Every backend runs at its **defaults** (where wrong claims happen) on the Maros–Meszaros problems
 in the shared data and on random ill-conditioned QPs.  For ``admm`` (ours) the bar is stricter:

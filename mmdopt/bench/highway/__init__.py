@@ -1,4 +1,4 @@
-"""Closed-loop benchmark: receding-horizon MMD-Opt driving in highway-env (issue 13).
+"""Closed-loop benchmark: receding-horizon MMD-Opt driving in highway-env.
 
 Everything that knows highway-env lives in this package (the optional extra ``[highway]``):
 ``settings`` (methods, planner defaults, :class:`HighwaySettings`), ``adapter`` (state

@@ -16,7 +16,7 @@ def add_highway_parser(bench_subparsers):
     """Add ``highway`` to the ``mmdopt bench`` sub-commands; returns the parser."""
     h = bench_subparsers.add_parser(
         "highway",
-        help="closed-loop receding-horizon driving in highway-env (issue 13)",
+        help="closed-loop receding-horizon driving in highway-env",
         description="Receding-horizon MMD-Opt and baselines driving in highway-env; "
         "resumable, one JSON per episode, DIR/episodes.csv.",
     )

@@ -186,18 +186,18 @@ def ngsim_config(**overrides) -> mmdopt.MMDOptConfig:
     along and ``b = 2.2`` m (two half widths + 0.2 m) across — the synthetic benchmark's
     4.5 × 3.5 m would make every car in the next lane (3.3–3.7 m away) and every close follower a
     collision.  Planning margins: ``margin_long = 1.5`` m, ``margin_rate = 0.5`` m/s,
-    ``margin_lat = 0.2`` m (Session 12, with the follower rule below: 1.5 + 0.5·t m; the
-    synthetic defaults 2.5 + 1.9·t, and 2.5 + 1.0·t before, made every plan in stop-and-go
+    ``margin_lat = 0.2`` m (with the follower rule below: 1.5 + 0.5·t m; the synthetic
+    defaults 2.5 + 1.9·t, and an earlier 2.5 + 1.0·t, made every plan in stop-and-go
     traffic enter some margin, docs/ngsim.md).  The metric
     (``collision_free``) uses the same ``a``, ``b``.
 
     Sizes for 10–15 obstacles in real time on 2 cores: 300 behavioural samples, n_cem 60,
     n_e 20, 10 iterations, reduced sets of m = 10 (selection CEM: population 50, 10 elites,
     20 iterations) — with the paper's sizes (1000/150/50, 20 iterations, m = 20, selection
-    100/20/75) one plan against 10 obstacles took 7.5 s vs 1.1 s here on the loaded 2-core VM
+    100/20/75) one plan against 10 obstacles took 7.5 s vs 1.1 s here on a loaded 2-core CPU
     (docs/ngsim.md).  Pass the paper's sizes through ``overrides`` (or ``--config``).
 
-    Responsibility (issue 12's at-fault bar; :class:`mmdopt.MMDOptConfig`, responsibility-aware
+    Responsibility (no at-fault collision; :class:`mmdopt.MMDOptConfig`, responsibility-aware
     longitudinal model): ``rear_exempt_width = 2.0`` m — obstacle points behind the ego and
     within 2 m of its offset (a follower in its lane) cost nothing, also once a predicted
     follower runs through the ego, so the plan neither dodges a closing follower sideways into
@@ -209,11 +209,11 @@ def ngsim_config(**overrides) -> mmdopt.MMDOptConfig:
     Kinematic slip limit ``slip_ratio = 0.5`` (:class:`mmdopt.MMDOptConfig`): ``|ḋ| ≤ 0.5·ṡ``,
     so a crawling plan cannot stop and then slide sideways (a footprint turned by 90° in the
     metric); on the training recordings it removed one of the three at-fault contacts
-    (docs/ngsim.md, Session 10).
+    (docs/ngsim.md).
 
     Yaw-aware footprint ``yaw_extent = 2.5`` m (half a car's length, as ``a`` assumes): the
     lateral semi-axis grows by ``2.5·|sin Δθ|`` where the plan turns from the path, so a
-    crawling plan does not swing a corner into the next lane (docs/ngsim.md, Session 11)."""
+    crawling plan does not swing a corner into the next lane (docs/ngsim.md)."""
     base = dict(
         horizon=5.0,
         num_steps=51,
@@ -231,8 +231,8 @@ def ngsim_config(**overrides) -> mmdopt.MMDOptConfig:
         rear_exempt_width=2.0,
         slip_ratio=0.5,
         yaw_extent=2.5,
-        # the time-linear margins above were tuned on the training recordings (issue 12); the
-        # sample-driven default of issue 11 was not
+        # the time-linear margins above were tuned on the training recordings; the
+        # sample-driven default (mmdopt.risk) was not
         margin_mode="linear",
         reselect=0,
     )
@@ -466,7 +466,7 @@ def run_task(
             b["ego"], b["road"], planned, method=m, config=cfg, backend=backend, key=k_plan
         )
         score = _score_recorded(b, plan, params)
-        # the paper's metric (SPEC §h): validation draws clear of every obstacle
+        # the paper's metric (§IV-A): validation draws clear of every obstacle
         cf = int(mmdopt.collision_free_count(plan.xy, val, a=float(cfg.a), b=float(cfg.b)).joint)
         rows.append(
             dict(

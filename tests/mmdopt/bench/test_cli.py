@@ -208,10 +208,10 @@ def test_smoke_five_scenes_pipeline_bar(tmp_path, capsys):
     assert mean >= SMOKE_FLOOR
 
 
-#: MMD-Opt's mean on these 5 scenes (seed 0) was 995.2 at 69e9db7 (per scene 996, 999, 999, 988,
-#: 994; de Groot 981.0; 995.6 at cf55bc5), m = 20 and the session-2 margins; with the risk knob
-#: as the default (issue 11, Session 13) 988.6 (979, 983, 993, 998, 990; de Groot 993.2); the
-#: floor leaves a margin for numerical differences between machines and library versions
+#: MMD-Opt's mean on these 5 scenes (seed 0) with the time-linear margins and m = 20 was 995.2
+#: (per scene 996, 999, 999, 988, 994; de Groot 981.0); with the sample-driven margins of the
+#: risk level as the default it is 988.6 (979, 983, 993, 998, 990; de Groot 993.2); the floor
+#: leaves a margin for numerical differences between machines and library versions
 SMOKE_FLOOR = 980.0
 
 

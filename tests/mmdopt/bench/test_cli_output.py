@@ -1,4 +1,4 @@
-"""What the ``mmdopt`` command prints (issue 14): its version, tables whose headers say their
+"""What the ``mmdopt`` command prints: its version, tables whose headers say their
 units, no internal acceptance targets in the summary."""
 
 from __future__ import annotations

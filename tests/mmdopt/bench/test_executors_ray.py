@@ -1,4 +1,4 @@
-"""The Ray executor gives exactly the local executor's rows (issue 11)."""
+"""The Ray executor gives exactly the local executor's rows."""
 
 from __future__ import annotations
 

@@ -1,4 +1,4 @@
-"""Figures a reader understands (issue 14): every panel of every PNG the CLI writes has labelled
+"""Figures a reader understands: every panel of every PNG the CLI writes has labelled
 axes (the value axes with their unit) and a legend for its marks and colours.
 
 The figures are inspected as matplotlib objects: ``Figure.savefig`` is wrapped to record each

@@ -1,4 +1,4 @@
-"""mmdopt.bench.load_results: benchmark tables as pandas DataFrames (issue 14)."""
+"""mmdopt.bench.load_results: benchmark tables as pandas DataFrames."""
 
 from __future__ import annotations
 

@@ -333,10 +333,10 @@ def test_crawling_ego_does_not_slide_sideways_at_rest(ngsim_dir):
     sc = _score_recorded(b, plan, p)
     assert not sc["at_fault_collision"], sc
     # t0 = 3 s, the same ego: the follower's predicted samples run through the ego.  Before the
-    # follower rule (Session 12) they became leaders from that step on, and the plan raced ahead
+    # follower rule they became leaders from that step on, and the plan raced ahead
     # of them into the recorded leader, which stops (an at-fault *stopped-track* contact at
     # 1.9 × the human's distance); now it is clear of every recorded car and still makes at
-    # least 80 % of the human's progress (the bar)
+    # least 80 % of the human's progress (the benchmark's bar)
     inp, cfg, plan = plan_task(30, 3.0)
     sc = _score_recorded(inp.task, plan, p)
     assert not sc["any_collision"], sc

@@ -112,7 +112,8 @@ def test_reference36_grid_and_paper100_preset():
 
 
 def test_reference_sanity_numbers_scene_45_m3_10():
-    """SPEC §b: on 45_−3_10 about 90 % of the samples end in the left lane, final speed ≈ 5 m/s."""
+    """As in the reference code: on 45_−3_10 about 90 % of the samples end in the left lane,
+    final speed ≈ 5 m/s."""
     s = scenarios.demo_scene()
     assert (s.x0, s.y0, s.p) == (45.0, -3.0, 0.10)
     end_y = s.validation[0, :, -1, 1]
