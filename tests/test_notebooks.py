@@ -1,4 +1,4 @@
-"""Execute the tutorial notebooks (issue 5) so that none can rot.
+"""Execute the tutorial notebooks so that none can rot.
 
 Each notebook in ``notebooks/`` runs top to bottom in a fresh ``python3`` kernel (the kernelspec
 that ``ipykernel`` provides) with ``MMDOPT_NB_SMALL=1`` (the notebooks shrink their sizes),
