@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import os
 import time
 from collections.abc import Sequence
 from pathlib import Path
@@ -26,7 +27,20 @@ __all__ = [
     "run_timing",
     "run_obstacle_timing",
     "traffic_scene",
+    "time_reduced_set",
+    "time_plan",
 ]
+
+
+def _cpu() -> float:
+    """CPU time (s) of this process, user + system."""
+    t = os.times()
+    return t.user + t.system
+
+
+def _check_repeats(repeats: int) -> None:
+    if isinstance(repeats, bool) or not isinstance(repeats, int) or repeats < 1:
+        raise ValueError(f"repeats must be an integer >= 1, got {repeats!r}")
 
 
 def _time_calls(fn, key, repeats: int) -> tuple[float, float]:
@@ -41,6 +55,64 @@ def _time_calls(fn, key, repeats: int) -> tuple[float, float]:
         np.asarray(fn(k))
         ts.append(time.perf_counter() - t0)
     return first, float(np.median(ts))
+
+
+def time_reduced_set(
+    samples: Any, m: int, *, repeats: int = 5, key: Any = None, config=None
+) -> tuple[float, float]:
+    """``(first call, median of repeats)`` wall time (s) of MMD reduced-set selection
+    (paper eq. (red_set_opt_proposed)) of ``m`` of one obstacle's ``samples`` (n, K, 2); the
+    first call includes the jit compile.  ``config``: a ``ReducedSetConfig`` (default: its
+    defaults); ``key`` default ``PRNGKey(0)``, then ``fold_in(key, r)`` for repeat r."""
+    _check_repeats(repeats)
+    obs = jax.numpy.asarray(samples)
+    if obs.ndim != 3 or obs.shape[-1] != 2:
+        raise ValueError(f"samples must have shape (n, K, 2), got {obs.shape}")
+    if isinstance(m, bool) or not isinstance(m, int | np.integer) or not 1 <= m <= obs.shape[0]:
+        raise ValueError(f"m must be an integer in [1, {obs.shape[0]}], got {m!r}")
+    rs_cfg = ReducedSetConfig() if config is None else config
+    key = jax.random.PRNGKey(0) if key is None else key
+    return _time_calls(lambda k: select_reduced_set(k, obs, m, "mmd", rs_cfg).weights, key, repeats)
+
+
+def time_plan(
+    scene: Scene,
+    config: mmdopt.MMDOptConfig | None = None,
+    *,
+    method: str = "mmd",
+    repeats: int = 5,
+    backend: str = PLANNER_BACKEND,
+) -> dict[str, Any]:
+    """Time ``mmdopt.plan`` on ``scene``: a first call (with ``scene.key()``; jit compile
+    included), then ``repeats`` calls with fresh keys (``fold_in(scene.key(), r)``).
+
+    Returns wall times (s) ``plan_first_s`` and the median ``plan_s``, the process CPU times
+    ``plan_first_cpu_s`` and ``plan_cpu_s`` (less sensitive to a loaded machine), Algorithm 1
+    alone (the CEM loop, ``plan.diagnostics["cem_s"]``) ``algorithm1_first_s`` and the median
+    ``algorithm1_s``, and the last ``plan``."""
+    _check_repeats(repeats)
+    key = scene.key()
+    walls, cpus, cems = [], [], []
+    for r in range(repeats + 1):
+        k = key if r == 0 else jax.random.fold_in(key, r)
+        c0, t0 = _cpu(), time.perf_counter()
+        p = mmdopt.plan(
+            scene.ego(), scene.road(), scene.obstacles, method=method, config=config,
+            backend=backend, key=k,
+        )  # fmt: skip
+        np.asarray(p.x)
+        walls.append(time.perf_counter() - t0)
+        cpus.append(_cpu() - c0)
+        cems.append(float(p.diagnostics["cem_s"]))
+    return dict(
+        plan_first_s=walls[0],
+        plan_s=float(np.median(walls[1:])),
+        plan_first_cpu_s=cpus[0],
+        plan_cpu_s=float(np.median(cpus[1:])),
+        algorithm1_first_s=cems[0],
+        algorithm1_s=float(np.median(cems[1:])),
+        plan=p,
+    )
 
 
 TIMING_COLUMNS = (
@@ -101,28 +173,12 @@ def run_timing(
         if n not in scenes:
             scenes[n] = make_scene(base.index, base.seed, base.params.replace(n_samples=n))
         sc = scenes[n]
-        key = sc.key()
-        obs = jax.numpy.asarray(sc.obstacles[0])
-        rs_cfg = ReducedSetConfig()
-        rs_first, rs_med = _time_calls(
-            lambda k, obs=obs, m=m, c=rs_cfg: select_reduced_set(k, obs, m, "mmd", c).weights,
-            key,
-            repeats,
-        )
+        rs_first, rs_med = time_reduced_set(sc.obstacles[0], int(m), repeats=repeats, key=sc.key())
         cfg = cfg0.replace(reduced_set_size=int(m))
-        cem_times: list[float] = []
-
-        def one_plan(k, sc=sc, cfg=cfg, sink=cem_times):
-            p = mmdopt.plan(
-                sc.ego(), sc.road(), sc.obstacles, method="mmd", config=cfg, backend=backend, key=k
-            )
-            sink.append(float(p.diagnostics["cem_s"]))
-            return p.x
-
-        p_first, p_med = _time_calls(one_plan, key, repeats)
         # Algorithm 1 = the CEM loop alone (plan.diagnostics["cem_s"]); the whole plan() call
         # (+ Frenet conversion, its own reduced-set selection, assembling the plan) is plan_s
-        a_first, a_med = cem_times[0], float(np.median(cem_times[1:]))
+        t = time_plan(sc, cfg, repeats=repeats, backend=backend)
+        a_first, a_med = t["algorithm1_first_s"], t["algorithm1_s"]
         rows.append(
             dict(
                 reduced_set_size=m,
@@ -133,8 +189,8 @@ def run_timing(
                 backend=backend,
                 reduced_set_first_s=rs_first,
                 algorithm1_first_s=a_first,
-                plan_s=p_med,
-                plan_first_s=p_first,
+                plan_s=t["plan_s"],
+                plan_first_s=t["plan_first_s"],
                 repeats=repeats,
             )
         )
