@@ -13,7 +13,8 @@
      ``:obj:``, ``:exc:``; ``~`` shortens the shown name) become links to the documented object
      when the name resolves (relative to the docstring's class, module and package, like Sphinx),
      inline code otherwise;
-   * a list item that follows a paragraph line gets the blank line Markdown needs to see a list;
+   * a list item that follows a paragraph line gets the blank line Markdown needs to see a list,
+     and ``name : text`` lines outside a numpy section (a dataclass's fields) become a list;
    * ``text::`` followed by an indented block becomes ``text:`` and a fenced code block;
    * simple reST tables (``====  ====`` rules) become Markdown tables.
 """
@@ -200,6 +201,7 @@ _SECTION_KIND = {
 _DASHES = re.compile(r"^\s*-{3,}\s*$")
 _SIMPLE_TYPE = re.compile(r"^[\w.]+(?:\[[\w., |\[\]]*\])?(?: \| [\w.]+(?:\[[\w., |\[\]]*\])?)*$")
 _ROLE_ONLY = re.compile(r"^:(?:py:)?\w+:`[~!]?([^`]+)`$")
+_FIELD = re.compile(r"^(\*{0,2}[A-Za-z_]\w*(?:, \*{0,2}[A-Za-z_]\w*)*) : (\S.*)$")
 
 
 def _as_type(text: str) -> str | None:
@@ -220,13 +222,27 @@ def _numpy_items(lines: list[str]) -> list[str]:
     out: list[str] = []
     kind: str | None = None
     prose = False  # the last item of a Returns/Raises section is a sentence still going on
+    in_fence = False
     for k, line in enumerate(lines):
         nxt = lines[k + 1] if k + 1 < len(lines) else ""
+        if _FENCE.match(line):
+            in_fence = not in_fence
+        if in_fence or _FENCE.match(line):
+            out.append(line)
+            continue
         if line.strip() and not line.startswith(" ") and _DASHES.match(nxt):
             kind = _SECTION_KIND.get(line.strip().lower())
             out.append(line)
             prose = False
             continue
+        if kind is None and not line.startswith(" "):
+            # ``name : text`` lines outside a numpy section (a class's fields, a module's
+            # arguments) as a list, each with its continuation lines
+            m = _FIELD.match(line)
+            if m:
+                names = ", ".join(f"`{n}`" for n in m[1].split(", "))
+                out.append(f"- {names}: {m[2]}")
+                continue
         if kind is None or not line.strip() or line.startswith(" ") or _DASHES.match(line):
             out.append(line)
             prose = prose and bool(line.strip())

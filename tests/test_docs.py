@@ -128,6 +128,8 @@ def test_docstring_markup_becomes_markdown():
     spec = importlib.util.spec_from_file_location("_docs_hooks", REPO / "docs" / "hooks.py")
     hooks = importlib.util.module_from_spec(spec)
     spec.loader.exec_module(hooks)
+    fields = hooks.convert_docstring("Fields.\n\nego : the ego\nroad : the road", ["mmdopt"])
+    assert fields.endswith("- `ego`: the ego\n- `road`: the road")
     text = "\n".join(
         [
             "Uses :func:`plan` and :class:`~mmdopt.api.Road`, not :class:`NoSuchThing`.",
