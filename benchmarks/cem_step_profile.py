@@ -66,7 +66,7 @@ def main() -> None:
     out = {}
     out["project_rows"] = in_graph_ms(lambda d: alg.project_rows(cfg, prob, d, ego, dt)[2], ds)
     cx, cy, _, n_proj = alg.project_rows(cfg, prob, ds[0], ego, dt)
-    nc = cfg.n_elite + cfg.n_brake
+    nc = cfg.cem.n_elite + cfg.cem.n_brake
     E = alg.cost_chunk_size(cfg)
     cxc = jnp.stack([cx[nc : nc + E]] * R)
     cyc = jnp.stack([cy[nc : nc + E]] * R)
@@ -77,7 +77,7 @@ def main() -> None:
     P = jnp.asarray(prob.P, dt)
     a_plan = alg.planning_semi_axis(cfg, prob.t(), dt, 1.0)
     cen = obstacles.centres.astype(dt)
-    b = cfg.b + cfg.margin_lat
+    b = cfg.safety.footprint.b + cfg.safety.margins.margin_lat
 
     def ell(c):
         f = collision.ellipse_values(c[0] @ P.T, c[1] @ P.T, cen, a_plan, b)
@@ -87,14 +87,14 @@ def main() -> None:
     f0 = collision.ellipse_values(cxc[0] @ P.T, cyc[0] @ P.T, cen, a_plan, b)
     w = obstacles.weights.astype(dt)
     out[f"mmd_cost from f ({E} rows)"] = in_graph_ms(
-        lambda f: collision.mmd_cost(f, w, cfg.bandwidth, cfg.f_scale, obstacles.n_terms),
+        lambda f: collision.mmd_cost(f, w, cfg.cost.bandwidth, cfg.cost.f_scale, obstacles.n_terms),
         jnp.stack([f0] * R),
     )
     # the cache of run after one iteration: elites and brake rows scored and projected
     _, cache = alg._step(st, obstacles, None, alg._empty_cache(cfg, prob.nvar, dt))
 
     def with_keys(k):
-        return st._replace(keys=jnp.stack([k] * cfg.iterations))
+        return st._replace(keys=jnp.stack([k] * cfg.cem.iterations))
 
     out["whole step, cost cache (run)"] = in_graph_ms(
         lambda k: alg._step(with_keys(k), obstacles, None, cache)[0].mu, st.keys
@@ -104,7 +104,8 @@ def main() -> None:
     )
     active = jnp.mean(jnp.max(f0, axis=(2, 3)) > 0)
     print(
-        f"# demo scene, m = {cfg.reduced_set_size}, iteration 5: {int(n_proj)} rows projected, "
+        f"# demo scene, m = {cfg.selection.reduced_set_size}, iteration 5: "
+        f"{int(n_proj)} rows projected, "
         f"{float(active):.1%} of the (row, step) points active; jax {jax.__version__}, "
         f"{jax.devices()[0].platform}"
     )

@@ -38,7 +38,7 @@ from mmdopt.bench.ngsim.runner import (
 )
 
 #: name -> (MMDOptConfig overrides on top of ngsim_config's *before* this change, NgsimParams
-#: overrides).  "before" is the configuration of the first held-out run (docs/ngsim.md).
+#: overrides).  "before" is the configuration of the first held-out run (docs/experiments/ngsim.md).
 #: every variant starts from these (the planner and benchmark before this change) and sets
 #: what it names on top, so a variant means the same whatever today's defaults are
 OFF = dict(
@@ -202,7 +202,7 @@ VARIANT_SETS = {
                 dict(
                     rear_exempt_width=2.0,
                     margin_mode="samples",
-                    risk_eps=e,
+                    risk=e,
                     w_cover=100.0,
                     reselect=5,
                     coverage_bandwidth=bw,
@@ -301,7 +301,7 @@ def main(argv=None) -> None:
                 v0=float(b["ego"].vs),
                 v_flow=b["v_flow"],
                 v_leader=b["v_leader"],
-                v_des=float(cfg.v_des),
+                v_des=float(cfg.cost.v_des),
                 plan_time_s=wall,
             )
             f.write_text(json.dumps(row))

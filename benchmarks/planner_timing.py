@@ -70,17 +70,18 @@ def flops_per_iteration(
     ``plan.diagnostics["n_projected"]``); ``n_scored``: rows whose cost is computed (default
     ``n_cem``; :func:`mmdopt.algorithm.run` reuses the elites' and brake rows' costs).
     """
-    N, D, S = cfg.n_samples, cfg.d_dim, cfg.num_segments
+    N, D, S = cfg.cem.n_samples, cfg.d_dim, cfg.trajectory.num_segments
     Np = N if n_proj is None else n_proj
     nv = prob.nvar
     n2 = 2 * nv
     rows = prob.problem.num_rows
     grid_rows = prob.grid_problem.num_rows
-    K, C = cfg.num_steps, 3
-    E = cfg.n_cem if n_scored is None else n_scored
-    admm_it = -(-cfg.admm_iters // min(cfg.admm_check_every, cfg.admm_iters)) * min(
-        cfg.admm_check_every, cfg.admm_iters
-    )
+    K, C = cfg.trajectory.num_steps, 3
+    E = cfg.cem.n_cem if n_scored is None else n_scored
+    admm_it = -(
+        -cfg.projection.admm_iters
+        // min(cfg.projection.admm_check_every, cfg.projection.admm_iters)
+    ) * min(cfg.projection.admm_check_every, cfg.projection.admm_iters)
     out = {
         "sample": N * 2 * D * D,
         "planner": Np * 2 * (2 * S + 6) * n2,
@@ -91,7 +92,7 @@ def flops_per_iteration(
         "trajectories": E * 5 * 2 * nv * K,
         "collision_f": E * m * C * K * 8,
         "mmd": E * m * K * (3 * n_terms + 12),
-        "update": cfg.n_elite * 4 * D * D,
+        "update": cfg.cem.n_elite * 4 * D * D,
     }
     out["total"] = sum(out.values())
     return out
@@ -100,8 +101,8 @@ def flops_per_iteration(
 def scored_rows(cfg: mmdopt.MMDOptConfig) -> float:
     """Mean rows scored per iteration in :func:`mmdopt.algorithm.run` when every elite and brake
     row stays feasible: all ``n_cem`` at iteration 0, then the other rows of the CES."""
-    later = cfg.n_cem - cfg.n_elite - cfg.n_brake
-    return (cfg.n_cem + (cfg.iterations - 1) * later) / cfg.iterations
+    later = cfg.cem.n_cem - cfg.cem.n_elite - cfg.cem.n_brake
+    return (cfg.cem.n_cem + (cfg.cem.iterations - 1) * later) / cfg.cem.iterations
 
 
 def profile_stages(cfg, scene, repeats=10):
@@ -110,14 +111,14 @@ def profile_stages(cfg, scene, repeats=10):
 
     road = scene.road()
     prob = alg.build_problem(cfg, road.bounds())
-    m = cfg.reduced_set_size
+    m = cfg.selection.reduced_set_size
     dt = jnp.float32
     rng = np.random.default_rng(0)
-    S = cfg.num_segments
+    S = cfg.trajectory.num_segments
     d = np.concatenate(
         [
-            rng.normal(10, 4, (cfg.n_samples, S)).clip(0, 30),
-            rng.normal(0, 0.15, (cfg.n_samples, S)).clip(-0.3, 0.3),
+            rng.normal(10, 4, (cfg.cem.n_samples, S)).clip(0, 30),
+            rng.normal(0, 0.15, (cfg.cem.n_samples, S)).clip(-0.3, 0.3),
         ],
         1,
     )
@@ -145,7 +146,7 @@ def profile_stages(cfg, scene, repeats=10):
     )
     f = fns[f"collision f ({E}×{m})"][0](sE)
     fns[f"mmd ({E}×{m})"] = (
-        jax.jit(lambda f: collision.mmd_cost(f, w, cfg.bandwidth, cfg.f_scale, nt)),
+        jax.jit(lambda f: collision.mmd_cost(f, w, cfg.cost.bandwidth, cfg.cost.f_scale, nt)),
         (f,),
     )
     out = {}
@@ -176,10 +177,11 @@ def main(argv=None) -> None:
     scene = demo_scene()
     base = mmdopt.MMDOptConfig()
     print(
-        f"# sizes: n̄_cem={base.n_samples}, n_cem={base.n_cem}, n_e={base.n_elite}, "
-        f"N={base.iterations}, n={scene.obstacles.shape[1]} obstacle samples, "
-        f"K={base.num_steps}, ADMM iterations/CEM iteration={base.admm_iters}, "
-        f"dtype={base.dtype}"
+        f"# sizes: n̄_cem={base.cem.n_samples}, n_cem={base.cem.n_cem}, n_e={base.cem.n_elite}, "
+        f"N={base.cem.iterations}, n={scene.obstacles.shape[1]} obstacle samples, "
+        f"K={base.trajectory.num_steps}, "
+        f"ADMM iterations/CEM iteration={base.projection.admm_iters}, "
+        f"dtype={base.cem.dtype}"
     )
     gf = matmul_gflops()
     print(f"# float32 matmul (1024³, XLA): {gf:.1f} GFLOP/s")
@@ -212,8 +214,8 @@ def main(argv=None) -> None:
             cfg, prob, m, alg.n_taylor_terms(cfg), n_proj=n_proj, n_scored=scored_rows(cfg)
         )
         fl_all = flops_per_iteration(cfg, prob, m, alg.n_taylor_terms(cfg))
-        bound = fl["total"] * cfg.iterations / (gf * 1e9)
-        bound_all = fl_all["total"] * cfg.iterations / (gf * 1e9)
+        bound = fl["total"] * cfg.cem.iterations / (gf * 1e9)
+        bound_all = fl_all["total"] * cfg.cem.iterations / (gf * 1e9)
         rows.append(
             dict(
                 m=m,
@@ -236,8 +238,8 @@ def main(argv=None) -> None:
             f"{wall:.3f} | {bound:.4f} | {cem / bound:.1f} | {bound_all:.4f} |",
             flush=True,
         )
-    # the summary at the default reduced-set size (MMDOptConfig().reduced_set_size) when measured
-    r10 = next((r for r in rows if r["m"] == base.reduced_set_size), rows[0])
+    # the summary at the default reduced-set size (selection.reduced_set_size) when measured
+    r10 = next((r for r in rows if r["m"] == base.selection.reduced_set_size), rows[0])
     print()
     fl = r10["flops"]
     print(
@@ -278,7 +280,8 @@ def main(argv=None) -> None:
         print("stage times (one CEM iteration, jitted separately, median):")
         for k, v in profile_stages(base, scene).items():
             print(
-                f"  {k:22s} {v * 1e3:7.2f} ms  (×{base.iterations} = {v * base.iterations:.3f} s)"
+                f"  {k:22s} {v * 1e3:7.2f} ms  "
+                f"(×{base.cem.iterations} = {v * base.cem.iterations:.3f} s)"
             )
 
 

@@ -8,7 +8,7 @@ a script in ``benchmarks/``.  Same options, e.g.::
 
 Writes ``OUT/results.csv`` (one row per scene and method), ``OUT/summary.json``,
 ``OUT/collision_free.png`` and ``OUT/scenes/*.json`` (resumable); prints the summary table.
-Numbers and commands: ``docs/benchmarks.md``.
+Numbers and commands: ``docs/experiments/synthetic.md``.
 """
 
 import sys

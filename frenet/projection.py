@@ -698,7 +698,7 @@ class ProjectionProblem:
         earlier once every sample meets the tolerances), no polish.  ``settings`` are
         :class:`solvers.admm.ADMMSettings` names (e.g. ``rho=``, ``eps_abs=``); the defaults
         here start at ``rho = 62.5`` on a ladder extended to 312.5, with adaptation (measured
-        best at 25–500 iterations, docs/benchmarks.md).
+        best at 25–500 iterations, docs/experiments/qp-backends.md).
 
         Returns ``project(cx_bar (B, nvar), cy_bar (B, nvar), state (6,) or (B, 6),
         extra_bounds=None, warm_start=None) -> JaxProjection(cx, cy, residual, groups, admm)``.
@@ -710,7 +710,8 @@ class ProjectionProblem:
         ``split_axes``: the projection separates into one QP per axis when every row involves
         only ``cx`` or only ``cy`` (``P`` is block diagonal; true without user constraints or an
         acceleration polygon): two ADMM problems of half the size, each scaled and stepped on
-        its own (≈ 1.7× faster at Algorithm 1's sizes, docs/benchmarks.md).  ``None``: split
+        its own (≈ 1.7× faster at Algorithm 1's sizes, docs/experiments/qp-backends.md).  ``None``:
+        split
         when possible; ``True``: split or raise; ``False``: one joint problem.  The returned
         ``admm`` state is in the joint row order either way.
         """
@@ -798,7 +799,7 @@ def _projector_settings(problem: ProjectionProblem, num_iters, dtype, settings):
         raise ValueError(f"dtype must be 'float32' or 'float64', got {dtype!r}")
     # Start at a large step, rho = 62.5 (the backend's default 0.1 stalls at these budgets),
     # with OSQP's adaptive rule over a ladder extended upwards: measured best for residual and
-    # distance at 25-500 iterations (docs/benchmarks.md).
+    # distance at 25-500 iterations (docs/experiments/qp-backends.md).
     base = dict(
         max_iter=int(num_iters),
         check_every=min(25, int(num_iters)),

@@ -1,8 +1,10 @@
 """MMD-Opt: motion planning under multi-modal obstacle predictions (IROS 2023), the method only.
 
-Modules: :mod:`~mmdopt.kernels` (Gaussian kernels, MMD²), :mod:`~mmdopt.reduced_set` (reduced-set
-selection), :mod:`~mmdopt.collision` (footprints, the ellipse, f̄, the MMD and scenario costs, the
-collision-free count), :mod:`~mmdopt.algorithm` (Algorithm 1: config, state, init/update/run/shift),
+Modules, bottom up: :mod:`~mmdopt.kernels` (Gaussian kernels, MMD²), :mod:`~mmdopt.geometry`
+(the collision ellipse and circle footprints), :mod:`~mmdopt.samples` (the reduced-set type),
+:mod:`~mmdopt.reduced_set` (reduced-set selection), :mod:`~mmdopt.collision` (f̄, the MMD and
+scenario costs, the collision-free count), :mod:`~mmdopt.config` (the planner's configuration
+sections and presets), :mod:`~mmdopt.algorithm` (Algorithm 1: state, init/update/run/shift),
 :mod:`~mmdopt.baselines` (which samples and which collision term each method uses),
 :mod:`~mmdopt.api` (:func:`plan`), :mod:`~mmdopt.predict` (predictors).  Experiments live in
 :mod:`mmdopt.bench`, which this package never imports.
@@ -12,15 +14,9 @@ float64 ask for it locally (``jax.enable_x64`` inside the call).
 """
 
 from . import algorithm, risk
-from .algorithm import MMDOptConfig
 from .api import Plan, Road, plan, plan_frenet
-from .baselines import METHODS as PLAN_METHODS
+from .baselines import PLAN_METHODS
 from .collision import (
-    EGO_FOOTPRINT,
-    ELLIPSE_A,
-    ELLIPSE_B,
-    OBSTACLE_FOOTPRINT,
-    CircleFootprint,
     CollisionCounts,
     ReducedObstacles,
     SurrogateConfig,
@@ -33,6 +29,26 @@ from .collision import (
     mmd_surrogate_terms,
     reduced_obstacles,
 )
+from .config import (
+    BaselineConfig,
+    CEMConfig,
+    CostConfig,
+    MarginConfig,
+    MMDOptConfig,
+    ProjectionConfig,
+    RoadRules,
+    SafetyConfig,
+    SelectionConfig,
+    TrajectoryConfig,
+)
+from .geometry import (
+    EGO_FOOTPRINT,
+    ELLIPSE_A,
+    ELLIPSE_B,
+    OBSTACLE_FOOTPRINT,
+    CircleFootprint,
+    Footprint,
+)
 from .kernels import (
     gaussian_gram,
     median_heuristic,
@@ -42,8 +58,7 @@ from .kernels import (
     sq_distances,
 )
 from .reduced_set import (
-    METHODS,
-    ReducedSet,
+    SELECTORS,
     ReducedSetConfig,
     project_simplex,
     reduced_set_objective,
@@ -53,6 +68,7 @@ from .reduced_set import (
     select_reduced_sets,
 )
 from .risk import config_for_risk
+from .samples import ReducedSet
 
 __version__ = "0.2.0"
 
@@ -74,7 +90,8 @@ __all__ = [
     "mmd2_weighted",
     "one_minus_gaussian_gram",
     "sq_distances",
-    "METHODS",
+    "SELECTORS",
+    "Footprint",
     "ReducedSet",
     "ReducedSetConfig",
     "project_simplex",
@@ -93,6 +110,15 @@ __all__ = [
     "mmd_surrogate_terms",
     "reduced_obstacles",
     "MMDOptConfig",
+    "CEMConfig",
+    "TrajectoryConfig",
+    "ProjectionConfig",
+    "CostConfig",
+    "SafetyConfig",
+    "MarginConfig",
+    "RoadRules",
+    "SelectionConfig",
+    "BaselineConfig",
     "Road",
     "Plan",
     "plan",

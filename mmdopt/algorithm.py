@@ -6,14 +6,14 @@ A pure step API in the optax/jaxopt manner::
     problem = alg.Problem.create(config, ego, bounds)       # ego state, sampling prior, bounds
     obstacles = alg.ObstacleSet.create(config, centres, weights, method="mmd")
     state = alg.init(config, problem, key)                  # CEMState (a pytree)
-    for _ in range(config.iterations):
+    for _ in range(config.cem.iterations):
         state = alg.update(state, obstacles)                # one CEM iteration
     state = alg.run(config, problem, obstacles, key)        # the same, one jitted scan
     state.best, state.least_violating, state.cost_trace
     warm = alg.shift(state, dt=0.1)                         # receding horizon: shifted in time
     state = alg.run(config, problem_next, obstacles_next, key, warm_start=warm)
 
-One CEM/MPPI iteration ``l`` (paper Alg. 1 lines 4–14, SPEC §g, with the reference's bugs fixed)::
+One CEM/MPPI iteration ``l`` (paper Alg. 1 lines 4–14, with the reference code's bugs fixed)::
 
     d_r ~ N(μ_l, Σ_l), r = 1 … n̄_cem           behavioural inputs (speed, lateral set-points)
         rows: the n_e elites of iteration l−1, n_brake "brake in lane" rows, fresh draws
@@ -34,10 +34,10 @@ One CEM/MPPI iteration ``l`` (paper Alg. 1 lines 4–14, SPEC §g, with the refe
     Σ ← (1−η)Σ + η Σ s_r (d_r − μ)(d_r − μ)ᵀ/Σ s_r + ε I              eq. (cov_update)
 
 **What is returned: the lowest-cost elite over all iterations** (best-so-far, tracked in the
-state), not the lowest-residual sample (the reference's bug, SPEC §g).  The cost trace is the
+state), not the lowest-residual sample (the reference code's bug).  The cost trace is the
 best-so-far cost per iteration (non-increasing); the per-iteration minimum is kept too.
 
-Fixes of the reference (SPEC §8): a fresh PRNG key every iteration; lateral set-points sampled
+Fixes of the reference code: a fresh PRNG key every iteration; lateral set-points sampled
 with a spread matched to the lane bounds; "brake in lane" rows as a ladder of constant speed
 set-points from ``v_min`` to the current speed; each projection warm-started from its own planner
 output with zero duals; every constant in :class:`MMDOptConfig`.
@@ -66,8 +66,6 @@ import frenet
 
 from ._x64 import x64
 from .collision import (
-    ELLIPSE_A,
-    ELLIPSE_B,
     collision_cost,
     compact_order,
     mmd_cost,
@@ -76,7 +74,7 @@ from .collision import (
     scenario_cost,
     taylor_terms,
 )
-from .reduced_set import ReducedSetConfig
+from .config import SAA_EPS_LINEAR, W_COVER, MMDOptConfig  # noqa: F401 (re-exported)
 
 __all__ = [
     "PLANNER_BACKEND",
@@ -107,346 +105,13 @@ __all__ = [
 PLANNER_BACKEND = "admm-fixed"
 
 
-#: added to the cost of a row beyond ``res_tol`` when ``MMDOptConfig.kinematic`` is on
+#: added to the cost of a row beyond ``res_tol`` when the slip limit is on
+#: (``safety.rules.slip_ratio`` > 0)
 INFEASIBLE_COST = 1.0e12
 #: ego speed (m/s) under which the heading relative to the path is ill-defined: the floor in
 #: the yaw widening's ``|ḋ| / sqrt(ṡ² + ḋ² + v²)`` (the heading hold of
 #: :meth:`frenet.ReferencePath.trajectory_to_cartesian` uses the same speed)
 YAW_SPEED_FLOOR = 0.05
-#: SAA's chance level in the "linear" margin mode when ``MMDOptConfig.saa_eps`` is ``None``
-SAA_EPS_LINEAR = 0.02
-#: weight of the coverage term of the MMD cost in the "samples" margin mode (the default)
-W_COVER = 100.0
-
-
-def _static(default):
-    return field(default=default, metadata=dict(static=True))
-
-
-@jax.tree_util.register_dataclass
-@dataclass(frozen=True)
-class MMDOptConfig:
-    """Every constant of Algorithm 1 (a pytree: sizes/modes static, tunable scalars are leaves).
-
-    Sizes (static; the paper's values): ``n_samples`` = n̄_cem = 1000 behavioural samples per
-    iteration, ``n_cem`` = 150 (ConstraintEliteSet), ``n_elite`` = n_e = 50 (EliteSet),
-    ``iterations`` = N = 20, ``reduced_set_size`` = m = 20 (the paper's Table II range is
-    10 … 50; 20 instead of the reference's 10 because a 5–30 % intent has on average only
-    0.5–3 samples in a 10-sample set: measured on the tuning scenes, docs/benchmarks.md).
-    ``n_brake`` "brake in lane" rows per batch (reference 10, all at v_d = 0): here constant
-    speed set-points evenly spaced from
-    ``v_min`` to the ego's speed at the current lateral offset, so that following a slower
-    obstacle at any speed is always among the candidates.  Trajectories: ``num_segments`` (4)
-    speed/offset set-point pairs, ``horizon`` 15 s on ``num_steps`` = K = 100 grid points, a
-    Bernstein basis of ``degree`` 10.
-    Projection: ``constraint_points`` ("hull": bounds on Bernstein control points, sufficient
-    for the bounds at every instant; "grid": at the grid steps), ``admm_iters`` fixed ADMM
-    iterations per CEM iteration (10: the projection is warm-started at the planner output, and
-    the boundary rows are corrected exactly afterwards; 10, 15 and 25 gave the same tuning-scene
-    results, docs/benchmarks.md), ``admm_rho`` fixed step size (``None``: the projector's
-    defaults, rho = 62.5 then adaptive), ``dtype`` of the jitted loop.  ``project_chunk``: the
-    batch is planned and projected in chunks of this many rows (0: ``n_cem + n_elite``) until
-    ``n_cem`` feasible rows are known — the ConstraintEliteSet is then exactly the one of
-    projecting every row (:func:`project_rows`); ``n_samples`` projects all rows at once.
-
-    Scalars (leaves): ``gamma`` γ = 0.9 (temperature), ``eta`` η = 0.6 (learning rate),
-    ``cov_reg`` ε = 0.01; initial sampling distribution ``speed_std0`` (m/s) around the ego's
-    speed and ``lateral_std_scale`` × half the lane width around its offset; cost weights and
-    kernel (see :mod:`mmdopt.algorithm` and ``docs/benchmarks.md`` for how they were chosen);
-    ``a``, ``b`` collision ellipse (m) plus, in the ``margin_mode = "linear"`` (the default
-    before Session 13 of issue 11), the planning margins ``margin_long``, ``margin_lat``
-    (m) and ``margin_rate`` (m/s: the longitudinal margin grows by this much per second) —
-    part of MMD-Opt's surrogate design (they stand for the prediction spread a reduced set
-    cannot represent); the scenario baselines (``degroot``, ``scenario_all``, ``saa``) use
-    ``baseline_margin_scale`` × these margins, by default 0: the nominal ellipse, as de Groot et
-    al. and the reference code plan (their worst-case sample set is their safety mechanism; see
-    docs/benchmarks.md for both settings at matched progress);
-    ``res_tol`` feasibility tolerance of the residual; ``saa_eps`` (``None``: follows the risk
-    knob, see :attr:`saa_level`), ``saa_temperature`` for the SAA baseline.
-
-    **Sample-driven margins** (``margin_mode = "samples"``, **the default**, issue 11;
-    :mod:`mmdopt.risk`): the default config is every method's risk knob at ``risk_eps`` = 0.005
-    (``plan(..., method=m)`` plans as ``plan(..., method=m, risk=0.005)``): instead
-    of the time-linear constants, every planning point's ellipse is inflated per time step by the
-    spread of the planning samples it stands for (its cluster), to contain them with probability
-    ``1 − risk_eps`` under a per-step Gaussian fit (longitudinally one-sided: behind / ahead of
-    the point; laterally symmetric); ``coverage_prior`` is the pseudo-count of the pooled spread
-    a small cluster is shrunk towards; ``coverage_bandwidth`` (0: off) adds a kernel-density
-    bandwidth ``coverage_bandwidth · 1.06 σ_s(t) n^(-1/5)`` (Silverman's rule over the obstacle's
-    n samples) in quadrature to every longitudinal spread (the tail beyond the extreme samples);
-    ``coverage_knn`` (0: ``n // reduced_set_size``) the
-    neighbourhood size that stands for a sample's cluster when a method plans on all samples.
-    The margins are computed in :func:`mmdopt.plan` and travel in the :class:`ObstacleSet`;
-    ``reselect`` (-1, the default: ``reduced_set_size // 2`` for MMD-Opt in this mode, else 0;
-    :meth:`reselect_for`; 0: off) > 0 runs Algorithm 1 a second time, warm-started, with the
-    ``reselect`` samples in deepest conflict with the first plan (nominal ellipse) added to a
-    reduced set (weight 1/n each; the re-selection conditioned on the CEM solution of issue 11)
-    — in either ``margin_mode`` (before Session 12 it acted in the "samples" mode only).
-    ``w_cover`` (100) weighs the coverage term ``Σ_j Σ_k f̄_jk`` on these inflated ellipses that
-    MMD-Opt adds to ``l_dist`` in this mode (any entry costs, whatever the point's weight ᾱ).
-    ``margin_mode = "linear"`` keeps the constants above (the tuned margins of the paper
-    reproduction, and of the NGSIM and highway settings).  ``reduced_set`` configures the
-    reduced-set selection; ``rs_lateral_scale``
-    multiplies the samples' lateral offsets in the selection's kernel features (an anisotropic
-    kernel: lateral intents count more than longitudinal spread).
-
-    **Responsibility-aware longitudinal model** (not in the paper; off by default, switched on
-    by any of the four values below, which sets the static ``asymmetric`` flag — the default
-    config compiles the same program as without it).  The ego is responsible for its distance
-    to what is ahead and for what it moves beside, not for a follower (the rule of the road,
-    RSS, and nuPlan's at-fault metric):
-
-    * ``headway_time`` h (s), ``headway_gap`` d₀ (m): *behind* every obstacle point (the ego
-      behind it, Δs < 0) the longitudinal semi-axis is at least ``a + d₀ + h·ṡ_ego(t)``, with
-      the ego sample's own planned speed at that step — a time-headway following distance
-      (gap ≥ d₀ + h·v, as in ACC/RSS) as a floor under the planning margins (not added to
-      them).  A point beside the ego (|Δd| ≥ b) is unaffected, so it acts on whoever is ahead
-      in, or entering, the ego's lane;
-    * ``margin_ahead_scale`` (default 1) scales the planning margins
-      ``margin_long + margin_rate·t`` on the other side (Δs > 0, the ego ahead of the point);
-    * ``rear_exempt_width`` w (m): a follower costs nothing: ``f ← min(f, (|Δd| − w)/b)`` at
-      every step at which the point is in line with the ego (|Δd| < w) and has been so without
-      a break since a step at which it was behind the ego (Δs > 0) — a follower that closes in
-      is the follower's fault, and dodging it sideways into the next lane is the ego's; a
-      predicted follower that runs *through* the ego (the predictor does not know the ego)
-      stays a follower rather than becoming a leader the ego must race ahead of; points beside
-      the ego (|Δd| ≥ w), and a car that passes beside and cuts in ahead, keep their ellipse
-      (:func:`mmdopt.collision.rear_exempt`).
-
-    These apply to every method's collision term (they are rules of the road, not
-    prediction-spread margins, so ``baseline_margin_scale`` does not scale them).
-
-    **Kinematic slip limit** (not in the paper; off by default: ``slip_ratio = 0``; a value
-    > 0 sets the static ``kinematic`` flag).  The Frenet planner moves the offset ``d`` and the
-    arc length ``s`` independently, so a plan may stop (ṡ → 0) and still move sideways — a car
-    cannot: its velocity points along its heading, and the heading relative to the path is
-    ``atan2(ḋ, ṡ)``.  With ``slip_ratio`` r > 0 the constraint ``|ḋ_k| ≤ r·max(ṡ_k, 0)`` (a
-    heading within ``atan(r)`` of the path; r = 0.5: 27°, a lane change at 10 m/s needs ≈ 8°)
-    joins the projection's residual: every row's residual gains
-    ``(res_tol / slip_tol) · max_k max(0, |ḋ_k| − r·max(ṡ_k, 0) − v₀)``, ``v₀`` the initial
-    state's own excess (which no plan can undo at once) and ``slip_tol`` (m/s, default 0.01)
-    the excess lateral speed that alone uses up the feasibility tolerance, so the
-    ConstraintEliteSet and the least-violating fallback treat it like the lane and
-    acceleration bounds; in this mode a row beyond ``res_tol`` also costs ``INFEASIBLE_COST``
-    more (feasibility first: the ConstraintEliteSet holds infeasible rows when fewer than
-    ``n_cem`` are feasible, and a collision term of 10⁵–10⁶ would outweigh ``w_res·res``).
-    The brake rows keep their offset, so a slip-free candidate exists.
-
-    **Yaw-aware footprint** (not in the paper; off by default: ``yaw_extent = 0``; a value
-    > 0 sets the static ``yaw_aware`` flag).  The collision ellipse (eq. coll_constraints)
-    treats the ego as a point whose footprint stays aligned with the path, so a plan that
-    turns (heading ``Δθ_k = atan2(ḋ_k, ṡ_k)`` relative to the path) swings its front and rear
-    corners sideways unseen — at a crawl a few decimetres of lateral motion turn a car by 20°
-    and push a corner of a 5 m car 0.9 m into the next lane.  With ``yaw_extent`` e (m, the
-    footprint's extent ahead of and behind the reference point: half the car's length) every
-    method's lateral semi-axis at step k grows by ``e·|sin Δθ_k|``, computed as
-    ``e·|ḋ_k| / sqrt(ṡ_k² + ḋ_k² + v_f²)`` with ``v_f`` = ``YAW_SPEED_FLOOR`` (a lane change at
-    10 m/s, Δθ ≈ 8°, widens it by 0.14·e).  A rule of the geometry, not a prediction margin:
-    ``baseline_margin_scale`` does not scale it.
-    """
-
-    # static: sizes and modes
-    n_samples: int = _static(1000)
-    n_cem: int = _static(150)
-    n_elite: int = _static(50)
-    iterations: int = _static(20)
-    n_brake: int = _static(10)
-    reduced_set_size: int = _static(20)
-    num_segments: int = _static(4)
-    horizon: float = _static(15.0)
-    num_steps: int = _static(100)
-    degree: int = _static(10)
-    constraint_points: str = _static("hull")
-    admm_iters: int = _static(10)
-    admm_check_every: int = _static(25)
-    dtype: str = _static("float32")
-    admm_rho: float | None = _static(None)
-    project_chunk: int = _static(0)
-    margin_mode: str = _static("samples")
-    coverage_knn: int = _static(0)
-    reselect: int = _static(-1)
-    asymmetric: bool = _static(False)
-    kinematic: bool = _static(False)
-    yaw_aware: bool = _static(False)
-    # leaves: optimiser
-    gamma: float = 0.9
-    eta: float = 0.6
-    cov_reg: float = 0.01
-    speed_std0: float = 4.0
-    lateral_std_scale: float = 0.5
-    # leaves: cost (eq. c_aug)
-    v_des: float = 10.0
-    w_speed: float = 1.0
-    w_accel: float = 0.1
-    w_res: float = 10.0
-    w_mmd: float = 1.0e5
-    w_coll: float = 100.0
-    w_saa: float = 100.0
-    bandwidth: float = 0.5
-    f_scale: float = 1.0
-    a: float = ELLIPSE_A
-    b: float = ELLIPSE_B
-    margin_long: float = 2.5
-    margin_rate: float = 1.9
-    rs_lateral_scale: float = 10.0
-    margin_lat: float = 0.4
-    baseline_margin_scale: float = 0.0
-    res_tol: float = 0.05
-    saa_eps: float | None = None
-    saa_temperature: float = 0.05
-    risk_eps: float = 0.005
-    w_cover: float = W_COVER
-    coverage_prior: float = 2.0
-    coverage_bandwidth: float = 0.0
-    headway_time: float = 0.0
-    headway_gap: float = 0.0
-    margin_ahead_scale: float = 1.0
-    rear_exempt_width: float = 0.0
-    slip_ratio: float = 0.0
-    slip_tol: float = 0.01
-    yaw_extent: float = 0.0
-    reduced_set: ReducedSetConfig = field(default_factory=ReducedSetConfig)
-
-    def replace(self, **kw) -> MMDOptConfig:
-        return dataclasses.replace(self, **kw)
-
-    def __post_init__(self) -> None:
-        # the optional models' values (>= 0) and the static flag each one switches on when it
-        # leaves its "off" value (so the default config compiles the program without them)
-        for name, off, flag in (
-            ("headway_time", 0.0, "asymmetric"),
-            ("headway_gap", 0.0, "asymmetric"),
-            ("margin_ahead_scale", 1.0, "asymmetric"),
-            ("rear_exempt_width", 0.0, "asymmetric"),
-            ("slip_ratio", 0.0, "kinematic"),
-            ("yaw_extent", 0.0, "yaw_aware"),
-        ):
-            v = getattr(self, name)
-            if _concrete(v) and not (math.isfinite(float(v)) and float(v) >= 0):
-                raise ValueError(f"MMDOptConfig.{name} must be finite and >= 0, got {v}")
-            if _concrete(v) and float(v) != off and not getattr(self, flag):
-                object.__setattr__(self, flag, True)
-        v = self.slip_tol
-        if _concrete(v) and not (math.isfinite(float(v)) and float(v) > 0):
-            raise ValueError(f"MMDOptConfig.slip_tol must be finite and > 0, got {v}")
-        for flag in ("asymmetric", "kinematic", "yaw_aware"):
-            if not isinstance(getattr(self, flag), bool):
-                raise ValueError(f"MMDOptConfig.{flag} must be a bool, got {getattr(self, flag)!r}")
-        ints = (
-            "n_samples",
-            "n_cem",
-            "n_elite",
-            "iterations",
-            "n_brake",
-            "reduced_set_size",
-            "num_segments",
-            "num_steps",
-            "degree",
-            "admm_iters",
-            "admm_check_every",
-            "project_chunk",
-            "coverage_knn",
-            "reselect",
-        )
-        for name in ints:
-            v = getattr(self, name)
-            if isinstance(v, bool) or not isinstance(v, int | np.integer):
-                raise ValueError(f"MMDOptConfig.{name} must be an int, got {v!r}")
-        if not (2 <= self.n_elite <= self.n_cem <= self.n_samples):
-            raise ValueError(
-                "MMDOptConfig needs 2 <= n_elite <= n_cem <= n_samples, got "
-                f"n_elite={self.n_elite}, n_cem={self.n_cem}, n_samples={self.n_samples}"
-            )
-        if self.n_brake < 0 or self.n_samples - self.n_elite - self.n_brake < 1:
-            raise ValueError(
-                "MMDOptConfig.n_brake must be >= 0 and leave room for fresh samples "
-                f"(n_samples - n_elite - n_brake >= 1), got n_brake={self.n_brake}"
-            )
-        if self.iterations < 1 or self.reduced_set_size < 1 or self.num_segments < 1:
-            raise ValueError("iterations, reduced_set_size and num_segments must be >= 1")
-        if self.constraint_points not in ("hull", "grid"):
-            raise ValueError(
-                f"constraint_points must be 'hull' or 'grid', got {self.constraint_points!r}"
-            )
-        if self.margin_mode not in ("linear", "samples"):
-            raise ValueError(f"margin_mode must be 'linear' or 'samples', got {self.margin_mode!r}")
-        if self.reselect < -1:
-            raise ValueError(
-                f"MMDOptConfig.reselect must be >= 0 (or -1: automatic), got {self.reselect}"
-            )
-        if self.project_chunk < 0:
-            raise ValueError(f"MMDOptConfig.project_chunk must be >= 0, got {self.project_chunk}")
-        if self.coverage_knn < 0:
-            raise ValueError(f"MMDOptConfig.coverage_knn must be >= 0, got {self.coverage_knn}")
-        v = self.risk_eps
-        if _concrete(v) and not 0 < float(v) < 0.5:
-            raise ValueError(f"MMDOptConfig.risk_eps must be in (0, 0.5), got {v}")
-        v = self.coverage_prior
-        if _concrete(v) and not float(v) >= 0:
-            raise ValueError(f"MMDOptConfig.coverage_prior must be >= 0, got {v}")
-        v = self.coverage_bandwidth
-        if _concrete(v) and not (math.isfinite(float(v)) and float(v) >= 0):
-            raise ValueError(f"MMDOptConfig.coverage_bandwidth must be finite and >= 0, got {v}")
-        if self.dtype not in ("float32", "float64"):
-            raise ValueError(f"dtype must be 'float32' or 'float64', got {self.dtype!r}")
-        for name in (
-            "gamma",
-            "bandwidth",
-            "a",
-            "b",
-            "res_tol",
-            "saa_eps",
-            "saa_temperature",
-            "speed_std0",
-        ):
-            v = getattr(self, name)
-            if _concrete(v) and not float(v) > 0:
-                raise ValueError(f"MMDOptConfig.{name} must be > 0, got {v}")
-        for f in dataclasses.fields(self):
-            v = getattr(self, f.name)
-            if not f.metadata.get("static") and _concrete(v) and not math.isfinite(float(v)):
-                raise ValueError(f"MMDOptConfig.{f.name} must be finite, got {v}")
-        if self.admm_rho is not None and not (
-            _concrete(self.admm_rho) and math.isfinite(float(self.admm_rho)) and self.admm_rho > 0
-        ):
-            raise ValueError(f"MMDOptConfig.admm_rho must be None or > 0, got {self.admm_rho!r}")
-        if not isinstance(self.reduced_set, ReducedSetConfig):
-            raise ValueError(
-                "MMDOptConfig.reduced_set must be a ReducedSetConfig, "
-                f"got {type(self.reduced_set).__name__}"
-            )
-        v = self.baseline_margin_scale
-        if _concrete(v) and not float(v) >= 0:
-            raise ValueError(f"MMDOptConfig.baseline_margin_scale must be >= 0, got {v}")
-        if _concrete(self.eta) and not 0 < float(self.eta) <= 1:
-            raise ValueError(f"MMDOptConfig.eta must be in (0, 1], got {self.eta}")
-
-    @property
-    def d_dim(self) -> int:
-        return 2 * self.num_segments
-
-    @property
-    def saa_level(self):
-        """SAA's chance level: ``saa_eps``, or when that is ``None`` the risk knob ``risk_eps``
-        in the "samples" margin mode and :data:`SAA_EPS_LINEAR` in the "linear" one."""
-        if self.saa_eps is not None:
-            return self.saa_eps
-        return self.risk_eps if self.margin_mode == "samples" else SAA_EPS_LINEAR
-
-    def reselect_for(self, method: str) -> int:
-        """The re-selection pass size ``method`` runs with: ``reselect``, or when that is -1
-        (automatic) ``max(1, reduced_set_size // 2)`` for "mmd" in the "samples" margin mode
-        and 0 otherwise (:func:`mmdopt.risk.config_for_risk`)."""
-        if self.reselect >= 0:
-            return self.reselect
-        if method == "mmd" and self.margin_mode == "samples":
-            return max(1, self.reduced_set_size // 2)
-        return 0
-
-
-def _concrete(v) -> bool:
-    # only plain numbers are validated: pytree unflattening (jit, lower) passes other objects
-    return isinstance(v, int | float | np.number) and not isinstance(v, bool)
 
 
 # ---------------------------------------------------------------------------------- problem set-up
@@ -457,27 +122,31 @@ class CEMProblem:
     """
 
     def __init__(self, cfg: MMDOptConfig, bounds: frenet.ProjectionBounds):
-        grid = frenet.TimeGrid(cfg.horizon, cfg.num_steps)
-        self.basis = frenet.BernsteinBasis(grid, degree=cfg.degree)
+        grid = frenet.TimeGrid(cfg.trajectory.horizon, cfg.trajectory.num_steps)
+        self.basis = frenet.BernsteinBasis(grid, degree=cfg.trajectory.degree)
         self.planner = frenet.BehaviouralPlanner(
-            self.basis, frenet.PlannerConfig(num_segments=cfg.num_segments)
+            self.basis, frenet.PlannerConfig(num_segments=cfg.trajectory.num_segments)
         )
         self.bounds = bounds
         self.problem = frenet.ProjectionProblem(
-            self.basis, bounds, constraint_points=cfg.constraint_points
+            self.basis, bounds, constraint_points=cfg.projection.constraint_points
         )
         # residuals are always reported on the full grid
         self.grid_problem = (
             self.problem
-            if cfg.constraint_points == "grid"
+            if cfg.projection.constraint_points == "grid"
             else frenet.ProjectionProblem(self.basis, bounds, constraint_points="grid")
         )
         self.projector = self.problem.jax_projector(
-            num_iters=cfg.admm_iters,
-            dtype=cfg.dtype,
-            check_every=min(cfg.admm_check_every, cfg.admm_iters),
+            num_iters=cfg.projection.admm_iters,
+            dtype=cfg.cem.dtype,
+            check_every=min(cfg.projection.admm_check_every, cfg.projection.admm_iters),
             # None: the projector's measured defaults (start at rho = 62.5, adaptive)
-            **({} if cfg.admm_rho is None else dict(rho=float(cfg.admm_rho), adaptive_rho=False)),
+            **(
+                {}
+                if cfg.projection.admm_rho is None
+                else dict(rho=float(cfg.projection.admm_rho), adaptive_rho=False)
+            ),
         )
         self.nvar = self.basis.nvar
         self.W = np.asarray(self.planner.W)
@@ -489,8 +158,9 @@ class CEMProblem:
         return self.basis.grid.t
 
 
-def _statics(cfg: MMDOptConfig) -> tuple:
-    return tuple(getattr(cfg, f.name) for f in dataclasses.fields(cfg) if f.metadata.get("static"))
+def _statics(cfg: MMDOptConfig):
+    """The static part of ``cfg`` (sizes, modes, rules): its pytree structure, hashable."""
+    return jax.tree_util.tree_structure(cfg)
 
 
 def bounds_key(b: frenet.ProjectionBounds) -> tuple:
@@ -506,26 +176,56 @@ def bounds_key(b: frenet.ProjectionBounds) -> tuple:
     )
 
 
-_PROBLEMS: dict[tuple, CEMProblem] = {}
-_BOUNDS: dict[tuple, frenet.ProjectionBounds] = {}
+class _ProblemCache:
+    """The one cache of the method's modules: the :class:`CEMProblem` (basis, planner matrix,
+    projection factorisation and its jitted projector) of each (static config, bounds) pair,
+    at most :attr:`maxsize` of them, the oldest dropped first.  The jitted steps look the
+    problem up by its key while tracing, so each pair is factorised and compiled once per
+    process; :meth:`clear` frees them all."""
+
+    maxsize = 16
+
+    def __init__(self) -> None:
+        self._problems: dict[tuple, CEMProblem] = {}
+
+    def get(self, cfg: MMDOptConfig, bounds: frenet.ProjectionBounds | tuple) -> CEMProblem:
+        bkey = bounds if isinstance(bounds, tuple) else bounds_key(bounds)
+        key = (_statics(cfg), bkey)
+        hit = self._problems.get(key)
+        if hit is None:
+            if isinstance(bounds, tuple):
+                bounds = _bounds_from_key(bounds)
+            hit = CEMProblem(cfg, bounds)
+            if len(self._problems) >= self.maxsize:
+                self._problems.pop(next(iter(self._problems)))
+            self._problems[key] = hit
+        return hit
+
+    def clear(self) -> None:
+        self._problems.clear()
+
+
+def _bounds_from_key(bkey: tuple) -> frenet.ProjectionBounds:
+    """The :class:`frenet.ProjectionBounds` that :func:`bounds_key` describes."""
+    kw = {
+        name: None if v is None else (float(v[0]) if len(v) == 1 else np.asarray(v, float))
+        for name, v in bkey
+    }
+    defaults = {f.name: f.default for f in dataclasses.fields(frenet.ProjectionBounds)}
+    for name, v in kw.items():
+        if isinstance(defaults.get(name), int) and isinstance(v, float):
+            kw[name] = int(v)
+    return frenet.ProjectionBounds(**kw)
+
+
+#: the CEM problems of this process (see :class:`_ProblemCache`)
+PROBLEMS = _ProblemCache()
 
 
 def build_problem(cfg: MMDOptConfig, bounds: frenet.ProjectionBounds | tuple) -> CEMProblem:
     """The cached :class:`CEMProblem` for ``cfg``'s static fields and the projection ``bounds``
     (a :class:`frenet.ProjectionBounds` or its :func:`bounds_key`)."""
-    if isinstance(bounds, tuple):
-        bkey, bounds = bounds, _BOUNDS[bounds]
-    else:
-        bkey = bounds_key(bounds)
-        _BOUNDS.setdefault(bkey, bounds)
-    key = (_statics(cfg), bkey)
-    hit = _PROBLEMS.get(key)
-    if hit is None:
-        hit = CEMProblem(cfg, bounds)
-        if len(_PROBLEMS) >= 16:
-            _PROBLEMS.pop(next(iter(_PROBLEMS)))
-        _PROBLEMS[key] = hit
-    return hit
+    return PROBLEMS.get(cfg, bounds)
 
 
 # ------------------------------------------------------------------------------ inputs and state
@@ -554,24 +254,26 @@ class Problem:
         """The problem of planning from ``ego`` (Frenet) within ``bounds``: the sampling prior is
         centred on the ego's speed and lateral offset (clipped to the bounds), with spreads
         ``speed_std0`` and ``lateral_std_scale`` × half the lane width."""
-        S = cfg.num_segments
+        S = cfg.trajectory.num_segments
         b = bounds.per_step(1)
         v_min, v_max = float(b["vx_min"][0]), float(b["vx_max"][0])
         y_lb, y_ub = float(b["y_lb"][0]), float(b["y_ub"][0])
         v0 = float(np.clip(ego.vs, v_min, v_max))
         y0 = float(np.clip(ego.d, y_lb, y_ub))
         half = 0.5 * (y_ub - y_lb)
-        lat_std = float(cfg.lateral_std_scale) * (half if np.isfinite(half) else 1.75)
+        lat_std = float(cfg.cem.lateral_std_scale) * (half if np.isfinite(half) else 1.75)
         lat_std = max(lat_std, 1e-3)
         mu0 = np.array([v0] * S + [y0] * S)
-        cov0 = np.diag([float(cfg.speed_std0) ** 2] * S + [lat_std**2] * S)
+        cov0 = np.diag([float(cfg.cem.speed_std0) ** 2] * S + [lat_std**2] * S)
         lo = np.array([v_min] * S + [y_lb] * S)
         hi = np.array([v_max] * S + [y_ub] * S)
         vlo = v_min if np.isfinite(v_min) else 0.0
-        ladder = np.linspace(vlo, max(v0, vlo), cfg.n_brake)
-        brake = np.concatenate([np.repeat(ladder[:, None], S, 1), np.full((cfg.n_brake, S), y0)], 1)
+        ladder = np.linspace(vlo, max(v0, vlo), cfg.cem.n_brake)
+        brake = np.concatenate(
+            [np.repeat(ladder[:, None], S, 1), np.full((cfg.cem.n_brake, S), y0)], 1
+        )
         bkey = bounds_key(bounds)
-        _BOUNDS.setdefault(bkey, bounds)
+        build_problem(cfg, bounds)  # factorised and cached once, before any trace
         with jax.enable_x64(True):
             arr = lambda x: jnp.asarray(np.asarray(x, np.float64))  # noqa: E731
             return Problem(
@@ -612,9 +314,10 @@ class ObstacleSet:
             raise ValueError(f"mode must be 'mmd', 'scenario' or 'saa', got {mode!r}")
         c = np.asarray(centres, np.float64)
         w = np.asarray(weights, np.float64)
-        if c.ndim != 5 or c.shape[-1] != 2 or c.shape[-2] != cfg.num_steps:
+        if c.ndim != 5 or c.shape[-1] != 2 or c.shape[-2] != cfg.trajectory.num_steps:
             raise ValueError(
-                f"centres must have shape (O, J, C, K, 2) with K = {cfg.num_steps}, got {c.shape}"
+                "centres must have shape (O, J, C, K, 2) with K = "
+                f"{cfg.trajectory.num_steps}, got {c.shape}"
             )
         if w.shape != c.shape[:2]:
             raise ValueError(f"weights must have shape {c.shape[:2]}, got {w.shape}")
@@ -629,7 +332,7 @@ class ObstacleSet:
         mg = None
         if margins is not None:
             mg = np.asarray(margins, np.float64)
-            want = (3, *w.shape, cfg.num_steps)
+            want = (3, *w.shape, cfg.trajectory.num_steps)
             if mg.shape != want:
                 raise ValueError(f"margins must have shape {want}, got {mg.shape}")
             if not np.all(np.isfinite(mg)) or np.any(mg < 0):
@@ -673,7 +376,9 @@ class CEMState(NamedTuple):
     iter_min_cost: Any  # (N,) lowest cost of each iteration's ConstraintEliteSet
     iter_mean_elite_cost: Any  # (N,)
     n_feasible: Any  # (N,) projected samples with residual ≤ res_tol per iteration
-    n_projected: Any  # (N,) samples planned and projected per iteration (config.project_chunk)
+    n_projected: (
+        Any  # (N,) samples planned and projected per iteration (config.projection.project_chunk)
+    )
 
 
 def _empty_best(D, n, dt) -> Best:
@@ -696,7 +401,7 @@ def _cast(tree, dt):
 
 # ------------------------------------------------------------------------------------ one step
 def _n_fresh(cfg: MMDOptConfig) -> int:
-    return cfg.n_samples - cfg.n_elite - cfg.n_brake
+    return cfg.cem.n_samples - cfg.cem.n_elite - cfg.cem.n_brake
 
 
 def _normals(cfg: MMDOptConfig, key, dt):
@@ -715,7 +420,7 @@ def _sample(cfg: MMDOptConfig, key, mu, cov, elites, problem: Problem, z=None):
     # order matters: residuals within res_tol tie and ties go to the lower index, so the previous
     # elites and the brake rows always reach the ConstraintEliteSet when feasible, and the fresh
     # draws fill it in (random) draw order
-    d = jnp.concatenate([elites, problem.brake.reshape(cfg.n_brake, D), new], axis=0)
+    d = jnp.concatenate([elites, problem.brake.reshape(cfg.cem.n_brake, D), new], axis=0)
     return jnp.clip(d, problem.lo, problem.hi)
 
 
@@ -727,46 +432,53 @@ def yaw_widening(cfg: MMDOptConfig, vs, vd):
     if vs.ndim != 2 or vs.shape != vd.shape:
         raise ValueError(f"vs and vd must both be (B, K), got {vs.shape} and {vd.shape}")
     floor = jnp.asarray(YAW_SPEED_FLOOR * YAW_SPEED_FLOOR, vs.dtype)
-    return cfg.yaw_extent * jnp.abs(vd) / jnp.sqrt(vs * vs + vd * vd + floor)
+    return cfg.safety.footprint.yaw_extent * jnp.abs(vd) / jnp.sqrt(vs * vs + vd * vd + floor)
 
 
 def _collision_term(
     cfg: MMDOptConfig, prob: CEMProblem, s, dd, obstacles: ObstacleSet, dt, vs=None, vd=None
 ):
     """The method's collision term and its weight (eq. c_aug), per ego sample (B,); ``vs``,
-    ``vd`` (B, K) the samples' ṡ and ḋ (needed when ``cfg.asymmetric`` / ``cfg.yaw_aware``)."""
+    ``vd`` (B, K) the samples' ṡ and ḋ (needed when ``cfg.safety.rules.asymmetric`` /
+    ``cfg.safety.footprint.yaw_aware``)."""
     mode = obstacles.mode
-    if cfg.asymmetric and vs is None:
-        raise ValueError("config.asymmetric needs the ego samples' speeds vs")
-    if cfg.yaw_aware and (vs is None or vd is None):
-        raise ValueError("config.yaw_aware needs the ego samples' velocities vs, vd")
+    if cfg.safety.rules.asymmetric and vs is None:
+        raise ValueError("config.safety.rules.asymmetric needs the ego samples' speeds vs")
+    if cfg.safety.footprint.yaw_aware and (vs is None or vd is None):
+        raise ValueError(
+            "config.safety.footprint.yaw_aware needs the ego samples' velocities vs, vd"
+        )
     # the yaw-aware footprint: lateral semi-axis per sample and step (B, K), else none
-    wide = yaw_widening(cfg, vs, vd).astype(dt) if cfg.yaw_aware else None
+    wide = yaw_widening(cfg, vs, vd).astype(dt) if cfg.safety.footprint.yaw_aware else None
     if obstacles.margins is not None:
-        # sample-driven coverage margins (issue 11, mmdopt.risk): per-point ellipses
+        # sample-driven coverage margins (mmdopt.risk): per-point ellipses
         f = margin_ellipse_values(
             cfg, s, dd, obstacles.centres.astype(dt), obstacles.margins, vs=vs, widen=wide
         )
         if mode == "mmd":
             coll = mmd_cost(
-                f, obstacles.weights.astype(dt), cfg.bandwidth, cfg.f_scale, obstacles.n_terms
+                f,
+                obstacles.weights.astype(dt),
+                cfg.cost.bandwidth,
+                cfg.cost.f_scale,
+                obstacles.n_terms,
             )
-            # coverage term (issue 11): every penetration of a point's coverage ellipse costs
+            # coverage term: every penetration of a point's coverage ellipse costs
             # w_cover·f̄ whatever the point's weight ᾱ (the 1 − ε coverage holds only if no
             # ellipse is entered); returned weighted (the term's weight is then 1)
             cover = scenario_cost(f, obstacles.mask)
-            return cfg.w_mmd * coll + cfg.w_cover * cover, jnp.asarray(1.0, dt)
+            return cfg.cost.w_mmd * coll + cfg.cost.w_cover * cover, jnp.asarray(1.0, dt)
         if mode == "scenario":
-            return scenario_cost(f, obstacles.mask), cfg.w_coll
-        coll, _ = saa_cost(f, obstacles.mask, cfg.saa_level, cfg.saa_temperature)
-        return coll, cfg.w_saa
-    scale = 1.0 if mode == "mmd" else cfg.baseline_margin_scale
+            return scenario_cost(f, obstacles.mask), cfg.baselines.w_coll
+        coll, _ = saa_cost(f, obstacles.mask, cfg.saa_level, cfg.baselines.saa_temperature)
+        return coll, cfg.baselines.w_saa
+    scale = 1.0 if mode == "mmd" else cfg.baselines.baseline_margin_scale
     a_plan = planning_semi_axis(cfg, prob.t(), dt, scale)
     a_behind = rear_w = None
-    if cfg.asymmetric:
+    if cfg.safety.rules.asymmetric:
         a_behind = headway_semi_axis(cfg, a_plan, vs)
-        a_plan = planning_semi_axis(cfg, prob.t(), dt, scale * cfg.margin_ahead_scale)
-        rear_w = cfg.rear_exempt_width
+        a_plan = planning_semi_axis(cfg, prob.t(), dt, scale * cfg.safety.rules.margin_ahead_scale)
+        rear_w = cfg.safety.rules.rear_exempt_width
     coll = collision_cost(
         mode,
         s,
@@ -775,16 +487,18 @@ def _collision_term(
         obstacles.weights.astype(dt),
         obstacles.mask,
         a_plan,
-        cfg.b + scale * cfg.margin_lat + (0.0 if wide is None else wide),
+        cfg.safety.footprint.b
+        + scale * cfg.safety.margins.margin_lat
+        + (0.0 if wide is None else wide),
         a_behind=a_behind,
         rear_exempt_width=rear_w,
-        bandwidth=cfg.bandwidth,
-        f_scale=cfg.f_scale,
+        bandwidth=cfg.cost.bandwidth,
+        f_scale=cfg.cost.f_scale,
         n_terms=obstacles.n_terms,
         saa_eps=cfg.saa_level,
-        saa_temperature=cfg.saa_temperature,
+        saa_temperature=cfg.baselines.saa_temperature,
     )
-    w = {"mmd": cfg.w_mmd, "scenario": cfg.w_coll, "saa": cfg.w_saa}[mode]
+    w = {"mmd": cfg.cost.w_mmd, "scenario": cfg.baselines.w_coll, "saa": cfg.baselines.w_saa}[mode]
     return coll, w
 
 
@@ -804,7 +518,7 @@ class _CostCache(NamedTuple):
 
 
 def _empty_cache(cfg: MMDOptConfig, n: int, dt) -> _CostCache:
-    nc = cfg.n_elite + cfg.n_brake
+    nc = cfg.cem.n_elite + cfg.cem.n_brake
     z = jnp.zeros((nc,), dt)
     zx = jnp.zeros((nc, n), dt)
     return _CostCache(z, z, jnp.zeros((nc,), bool), zx, zx, z, jnp.asarray(0, jnp.int32))
@@ -813,7 +527,7 @@ def _empty_cache(cfg: MMDOptConfig, n: int, dt) -> _CostCache:
 def cost_chunk_size(cfg: MMDOptConfig) -> int:
     """Rows scored per chunk in :func:`run`: the rows of the ConstraintEliteSet that are
     neither elites nor brake rows (at least a quarter of ``n_cem``)."""
-    return max(cfg.n_cem - cfg.n_elite - cfg.n_brake, -(-cfg.n_cem // 4))
+    return max(cfg.cem.n_cem - cfg.cem.n_elite - cfg.cem.n_brake, -(-cfg.cem.n_cem // 4))
 
 
 def _row_costs(cfg: MMDOptConfig, prob: CEMProblem, obstacles: ObstacleSet, cx, cy, res):
@@ -822,15 +536,15 @@ def _row_costs(cfg: MMDOptConfig, prob: CEMProblem, obstacles: ObstacleSet, cx, 
     P, Pd, Pdd = (jnp.asarray(M, dt) for M in (prob.P, prob.Pdot, prob.Pddot))
     s, vs, as_ = cx @ P.T, cx @ Pd.T, cx @ Pdd.T
     dd, ad = cy @ P.T, cy @ Pdd.T
-    j_speed = jnp.mean((vs - cfg.v_des) ** 2, axis=1)
+    j_speed = jnp.mean((vs - cfg.cost.v_des) ** 2, axis=1)
     j_acc = jnp.mean(as_ * as_ + ad * ad, axis=1)
-    vd = cy @ Pd.T if cfg.yaw_aware else None
+    vd = cy @ Pd.T if cfg.safety.footprint.yaw_aware else None
     coll, w = _collision_term(cfg, prob, s, dd, obstacles, dt, vs=vs, vd=vd)
-    cost = cfg.w_speed * j_speed + cfg.w_accel * j_acc + w * coll + cfg.w_res * res
-    if cfg.kinematic:
+    cost = cfg.cost.w_speed * j_speed + cfg.cost.w_accel * j_acc + w * coll + cfg.cost.w_res * res
+    if cfg.safety.rules.kinematic:
         # feasibility first (a hard slip limit; the collision term may reach 10⁶): a row whose
         # residual, slip included, exceeds res_tol ranks after every row within it
-        cost = cost + jnp.where(res > cfg.res_tol, jnp.asarray(INFEASIBLE_COST, dt), 0.0)
+        cost = cost + jnp.where(res > cfg.projection.res_tol, jnp.asarray(INFEASIBLE_COST, dt), 0.0)
     return jnp.where(jnp.isfinite(cost), cost, jnp.asarray(1e30, dt)), coll
 
 
@@ -838,7 +552,7 @@ def _cached_costs(cfg, prob, obstacles, ces, cx_c, cy_c, res_c, cache: _CostCach
     """:func:`_row_costs` of the ConstraintEliteSet ``ces`` (n_cem,), reusing the cached costs of
     elites and brake rows; the other rows are scored in chunks of :func:`cost_chunk_size`
     (one chunk once the cache is filled, as many as needed before: a while loop)."""
-    nc = cfg.n_elite + cfg.n_brake
+    nc = cfg.cem.n_elite + cfg.cem.n_brake
     nces = ces.shape[0]
     U = cost_chunk_size(cfg)
     nq = -(-nces // U)
@@ -873,7 +587,7 @@ def _next_cache(
     """The cache for the next batch: the new elites (rows 0 … n_elite − 1, in EliteSet order;
     their projections are known, as every CES row's) and the brake rows scored so far (in this
     CES or before) and projected so far (rows below ``end`` of this batch)."""
-    ne, nb = cfg.n_elite, cfg.n_brake
+    ne, nb = cfg.cem.n_elite, cfg.cem.n_brake
     i = ces[el]
     inces = ces[None, :] == (ne + jnp.arange(nb, dtype=ces.dtype))[:, None]  # (nb, n_cem)
     seen = jnp.any(inces, axis=1)
@@ -912,10 +626,10 @@ def _evaluate(
     mu, cov, best, lv = state.mu, state.cov, state.best, state.least_violating
     dt = cx.dtype
     res = jnp.where(jnp.isfinite(res), res, jnp.asarray(1e30, dt))
-    n_feas = jnp.sum(res <= cfg.res_tol)
+    n_feas = jnp.sum(res <= cfg.projection.res_tol)
     # --- ConstraintEliteSet: n_cem lowest residuals (within res_tol all count as 0: index order)
-    rank = jnp.maximum(res - cfg.res_tol, 0.0)
-    _, ces = lax.top_k(-rank, cfg.n_cem)
+    rank = jnp.maximum(res - cfg.projection.res_tol, 0.0)
+    _, ces = lax.top_k(-rank, cfg.cem.n_cem)
     d_c, cx_c, cy_c, res_c = d[ces], cx[ces], cy[ces], res[ces]
     # --- cost, eq. (c_aug) + residual
     if cache is None:
@@ -923,15 +637,15 @@ def _evaluate(
     else:
         cost, coll = _cached_costs(cfg, prob, obstacles, ces, cx_c, cy_c, res_c, cache)
     # --- EliteSet and the MPPI-weighted update, eqs. (mean_update), (cov_update), (s_formula)
-    neg, el = lax.top_k(-cost, cfg.n_elite)
+    neg, el = lax.top_k(-cost, cfg.cem.n_elite)
     cost_e = -neg
     d_e = d_c[el]
-    sw = jnp.exp(-(cost_e - cost_e[0]) / cfg.gamma)
+    sw = jnp.exp(-(cost_e - cost_e[0]) / cfg.cem.gamma)
     sw = sw / jnp.sum(sw)
-    mu_new = (1.0 - cfg.eta) * mu + cfg.eta * (sw @ d_e)
+    mu_new = (1.0 - cfg.cem.eta) * mu + cfg.cem.eta * (sw @ d_e)
     diff = d_e - mu_new
-    cov_new = (1.0 - cfg.eta) * cov + cfg.eta * (diff.T * sw) @ diff
-    cov_new = 0.5 * (cov_new + cov_new.T) + cfg.cov_reg * jnp.eye(cov.shape[0], dtype=dt)
+    cov_new = (1.0 - cfg.cem.eta) * cov + cfg.cem.eta * (diff.T * sw) @ diff
+    cov_new = 0.5 * (cov_new + cov_new.T) + cfg.cem.cov_reg * jnp.eye(cov.shape[0], dtype=dt)
     # --- best so far (lowest cost) and least violating (lowest residual)
     i0 = ces[el[0]]
     cand = Best(cost_e[0], d[i0], cx[i0], cy[i0], res[i0], coll[el[0]], it.astype(jnp.int32))
@@ -987,11 +701,13 @@ def slip_residual(cfg: MMDOptConfig, prob: CEMProblem, ego_state, cx, cy):
     dt = cx.dtype
     Pd = jnp.asarray(prob.Pdot, dt)
     vs, vd = cx @ Pd.T, cy @ Pd.T
-    r = jnp.asarray(cfg.slip_ratio, dt)
+    r = jnp.asarray(cfg.safety.rules.slip_ratio, dt)
     st = ego_state.astype(dt)
     v0 = jnp.maximum(jnp.abs(st[3]) - r * jnp.maximum(st[2], 0.0), 0.0)
     ex = jnp.abs(vd) - r * jnp.maximum(vs, 0.0) - v0
-    return jnp.max(jnp.maximum(ex, 0.0), axis=1) * (cfg.res_tol / cfg.slip_tol)
+    return jnp.max(jnp.maximum(ex, 0.0), axis=1) * (
+        cfg.projection.res_tol / cfg.safety.rules.slip_tol
+    )
 
 
 def planning_semi_axis(cfg: MMDOptConfig, t, dt=None, scale=1.0):
@@ -999,7 +715,9 @@ def planning_semi_axis(cfg: MMDOptConfig, t, dt=None, scale=1.0):
     ``a + scale·(margin_long + margin_rate·t)`` (m; the margin may grow with time like the spread
     of the predictions; ``scale`` is 1 for MMD-Opt, ``baseline_margin_scale`` for baselines)."""
     t = jnp.asarray(t, dt) if dt is not None else jnp.asarray(t)
-    return cfg.a + scale * (cfg.margin_long + cfg.margin_rate * t)
+    return cfg.safety.footprint.a + scale * (
+        cfg.safety.margins.margin_long + cfg.safety.margins.margin_rate * t
+    )
 
 
 def headway_semi_axis(cfg: MMDOptConfig, a, vs):
@@ -1009,15 +727,20 @@ def headway_semi_axis(cfg: MMDOptConfig, a, vs):
     time-headway gap ≥ d₀ + h·v (ACC/RSS-style) is a floor under the prediction-spread margins,
     not added to them; not in the paper (:class:`MMDOptConfig`)."""
     vs = jnp.asarray(vs)
-    floor = cfg.a + cfg.headway_gap + cfg.headway_time * jnp.maximum(vs, 0.0)
+    floor = (
+        cfg.safety.footprint.a
+        + cfg.safety.rules.headway_gap
+        + cfg.safety.rules.headway_time * jnp.maximum(vs, 0.0)
+    )
     return jnp.maximum(a, floor)
 
 
 def margin_ellipse_values(cfg: MMDOptConfig, s, d, centres, margins, vs=None, widen=None):
-    """Collision function with per-point, per-step sample-driven margins (issue 11):
+    """Collision function with per-point, per-step sample-driven margins (:mod:`mmdopt.risk`):
     ``f = 1 − Δs²/a_±² − Δd²/(b + m_lat)²`` with ``a_− = a + m_behind`` when the ego is behind
     the point (Δs < 0) and ``a_+ = a + m_ahead`` otherwise.  ``s, d`` (B, K); ``centres``
-    (O, J, C, K, 2); ``margins`` (3, O, J, K); with ``cfg.asymmetric`` the following distance
+    (O, J, C, K, 2); ``margins`` (3, O, J, K); with ``cfg.safety.rules.asymmetric`` the
+    following distance
     ``d₀ + h·ṡ`` of ``vs`` (B, K) is added to ``a_−``; ``widen`` (B, K) is added to the lateral
     semi-axis (:func:`yaw_widening`).  Returns (B, O, J, C, K)."""
     dt = centres.dtype
@@ -1025,26 +748,31 @@ def margin_ellipse_values(cfg: MMDOptConfig, s, d, centres, margins, vs=None, wi
     ds = s[:, None, None, None, :] - centres[None, ..., 0]
     dd = d[:, None, None, None, :] - centres[None, ..., 1]
     behind, ahead = mg[0][None], mg[1][None]
-    if cfg.asymmetric:
+    if cfg.safety.rules.asymmetric:
         if vs is None:
-            raise ValueError("config.asymmetric needs the ego samples' speeds vs")
-        floor = headway_semi_axis(cfg, cfg.a, vs).astype(dt) - cfg.a  # (B, K)
+            raise ValueError("config.safety.rules.asymmetric needs the ego samples' speeds vs")
+        floor = (
+            headway_semi_axis(cfg, cfg.safety.footprint.a, vs).astype(dt) - cfg.safety.footprint.a
+        )  # (B, K)
         behind = jnp.maximum(behind, floor[:, None, None, None, :])
-        ahead = cfg.margin_ahead_scale * ahead
+        ahead = cfg.safety.rules.margin_ahead_scale * ahead
     # reciprocals per (point, step) before broadcasting over the ego samples (one division
     # per step, not per value); with the headway floor (per ego sample) per value
-    if cfg.asymmetric:
-        a = cfg.a + jnp.where(ds < 0, behind, ahead)
+    if cfg.safety.rules.asymmetric:
+        a = cfg.safety.footprint.a + jnp.where(ds < 0, behind, ahead)
         ia = 1.0 / (a * a)
     else:
-        ia_b, ia_a = 1.0 / ((cfg.a + behind) ** 2), 1.0 / ((cfg.a + ahead) ** 2)
+        ia_b, ia_a = (
+            1.0 / ((cfg.safety.footprint.a + behind) ** 2),
+            1.0 / ((cfg.safety.footprint.a + ahead) ** 2),
+        )
         ia = jnp.where(ds < 0, ia_b, ia_a)
-    b = cfg.b + mg[2][None]
+    b = cfg.safety.footprint.b + mg[2][None]
     if widen is not None:
         b = b + widen[:, None, None, None, :]
     f = 1.0 - ds * ds * ia - dd * dd * (1.0 / (b * b))
-    if cfg.asymmetric:
-        f = rear_exempt(f, ds, dd, b, cfg.rear_exempt_width)
+    if cfg.safety.rules.asymmetric:
+        f = rear_exempt(f, ds, dd, b, cfg.safety.rules.rear_exempt_width)
     return f
 
 
@@ -1074,9 +802,11 @@ def project_fixed(prob: CEMProblem, cx_bar, cy_bar, state):
 
 
 def project_chunk_size(cfg: MMDOptConfig) -> int:
-    """Rows per chunk of :func:`project_rows` (``project_chunk``; 0: ``n_cem + n_elite``)."""
-    c = cfg.project_chunk if cfg.project_chunk > 0 else cfg.n_cem + cfg.n_elite
-    return min(c, cfg.n_samples)
+    """Rows per chunk of :func:`project_rows` (``project_chunk``; ``None``: ``n_cem + n_elite``)."""
+    c = cfg.projection.project_chunk
+    if c is None:
+        c = cfg.cem.n_cem + cfg.cem.n_elite
+    return min(c, cfg.cem.n_samples)
 
 
 def project_rows(cfg: MMDOptConfig, prob: CEMProblem, d, ego, dt):
@@ -1089,16 +819,17 @@ def project_rows(cfg: MMDOptConfig, prob: CEMProblem, d, ego, dt):
     can enter it (the rows are independent QPs: same warm start, same fixed ADMM budget, no
     batch-wide test before the last iteration).  The later fresh draws would be planned and
     projected only to be discarded; on the tuning scenes ≥ 99 % of all rows are feasible, so
-    one chunk of ``n_cem + n_elite`` rows almost always suffices (docs/benchmarks.md)."""
+    one chunk of ``n_cem + n_elite`` rows almost always suffices (docs/experiments/synthetic.md)."""
     cx, cy, res, n_proj, _ = _project_rows(cfg, prob, d, ego, dt)
     return cx, cy, res, n_proj
 
 
 def _project_fixed_slip(cfg: MMDOptConfig, prob: CEMProblem, cx_bar, cy_bar, ego):
-    """:func:`project_fixed`, its residual with the slip limit's added when ``cfg.kinematic``
+    """:func:`project_fixed`, its residual with the slip limit's added when
+    ``cfg.safety.rules.kinematic``
     (once, where the residual is made: cached rows carry it already)."""
     cx, cy, res = project_fixed(prob, cx_bar, cy_bar, ego)
-    if cfg.kinematic:
+    if cfg.safety.rules.kinematic:
         res = res + slip_residual(cfg, prob, ego, cx, cy).astype(res.dtype)
     return cx, cy, res
 
@@ -1130,11 +861,11 @@ def _project_rows(cfg: MMDOptConfig, prob: CEMProblem, d, ego, dt, cache=None):
         cx0 = jnp.pad(jnp.where(kn[:, None], cache.cx, 0.0), pad)
         cy0 = jnp.pad(jnp.where(kn[:, None], cache.cy, 0.0), pad)
         res0 = jnp.pad(jnp.where(kn, cache.res, inf), (0, L - nk), constant_values=inf)
-        nf0 = jnp.sum(kn & (cache.res <= cfg.res_tol)).astype(jnp.int32)
+        nf0 = jnp.sum(kn & (cache.res <= cfg.projection.res_tol)).astype(jnp.int32)
     dp = jnp.concatenate([d, jnp.broadcast_to(d[-1:], (L - B, D))], axis=0) if L > B else d
 
     def more(c):
-        return (base + c[0] * C < B) & (c[1] < cfg.n_cem)
+        return (base + c[0] * C < B) & (c[1] < cfg.cem.n_cem)
 
     def chunk(c):
         i, nf, cx, cy, res = c
@@ -1142,7 +873,7 @@ def _project_rows(cfg: MMDOptConfig, prob: CEMProblem, d, ego, dt, cache=None):
         cx_bar, cy_bar = planner_output(prob, lax.dynamic_slice_in_dim(dp, start, C), ego, dt)
         cxi, cyi, ri = _project_fixed_slip(cfg, prob, cx_bar, cy_bar, ego)
         ri = jnp.where(start + jnp.arange(C) < B, ri.astype(dt), inf)  # padding: never chosen
-        nf = nf + jnp.sum(ri <= cfg.res_tol).astype(jnp.int32)
+        nf = nf + jnp.sum(ri <= cfg.projection.res_tol).astype(jnp.int32)
         cx = lax.dynamic_update_slice_in_dim(cx, cxi, start, 0)
         cy = lax.dynamic_update_slice_in_dim(cy, cyi, start, 0)
         res = lax.dynamic_update_slice_in_dim(res, ri, start, 0)
@@ -1159,7 +890,7 @@ def _step(state: CEMState, obstacles: ObstacleSet, z=None, cache: _CostCache | N
     (:func:`run`) returns ``(state, next cache)``."""
     cfg = state.config
     prob = build_problem(cfg, state.problem.bounds)
-    dt = jnp.dtype(cfg.dtype)
+    dt = jnp.dtype(cfg.cem.dtype)
     k = state.keys[state.iteration]
     d = _sample(cfg, k, state.mu, state.cov, state.elites, state.problem, z)
     cx, cy, res, n_proj, end = _project_rows(cfg, prob, d, state.problem.state, dt, cache)
@@ -1171,23 +902,23 @@ def _init(
 ) -> CEMState:
     """``z0``: the first rows of a larger standard-normal draw from the init key, when that is
     bit-identical to drawing (n_elite, D) from it (partitionable threefry)."""
-    dt = jnp.dtype(cfg.dtype)
+    dt = jnp.dtype(cfg.cem.dtype)
     problem = _cast(problem, dt)
     D = cfg.d_dim
     prob = build_problem(cfg, problem.bounds)
     k_init, k_loop = jax.random.split(key)
     if warm_start is None:
         L0 = jnp.linalg.cholesky(problem.cov0)
-        z = jax.random.normal(k_init, (cfg.n_elite, D), dt) if z0 is None else z0
+        z = jax.random.normal(k_init, (cfg.cem.n_elite, D), dt) if z0 is None else z0
         elites = jnp.clip(problem.mu0 + z @ L0.T, problem.lo, problem.hi)
         mu, cov = problem.mu0, problem.cov0
     else:
         mu = jnp.clip(warm_start.mu.astype(dt), problem.lo, problem.hi)
         cov = warm_start.cov.astype(dt)
         elites = jnp.clip(warm_start.elites.astype(dt), problem.lo, problem.hi)
-    keys = jax.random.split(k_loop, cfg.iterations)
+    keys = jax.random.split(k_loop, cfg.cem.iterations)
     empty = _empty_best(D, prob.nvar, dt)
-    N = cfg.iterations
+    N = cfg.cem.iterations
     return CEMState(
         config=cfg,
         problem=problem,
@@ -1213,11 +944,11 @@ _step_jit = jax.jit(_step)
 @jax.jit
 def _run_fixed(cfg: MMDOptConfig, problem: Problem, obstacles: ObstacleSet, key, warm_start):
     """The whole of Algorithm 1 as one jitted function (``lax.scan`` over the iterations)."""
-    dt = jnp.dtype(cfg.dtype)
+    dt = jnp.dtype(cfg.cem.dtype)
     # every iteration's normal draws in one vmapped call (bit-identical to drawing them from
     # each iteration's key inside the loop, ≈ 2.4× cheaper: threefry on CPU is dispatch-bound
     # at 940 × 8 values)
-    prefix = bool(jax.config.jax_threefry_partitionable) and cfg.n_elite <= _n_fresh(cfg)
+    prefix = bool(jax.config.jax_threefry_partitionable) and cfg.cem.n_elite <= _n_fresh(cfg)
     if warm_start is not None or not prefix:
         state = _init(cfg, problem, key, warm_start)
         z_all = jax.vmap(lambda k: _normals(cfg, k, dt))(state.keys)
@@ -1226,9 +957,9 @@ def _run_fixed(cfg: MMDOptConfig, problem: Problem, obstacles: ObstacleSet, key,
         # the init key (partitionable threefry: the same counters, a prefix), so every normal
         # comes from one vmapped threefry: one instance to compile instead of two (≈ 0.25 s)
         k_init, k_loop = jax.random.split(key)
-        keys = jnp.concatenate([k_init[None], jax.random.split(k_loop, cfg.iterations)])
+        keys = jnp.concatenate([k_init[None], jax.random.split(k_loop, cfg.cem.iterations)])
         z = jax.vmap(lambda k: _normals(cfg, k, dt))(keys)
-        state = _init(cfg, problem, key, None, z[0, : cfg.n_elite])
+        state = _init(cfg, problem, key, None, z[0, : cfg.cem.n_elite])
         z_all = z[1:]
     # the obstacles are the same in every iteration: the elites' and brake rows' costs carry
     # over (_CostCache) and only the new rows of each ConstraintEliteSet are scored
@@ -1244,7 +975,7 @@ def _run_fixed(cfg: MMDOptConfig, problem: Problem, obstacles: ObstacleSet, key,
 def _sample_plan(state: CEMState):
     cfg = state.config
     prob = build_problem(cfg, state.problem.bounds)
-    dt = jnp.dtype(cfg.dtype)
+    dt = jnp.dtype(cfg.cem.dtype)
     d = _sample(cfg, state.keys[state.iteration], state.mu, state.cov, state.elites, state.problem)
     cx_bar, cy_bar = planner_output(prob, d, state.problem.state, dt)
     return d, cx_bar, cy_bar
@@ -1254,9 +985,11 @@ def _sample_plan(state: CEMState):
 def _evaluate_host(state: CEMState, obstacles: ObstacleSet, d, cx, cy, res):
     cfg = state.config
     prob = build_problem(cfg, state.problem.bounds)
-    dt = jnp.dtype(cfg.dtype)
+    dt = jnp.dtype(cfg.cem.dtype)
     cx, cy, res = cx.astype(dt), cy.astype(dt), res.astype(dt)
-    if cfg.kinematic:  # the slip limit joins the backend's residual (as in _project_rows)
+    if (
+        cfg.safety.rules.kinematic
+    ):  # the slip limit joins the backend's residual (as in _project_rows)
         res = res + slip_residual(cfg, prob, state.problem.state, cx, cy)
     return _evaluate(state, prob, obstacles, d, cx, cy, res)
 
@@ -1269,7 +1002,8 @@ def check_backend(backend: str, settings: dict) -> None:
     if backend == PLANNER_BACKEND and settings:
         raise ValueError(
             f"backend {PLANNER_BACKEND!r} takes no solver settings (got {sorted(settings)}): its "
-            "budget and step size are MMDOptConfig.admm_iters / admm_rho; pass backend='admm' "
+            "budget and step size are MMDOptConfig.projection.admm_iters / admm_rho; pass "
+            "backend='admm' "
             "for the registry's ADMM with settings"
         )
 
@@ -1279,7 +1013,7 @@ def init(
     config: MMDOptConfig, problem: Problem, key: Any, warm_start: CEMState | None = None
 ) -> CEMState:
     """Initial state: the sampling prior of ``problem`` (or ``warm_start``'s distribution and
-    elites, e.g. from :func:`shift`), ``config.iterations`` PRNG keys, empty best-so-far."""
+    elites, e.g. from :func:`shift`), ``config.cem.iterations`` PRNG keys, empty best-so-far."""
     if not isinstance(config, MMDOptConfig):
         raise ValueError(f"config must be an MMDOptConfig, got {type(config).__name__}")
     if not isinstance(problem, Problem):
@@ -1299,16 +1033,16 @@ def update(
     """One CEM iteration (sample, plan, project, score, update); every row of the
     ConstraintEliteSet is scored (``obstacles`` may differ from the previous call's).  Raises
     ``ValueError`` once the
-    state has done ``config.iterations`` iterations (its keys are used up: :func:`shift` or
+    state has done ``config.cem.iterations`` iterations (its keys are used up: :func:`shift` or
     :func:`init` a new state)."""
     check_backend(backend, backend_settings)
     if not isinstance(state, CEMState):
         raise ValueError(f"state must be a CEMState, got {type(state).__name__}")
     if not isinstance(obstacles, ObstacleSet):
         raise ValueError(f"obstacles must be an ObstacleSet, got {type(obstacles).__name__}")
-    if int(state.iteration) >= state.config.iterations:
+    if int(state.iteration) >= state.config.cem.iterations:
         raise ValueError(
-            f"state has done all config.iterations = {state.config.iterations} iterations"
+            f"state has done all config.iterations = {state.config.cem.iterations} iterations"
         )
     if backend == PLANNER_BACKEND:
         return _step_jit(state, obstacles)
@@ -1334,7 +1068,7 @@ def run(
     warm_start: CEMState | None = None,
     **backend_settings: Any,
 ) -> CEMState:
-    """:func:`init` then ``config.iterations`` × :func:`update`; with ``admm-fixed`` one jitted
+    """:func:`init` then ``config.cem.iterations`` × :func:`update`; with ``admm-fixed`` one jitted
     ``lax.scan``, in which the obstacles are fixed, so the costs of the elites and brake rows
     carried into the next batch are reused instead of recomputed (the same plan as the
     :func:`update` loop, to float rounding).  Returns the final :class:`CEMState` (``best``,
@@ -1345,7 +1079,7 @@ def run(
             raise ValueError(f"config must be an MMDOptConfig, got {type(config).__name__}")
         return _run_fixed(config, problem, obstacles, key, warm_start)
     state = init(config, problem, key, warm_start)
-    for _ in range(config.iterations):
+    for _ in range(config.cem.iterations):
         state = update(state, obstacles, backend, **backend_settings)
     return state
 
@@ -1373,8 +1107,8 @@ def shift(state: CEMState, dt: float) -> CEMState:
     if not (math.isfinite(dt) and dt >= 0):
         raise ValueError(f"dt must be finite and >= 0, got {dt}")
     cfg = state.config
-    S = cfg.num_segments
-    frac = dt / (cfg.horizon / S)
+    S = cfg.trajectory.num_segments
+    frac = dt / (cfg.trajectory.horizon / S)
 
     def sh(x):
         return jnp.concatenate(
@@ -1386,10 +1120,10 @@ def shift(state: CEMState, dt: float) -> CEMState:
     prob = build_problem(cfg, state.problem.bounds)
     empty = _empty_best(D, prob.nvar, dtype)
     key = jax.random.fold_in(state.keys[-1], 0x5F17)
-    N = cfg.iterations
+    N = cfg.cem.iterations
     return state._replace(
         mu=sh(state.mu),
-        cov=state.cov + cfg.cov_reg * jnp.eye(D, dtype=dtype),
+        cov=state.cov + cfg.cem.cov_reg * jnp.eye(D, dtype=dtype),
         elites=sh(state.elites),
         best=empty,
         least_violating=empty,
@@ -1407,5 +1141,5 @@ def n_taylor_terms(cfg: MMDOptConfig) -> int:
     """Static number of Taylor features for the MMD cost (f̄ ≤ 1, so ``t ≤ f_scale/bandwidth``):
     truncation below the loop's float resolution (relative 1e-7 in float32: 18 terms at the
     defaults instead of 21 for 1e-9; 1e-12 in float64)."""
-    rel = 1e-7 if cfg.dtype == "float32" else 1e-12
-    return taylor_terms(float(cfg.f_scale) / float(cfg.bandwidth), rel)
+    rel = 1e-7 if cfg.cem.dtype == "float32" else 1e-12
+    return taylor_terms(float(cfg.cost.f_scale) / float(cfg.cost.bandwidth), rel)

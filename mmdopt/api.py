@@ -9,7 +9,7 @@
     p.x, p.y, p.speed, p.cost, p.feasible, p.status
 
 ``obstacles`` are samples of the obstacles' future trajectories from any predictor, ``(O, n, K, 2)``
-Cartesian ``(x, y)`` on the planner's time grid (``K = config.num_steps``).
+Cartesian ``(x, y)`` on the planner's time grid (``K = config.trajectory.num_steps``).
 """
 
 from __future__ import annotations
@@ -32,7 +32,7 @@ from . import algorithm as alg
 from ._checks import check_key
 from ._x64 import x64
 from .algorithm import PLANNER_BACKEND, MMDOptConfig, n_taylor_terms, planning_semi_axis
-from .baselines import COST_MODE, METHODS, SELECTION, select_for_method
+from .baselines import COLLISION_TERM, PLAN_METHODS, SELECTOR, select_for_method
 from .collision import (
     OBSTACLE_FOOTPRINT,
     circle_centres,
@@ -40,9 +40,9 @@ from .collision import (
     ellipse_values,
     mmd_cost,
 )
-from .reduced_set import ReducedSet
+from .samples import ReducedSet, check_reduced_set
 
-__all__ = ["Road", "Plan", "plan", "plan_frenet", "METHODS"]
+__all__ = ["Road", "Plan", "plan", "plan_frenet", "PLAN_METHODS"]
 
 #: largest accepted |coordinate| of obstacle samples (m): beyond it positions are not a scene
 MAX_COORD = 1e7
@@ -115,7 +115,8 @@ class Plan:
     ``as_, ad`` (m/s²).  ``cost``: Algorithm 1's cost of the plan; ``cost_trace`` (N,): best-so-far
     cost after each iteration (non-increasing); ``residual``: max constraint violation on the time
     grid; ``mmd``: l_dist of the plan against the method's obstacle samples (config's kernel);
-    ``feasible``: ``residual ≤ config.res_tol``; ``fallback``/``status``: see :func:`plan`;
+    ``feasible``: ``residual ≤ config.projection.res_tol``; ``fallback``/``status``: see
+    :func:`plan`;
     ``reduced_set``: the obstacle samples used by the cost (a :class:`ReducedSet` with leading
     axis O; all n samples for "saa"/"scenario_all"); ``plan_time_s``: wall time of the call;
     ``diagnostics``: timings, per-iteration traces, the behavioural input ``d``, collision term,
@@ -242,8 +243,8 @@ def _check_common(ego, road, method, config, backend, key):
         raise ValueError(f"ego must be a frenet.EgoState, got {type(ego).__name__}")
     if not isinstance(road, Road):
         raise ValueError(f"road must be an mmdopt.Road, got {type(road).__name__}")
-    if method not in METHODS:
-        raise ValueError(f"method must be one of {METHODS}, got {method!r}")
+    if method not in PLAN_METHODS:
+        raise ValueError(f"method must be one of {PLAN_METHODS}, got {method!r}")
     if not isinstance(config, MMDOptConfig):
         raise ValueError(f"config must be an mmdopt.MMDOptConfig, got {type(config).__name__}")
     if not isinstance(backend, str) or (
@@ -259,11 +260,13 @@ def _check_common(ego, road, method, config, backend, key):
 def _check_obstacles(obstacles, config: MMDOptConfig, method: str, name="obstacles"):
     if obstacles is None:
         raise ValueError(f"{name} must be an array (O, n, K, 2), got None")
+    if np.iscomplexobj(obstacles):
+        raise ValueError(f"{name} must be real (x, y) positions, got a complex array")
     try:
         arr = np.asarray(obstacles, dtype=np.float64)
     except (TypeError, ValueError):
         raise ValueError(f"{name} must be a numeric array (O, n, K, 2)") from None
-    K = config.num_steps
+    K = config.trajectory.num_steps
     if arr.ndim != 4 or arr.shape[-1] != 2:
         raise ValueError(f"{name} must have shape (O, n, K, 2) = (O, n, {K}, 2), got {arr.shape}")
     O, n, k, _ = arr.shape
@@ -276,7 +279,7 @@ def _check_obstacles(obstacles, config: MMDOptConfig, method: str, name="obstacl
     if k != K:
         raise ValueError(
             f"{name} has {k} time steps but config.num_steps = {K}: samples must be on the "
-            f"planner's time grid ({config.horizon} s, {K} points)"
+            f"planner's time grid ({config.trajectory.horizon} s, {K} points)"
         )
     if not np.all(np.isfinite(arr)):
         raise ValueError(f"{name} contains NaN or inf")
@@ -284,8 +287,8 @@ def _check_obstacles(obstacles, config: MMDOptConfig, method: str, name="obstacl
         raise ValueError(
             f"{name} has coordinates beyond {MAX_COORD:g} m (max |value| {np.max(np.abs(arr)):.3g})"
         )
-    m = config.reduced_set_size
-    if SELECTION[method] is not None and n < m:
+    m = config.selection.reduced_set_size
+    if SELECTOR[method] is not None and n < m:
         raise ValueError(
             f"{name} has n = {n} samples per obstacle, fewer than config.reduced_set_size = {m}"
         )
@@ -318,8 +321,8 @@ def plan(
     method : "mmd" (MMD-Opt) | "degroot" | "random" | "saa" | "scenario_all"
         (:mod:`mmdopt.baselines`)
     config : :class:`MMDOptConfig` (default: the paper's sizes, and the method's risk knob at
-        ε = ``risk_eps`` = 0.005 with sample-driven margins; ``MMDOptConfig(margin_mode=
-        "linear")`` plans with the time-linear tuned margins used before Session 13)
+        ε = ``risk`` = 0.005 with sample-driven margins; ``MMDOptConfig().replace(margin_mode=
+        "linear")`` plans with the time-linear tuned margins of the paper reproduction)
     backend : projection backend: ``"admm-fixed"`` (default) runs the whole algorithm in one jit
         with the fixed-budget ADMM projector; any :mod:`solvers` backend (``"admm"``,
         ``"clarabel"``, ``"osqp"``, ...) projects on the host each iteration
@@ -403,38 +406,34 @@ def _apply_risk(method: str, risk: Any, config: MMDOptConfig) -> MMDOptConfig:
         from .risk import config_for_risk
 
         config = config_for_risk(method, risk, config)
-    if config.reselect < 0:  # automatic: the method's re-selection pass size
+    if config.safety.reselect is None:  # automatic: the method's re-selection pass size
         config = config.replace(reselect=config.reselect_for(method))
     return config
 
 
+def _check_warm_start(warm_start: Any, config: MMDOptConfig) -> None:
+    """``ValueError`` naming ``warm_start`` unless it is a state of a config with the same
+    behavioural input size, elite count and iterations as ``config``."""
+    if not isinstance(warm_start, alg.CEMState):
+        raise ValueError(
+            f"warm_start must be an algorithm.CEMState, got {type(warm_start).__name__}"
+        )
+    D, ne, N = config.d_dim, config.cem.n_elite, config.cem.iterations
+    want = {"mu": (D,), "cov": (D, D), "elites": (ne, D), "cost_trace": (N,)}
+    for name, shape in want.items():
+        got = tuple(np.shape(getattr(warm_start, name)))
+        if got != shape:
+            raise ValueError(
+                f"warm_start.{name} has shape {got}, but this config needs {shape} "
+                "(num_segments, n_elite, iterations): warm-start from a plan made with the "
+                "same sizes"
+            )
+
+
 def _check_reduced_set(rs: Any, O: int, n: int, method: str) -> ReducedSet:
-    if SELECTION[method] is None:
+    if SELECTOR[method] is None:
         raise ValueError(f"reduced_set is not used by method {method!r} (it plans on all samples)")
-    if not isinstance(rs, ReducedSet):
-        raise ValueError(f"reduced_set must be an mmdopt.ReducedSet, got {type(rs).__name__}")
-    idx = np.asarray(rs.indices)
-    w = np.asarray(rs.weights, np.float64)
-    if idx.ndim != 2 or idx.shape[0] != O:
-        raise ValueError(
-            f"reduced_set.indices must have shape (O, m) = ({O}, m) (leading obstacle axis), "
-            f"got {idx.shape}"
-        )
-    if w.shape != idx.shape:
-        raise ValueError(f"reduced_set.weights must have shape {idx.shape}, got {w.shape}")
-    if not np.issubdtype(idx.dtype, np.integer):
-        raise ValueError(f"reduced_set.indices must be integers, got {idx.dtype}")
-    if idx.size and (idx.min() < 0 or idx.max() >= n):
-        raise ValueError(
-            f"reduced_set.indices must lie in [0, {n}) (n samples), got {idx.min()}…{idx.max()}"
-        )
-    if not np.all(np.isfinite(w)):
-        raise ValueError("reduced_set.weights contains NaN or inf")
-    if np.any(w < 0):
-        raise ValueError("reduced_set.weights must be >= 0")
-    if not np.allclose(w.sum(axis=1), 1.0, atol=1e-6):
-        raise ValueError(f"reduced_set.weights must sum to 1 per obstacle, got {w.sum(axis=1)}")
-    return rs
+    return check_reduced_set(rs, n, "reduced_set", O)
 
 
 @dataclass
@@ -465,10 +464,8 @@ def _plan_impl(
     obs_fr[..., 0] -= s_off
     O, n, K, _ = obs_fr.shape
     diag["s_offset"] = s_off
-    if warm_start is not None and not isinstance(warm_start, alg.CEMState):
-        raise ValueError(
-            f"warm_start must be an algorithm.CEMState, got {type(warm_start).__name__}"
-        )
+    if warm_start is not None:
+        _check_warm_start(warm_start, config)
     prob = alg.build_problem(config, road.bounds())
     k_rs, k_cem = jax.random.split(key)
     # --- obstacle samples used by the cost
@@ -484,34 +481,37 @@ def _plan_impl(
             method,
             k_rs,
             obs_fr,
-            config.reduced_set_size,
-            config.reduced_set,
-            lateral_scale=float(config.rs_lateral_scale),
+            config.selection.reduced_set_size,
+            config.selection.reduced_set,
+            lateral_scale=float(config.selection.rs_lateral_scale),
             ego_guess=ego_guess,
+            footprint=config.safety.footprint,
         )
     diag["reduced_set_s"] = time.perf_counter() - t1
     sel = np.take_along_axis(obs_fr, np.asarray(rs.indices)[:, :, None, None], axis=1)
     centres = circle_centres(jnp.asarray(sel), OBSTACLE_FOOTPRINT)  # (O, J, C, K, 2)
     margins = None
-    if config.margin_mode == "samples":
+    if config.safety.margins.margin_mode == "samples":
         from .risk import coverage_margins
 
         t3 = time.perf_counter()
         knn = 0
-        if SELECTION[method] is None:
-            knn = config.coverage_knn or max(2, n // config.reduced_set_size)
+        if SELECTOR[method] is None:
+            knn = config.safety.margins.coverage_knn
+            if knn is None:  # automatic: the samples a reduced-set point stands for
+                knn = max(2, n // config.selection.reduced_set_size)
         margins = coverage_margins(
             obs_fr,
             np.asarray(rs.indices),
-            float(config.risk_eps),
-            lateral_scale=float(config.rs_lateral_scale),
-            prior=float(config.coverage_prior),
+            float(config.safety.risk),
+            lateral_scale=float(config.selection.rs_lateral_scale),
+            prior=float(config.safety.margins.coverage_prior),
             knn=knn,
-            bandwidth=float(config.coverage_bandwidth),
+            bandwidth=float(config.safety.margins.coverage_bandwidth),
         )
         diag["margins_s"] = time.perf_counter() - t3
     obstacles = alg.ObstacleSet.create(
-        config, centres, np.asarray(rs.weights, np.float64), COST_MODE[method], margins=margins
+        config, centres, np.asarray(rs.weights, np.float64), COLLISION_TERM[method], margins=margins
     )
     ctx = _Ctx(ego, road, config, prob, method, backend, rs, t0, diag, obs_fr, obstacles)
 
@@ -527,7 +527,7 @@ def _plan_impl(
         config, problem, obstacles, k_cem, backend, warm_start=warm_start, **backend_settings
     )
     state = jax.block_until_ready(state)
-    if config.reselect > 0 and SELECTION[method] is not None:
+    if config.safety.reselect > 0 and SELECTOR[method] is not None:
         state = _reselect_pass(ctx, state, problem, k_cem, backend, backend_settings)
     diag["cem_s"] = time.perf_counter() - t2
     best, lv = state.best, state.least_violating
@@ -541,12 +541,12 @@ def _plan_impl(
     fallback = False
     status = "ok"
     chosen = best
-    if not float(lv.res) <= float(config.res_tol):
+    if not float(lv.res) <= float(config.projection.res_tol):
         fallback = True
         chosen = lv
         status = (
             f"fallback: no sample met the constraints (least residual {float(lv.res):.3g} "
-            f"> res_tol {float(config.res_tol):g}); least-violating plan returned"
+            f"> res_tol {float(config.projection.res_tol):g}); least-violating plan returned"
         )
     return _assemble(
         ctx,
@@ -562,9 +562,9 @@ def _plan_impl(
 
 
 def _reselect_pass(ctx: _Ctx, state, problem, key, backend, backend_settings):
-    """Second pass of Algorithm 1 (``config.reselect`` > 0): the reduced set plus the
+    """Second pass of Algorithm 1 (``config.safety.reselect`` > 0): the reduced set plus the
     ``reselect`` samples in deepest conflict with the first pass's plan (weight 1/n each) after
-    the ⌊ε·n⌋ deepest (``ε = config.risk_eps``: the conflicts a chance constraint at level ε may
+    the ⌊ε·n⌋ deepest (``ε = config.safety.risk``: the conflicts a chance constraint at level ε may
     leave, as in sampling-and-discarding), warm-started from the first pass; ``ctx`` is updated
     in place.  Conflict is measured on the nominal ellipse ``a, b`` with the geometry and
     responsibility rules of the config (yaw widening, rear exemption), the margins of the
@@ -576,21 +576,26 @@ def _reselect_pass(ctx: _Ctx, state, problem, key, backend, backend_settings):
     cx1 = np.asarray(state.best.cx, np.float64)
     cy1 = np.asarray(state.best.cy, np.float64)
     s1, d1 = (Bs.P @ cx1)[None], (Bs.P @ cy1)[None]
-    b = jnp.asarray(config.b)
-    if config.yaw_aware:
+    b = jnp.asarray(config.safety.footprint.b)
+    if config.safety.footprint.yaw_aware:
         vs1, vd1 = (Bs.Pdot @ cx1)[None], (Bs.Pdot @ cy1)[None]
         b = b + alg.yaw_widening(config, jnp.asarray(vs1), jnp.asarray(vd1))  # (1, K)
-    rear = float(config.rear_exempt_width) if config.asymmetric else None
+    rear = float(config.safety.rules.rear_exempt_width) if config.safety.rules.asymmetric else None
     centres = circle_centres(jnp.asarray(obs_fr), OBSTACLE_FOOTPRINT)  # (O, n, C, K, 2)
     f = ellipse_values(
-        jnp.asarray(s1), jnp.asarray(d1), centres, config.a, b, rear_exempt_width=rear
+        jnp.asarray(s1),
+        jnp.asarray(d1),
+        centres,
+        config.safety.footprint.a,
+        b,
+        rear_exempt_width=rear,
     )
     depth = np.asarray(jnp.max(f[0], axis=(2, 3)))  # (O, n) deepest conflict over time
     idx0 = np.asarray(ctx.rs.indices)
     # sampling and discarding (Campi & Garatti 2011): a plan that may collide with probability ε
     # may leave the ⌊ε·n⌋ deepest conflicts of the n samples unresolved; the next r are added
-    k = int(math.floor(float(config.risk_eps) * n))
-    r = min(int(config.reselect), n - idx0.shape[1] - k)
+    k = int(math.floor(float(config.safety.risk) * n))
+    r = min(int(config.safety.reselect), n - idx0.shape[1] - k)
     if r <= 0:
         return state
     d = depth.copy()
@@ -604,18 +609,18 @@ def _reselect_pass(ctx: _Ctx, state, problem, key, backend, backend_settings):
     sel = np.take_along_axis(obs_fr, idx[:, :, None, None], axis=1)
     cen = circle_centres(jnp.asarray(sel), OBSTACLE_FOOTPRINT)
     margins = None
-    if config.margin_mode == "samples":
+    if config.safety.margins.margin_mode == "samples":
         from .risk import coverage_margins
 
         margins = coverage_margins(
             obs_fr,
             idx,
-            float(config.risk_eps),
-            lateral_scale=float(config.rs_lateral_scale),
-            prior=float(config.coverage_prior),
-            bandwidth=float(config.coverage_bandwidth),
+            float(config.safety.risk),
+            lateral_scale=float(config.selection.rs_lateral_scale),
+            prior=float(config.safety.margins.coverage_prior),
+            bandwidth=float(config.safety.margins.coverage_bandwidth),
         )
-    obstacles = alg.ObstacleSet.create(config, cen, w, COST_MODE[ctx.method], margins=margins)
+    obstacles = alg.ObstacleSet.create(config, cen, w, COLLISION_TERM[ctx.method], margins=margins)
     ctx.obstacles = obstacles
     ctx.diag["reselected"] = extra
     ctx.diag["discarded"] = order[:, :k]
@@ -629,7 +634,7 @@ def _reselect_pass(ctx: _Ctx, state, problem, key, backend, backend_settings):
 
 
 def _braking_fallback(ctx: _Ctx, status: str, state=None) -> Plan:
-    S = ctx.config.num_segments
+    S = ctx.config.trajectory.num_segments
     road, ego = ctx.road, ctx.ego
     v = float(np.clip(ego.vs, max(road.v_min, 0.0), road.v_max))
     y = float(np.clip(ego.d, road.y_lb, road.y_ub))
@@ -653,15 +658,17 @@ def _assemble(ctx: _Ctx, cx, cy, dvec, cost, best_iter, fallback, status, state)
     s_off = float(diag.get("s_offset", 0.0))
     x, y, heading, speed = ctx.road.path.trajectory_to_cartesian(s + s_off, d, vs, vd)
     residual = float(residual[0])
-    feasible = residual <= float(config.res_tol) + 1e-9
+    feasible = residual <= float(config.projection.res_tol) + 1e-9
     if not fallback and not feasible:
         status = (
             f"ok, but the returned plan's grid residual {residual:.3g} exceeds res_tol "
-            f"{float(config.res_tol):g}"
+            f"{float(config.projection.res_tol):g}"
         )
     ob = ctx.obstacles
-    vs1 = jnp.asarray(vs[None]) if config.asymmetric else None
-    wide = alg.yaw_widening(config, vs[None], vd[None]) if config.yaw_aware else None
+    vs1 = jnp.asarray(vs[None]) if config.safety.rules.asymmetric else None
+    wide = (
+        alg.yaw_widening(config, vs[None], vd[None]) if config.safety.footprint.yaw_aware else None
+    )
     if ob.margins is not None:
         f = alg.margin_ellipse_values(
             config, jnp.asarray(s[None]), jnp.asarray(d[None]), ob.centres, ob.margins, vs=vs1,
@@ -670,23 +677,31 @@ def _assemble(ctx: _Ctx, cx, cy, dvec, cost, best_iter, fallback, status, state)
     else:
         a_plan = planning_semi_axis(config, prob.t())
         a_behind = rear_w = None
-        if config.asymmetric:
+        if config.safety.rules.asymmetric:
             a_behind = alg.headway_semi_axis(config, a_plan, vs1)
-            a_plan = planning_semi_axis(config, prob.t(), scale=config.margin_ahead_scale)
-            rear_w = config.rear_exempt_width
+            a_plan = planning_semi_axis(
+                config, prob.t(), scale=config.safety.rules.margin_ahead_scale
+            )
+            rear_w = config.safety.rules.rear_exempt_width
         f = ellipse_values(
             jnp.asarray(s[None]),
             jnp.asarray(d[None]),
             ob.centres,
             a_plan,
-            config.b + config.margin_lat + (0.0 if wide is None else wide),
+            config.safety.footprint.b
+            + config.safety.margins.margin_lat
+            + (0.0 if wide is None else wide),
             a_behind=a_behind,
             rear_exempt_width=rear_w,
         )
     mmd_val = float(
-        _mmd_cost_jit(f, ob.weights, config.bandwidth, config.f_scale, n_taylor_terms(config))[0]
+        _mmd_cost_jit(
+            f, ob.weights, config.cost.bandwidth, config.cost.f_scale, n_taylor_terms(config)
+        )[0]
     )
-    cnt = collision_free_count(np.stack([s, d], -1), ctx.obs_fr, a=config.a, b=config.b)
+    cnt = collision_free_count(
+        np.stack([s, d], -1), ctx.obs_fr, a=config.safety.footprint.a, b=config.safety.footprint.b
+    )
     cf_plan = np.asarray(cnt.per_obstacle)
     if not fallback and np.any(cf_plan == 0):
         hit = [int(o) for o in np.flatnonzero(cf_plan == 0)]
@@ -702,7 +717,7 @@ def _assemble(ctx: _Ctx, cx, cy, dvec, cost, best_iter, fallback, status, state)
         residual_groups={k: float(v[0]) for k, v in groups.items()},
         progress_m=float(s[-1] - s[0]),
         mean_speed=float(np.mean(vs)),
-        j_speed=float(np.mean((vs - float(config.v_des)) ** 2)),
+        j_speed=float(np.mean((vs - float(config.cost.v_des)) ** 2)),
         j_accel=float(np.mean(as_**2 + ad**2)),
         collision_free_planning=cf_plan,
         n_planning_samples=int(ctx.obs_fr.shape[1]),
@@ -722,7 +737,7 @@ def _assemble(ctx: _Ctx, cx, cy, dvec, cost, best_iter, fallback, status, state)
     trace = (
         np.asarray(state.cost_trace, np.float64)
         if state is not None
-        else np.full(config.iterations, np.nan)
+        else np.full(config.cem.iterations, np.nan)
     )
     return Plan(
         x=x,

@@ -16,48 +16,56 @@ method              obstacle samples in the cost                collision term
 ``"saa"``           all n samples                               ``w_saa · Σ_o (π̂_o − ε)₊/ε``
 ==================  ==========================================  ===============================
 
-**Scenario formulation chosen** (SPEC §h.4 describes the reference's, which puts the reduced-set
-collision constraints into its non-convex polar-form projection): here collisions enter as a
+**Scenario formulation chosen** (the authors' reference code puts the reduced-set collision
+constraints into its non-convex polar-form projection instead): here collisions enter as a
 *deterministic collision cost* on the scenario samples, as the paper's Baselines paragraph says.
 Linearised half-planes as projection rows were not chosen: the normal of each half-plane depends on
 the sample's own trajectory, so the constraint matrix would differ per sample and the batched
 projection (one factorisation shared by the batch) would no longer apply.
 
-To add a method: a row in :data:`SELECTION` (which samples: a reduced-set method of
-:mod:`mmdopt.reduced_set`, or ``None`` for all samples) and in :data:`COST_MODE` (which collision
-term of :mod:`mmdopt.collision`).
+To add a method: a row in :data:`SELECTOR` (which samples: a selector of
+:mod:`mmdopt.reduced_set`, or ``None`` for all samples) and in :data:`COLLISION_TERM` (which
+collision term of :mod:`mmdopt.collision`).
 """
 
 from __future__ import annotations
 
+from collections.abc import Mapping
+from types import MappingProxyType
 from typing import Any
 
 import jax
 import jax.numpy as jnp
 import numpy as np
 
-from .reduced_set import ReducedSet, ReducedSetConfig, select_reduced_sets
+from .geometry import Footprint
+from .reduced_set import ReducedSetConfig, select_reduced_sets
+from .samples import ReducedSet
 
-__all__ = ["METHODS", "COST_MODE", "SELECTION", "all_samples_set", "select_for_method"]
+__all__ = ["PLAN_METHODS", "COLLISION_TERM", "SELECTOR", "all_samples_set", "select_for_method"]
 
 #: the planning methods, in the order of the public API (the first is MMD-Opt)
-METHODS = ("mmd", "degroot", "random", "saa", "scenario_all")
-#: collision term used by each method (:mod:`mmdopt.collision`)
-COST_MODE = {
-    "mmd": "mmd",
-    "random": "mmd",
-    "degroot": "scenario",
-    "scenario_all": "scenario",
-    "saa": "saa",
-}
-#: reduced-set method of each method (``None``: plan against all n samples)
-SELECTION: dict[str, str | None] = {
-    "mmd": "mmd",
-    "random": "random",
-    "degroot": "degroot",
-    "scenario_all": None,
-    "saa": None,
-}
+PLAN_METHODS = ("mmd", "degroot", "random", "saa", "scenario_all")
+#: the collision term of each plan method (:data:`mmdopt.collision.COLLISION_TERMS`)
+COLLISION_TERM = MappingProxyType(
+    {
+        "mmd": "mmd",
+        "random": "mmd",
+        "degroot": "scenario",
+        "scenario_all": "scenario",
+        "saa": "saa",
+    }
+)
+#: the reduced-set selector of each plan method (``None``: plan against all n samples)
+SELECTOR: Mapping[str, str | None] = MappingProxyType(
+    {
+        "mmd": "mmd",
+        "random": "random",
+        "degroot": "degroot",
+        "scenario_all": None,
+        "saa": None,
+    }
+)
 
 
 def all_samples_set(n: int, O: int) -> ReducedSet:
@@ -83,20 +91,23 @@ def select_for_method(
     *,
     lateral_scale: float = 1.0,
     ego_guess: np.ndarray | None = None,
+    footprint: Footprint | None = None,
 ) -> ReducedSet:
     """The obstacle samples ``method`` plans against, as a :class:`ReducedSet` (leading axis O).
 
     ``obstacles_frenet`` (O, n, K, 2) in the planning frame; ``lateral_scale`` multiplies the
     lateral offsets in the selection's kernel features (an anisotropic kernel: lateral intents
     count more than longitudinal spread; not for "degroot", which scores conflicts in metres);
-    ``ego_guess`` (K, 2) is the constant-velocity ego guess "degroot" scores against.
+    ``ego_guess`` (K, 2) is the constant-velocity ego guess "degroot" scores against, with the
+    collision ellipse ``footprint`` (the planner's: ``config.safety.footprint``).
     """
     O, n = obstacles_frenet.shape[:2]
-    sel = SELECTION[method]
+    sel = SELECTOR[method]
     if sel is None:
         return all_samples_set(n, O)
     feats = obstacles_frenet
     if sel != "degroot" and float(lateral_scale) != 1.0:
         feats = obstacles_frenet * np.array([1.0, float(lateral_scale)])
-    rs = select_reduced_sets(key, feats, m, sel, config, ego_guess if sel == "degroot" else None)
+    guess = ego_guess if sel == "degroot" else None
+    rs = select_reduced_sets(key, feats, m, sel, config, guess, footprint)
     return jax.block_until_ready(rs)

@@ -4,7 +4,8 @@ Everything about *what counts as a collision* lives here, once:
 
 - **Footprints** (paper §"Extension to ... Shapes"): circles at signed offsets along the body's
   heading, ``centre_c = (x + r_c cos ψ, y + r_c sin ψ)``; the heading of a trajectory from finite
-  differences of its waypoints, last value repeated (SPEC §f).  Obstacles: 3 circles at
+  differences of its waypoints, last value repeated (as the reference code does).  Obstacles:
+  3 circles at
   ``r ∈ {0, +2.5, −2.5}`` m (reference), ego a point.
 - **The ellipse** ``f = 1 − Δs²/a² − Δd²/b²`` (eq. coll_constraints), ``f̄ = max(0, f)``
   (eq. f_bar), with the nominal semi-axes :data:`ELLIPSE_A` = 4.5 m (longitudinal) and
@@ -14,7 +15,7 @@ Everything about *what counts as a collision* lives here, once:
   :func:`mmd_cost` (eq. l_dist, MMD-Opt), :func:`scenario_cost` (deterministic scenario cost,
   de Groot / all samples), :func:`saa_cost` (sample-average chance constraint).
 - **The reference surrogate** :func:`mmd_surrogate` (circles stacked as kernel samples, any frame)
-  and the **metric** :func:`collision_free_count` (validation samples avoided, SPEC §h).
+  and the **metric** :func:`collision_free_count` (validation samples avoided, paper §V "Metrics").
 
 MMD surrogate details (:func:`mmd_surrogate`): per obstacle and time step, the samples
 p = (j, e, c) form the embedding μ_f̄ = Σ_p ᾱ_j φ(s·f̄_p) (weights replicated over circle pairs,
@@ -31,7 +32,6 @@ import dataclasses
 import math
 from collections.abc import Sequence
 from dataclasses import dataclass, field
-from typing import TYPE_CHECKING
 
 import jax
 import jax.numpy as jnp
@@ -40,10 +40,16 @@ from jax import lax
 from numpy.typing import ArrayLike
 
 from ._x64 import x64
+from .geometry import (
+    EGO_FOOTPRINT,
+    ELLIPSE_A,
+    ELLIPSE_B,
+    OBSTACLE_FOOTPRINT,
+    CircleFootprint,
+    Footprint,
+)
 from .kernels import mmd2_to_dirac
-
-if TYPE_CHECKING:  # reduced_set imports this module
-    from .reduced_set import ReducedSet
+from .samples import ReducedSet, check_reduced_set, check_weights
 
 __all__ = [
     "ELLIPSE_A",
@@ -70,38 +76,11 @@ __all__ = [
     "CollisionCounts",
     "collision_free_count",
     "check_weights",
-    "COLLISION_MODES",
+    "COLLISION_TERMS",
     "collision_cost",
 ]
 
 #: nominal collision ellipse semi-axes (m): longitudinal a, lateral b (reference values)
-ELLIPSE_A = 4.5
-ELLIPSE_B = 3.5
-
-
-# ------------------------------------------------------------------------------------ footprints
-@jax.tree_util.register_dataclass
-@dataclass(frozen=True)
-class CircleFootprint:
-    """Circles along the heading at signed ``offsets`` (m).  The number of circles is static
-    (it sets array shapes); the offset values are pytree leaves."""
-
-    offsets: tuple[float, ...] = field(default=(0.0,))
-
-    def __post_init__(self):
-        if len(self.offsets) < 1:
-            raise ValueError("offsets must name at least one circle")
-
-    @property
-    def n_circles(self) -> int:
-        return len(self.offsets)
-
-    def offsets_array(self) -> jax.Array:
-        return jnp.stack([jnp.asarray(o, dtype=float) for o in self.offsets])
-
-
-OBSTACLE_FOOTPRINT = CircleFootprint(offsets=(0.0, 2.5, -2.5))
-EGO_FOOTPRINT = CircleFootprint(offsets=(0.0,))
 
 
 def headings(xy: ArrayLike) -> jax.Array:
@@ -362,15 +341,15 @@ class SurrogateConfig:
 
     bandwidth : Gaussian kernel σ on the scaled f̄ (reference 30)
     f_scale : f̄ is multiplied by this before the kernel (reference 1)
-    a, b : ellipse semi-axes (m) along x (longitudinal) and y (lateral)
+    footprint : the collision ellipse (:class:`~mmdopt.Footprint`: semi-axes ``a`` along x,
+        ``b`` along y, in m)
     ego_footprint : circles along the ego heading (default one circle at 0: a point)
     stack_circles : static; see module docstring
     """
 
     bandwidth: float = 30.0
     f_scale: float = 1.0
-    a: float = ELLIPSE_A
-    b: float = ELLIPSE_B
+    footprint: Footprint = field(default_factory=Footprint)
     ego_footprint: CircleFootprint = EGO_FOOTPRINT
     stack_circles: bool = field(default=True, metadata=dict(static=True))
 
@@ -429,41 +408,22 @@ def reduced_obstacles(
 
 
 def _check_reduced_obstacles_inputs(samples, reduced) -> None:
-    from .reduced_set import ReducedSet
-
     if isinstance(reduced, list | tuple):
         if len(reduced) == 0 or len(reduced) != len(samples):
             raise ValueError(
                 f"reduced must hold one ReducedSet per obstacle ({len(samples)}), got "
                 f"{len(reduced)}"
             )
-        pairs = [(np.shape(samples[o]), r, f"reduced[{o}]") for o, r in enumerate(reduced)]
+        pairs = [(np.shape(samples[o]), r, f"reduced[{o}]", None) for o, r in enumerate(reduced)]
     else:
         shape = np.shape(samples)
         if len(shape) != 4 or shape[-1] != 2:
             raise ValueError(f"samples must have shape (O, n, K, 2), got {shape}")
-        pairs = [(shape[1:], reduced, "reduced")]
-        if isinstance(reduced, ReducedSet) and np.shape(reduced.indices)[:1] != shape[:1]:
-            raise ValueError(
-                f"reduced.indices must have shape (O, m) with O = {shape[0]}, got "
-                f"{np.shape(reduced.indices)}"
-            )
-    for sshape, r, name in pairs:
-        if not isinstance(r, ReducedSet):
-            raise ValueError(f"{name} must be an mmdopt.ReducedSet, got {type(r).__name__}")
+        pairs = [(shape[1:], reduced, "reduced", shape[0])]
+    for sshape, r, name, O in pairs:
         if len(sshape) != 3 or sshape[-1] != 2:
             raise ValueError(f"samples of {name} must have shape (n, K, 2), got {sshape}")
-        n = sshape[0]
-        idx = r.indices
-        check_weights(r.weights, f"{name}.weights", np.shape(idx))
-        if _concrete(idx):
-            i = np.asarray(idx)
-            if not np.issubdtype(i.dtype, np.integer):
-                raise ValueError(f"{name}.indices must be integers, got {i.dtype}")
-            if i.size and (i.min() < 0 or i.max() >= n):
-                raise ValueError(
-                    f"{name}.indices must lie in [0, {n}) (n samples), got {i.min()}…{i.max()}"
-                )
+        check_reduced_set(r, sshape[0], name, O)
 
 
 def ellipse_f(ego: ArrayLike, obs: ArrayLike, a: ArrayLike, b: ArrayLike) -> jax.Array:
@@ -483,7 +443,8 @@ def _terms_one(ego_c: jax.Array, obstacles: ReducedObstacles, cfg: SurrogateConf
     O, m, C, K, _ = oc.shape
     E = ego_c.shape[0]
     # (O, m, E, C, K)
-    fb = f_bar(ego_c[None, None, :, None], oc[:, :, None], cfg.a, cfg.b) * cfg.f_scale
+    fb = f_bar(ego_c[None, None, :, None], oc[:, :, None], cfg.footprint.a, cfg.footprint.b)
+    fb = fb * cfg.f_scale
     w = obstacles.weights
     if cfg.stack_circles:
         a = jnp.moveaxis(fb, -1, 1).reshape(O, K, m * E * C)  # samples p = (j, e, c)
@@ -499,24 +460,6 @@ def _ego_centres(ego_xy, cfg, ego_heading):
 
 def _concrete(x) -> bool:
     return not isinstance(x, jax.core.Tracer)
-
-
-def check_weights(weights, name: str = "weights", shape: tuple | None = None) -> None:
-    """``ValueError`` naming ``name`` unless ``weights`` (..., m) has ``shape`` (if given) and,
-    when concrete, is finite, ``>= 0`` and sums to 1 over its last axis (a mixture ᾱ)."""
-    wshape = tuple(np.shape(weights))
-    if shape is not None and wshape != tuple(shape):
-        raise ValueError(f"{name} must have shape {tuple(shape)}, got {wshape}")
-    if not _concrete(weights):
-        return
-    w = np.asarray(weights, dtype=np.float64)
-    if not np.all(np.isfinite(w)):
-        raise ValueError(f"{name} contains NaN or inf")
-    if np.any(w < 0):
-        raise ValueError(f"{name} must be >= 0 (a negative weight rewards collision): {w.min()}")
-    sums = w.sum(axis=-1)
-    if not np.allclose(sums, 1.0, atol=1e-6):
-        raise ValueError(f"{name} must sum to 1 per obstacle, got sums {np.round(sums, 6)}")
 
 
 def _check_surrogate(ego_xy, obstacles, config) -> None:
@@ -538,8 +481,12 @@ def _check_surrogate(ego_xy, obstacles, config) -> None:
     for name, arr in (("ego_xy", ego_xy), ("obstacles.centres", obstacles.centres)):
         if _concrete(arr) and not np.all(np.isfinite(np.asarray(arr))):
             raise ValueError(f"{name} contains NaN or inf")
-    for name in ("bandwidth", "f_scale", "a", "b"):
-        v = getattr(config, name)
+    for name, v in (
+        ("bandwidth", config.bandwidth),
+        ("f_scale", config.f_scale),
+        ("footprint.a", config.footprint.a),
+        ("footprint.b", config.footprint.b),
+    ):
         if _concrete(v) and not (np.isfinite(float(v)) and float(v) > 0):
             raise ValueError(f"config.{name} must be positive and finite, got {v}")
 
@@ -601,7 +548,7 @@ mmd_surrogate_terms._cache_size = _surrogate_terms._cache_size  # type: ignore[a
 @jax.tree_util.register_dataclass
 @dataclass(frozen=True)
 class CollisionCounts:
-    """Evaluation on validation samples (SPEC §h).
+    """Evaluation on validation samples (the paper's collision-free count).
 
     colliding : (..., O, N) bool, sample n of obstacle o has f̄ > 0 for some circle pair and step
     per_obstacle : (..., O) int, collision-free samples per obstacle (N − Σ colliding)
@@ -639,7 +586,9 @@ def collision_free_count(
     b: float = ELLIPSE_B,
     ego_heading: ArrayLike | None = None,
 ) -> CollisionCounts:
-    """Count validation samples the ego plan(s) avoid (SPEC §h: any f̄ > 0, any circle, any step).
+    """Count validation samples the ego plan(s) avoid (any f̄ > 0 at any circle and any step: a
+    sample
+    counts as a collision as soon as the ego enters its ellipse once).
 
     Parameters
     ----------
@@ -684,7 +633,9 @@ def collision_free_count(
 
 
 # --------------------------------------------------------- the collision term, obstacle by obstacle
-COLLISION_MODES = ("mmd", "scenario", "saa")
+#: the collision terms: "mmd" (l_dist, eq. l_dist), "scenario" (deterministic scenario cost),
+#: "saa" (sample-average chance constraint)
+COLLISION_TERMS = ("mmd", "scenario", "saa")
 
 
 def _term(mode, f, weights, mask, bandwidth, f_scale, n_terms, saa_eps, saa_temperature):
@@ -729,8 +680,8 @@ def collision_cost(
     first bounded from the per-step intervals of ego and obstacle positions, so far traffic
     costs O(B·K) and the cost grows with the number of *interacting* obstacles.
     """
-    if mode not in COLLISION_MODES:
-        raise ValueError(f"mode must be one of {COLLISION_MODES}, got {mode!r}")
+    if mode not in COLLISION_TERMS:
+        raise ValueError(f"mode must be one of {COLLISION_TERMS}, got {mode!r}")
     kw = (bandwidth, f_scale, n_terms, saa_eps, saa_temperature)
     if centres.shape[0] == 1:
         return _term(

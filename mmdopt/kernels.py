@@ -4,7 +4,7 @@ Kernel: ``κ(x, y) = exp(−‖x − y‖² / (2σ²))`` with bandwidth ``σ`` (
 
 Why not the textbook expansion ``wᵀK_xx w − 2 wᵀK_xy u + uᵀK_yy u``: every term is O((Σw)²) while
 the difference can be many orders smaller, so float32 loses everything below ~1e-7·(Σw)² (the
-reference code's MMD surrogate sits at that rounding floor, SPEC §f).  Here every MMD is written in
+reference code's MMD surrogate sits at that rounding floor).  Here every MMD is written in
 terms of ``D = 1 − κ = −expm1(−d²/(2σ²))``, which is accurate for small distances, and the
 Dirac-at-zero case (the collision surrogate) is factorised into a sum of non-negative terms:
 

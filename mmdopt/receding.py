@@ -42,7 +42,7 @@ import frenet
 from . import algorithm
 from .algorithm import PLANNER_BACKEND, MMDOptConfig
 from .api import Plan, Road, plan
-from .baselines import METHODS
+from .baselines import PLAN_METHODS
 
 __all__ = [
     "Observation",
@@ -64,7 +64,8 @@ class Observation:
     ego : :class:`frenet.EgoState` in the Frenet frame of ``road.path``
     road : :class:`mmdopt.Road` (path, lane bounds, kinematic limits)
     obstacles : (O, n, K, 2) Cartesian samples of the obstacles' futures on the planner's grid
-        (``K = config.num_steps`` over ``config.horizon``; ``t = 0`` is now); O may be 0 (an
+        (``K = config.trajectory.num_steps`` over ``config.trajectory.horizon``; ``t = 0`` is
+        now); O may be 0 (an
         empty road: the loop then plans against one phantom obstacle far behind, see
         :func:`pad_obstacles`)
     time : simulation time (s)
@@ -140,8 +141,10 @@ class RecedingConfig:
             )
         if not (isinstance(self.budget_s, int | float) and self.budget_s > 0):
             raise ValueError(f"RecedingConfig.budget_s must be > 0, got {self.budget_s!r}")
-        if self.method not in METHODS:
-            raise ValueError(f"RecedingConfig.method must be one of {METHODS}, got {self.method!r}")
+        if self.method not in PLAN_METHODS:
+            raise ValueError(
+                f"RecedingConfig.method must be one of {PLAN_METHODS}, got {self.method!r}"
+            )
         if self.max_obstacles is not None and (
             isinstance(self.max_obstacles, bool)
             or not isinstance(self.max_obstacles, int)
@@ -259,7 +262,7 @@ def warm_up(obs: Observation, receding: RecedingConfig, config: MMDOptConfig, ke
     wall time (s), i.e. mostly JIT compilation.  Results are discarded; the loop's own plans are
     unaffected (they use their own keys)."""
     key = jax.random.PRNGKey(0) if key is None else key
-    t_grid = frenet.TimeGrid(config.horizon, config.num_steps).t
+    t_grid = frenet.TimeGrid(config.trajectory.horizon, config.trajectory.num_steps).t
     t0 = time.perf_counter()
     p, _ = _plan_once(obs, receding, config, key, None, t_grid)
     if receding.warm_start:
@@ -299,14 +302,15 @@ def run_receding(
         raise ValueError(f"receding must be a RecedingConfig, got {type(rc).__name__}")
     if not isinstance(config, MMDOptConfig):
         raise ValueError(f"config must be an mmdopt.MMDOptConfig, got {type(config).__name__}")
-    if rc.dt > config.horizon:
+    if rc.dt > config.trajectory.horizon:
         raise ValueError(
-            f"RecedingConfig.dt = {rc.dt} s exceeds the planner's horizon {config.horizon} s"
+            f"RecedingConfig.dt = {rc.dt} s exceeds the planner's horizon "
+            f"{config.trajectory.horizon} s"
         )
     if not (callable(getattr(source, "observe", None)) and callable(getattr(source, "step", None))):
         raise ValueError("source must have observe() and step(trajectory, dt) (a SceneSource)")
     key = jax.random.PRNGKey(0) if key is None else key
-    t_grid = frenet.TimeGrid(config.horizon, config.num_steps).t
+    t_grid = frenet.TimeGrid(config.trajectory.horizon, config.trajectory.num_steps).t
     steps: list[StepRecord] = []
     warm = None
     crashed = done = False

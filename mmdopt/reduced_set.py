@@ -1,6 +1,6 @@
 """Reduced-set selection: choose m of n obstacle-trajectory samples and their weights ᾱ.
 
-One signature for every method (paper §"Proposed Reduced-Set Selection", SPEC §e)::
+One signature for every method (paper §"Proposed Reduced-Set Selection")::
 
     rs = select_reduced_set(key, samples, m, method="mmd", config=ReducedSetConfig())
     rs.indices (m,), rs.weights (m,) summing to 1, rs.alpha (n,), rs.method, rs.mmd2, rs.bandwidth
@@ -12,16 +12,16 @@ Methods
                   J(α) = αᵀKα − (2/n)1ᵀKα + (1/n²)1ᵀK1 − β Σ_top-m|α| / Σ_bottom-(n−m)|α|
               i.e. the **exact** squared MMD between the uniform embedding and the α-weighted one.
               The reference code (and the paper's displayed expansion) halves the linear term,
-              whose unpenalised minimiser is then 1/(2n) instead of 1/n (SPEC §e); fixed here.
+              whose unpenalised minimiser is then 1/(2n) instead of 1/n; fixed here.
               The ratio's denominator is guarded: ``bottom + ratio_eps·(top + bottom)`` (the ratio
-              is therefore ≤ 1/ratio_eps; the reference's is unbounded, SPEC §8).
+              is therefore ≤ 1/ratio_eps; the reference's is unbounded).
               CEM as the reference (population 100, 20 elites kept, 100 iterations, Σ₀ = 5I,
               Σ ← cov(elites) + 0.01I) but as a ``lax.scan`` (not unrolled) with a fresh PRNG key
               every iteration (the reference reuses one), and the best α seen over all
               iterations is returned (the reference: best of the last; with elitism these agree).
               The reduced set is the m largest |α*_j|.
               Three defaults differ from the reference, by measurement (40 two-intent mixtures,
-              n = 100, m = 10, docs/benchmarks.md): CEM runs over u with α = u/n
+              n = 100, m = 10, docs/experiments/synthetic.md): CEM runs over u with α = u/n
               (``alpha_scale=None``; the reference samples α itself, where the 0.01·I floor alone
               adds ≈ 0.01·tr K = 1 of noise to an MMD whose differences are ≈ 1e-3, so its
               selection is noise-driven), β = 0.01 (on that scale the ratio is O(1) and the MMD
@@ -30,7 +30,8 @@ Methods
               4.3e-3 / 4.9e-3 for a random subset; herding reaches 1.2e-3 / 1.3e-3.  (The median
               over 40 mixtures moves by ≈ ±30 % with the random stream alone.)
               ``ReducedSetConfig.reference()`` restores the reference's settings.
-              Implementation (speed, docs/benchmarks.md): the CEM ranks in float32 (the MMD² is
+              Implementation (speed, docs/experiments/synthetic.md): the CEM ranks in float32 (the
+              MMD² is
               evaluated as (α − 1/n)ᵀK(α − 1/n), without cancellation), every normal draw is made
               in one call before the scan, and the top-m sum of |α| is a radix select on the
               float bit patterns (no sort).  Above n = 256 samples (``sampler="auto"``) Σ is
@@ -62,7 +63,7 @@ Weights of the m selected samples (``config.weights``), the same for every metho
 Features are the flattened waypoints ``samples.reshape(n, 2K) * feature_scale`` (predictor-agnostic;
 the reference uses its generator's coefficient vectors instead).  Kernel bandwidth: the median
 heuristic on those features unless ``config.bandwidth`` is set (the reference's σ = 30 was on
-coefficient vectors and makes K nearly flat: rank ≈ 5, SPEC §e).
+coefficient vectors and makes K nearly flat: rank ≈ 5).
 """
 
 from __future__ import annotations
@@ -77,11 +78,12 @@ import numpy as np
 from numpy.typing import ArrayLike
 
 from ._x64 import x64
-from .collision import ELLIPSE_A, ELLIPSE_B
+from .geometry import Footprint
 from .kernels import gaussian_gram, median_heuristic, one_minus_gaussian_gram
+from .samples import ReducedSet
 
 __all__ = [
-    "METHODS",
+    "SELECTORS",
     "WEIGHT_MODES",
     "ReducedSetConfig",
     "ReducedSet",
@@ -93,12 +95,14 @@ __all__ = [
     "reduced_set_objective",
 ]
 
-METHODS = ("mmd", "herding", "random", "degroot")
+#: the reduced-set selectors (``method=`` of :func:`select_reduced_set`)
+SELECTORS = ("mmd", "herding", "random", "degroot")
 WEIGHT_MODES = ("simplex", "kkt", "uniform")
 #: how the CEM draws from N(μ, Σ): "cholesky" (a Cholesky of the n × n Σ every iteration,
 #: O(n³)), "factor" (Σ kept as a·I + L Lᵀ with L the last ``cov_window`` elite sets, O(n·E·W)
 #: per draw, no factorisation), "auto" = "factor" when n > FACTOR_MIN_N.  Measured
-#: (benchmarks/reduced_set_timing.py --samplers, docs/benchmarks.md): the same MMD² of the
+#: (benchmarks/reduced_set_timing.py --samplers, docs/experiments/synthetic.md): the same MMD² of
+#: the
 #: refined set; Cholesky is faster at n ≤ 200, the factor 56× at n = 300 and 39× at n = 1000.
 SAMPLERS = ("auto", "cholesky", "factor")
 FACTOR_MIN_N = 256
@@ -127,7 +131,7 @@ class ReducedSetConfig:
     # static: sizes and modes
     population: int = _static(100)
     n_elite: int = _static(20)
-    iterations: int = _static(75)  # reference: 100 (equal quality at 75, docs/benchmarks.md)
+    iterations: int = _static(75)  # reference: 100 (equal quality at 75, synthetic results)
     weights: str = _static("simplex")
     simplex_iterations: int = _static(300)
     sampler: str = _static("auto")  # see SAMPLERS
@@ -146,8 +150,6 @@ class ReducedSetConfig:
     ratio_eps: float = 1e-6  # relative guard of the ratio's denominator
     ridge: float = 0.01  # ρ in the refinement QP (reference: 0.01)
     gram_tol: float = 1e-9  # "lowrank": largest residual diag(K − LLᵀ) accepted, else full K
-    a: float = ELLIPSE_A  # "degroot" ellipse semi-axes (m)
-    b: float = ELLIPSE_B
 
     def replace(self, **kw) -> ReducedSetConfig:
         return dataclasses.replace(self, **kw)
@@ -197,7 +199,7 @@ class ReducedSetConfig:
             raise ValueError(f"ReducedSetConfig.weights must be a string, got {self.weights!r}")
         # leaves (checked when concrete: inside a trace they are tracers)
         # (bandwidth: its sign is checked by select_reduced_set, naming config.bandwidth)
-        positive = ("sigma0", "ratio_eps", "a", "b", "feature_scale", "alpha_scale", "gram_tol")
+        positive = ("sigma0", "ratio_eps", "feature_scale", "alpha_scale", "gram_tol")
         nonneg = ("beta", "cov_reg", "ridge")
         for f in dataclasses.fields(self):
             if f.metadata.get("static"):
@@ -221,27 +223,6 @@ class ReducedSetConfig:
                 raise ValueError(f"ReducedSetConfig.{f.name} must be >= 0, got {v}")
             if f.name == "smoothing" and not 0 <= x < 1:
                 raise ValueError(f"ReducedSetConfig.smoothing must lie in [0, 1), got {v}")
-
-
-@jax.tree_util.register_dataclass
-@dataclass(frozen=True)
-class ReducedSet:
-    """Result of a reduced-set selection (a pytree; ``method`` is static).
-
-    indices : (m,) int, positions in ``samples``, ordered by decreasing importance
-    weights : (m,) ᾱ, summing to 1
-    alpha : (n,) the CEM solution α* for "mmd"; for other methods ᾱ scattered into zeros
-    mmd2 : () squared MMD between the uniform embedding of all n samples and the ᾱ-weighted
-        reduced one (same kernel), a diagnostic of how well the set represents the samples
-    bandwidth : () the kernel bandwidth used
-    """
-
-    indices: jax.Array
-    weights: jax.Array
-    alpha: jax.Array
-    mmd2: jax.Array
-    bandwidth: jax.Array
-    method: str = _static("mmd")
 
 
 # ---------------------------------------------------------------------------------------------
@@ -338,7 +319,8 @@ def _top_m_sum(v: jax.Array, m: int) -> jax.Array:
     differ, each step one compare-and-count over the population, stopping once every row has
     exactly m entries ≥ the prefix (usually after a few mantissa bits; ties need every bit);
     then ``Σ_{v≥τ} v`` (or ``Σ_{v>τ} v + (m − #{v>τ})·τ`` with ties at τ).  XLA's CPU sort /
-    ``top_k`` and a pairwise-rank mask are 5–10× slower at the CEM's sizes (docs/benchmarks.md).
+    ``top_k`` and a pairwise-rank mask are 5–10× slower at the CEM's sizes
+    (docs/experiments/synthetic.md).
     """
     ut = jnp.uint32 if v.dtype == jnp.float32 else jnp.uint64
     nbits = 32 if v.dtype == jnp.float32 else 64
@@ -610,6 +592,7 @@ def select_reduced_set_unchecked(
     config: ReducedSetConfig = ReducedSetConfig(),  # noqa: B008 (frozen, hashable)
     ego_guess: ArrayLike | None = None,
     axis_name: str | None = None,
+    footprint: Footprint | None = None,
 ) -> ReducedSet:
     """Jitted core of :func:`select_reduced_set`, without input validation (traceable).
 
@@ -644,7 +627,8 @@ def select_reduced_set_unchecked(
     elif method == "degroot":
         ego = jnp.asarray(ego_guess, dtype=samples.dtype)
         d = ego[None] - samples  # (n, K, 2)
-        f = 1.0 - d[..., 0] ** 2 / config.a**2 - d[..., 1] ** 2 / config.b**2
+        fp = Footprint() if footprint is None else footprint
+        f = 1.0 - d[..., 0] ** 2 / fp.a**2 - d[..., 1] ** 2 / fp.b**2
         g = jnp.max(f, axis=-1)
         _, idx = jax.lax.top_k(g, m)
     else:  # pragma: no cover - validated by the wrapper
@@ -668,9 +652,11 @@ def _is_concrete(x) -> bool:
     return not isinstance(x, jax.core.Tracer)
 
 
-def _validate(key, samples, m, method, config, ego_guess, batched: bool):
-    if method not in METHODS:
-        raise ValueError(f"method must be one of {METHODS}, got {method!r}")
+def _validate(key, samples, m, method, config, ego_guess, batched: bool, footprint=None):
+    if method not in SELECTORS:
+        raise ValueError(f"method must be one of {SELECTORS}, got {method!r}")
+    if footprint is not None and not isinstance(footprint, Footprint):
+        raise ValueError(f"footprint must be an mmdopt.Footprint, got {type(footprint).__name__}")
     if not isinstance(config, ReducedSetConfig):
         raise ValueError(f"config must be a ReducedSetConfig, got {type(config).__name__}")
     if isinstance(m, bool) or not isinstance(m, int | np.integer):
@@ -719,6 +705,7 @@ def select_reduced_set(
     method: str = "mmd",
     config: ReducedSetConfig | None = None,
     ego_guess: ArrayLike | None = None,
+    footprint: Footprint | None = None,
 ) -> ReducedSet:
     """Select a reduced set of ``m`` of the ``n`` obstacle-trajectory samples, with weights.
 
@@ -730,6 +717,8 @@ def select_reduced_set(
     method : "mmd" | "herding" | "random" | "degroot" (see module docstring)
     config : :class:`ReducedSetConfig`
     ego_guess : (K, 2) ego initial-guess trajectory, required for "degroot"
+    footprint : the collision ellipse "degroot" scores with (default :class:`Footprint`(): the
+        planner's default; :func:`mmdopt.plan` passes its config's ``safety.footprint``)
 
     Returns
     -------
@@ -741,14 +730,18 @@ def select_reduced_set(
     m < 1 or m > n, missing ego_guess for "degroot".
     """
     config = ReducedSetConfig() if config is None else config
-    m = _validate(key, samples, m, method, config, ego_guess, batched=False)
-    return select_reduced_set_unchecked(key, samples, m, method, config, ego_guess)
+    m = _validate(key, samples, m, method, config, ego_guess, False, footprint)
+    return select_reduced_set_unchecked(
+        key, samples, m, method, config, ego_guess, footprint=footprint
+    )
 
 
 @partial(jax.jit, static_argnames=("m", "method"))
-def _select_many(keys, samples, m, method, config, ego_guess):
+def _select_many(keys, samples, m, method, config, ego_guess, footprint):
     return jax.vmap(
-        lambda k, s: select_reduced_set_unchecked(k, s, m, method, config, ego_guess, "obstacles"),
+        lambda k, s: select_reduced_set_unchecked(
+            k, s, m, method, config, ego_guess, "obstacles", footprint
+        ),
         axis_name="obstacles",
     )(keys, samples)
 
@@ -761,17 +754,20 @@ def select_reduced_sets(
     method: str = "mmd",
     config: ReducedSetConfig | None = None,
     ego_guess: ArrayLike | None = None,
+    footprint: Footprint | None = None,
 ) -> ReducedSet:
     """:func:`select_reduced_set` for O obstacles at once (vmapped; one key per obstacle).
 
     samples : (O, n, K, 2); returns a :class:`ReducedSet` whose arrays have a leading axis O.
     """
     config = ReducedSetConfig() if config is None else config
-    m = _validate(key, samples, m, method, config, ego_guess, batched=True)
+    m = _validate(key, samples, m, method, config, ego_guess, True, footprint)
     keys = jax.random.split(key, np.shape(samples)[0])
     if np.shape(samples)[0] == 1:
         # one obstacle (the common case): the unbatched jit; vmap over a batch of one only adds
         # batched-while-loop overhead (≈ 8 ms of ≈ 30 ms measured), with the same key
-        one = select_reduced_set_unchecked(keys[0], samples[0], m, method, config, ego_guess)
+        one = select_reduced_set_unchecked(
+            keys[0], samples[0], m, method, config, ego_guess, footprint=footprint
+        )
         return jax.tree_util.tree_map(lambda a: a[None], one)
-    return _select_many(keys, samples, m, method, config, ego_guess)
+    return _select_many(keys, samples, m, method, config, ego_guess, footprint)

@@ -1,28 +1,32 @@
-"""One risk knob per planner: a target collision probability ε, and what follows from it.
+"""The risk level: a target collision probability ε, and what follows from it.
 
-Every planning method of :mod:`mmdopt.baselines` takes the same knob, ``risk`` = **ε, the target
-probability that the plan collides with an obstacle's future** (1000 · (1 − ε) is the target
-collision-free count of the benchmarks' metric).  :func:`config_for_risk` derives that method's
-margins, weights and chance level from ε; :func:`mmdopt.plan` does it for ``plan(..., risk=ε)``.
-Since Session 13 the default :class:`~mmdopt.MMDOptConfig` *is* this mapping at ε =
-``risk_eps`` = 0.005 for every method (``margin_mode="samples"``, ``w_cover`` = 100, automatic
-``reselect`` and SAA chance level), so ``plan(..., method=m)`` plans as ``plan(..., method=m,
-risk=0.005)``; ``MMDOptConfig(margin_mode="linear")`` keeps the old time-linear constants.
+``risk`` = ε is **the probability, under the predictor's distribution of futures, that the
+plan's footprint meets an obstacle** (the collision ellipse of :class:`mmdopt.Footprint`
+entered at any step by a future drawn from the same distribution as the planning samples);
+1000 · (1 − ε) is the target collision-free count of the benchmarks' metric, which measures
+exactly that on independent validation futures.  Every planning method of
+:mod:`mmdopt.baselines` takes the same level: :func:`config_for_risk` derives the method's
+margins, weights and chance level from ε, and :func:`mmdopt.plan` does it for
+``plan(..., risk=ε)``.  The default :class:`~mmdopt.MMDOptConfig` *is* this mapping at
+ε = ``safety.risk`` = 0.005 for every method (``margin_mode="samples"``, ``w_cover`` = 100,
+automatic ``reselect`` and SAA chance level), so ``plan(..., method=m)`` plans as
+``plan(..., method=m, risk=0.005)``; ``MMDOptConfig().replace(margin_mode="linear")`` keeps the
+time-linear constants of the paper reproduction.
 
 ==================  =====================================================================
 method              what ε sets
 ==================  =====================================================================
-``"mmd"``           (also: a second, warm-started pass of Algorithm 1 with the m/2
-                    samples in deepest conflict with the first plan added to the reduced
-                    set, ``reselect``, after skipping the ⌊ε·n⌋ deepest: the conflicts
-                    a chance constraint at level ε may leave)
-                    sample-driven margins (``margin_mode="samples"``): every reduced-set
-``"random"``        point's ellipse is inflated, per time step, to contain the planning
-``"degroot"``       samples of its cluster (the samples nearer to it than to any other
-                    point) with probability 1 − ε under a Gaussian fit (z = Φ⁻¹(1 − ε));
-                    the weights ᾱ and w_mmd / w_coll are unchanged; the MMD cost
-                    ("mmd", "random") adds ``w_cover`` = 100 × Σ f̄ on the inflated
-                    ellipses (entering any costs, whatever ᾱ)
+``"mmd"``           sample-driven margins (``margin_mode="samples"``): every reduced-set
+                    point's ellipse is inflated, per time step, to contain the planning
+                    samples of its cluster (those nearer to it than to any other point)
+                    with probability 1 − ε under a Gaussian fit (z = Φ⁻¹(1 − ε)); the
+                    MMD cost adds ``w_cover`` = 100 × Σ f̄ on the inflated ellipses
+                    (entering any costs, whatever ᾱ); and a second, warm-started pass
+                    with the m/2 samples in deepest conflict with the first plan added
+                    to the reduced set (``reselect``), after skipping the ⌊ε·n⌋ deepest
+                    (the conflicts a chance constraint at level ε may leave)
+``"random"``        the same margins and coverage term, no second pass
+``"degroot"``       the same margins (its scenario cost is unchanged)
 ``"scenario_all"``  the same margins, each sample's cluster being its ``n // m`` nearest
                     samples (it plans against every sample already: the margin covers
                     the tail beyond the n samples)
@@ -43,29 +47,33 @@ for the same quantity: ≈ 1 σ of the speed spread integrated over time.
 from __future__ import annotations
 
 import math
+from collections.abc import Mapping
 from statistics import NormalDist
+from types import MappingProxyType
 
 import numpy as np
 
-from .algorithm import W_COVER, MMDOptConfig
-from .baselines import METHODS, SELECTION
+from .baselines import PLAN_METHODS, SELECTOR
+from .config import W_COVER, MMDOptConfig
 
 __all__ = ["DEFAULT_RISK", "config_for_risk", "coverage_margins", "risk_z", "check_risk"]
 
 #: the default knob of every method (target collision probability ε); each reproduces a
-#: sensible operating point (docs/frontier.md)
-DEFAULT_RISK: dict[str, float] = {
-    "mmd": 0.005,
-    "random": 0.005,
-    "degroot": 0.005,
-    "scenario_all": 0.005,
-    "saa": 0.005,
-}
+#: sensible operating point (docs/experiments/frontier.md)
+DEFAULT_RISK: Mapping[str, float] = MappingProxyType(
+    {
+        "mmd": 0.005,
+        "random": 0.005,
+        "degroot": 0.005,
+        "scenario_all": 0.005,
+        "saa": 0.005,
+    }
+)
 
 
 def check_risk(risk: float, name: str = "risk") -> float:
     """``risk`` as a float in (0, 0.5), else ``ValueError`` naming ``name``."""
-    if isinstance(risk, bool):
+    if isinstance(risk, bool | str | bytes | complex):
         raise ValueError(f"{name} must be a number in (0, 0.5), got {risk!r}")
     try:
         r = float(risk)
@@ -90,19 +98,19 @@ def config_for_risk(
     See the module docstring for each method's mapping.  Raises ``ValueError`` for an unknown
     method or a risk outside (0, 0.5).
     """
-    if method not in METHODS:
-        raise ValueError(f"method must be one of {METHODS}, got {method!r}")
+    if method not in PLAN_METHODS:
+        raise ValueError(f"method must be one of {PLAN_METHODS}, got {method!r}")
     eps = DEFAULT_RISK[method] if risk is None else check_risk(risk)
     cfg = MMDOptConfig() if config is None else config
     if not isinstance(cfg, MMDOptConfig):
         raise ValueError(f"config must be an MMDOptConfig, got {type(cfg).__name__}")
-    kw: dict = dict(margin_mode="samples", risk_eps=eps)
+    kw: dict = dict(margin_mode="samples", risk=eps)
     if method in ("mmd", "random"):
         kw["w_cover"] = W_COVER
     if method == "mmd":
-        kw["reselect"] = -1  # automatic: MMDOptConfig.reselect_for, m/2 in this mode
+        kw["reselect"] = None  # automatic: MMDOptConfig.reselect_for, m/2 in this mode
     if method == "saa":
-        kw["saa_eps"] = None  # the chance level follows risk_eps (MMDOptConfig.saa_level)
+        kw["saa_eps"] = None  # the chance level follows risk (MMDOptConfig.saa_level)
     return cfg.replace(**kw)
 
 
@@ -152,7 +160,7 @@ def coverage_margins(
     rule; σ_s(k) the spread of all n samples' arc length at step k) in quadrature to every
     longitudinal spread: the Gaussian of each cluster convolved with the kernel of a density
     estimate, so the margin of the extreme points extends past the extreme samples (a cluster of
-    a few samples of a rare intent understates that intent's tail; docs/frontier.md, Session 9).
+    a few samples of a rare intent understates that intent's tail; docs/experiments/frontier.md).
     Pure NumPy, O(O·J·n·K) (O·n·knn·K with ``knn``).
     """
     X = np.asarray(obstacles_frenet, np.float64)
@@ -206,4 +214,4 @@ def coverage_margins(
 
 def needs_knn(method: str) -> bool:
     """Whether ``method`` plans on all samples (its margins use k-NN clusters)."""
-    return SELECTION[method] is None
+    return SELECTOR[method] is None

@@ -346,9 +346,10 @@ def _checked_config(args, parser, methods):
 
 
 def load_planner_config(path):
-    """``MMDOptConfig().replace(**overrides)`` from a JSON object of field names; the nested
-    ``reduced_set`` takes a JSON object of ``ReducedSetConfig`` fields.  Unknown keys, wrong
-    types, NaN/Infinity or invalid values raise ``ValueError`` naming the key."""
+    """The planner's config from a JSON file: the nested form of
+    :meth:`mmdopt.MMDOptConfig.from_dict` (``{"cem": {"iterations": 10}, "safety": {"risk":
+    0.001}}``) or flat field names (``{"iterations": 10}``).  Unknown keys, wrong types,
+    NaN/Infinity or invalid values raise ``ValueError`` naming the key."""
     try:
         raw = json.loads(Path(path).read_text())
     except json.JSONDecodeError as e:
@@ -358,86 +359,12 @@ def load_planner_config(path):
     return load_planner_config_from_dict(raw)
 
 
-def _non_finite_key(obj, prefix: str = "") -> str | None:
-    """The key path of the first NaN/Infinity number in a parsed JSON value, else ``None``."""
-    import math
-
-    if isinstance(obj, float) and not math.isfinite(obj):
-        return prefix or "(top level)"
-    if isinstance(obj, dict):
-        for k, v in obj.items():
-            hit = _non_finite_key(v, f"{prefix}.{k}" if prefix else str(k))
-            if hit:
-                return hit
-    if isinstance(obj, list):
-        for i, v in enumerate(obj):
-            hit = _non_finite_key(v, f"{prefix}[{i}]")
-            if hit:
-                return hit
-    return None
-
-
-def _typed_overrides(cls, raw: dict, prefix: str = "") -> dict:
-    """Check ``raw`` against the fields of the dataclass ``cls`` by their defaults' types:
-    integers, numbers (ints accepted, converted to float), strings, and ``None``-default fields
-    as numbers or ``null``.  Raises ``ValueError`` naming the key."""
-    import dataclasses
-
-    fields = {f.name: f for f in dataclasses.fields(cls)}
-    bad = sorted(set(raw) - set(fields))
-    if bad:
-        raise ValueError(
-            f"unknown {cls.__name__} field(s) {', '.join(prefix + b for b in bad)}; "
-            f"known: {', '.join(sorted(fields))}"
-        )
-    base = cls()
-    kw = {}
-    for k, v in raw.items():
-        name = prefix + k
-        default = getattr(base, k)
-        number = isinstance(v, int | float) and not isinstance(v, bool)
-        if isinstance(default, bool):
-            if not isinstance(v, bool):
-                raise ValueError(f"{name} must be true or false, got {v!r}")
-        elif default is None:
-            if v is not None and not number:
-                raise ValueError(f"{name} must be a number or null, got {v!r}")
-            v = None if v is None else float(v)
-        elif isinstance(default, int):
-            if not (isinstance(v, int) and not isinstance(v, bool)):
-                raise ValueError(f"{name} must be an integer, got {v!r}")
-        elif isinstance(default, float):
-            if not number:
-                raise ValueError(f"{name} must be a number, got {v!r}")
-            v = float(v)
-        elif isinstance(default, str):
-            if not isinstance(v, str):
-                raise ValueError(f"{name} must be a string, got {v!r}")
-        kw[k] = v
-    return kw
-
-
 def load_planner_config_from_dict(raw):
-    """:func:`load_planner_config` from an already parsed JSON value."""
-    from mmdopt.algorithm import MMDOptConfig
-    from mmdopt.reduced_set import ReducedSetConfig
+    """:func:`load_planner_config` from an already parsed JSON value
+    (:meth:`mmdopt.MMDOptConfig.from_dict`: nested sections, or flat field names)."""
+    from mmdopt.config import MMDOptConfig
 
-    if not isinstance(raw, dict):
-        raise ValueError("the config must be a JSON object of MMDOptConfig fields")
-    hit = _non_finite_key(raw)
-    if hit:
-        raise ValueError(f"{hit} is NaN or Infinity; every value must be a finite number")
-    rs_raw = raw.get("reduced_set")
-    kw = _typed_overrides(MMDOptConfig, {k: v for k, v in raw.items() if k != "reduced_set"})
-    if "reduced_set" in raw:
-        if not isinstance(rs_raw, dict):
-            raise ValueError("reduced_set must be a JSON object of ReducedSetConfig fields")
-        rs_kw = _typed_overrides(ReducedSetConfig, rs_raw, "reduced_set.")
-        try:
-            kw["reduced_set"] = ReducedSetConfig(**rs_kw)
-        except (TypeError, ValueError) as e:
-            raise ValueError(f"reduced_set: {e}") from None
-    return MMDOptConfig().replace(**kw)
+    return MMDOptConfig.from_dict(raw)
 
 
 def _table(rows: Sequence[dict], cols: Sequence[str], headers: dict[str, str] | None = None) -> str:

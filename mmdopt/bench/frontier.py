@@ -22,7 +22,7 @@ import numpy as np
 
 import mmdopt
 from mmdopt.algorithm import PLANNER_BACKEND
-from mmdopt.baselines import METHODS
+from mmdopt.baselines import PLAN_METHODS as METHODS
 from mmdopt.risk import check_risk, config_for_risk
 
 from .executors import check_manifest, run_tasks
@@ -42,7 +42,7 @@ __all__ = [
 ]
 
 #: default risk grid (target collision probability ε) per method: down to 1e-5, so that the
-#: printed target levels 995 and 999 lie inside the swept range (docs/frontier.md)
+#: printed target levels 995 and 999 lie inside the swept range (docs/experiments/frontier.md)
 _GRID = (1e-5, 1e-4, 0.001, 0.005, 0.02, 0.1)
 DEFAULT_RISKS: dict[str, tuple[float, ...]] = {
     "mmd": _GRID,

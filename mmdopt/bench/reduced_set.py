@@ -57,16 +57,16 @@ def _reduced_set_task(args) -> list[dict[str, Any]]:
     if path.exists():
         return []
     cfg = scene_config(scene, config)
-    m = cfg.reduced_set_size
+    m = cfg.selection.reduced_set_size
     obs = scene.obstacles[0]
     key = scene.key()
-    rs_cfg = cfg.reduced_set
+    rs_cfg = cfg.selection.reduced_set
     ego_guess = np.stack([scene.params.ego_speed * scene.t, np.zeros_like(scene.t)], -1)
     jobs = [(meth, 0) for meth in methods if meth != "random"]
     jobs += [("random", r) for r in range(random_sets if "random" in methods else 0)]
     rows = []
     # the selection's features as in mmdopt.plan (an anisotropic kernel when the config has one)
-    lam = float(cfg.rs_lateral_scale)
+    lam = float(cfg.selection.rs_lateral_scale)
     feats = obs * np.array([1.0, lam])
     for meth, r in jobs:
         k = jax.random.fold_in(key, 1000 + r)

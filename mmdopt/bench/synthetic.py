@@ -152,7 +152,7 @@ def check_sweep_config(
     ``ValueError``; the runners call it before writing anything into the sweep folder."""
     from mmdopt import algorithm as alg
     from mmdopt.api import _check_obstacles
-    from mmdopt.baselines import METHODS
+    from mmdopt.baselines import PLAN_METHODS as METHODS
 
     if config is not None and not isinstance(config, mmdopt.MMDOptConfig):
         raise ValueError(f"config must be an mmdopt.MMDOptConfig, got {type(config).__name__}")

@@ -127,7 +127,7 @@ TIMING_COLUMNS = (
 
 def _paper_algorithm() -> mmdopt.MMDOptConfig:
     """The paper's Algorithm 1: one CEM run with the time-linear margins (Table II's setting)."""
-    return mmdopt.MMDOptConfig(margin_mode="linear", reselect=0)
+    return mmdopt.MMDOptConfig.paper()
 
 
 def run_timing(

@@ -3,7 +3,7 @@
 A predictor is anything with ``sample(history, context, n, key) -> (O, n, K, 2)``::
 
     samples = predictor.sample(history, context, n=100, key=jax.random.PRNGKey(0))
-    plan = mmdopt.plan(ego, road, samples, config=config)   # K = config.num_steps
+    plan = mmdopt.plan(ego, road, samples, config=config)   # K = config.trajectory.num_steps
 
 ``history`` (O, H, 2): each obstacle's recorded Cartesian positions (m) at the H times
 ``t = −(H−1)·dt_history, …, −dt_history, 0`` (the last row is the current position).
@@ -46,7 +46,7 @@ class PredictionContext:
     """What a predictor may know besides the histories (plain arrays; SI units).
 
     times : (K,) prediction times (s), ``times[0] = 0`` (now), increasing — the planner's grid
-        (``np.linspace(0, config.horizon, config.num_steps)``)
+        (``np.linspace(0, config.trajectory.horizon, config.trajectory.num_steps)``)
     dt_history : spacing (s) of the history rows
     centerline : (O, P, 2) each obstacle's current lane centre line (Cartesian, m, driving
         direction, P ≥ 2, covering from behind the obstacle to beyond its reach over ``times``)

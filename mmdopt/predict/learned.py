@@ -16,7 +16,8 @@ from π, coefficients from its Gaussian, the trajectory at the requested times, 
 along the lane; deterministic for a key.
 
 The shipped weights (``weights/mdn_ngsim_us101.eqx`` + ``.json``) were trained on the NGSIM
-US-101 scenes of recordings N ≢ 0 (mod 5) (docs/ngsim.md); :class:`Learned` loads them by default.
+US-101 scenes of recordings N ≢ 0 (mod 5) (docs/experiments/ngsim.md); :class:`Learned` loads them
+by default.
 """
 
 from __future__ import annotations

@@ -11,7 +11,7 @@ grid (``MMDOptConfig.horizon`` s on ``num_steps`` points, starting at ``t = 0``)
     traj = predictor(history)                        # (n, 12, 2): t = 0.5, 1.0, ..., 6.0 s
     t_grid = np.linspace(0.0, 6.0, 100)              # the planner's grid, here a 6 s horizon
     obs = resample_prediction(traj, 0.5, t_grid, current=history[-1])     # (n, 100, 2)
-    plan = mmdopt.plan(ego, road, obs[None], config=MMDOptConfig(horizon=6.0, ...))
+    plan = mmdopt.plan(ego, road, obs[None], config=MMDOptConfig().replace(horizon=6.0, ...))
 """
 
 from __future__ import annotations
@@ -50,7 +50,7 @@ def resample_prediction(
         ``t = j * dt`` (the first step is the present).
     dt : the predictor's time step (s), > 0.
     t_grid : (K,) strictly increasing times (s) of the planner's grid, e.g.
-        ``np.linspace(0, config.horizon, config.num_steps)``.
+        ``np.linspace(0, config.trajectory.horizon, config.trajectory.num_steps)``.
     current : optional present position, (2,) (shared by all samples) or (n, 2), prepended at
         ``t = 0``.
     kind : ``"cubic"`` (default: a cubic spline through the points, not-a-knot end conditions,

@@ -514,7 +514,7 @@ def _step(pb: _Scaled, s: ADMMSettings, x, z, y, rung, active):
 def _fixed_rung_iterations(pb: _Scaled, s: ADMMSettings, K_fix, R_fix, x, z, y, active, all_active):
     """``check_every`` iterations of :func:`_step` on one fixed rung, with the batch as the last
     axis: the products become (m, n)·(n, B) instead of (B, n)·(n, m), which XLA's CPU backend
-    runs ≈ 3× faster at these shapes (n, m ≲ 100; measured, docs/benchmarks.md).
+    runs ≈ 3× faster at these shapes (n, m ≲ 100; measured, docs/experiments/qp-backends.md).
     Returns ``(x, z, y, x_prev, y_prev)``."""
     R, Rinv = R_fix.T, (1.0 / R_fix).T  # (m, 1)
     qT, lT, uT = pb.q.T, pb.lb.T, pb.ub.T

@@ -16,7 +16,7 @@ from mmdopt.collision import collision_free_count
 
 K = 100
 T = np.linspace(0.0, 15.0, K)
-SMALL = mmdopt.MMDOptConfig(n_samples=200, n_cem=40, n_elite=15, iterations=5, n_brake=5)
+SMALL = mmdopt.MMDOptConfig().replace(n_samples=200, n_cem=40, n_elite=15, iterations=5, n_brake=5)
 EGO = frenet.EgoState(s=0.0, d=0.0, vs=10.0)
 
 
@@ -46,9 +46,9 @@ def test_certain_obstacle_is_avoided_while_making_progress(certain_plan):
     assert int(counts.per_obstacle[0]) == obs.shape[1]  # clear of every sample
     # it follows the obstacle instead of stopping: the obstacle covers 60 m in 15 s
     assert p.progress > 40.0
-    assert p.residual <= SMALL.res_tol
+    assert p.residual <= SMALL.projection.res_tol
     assert p.x.shape == p.y.shape == p.speed.shape == p.vs.shape == (K,)
-    assert p.cost_trace.shape == (SMALL.iterations,)
+    assert p.cost_trace.shape == (SMALL.cem.iterations,)
 
 
 def test_plan_starts_at_the_ego_state(certain_plan):
@@ -138,16 +138,16 @@ def test_bad_arguments_raise(road):
     with pytest.raises(ValueError, match="key"):
         mmdopt.plan(EGO, road, obs, config=SMALL, key=3)
     with pytest.raises(ValueError, match="n_elite"):
-        mmdopt.MMDOptConfig(n_elite=200, n_cem=150)
+        mmdopt.MMDOptConfig().replace(n_elite=200, n_cem=150)
     with pytest.raises(ValueError, match="y_lb"):
         mmdopt.Road(y_lb=1.0, y_ub=0.0)
 
 
 def test_config_is_a_pytree_with_static_sizes():
     leaves = jax.tree_util.tree_leaves(SMALL)
-    assert SMALL.gamma in leaves and SMALL.w_mmd in leaves
+    assert SMALL.cem.gamma in leaves and SMALL.cost.w_mmd in leaves
     assert all(not isinstance(v, str) for v in leaves)
-    assert SMALL.replace(w_mmd=5.0).w_mmd == 5.0
+    assert SMALL.replace(w_mmd=5.0).cost.w_mmd == 5.0
 
 
 def test_slip_limit_is_validated_off_by_default_and_measures_sideways_motion_at_rest():
@@ -158,14 +158,14 @@ def test_slip_limit_is_validated_off_by_default_and_measures_sideways_motion_at_
 
     from mmdopt import algorithm as alg
 
-    assert not mmdopt.MMDOptConfig().kinematic
+    assert not mmdopt.MMDOptConfig().safety.rules.kinematic
     for bad in (-0.1, float("nan"), float("inf")):
         with pytest.raises(ValueError, match="slip_ratio"):
-            mmdopt.MMDOptConfig(slip_ratio=bad)
+            mmdopt.MMDOptConfig().replace(slip_ratio=bad)
     with pytest.raises(ValueError, match="slip_tol"):
-        mmdopt.MMDOptConfig(slip_ratio=0.5, slip_tol=0.0)
-    cfg = mmdopt.MMDOptConfig(horizon=5.0, num_steps=51, slip_ratio=0.5)
-    assert cfg.kinematic
+        mmdopt.MMDOptConfig().replace(slip_ratio=0.5, slip_tol=0.0)
+    cfg = mmdopt.MMDOptConfig().replace(horizon=5.0, num_steps=51, slip_ratio=0.5)
+    assert cfg.safety.rules.kinematic
     prob = alg.build_problem(cfg, mmdopt.Road().bounds())
     t = prob.t()
     P = np.asarray(prob.P)
@@ -182,12 +182,16 @@ def test_slip_limit_is_validated_off_by_default_and_measures_sideways_motion_at_
     cy = jnp.asarray(np.stack([fit(slide), fit(change), fit(0 * t)]))
     rest = jnp.asarray([0.0, 0.0, 1.0, 0.0, -0.5, 0.0])
     r = np.asarray(alg.slip_residual(cfg, prob, rest, cx, cy))
-    assert r[0] > 10 * cfg.res_tol  # the slide at rest: far beyond the tolerance
-    assert r[1] <= cfg.res_tol and r[2] <= cfg.res_tol  # a lane change at speed, a stop
+    assert r[0] > 10 * cfg.projection.res_tol  # the slide at rest: far beyond the tolerance
+    assert (
+        r[1] <= cfg.projection.res_tol and r[2] <= cfg.projection.res_tol
+    )  # a lane change at speed, a stop
     # a car that starts with 0.3 m/s of lateral slip at rest may keep it, not add to it
     slipping = jnp.asarray([0.0, 0.0, 0.0, 0.3, 0.0, 0.0])
     cy_keep = jnp.asarray(fit(0.3 * np.minimum(t, 0.5)))[None]
-    assert float(alg.slip_residual(cfg, prob, slipping, cx[2:], cy_keep)[0]) <= cfg.res_tol
+    assert (
+        float(alg.slip_residual(cfg, prob, slipping, cx[2:], cy_keep)[0]) <= cfg.projection.res_tol
+    )
     with pytest.raises(ValueError, match="cx and cy"):
         alg.slip_residual(cfg, prob, rest, cx, cy[:, :3])
     with pytest.raises(ValueError, match="ego_state"):

@@ -34,7 +34,11 @@ def test_every_method_returns_a_feasible_plan(scene, method):
     )
     assert p.method == method
     assert np.isfinite(p.cost) and p.feasible and not p.fallback
-    J = SMALL.reduced_set_size if method in ("mmd", "random", "degroot") else scene.shape[1]
+    J = (
+        SMALL.selection.reduced_set_size
+        if method in ("mmd", "random", "degroot")
+        else scene.shape[1]
+    )
     assert np.shape(p.reduced_set.indices) == (1, J)
     np.testing.assert_allclose(np.sum(p.reduced_set.weights, axis=1), 1.0, rtol=1e-6)
     assert p.progress > 20.0
@@ -85,7 +89,9 @@ def test_baseline_margin_scale_inflates_only_the_baselines_ellipse(scene):
     with pytest.raises(ValueError, match="baseline_margin_scale"):
         lin.replace(baseline_margin_scale=-0.5)
     t = np.linspace(0.0, 15.0, 5)
-    np.testing.assert_allclose(mmdopt.algorithm.planning_semi_axis(lin, t, scale=0.0), lin.a)
+    np.testing.assert_allclose(
+        mmdopt.algorithm.planning_semi_axis(lin, t, scale=0.0), lin.safety.footprint.a
+    )
     key = jax.random.PRNGKey(0)
     nominal = mmdopt.plan(EGO, mmdopt.Road(), scene, method="degroot", config=lin, key=key)
     inflated = mmdopt.plan(

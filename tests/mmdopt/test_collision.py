@@ -338,12 +338,12 @@ def test_yaw_widening_is_validated_off_by_default_and_follows_the_heading():
     straight, a little in a lane change at speed, much when turning at a crawl."""
     from mmdopt import algorithm as alg
 
-    assert not mmdopt.MMDOptConfig().yaw_aware
+    assert not mmdopt.MMDOptConfig().safety.footprint.yaw_aware
     for bad in (-0.1, float("nan"), float("inf")):
         with pytest.raises(ValueError, match="yaw_extent"):
-            mmdopt.MMDOptConfig(yaw_extent=bad)
-    cfg = mmdopt.MMDOptConfig(yaw_extent=2.5)
-    assert cfg.yaw_aware and cfg.replace(yaw_extent=3.0).yaw_aware
+            mmdopt.MMDOptConfig().replace(yaw_extent=bad)
+    cfg = mmdopt.MMDOptConfig().replace(yaw_extent=2.5)
+    assert cfg.safety.footprint.yaw_aware and cfg.replace(yaw_extent=3.0).safety.footprint.yaw_aware
     vs = jnp.asarray([[10.0, 10.0, 1.0, 0.0]])
     vd = jnp.asarray([[0.0, 10.0 * np.tan(np.radians(8.0)), np.tan(np.radians(20.0)), 0.0]])
     wide = np.asarray(alg.yaw_widening(cfg, vs, vd))[0]

@@ -11,9 +11,9 @@ import mmdopt
 
 
 def _plan(**kw):
-    cfg = mmdopt.MMDOptConfig(n_cem=40, n_elite=10, iterations=2, n_brake=5)
+    cfg = mmdopt.MMDOptConfig().replace(n_cem=40, n_elite=10, iterations=2, n_brake=5)
     rng = np.random.default_rng(0)
-    t = np.linspace(0.0, cfg.horizon, cfg.num_steps)
+    t = np.linspace(0.0, cfg.trajectory.horizon, cfg.trajectory.num_steps)
     n = 30
     x = 50.0 + rng.uniform(4.0, 6.0, (n, 1)) * t
     y = np.where(np.arange(n)[:, None] < 5, -3.0 + 0.2 * t.clip(0, 15), -3.0)
@@ -40,8 +40,8 @@ def test_to_dict_is_json_and_round_trips_the_trajectory_and_reduced_set():
 
 def test_to_dict_of_a_braking_fallback_has_no_nan():
     # initial speed above v_max: a braking plan with a NaN cost
-    cfg = mmdopt.MMDOptConfig(n_cem=40, n_elite=10, iterations=2, n_brake=5)
-    obs = np.zeros((1, 20, cfg.num_steps, 2)) + np.array([300.0, 0.0])
+    cfg = mmdopt.MMDOptConfig().replace(n_cem=40, n_elite=10, iterations=2, n_brake=5)
+    obs = np.zeros((1, 20, cfg.trajectory.num_steps, 2)) + np.array([300.0, 0.0])
     p = mmdopt.plan(
         frenet.EgoState(s=0.0, d=0.0, vs=40.0), mmdopt.Road(v_max=30.0), obs, config=cfg
     )

@@ -26,7 +26,7 @@ from mmdopt.receding import (
     warm_up,
 )
 
-CFG = mmdopt.MMDOptConfig(
+CFG = mmdopt.MMDOptConfig().replace(
     n_samples=80,
     n_cem=30,
     n_elite=10,
@@ -37,7 +37,7 @@ CFG = mmdopt.MMDOptConfig(
     reduced_set_size=5,
     v_des=15.0,
 )
-T = frenet.TimeGrid(CFG.horizon, CFG.num_steps).t
+T = frenet.TimeGrid(CFG.trajectory.horizon, CFG.trajectory.num_steps).t
 
 
 class TwoLaneScene:

@@ -10,7 +10,7 @@ import pytest
 import mmdopt  # noqa: F401
 from mmdopt.kernels import gaussian_gram
 from mmdopt.reduced_set import (
-    METHODS,
+    SELECTORS,
     ReducedSetConfig,
     project_simplex,
     reduced_set_objective,
@@ -49,7 +49,7 @@ def _select(method="mmd", seed=0, m=10, config=None, samples=None):
     return select_reduced_set(jax.random.key(seed), X, m, method, config, ego_guess=EGO_GUESS)
 
 
-@pytest.mark.parametrize("method", METHODS)
+@pytest.mark.parametrize("method", SELECTORS)
 def test_every_method_returns_m_distinct_indices_and_weights_summing_to_one(method):
     rs = _select(method)
     idx = np.asarray(rs.indices)

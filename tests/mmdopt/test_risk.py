@@ -25,13 +25,13 @@ def _two_clusters(n=40, seed=0):
 def test_every_method_has_a_knob_with_a_default():
     for m in mmdopt.PLAN_METHODS:
         cfg = config_for_risk(m)
-        assert cfg.margin_mode == "samples" and cfg.risk_eps == DEFAULT_RISK[m]
+        assert cfg.safety.margins.margin_mode == "samples" and cfg.safety.risk == DEFAULT_RISK[m]
         if m in ("mmd", "random"):  # the coverage term of the MMD cost
-            assert cfg.w_cover == 100.0
-        assert cfg.reselect_for(m) == (cfg.reduced_set_size // 2 if m == "mmd" else 0)
+            assert cfg.cost.w_cover == 100.0
+        assert cfg.reselect_for(m) == (cfg.selection.reduced_set_size // 2 if m == "mmd" else 0)
     assert config_for_risk("saa", 0.03).saa_level == 0.03
     # the knob only changes what it maps to: the rest of the caller's config is kept
-    assert config_for_risk("mmd", 0.01, SMALL).n_samples == SMALL.n_samples
+    assert config_for_risk("mmd", 0.01, SMALL).cem.n_samples == SMALL.cem.n_samples
 
 
 def test_the_default_config_is_every_methods_knob_at_its_default():
@@ -42,10 +42,14 @@ def test_the_default_config_is_every_methods_knob_at_its_default():
     road = mmdopt.Road()
     key = jax.random.PRNGKey(3)
     cfg = mmdopt.MMDOptConfig()
-    assert cfg.margin_mode == "samples" and cfg.risk_eps == 0.005 and cfg.w_cover == 100.0
-    assert cfg.reselect_for("mmd") == cfg.reduced_set_size // 2
+    assert (
+        cfg.safety.margins.margin_mode == "samples"
+        and cfg.safety.risk == 0.005
+        and cfg.cost.w_cover == 100.0
+    )
+    assert cfg.reselect_for("mmd") == cfg.selection.reduced_set_size // 2
     assert [cfg.reselect_for(m) for m in ("random", "degroot", "saa", "scenario_all")] == [0] * 4
-    assert cfg.saa_level == cfg.risk_eps
+    assert cfg.saa_level == cfg.safety.risk
     assert cfg.replace(margin_mode="linear").saa_level == 0.02
     assert cfg.replace(saa_eps=0.1).saa_level == 0.1
     small = SMALL
@@ -61,13 +65,13 @@ def test_the_default_config_is_every_methods_knob_at_its_default():
         np.testing.assert_array_equal(a.d, b.d, err_msg=m)
         assert ("reselected" in a.diagnostics) == (m == "mmd")
     with pytest.raises(ValueError, match="reselect"):
-        mmdopt.MMDOptConfig(reselect=-2)
+        mmdopt.MMDOptConfig().replace(reselect=-2)
 
 
 @pytest.mark.parametrize("bad", [0.0, 0.5, -0.1, float("nan"), float("inf"), "x", True, None])
 def test_bad_knob_is_a_clear_error(bad):
     if bad is None:  # None means "the default": not an error
-        assert config_for_risk("mmd", None).risk_eps == DEFAULT_RISK["mmd"]
+        assert config_for_risk("mmd", None).safety.risk == DEFAULT_RISK["mmd"]
         return
     with pytest.raises(ValueError, match="risk"):
         config_for_risk("mmd", bad)
@@ -179,7 +183,7 @@ def test_bandwidth_covers_the_tail_beyond_the_extreme_samples(eps):
         with pytest.raises(ValueError, match="bandwidth"):
             coverage_margins(X, idx, 0.01, bandwidth=bad)
         with pytest.raises(ValueError, match="coverage_bandwidth"):
-            mmdopt.MMDOptConfig(coverage_bandwidth=bad)
+            mmdopt.MMDOptConfig().replace(coverage_bandwidth=bad)
 
 
 def test_plan_risk_knob_trades_progress_for_safety():
@@ -203,7 +207,7 @@ def test_plan_risk_knob_trades_progress_for_safety():
     assert np.all(tight.diagnostics["collision_free_planning"] == X.shape[1])
     # the second pass added the samples in deepest conflict with the first plan to the set
     extra = tight.diagnostics["reselected"]
-    assert extra.shape == (1, SMALL.reduced_set_size // 2)
+    assert extra.shape == (1, SMALL.selection.reduced_set_size // 2)
     assert not set(extra[0].tolist()) & set(np.asarray(tight.reduced_set.indices)[0].tolist())
     with pytest.raises(ValueError, match="risk"):
         mmdopt.plan(EGO, road, X, method="mmd", config=SMALL, key=key, risk=0.7)
@@ -223,7 +227,10 @@ def test_reselection_leaves_the_eps_n_deepest_conflicts_to_the_chance_level():
         extra, dropped = p.diagnostics["reselected"], p.diagnostics["discarded"]
         depth = p.diagnostics["conflict_depth"][0]
         assert dropped.shape == (1, k)
-        assert extra.shape == (1, min(SMALL.reduced_set_size // 2, n - SMALL.reduced_set_size - k))
+        assert extra.shape == (
+            1,
+            min(SMALL.selection.reduced_set_size // 2, n - SMALL.selection.reduced_set_size - k),
+        )
         chosen = set(np.asarray(p.reduced_set.indices)[0].tolist())
         assert not (set(extra[0].tolist()) | set(dropped[0].tolist())) & chosen
         assert not set(extra[0].tolist()) & set(dropped[0].tolist())

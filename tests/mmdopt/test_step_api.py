@@ -39,13 +39,18 @@ def test_init_update_loop_equals_run(mode, slip, yaw):
     key = jax.random.PRNGKey(4)
     ran = alg.run(cfg, problem, obstacles, key)
     state = alg.init(cfg, problem, key)
-    for _ in range(cfg.iterations):
+    for _ in range(cfg.cem.iterations):
         state = alg.update(state, obstacles)
-    assert int(state.iteration) == int(ran.iteration) == cfg.iterations
-    # the same samples are drawn and scored: the same best sample (float32 loop: equal costs to
-    # float32 resolution; XLA may fuse the scan and the separate steps differently)
-    np.testing.assert_allclose(state.cost_trace, ran.cost_trace, rtol=1e-5)
-    np.testing.assert_allclose(state.best.d, ran.best.d, rtol=1e-5, atol=1e-5)
+    assert int(state.iteration) == int(ran.iteration) == cfg.cem.iterations
+    # costs are float32 sums over the K grid steps (means, the MMD term's Taylor series) which
+    # XLA fuses and reassociates differently in the scan and in the separate steps, and with
+    # the CPU's vector width (AVX2 vs AVX-512): a reassociated sum of K terms differs by up to
+    # ~K·ε₃₂ relative to its largest term, and the cost's terms reach ~10× the total
+    K = cfg.trajectory.num_steps
+    rtol = 10 * K * float(np.finfo(np.float32).eps)  # 1.2e-4 at K = 100
+    np.testing.assert_allclose(state.cost_trace, ran.cost_trace, rtol=rtol)
+    # the same sample wins: its set-points agree to float32 rounding of speeds/offsets (≤ 30)
+    np.testing.assert_allclose(state.best.d, ran.best.d, rtol=rtol, atol=rtol)
     with pytest.raises(ValueError, match="iterations"):
         alg.update(state, obstacles)
 
@@ -61,19 +66,19 @@ def test_run_projects_and_scores_only_what_the_elite_sets_need_with_the_same_pla
     (and at iteration 0, every iteration, the costs are scored in several chunks)."""
     cfg = SMALL.replace(admm_iters=1, speed_std0=15.0, lateral_std_scale=6.0) if hard else SMALL
     chunk = alg.project_chunk_size(cfg)
-    known = cfg.n_elite + cfg.n_brake  # rows whose projection run() reuses
+    known = cfg.cem.n_elite + cfg.cem.n_brake  # rows whose projection run() reuses
     run_chunk = chunk - known  # run()'s chunks start after them
-    assert chunk == cfg.n_cem + cfg.n_elite < cfg.n_samples and run_chunk >= chunk / 2
+    assert chunk == cfg.cem.n_cem + cfg.cem.n_elite < cfg.cem.n_samples and run_chunk >= chunk / 2
     problem, obstacles = _inputs(config=cfg)
     key = jax.random.PRNGKey(7)
     ran = alg.run(cfg, problem, obstacles, key)
-    full = alg.run(cfg.replace(project_chunk=cfg.n_samples), problem, obstacles, key)
+    full = alg.run(cfg.replace(project_chunk=cfg.cem.n_samples), problem, obstacles, key)
     state = alg.init(cfg, problem, key)
-    for _ in range(cfg.iterations):
+    for _ in range(cfg.cem.iterations):
         state = alg.update(state, obstacles)
-    np.testing.assert_array_equal(full.n_projected, cfg.n_samples)
+    np.testing.assert_array_equal(full.n_projected, cfg.cem.n_samples)
     n_proj = np.asarray(ran.n_projected)
-    assert np.all(np.asarray(ran.n_feasible) >= cfg.n_cem)
+    assert np.all(np.asarray(ran.n_feasible) >= cfg.cem.n_cem)
     if hard:
         assert n_proj.max() > run_chunk
     else:
@@ -92,8 +97,10 @@ def test_run_projects_and_scores_only_what_the_elite_sets_need_with_the_same_pla
 def test_shift_then_run_is_deterministic_and_moves_set_points():
     problem, obstacles = _inputs()
     st = alg.run(SMALL, problem, obstacles, jax.random.PRNGKey(0))
-    sh = alg.shift(st, dt=SMALL.horizon / SMALL.num_segments)  # one whole segment
-    S = SMALL.num_segments
+    sh = alg.shift(
+        st, dt=SMALL.trajectory.horizon / SMALL.trajectory.num_segments
+    )  # one whole segment
+    S = SMALL.trajectory.num_segments
     np.testing.assert_allclose(sh.mu[: S - 1], st.mu[1:S], rtol=1e-6)  # speeds move one earlier
     np.testing.assert_allclose(sh.mu[S - 1], st.mu[S - 1], rtol=1e-6)  # last held
     assert int(sh.iteration) == 0 and not np.isfinite(float(sh.best.cost))
@@ -142,7 +149,7 @@ def test_demo_plan_is_unchanged_by_the_restructure():
     from mmdopt.bench.synthetic import scene_config
 
     sc = demo_scene()
-    cfg = scene_config(sc, mmdopt.MMDOptConfig(margin_mode="linear", reselect=0))
+    cfg = scene_config(sc, mmdopt.MMDOptConfig().replace(margin_mode="linear", reselect=0))
     p = mmdopt.plan(sc.ego(), sc.road(), sc.obstacles, config=cfg, key=sc.key())
     assert p.cost == pytest.approx(25.484128952026367, rel=1e-6)
     assert p.progress == pytest.approx(78.05859374999413, rel=1e-6)

@@ -23,10 +23,10 @@ from mmdopt.collision import ReducedObstacles, SurrogateConfig, reduced_obstacle
 from mmdopt.reduced_set import ReducedSet, ReducedSetConfig
 
 NAN, INF = float("nan"), float("inf")
-TINY = mmdopt.MMDOptConfig(
+TINY = mmdopt.MMDOptConfig().replace(
     n_samples=60, n_cem=20, n_elite=10, iterations=2, n_brake=5, reduced_set_size=5
 )
-K = TINY.num_steps
+K = TINY.trajectory.num_steps
 PATH = frenet.ReferencePath.straight(200.0)
 ROAD = mmdopt.Road()
 EGO = frenet.EgoState(s=0.0, d=0.0, vs=10.0)
@@ -35,7 +35,7 @@ KEY = jax.random.PRNGKey(0)
 
 def _obstacles(O=1, n=12, x0=40.0, y0=3.5, v=5.0, seed=0):
     rng = np.random.default_rng(seed)
-    t = np.linspace(0.0, TINY.horizon, K)
+    t = np.linspace(0.0, TINY.trajectory.horizon, K)
     xs = x0 + v * t[None, None, :] + rng.normal(0, 0.3, (O, n, 1))
     ys = np.broadcast_to(y0 + rng.normal(0, 0.1, (O, n, 1)), xs.shape)
     return np.stack([xs, ys], -1)
@@ -199,7 +199,7 @@ CONFIG += [
 
 @pytest.mark.parametrize("name,kw,field", CONFIG, ids=[c[0] for c in CONFIG])
 def test_planner_config_rejects(name, kw, field):
-    check(lambda: mmdopt.MMDOptConfig(**kw), ValueError, field)
+    check(lambda: mmdopt.MMDOptConfig().replace(**kw), ValueError, field)
 
 
 # ---------------------------------------------------------------------------- ReducedSetConfig
@@ -614,7 +614,7 @@ def test_shift_rejects_bad_dt(state, dt):
 
 def test_update_rejects_a_used_up_state(state):
     s, obs = state
-    for _ in range(TINY.iterations):
+    for _ in range(TINY.cem.iterations):
         s = alg.update(s, obs)
     check(lambda: alg.update(s, obs), ValueError, "iterations")
 
@@ -635,7 +635,7 @@ def _status_ok(p):
 @pytest.mark.parametrize("method", ["mmd", "degroot", "saa"])
 def test_obstacle_on_top_of_the_ego_is_unsafe_not_ok(method):
     # an obstacle that stays on the ego for the whole horizon: every plan collides
-    t = np.linspace(0.0, TINY.horizon, K)
+    t = np.linspace(0.0, TINY.trajectory.horizon, K)
     xs = 10.0 * t[None, None, :] + np.linspace(-0.2, 0.2, 12)[None, :, None]
     obs = np.stack([xs, np.zeros_like(xs)], -1)
     p = _plan(obs, method=method)

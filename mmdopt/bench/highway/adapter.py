@@ -179,7 +179,7 @@ class HighwaySource:
             from highway_env.vehicle.behavior import IDMVehicle
 
             ego = IDMVehicle(
-                road, old.position.copy(), old.heading, old.speed, target_speed=config.v_des
+                road, old.position.copy(), old.heading, old.speed, target_speed=config.cost.v_des
             )
         else:
             ego = PlanFollower(road, old.position.copy(), old.heading, old.speed)
@@ -187,7 +187,7 @@ class HighwaySource:
         road.vehicles[road.vehicles.index(old)] = ego
         self.env.controlled_vehicles = [ego]
         self.ego = ego
-        self.t_grid = frenet.TimeGrid(config.horizon, config.num_steps).t
+        self.t_grid = frenet.TimeGrid(config.trajectory.horizon, config.trajectory.num_steps).t
         self.predictor = make_predictor(settings.predictor)
         self.cv_mean = ConstantVelocityPredictor(sigma_long=0.0, sigma_lat=0.0)
         self.step_index = 0

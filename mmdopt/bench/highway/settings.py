@@ -16,23 +16,8 @@ PREDICTORS = ("sim", "cv")
 #: the desired speed, and the lateral collision semi-axis of highway-env's 2 m wide cars (2 m
 #: between centres + 0.6 m) instead of the paper's 3.5 m, which would not fit two cars in
 #: neighbouring 4 m lanes.
-HIGHWAY_PLANNER: dict[str, Any] = {
-    "horizon": 5.0,
-    "num_steps": 51,
-    "n_samples": 400,
-    "n_cem": 100,
-    "n_elite": 30,
-    "iterations": 12,
-    "reduced_set_size": 10,
-    "v_des": 30.0,
-    "b": 2.6,
-    "margin_lat": 0.4,
-    "margin_long": 2.5,
-    "margin_rate": 1.0,
-    # the time-linear margins above were chosen for this setting; not the sample-driven default
-    "margin_mode": "linear",
-    "reselect": 0,
-}
+#: the planner of this benchmark (:meth:`mmdopt.MMDOptConfig.highway`), in its nested JSON form
+HIGHWAY_PLANNER: dict[str, Any] = mmdopt.MMDOptConfig.highway().to_dict()
 
 
 def highway_available() -> bool:
@@ -58,10 +43,8 @@ def _require_highway():
 
 
 def highway_config(overrides: dict | None = None) -> mmdopt.MMDOptConfig:
-    """:data:`HIGHWAY_PLANNER` on top of ``MMDOptConfig()``, then ``overrides`` (field names)."""
-    kw = dict(HIGHWAY_PLANNER)
-    kw.update(overrides or {})
-    return mmdopt.MMDOptConfig().replace(**kw)
+    """The preset :meth:`mmdopt.MMDOptConfig.highway`, then ``overrides`` (field names)."""
+    return mmdopt.MMDOptConfig.highway(**(overrides or {}))
 
 
 @dataclass(frozen=True)

@@ -4,7 +4,7 @@
 builds lane chains, reference paths and predictor inputs; :mod:`.data` the train/held-out split
 and training windows; :mod:`.metric` footprints and the at-fault rule; :mod:`.runner` the
 benchmark (:func:`run_ngsim`); :mod:`.plot` figures; :mod:`.cli` the ``bench ngsim`` and
-``predictor train|eval`` commands.  See docs/ngsim.md.
+``predictor train|eval`` commands.  See docs/experiments/ngsim.md.
 """
 
 from .runner import RESULT_COLUMNS, NgsimParams, ngsim_config, run_ngsim, select_tasks

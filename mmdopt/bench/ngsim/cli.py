@@ -44,7 +44,7 @@ def default_data_dir() -> Path:
 
 def add_ngsim_parser(bench_subparsers) -> argparse.ArgumentParser:
     """``bench ngsim``: MMD-Opt in recorded US-101 traffic (CommonRoad scenes)."""
-    from mmdopt.baselines import METHODS
+    from mmdopt.baselines import PLAN_METHODS as METHODS
     from mmdopt.predict import PREDICTORS
 
     q = bench_subparsers.add_parser(

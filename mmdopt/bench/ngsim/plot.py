@@ -99,7 +99,8 @@ def ngsim_scene_figure(
     ax.set_xlabel("x (m)")
     ax.set_ylabel("y (m)")
     ax.set_title(
-        f"{sc.name}, ego {task['ego_id']} at t0 = {task['t0']} s, horizon {cfg.horizon:g} s"
+        f"{sc.name}, ego {task['ego_id']} at t0 = {task['t0']} s, "
+        f"horizon {cfg.trajectory.horizon:g} s"
     )
     ax.legend(loc="upper left", fontsize=8, framealpha=0.9)
     fig.tight_layout()

@@ -188,14 +188,14 @@ def ngsim_config(**overrides) -> mmdopt.MMDOptConfig:
     collision.  Planning margins: ``margin_long = 1.5`` m, ``margin_rate = 0.5`` m/s,
     ``margin_lat = 0.2`` m (with the follower rule below: 1.5 + 0.5·t m; the synthetic
     defaults 2.5 + 1.9·t, and an earlier 2.5 + 1.0·t, made every plan in stop-and-go
-    traffic enter some margin, docs/ngsim.md).  The metric
+    traffic enter some margin, docs/experiments/ngsim.md).  The metric
     (``collision_free``) uses the same ``a``, ``b``.
 
     Sizes for 10–15 obstacles in real time on 2 cores: 300 behavioural samples, n_cem 60,
     n_e 20, 10 iterations, reduced sets of m = 10 (selection CEM: population 50, 10 elites,
     20 iterations) — with the paper's sizes (1000/150/50, 20 iterations, m = 20, selection
     100/20/75) one plan against 10 obstacles took 7.5 s vs 1.1 s here on a loaded 2-core CPU
-    (docs/ngsim.md).  Pass the paper's sizes through ``overrides`` (or ``--config``).
+    (docs/experiments/ngsim.md).  Pass the paper's sizes through ``overrides`` (or ``--config``).
 
     Responsibility (no at-fault collision; :class:`mmdopt.MMDOptConfig`, responsibility-aware
     longitudinal model): ``rear_exempt_width = 2.0`` m — obstacle points behind the ego and
@@ -203,41 +203,18 @@ def ngsim_config(**overrides) -> mmdopt.MMDOptConfig:
     follower runs through the ego, so the plan neither dodges a closing follower sideways into
     the next lane nor races ahead of it.  The time-headway
     floor (``headway_time``, ``headway_gap``) is available but off: on the training scenes it
-    cost progress without removing an at-fault contact (docs/ngsim.md, "Tuning").  Chosen on
-    the training recordings only (``benchmarks/ngsim_safety_tuning.py``).
+    cost progress without removing an at-fault contact (docs/experiments/ngsim.md, "Tuning").
+    Chosen on the training recordings only (``benchmarks/ngsim_safety_tuning.py``).
 
     Kinematic slip limit ``slip_ratio = 0.5`` (:class:`mmdopt.MMDOptConfig`): ``|ḋ| ≤ 0.5·ṡ``,
     so a crawling plan cannot stop and then slide sideways (a footprint turned by 90° in the
     metric); on the training recordings it removed one of the three at-fault contacts
-    (docs/ngsim.md).
+    (docs/experiments/ngsim.md).
 
     Yaw-aware footprint ``yaw_extent = 2.5`` m (half a car's length, as ``a`` assumes): the
     lateral semi-axis grows by ``2.5·|sin Δθ|`` where the plan turns from the path, so a
-    crawling plan does not swing a corner into the next lane (docs/ngsim.md)."""
-    base = dict(
-        horizon=5.0,
-        num_steps=51,
-        a=3.0,
-        b=2.2,
-        margin_long=1.5,
-        margin_lat=0.2,
-        margin_rate=0.5,
-        n_samples=300,
-        n_cem=60,
-        n_elite=20,
-        iterations=10,
-        reduced_set_size=10,
-        reduced_set=mmdopt.ReducedSetConfig(iterations=20, population=50, n_elite=10),
-        rear_exempt_width=2.0,
-        slip_ratio=0.5,
-        yaw_extent=2.5,
-        # the time-linear margins above were tuned on the training recordings; the
-        # sample-driven default (mmdopt.risk) was not
-        margin_mode="linear",
-        reselect=0,
-    )
-    base.update(overrides)
-    return mmdopt.MMDOptConfig(**base)
+    crawling plan does not swing a corner into the next lane (docs/experiments/ngsim.md)."""
+    return mmdopt.MMDOptConfig.ngsim(**overrides)
 
 
 # --------------------------------------------------------------------------- task selection
@@ -262,7 +239,7 @@ def select_tasks(paths, params: NgsimParams | None = None, config=None) -> list[
     tasks = []
     for f in scenario_files(paths):
         sc = load_scenario(str(f))
-        K = int(round(cfg.horizon / sc.dt))
+        K = int(round(cfg.trajectory.horizon / sc.dt))
         t0 = p.first_t0
         while True:
             k = int(round(t0 / sc.dt))
@@ -288,7 +265,7 @@ def build_task(task: dict, params: NgsimParams, config: mmdopt.MMDOptConfig) -> 
     sc = load_scenario(task["scenario"])
     v = int(np.flatnonzero(sc.ids == task["ego_id"])[0])
     k = int(task["k"])
-    times = np.linspace(0.0, config.horizon, config.num_steps)
+    times = np.linspace(0.0, config.trajectory.horizon, config.trajectory.num_steps)
     path, off_l, off_r = ego_road_geometry(sc, v, k)
     x, y = sc.xy[v, k]
     ego = path.ego_state(
@@ -467,7 +444,11 @@ def run_task(
         )
         score = _score_recorded(b, plan, params)
         # the paper's metric (§IV-A): validation draws clear of every obstacle
-        cf = int(mmdopt.collision_free_count(plan.xy, val, a=float(cfg.a), b=float(cfg.b)).joint)
+        cf = int(
+            mmdopt.collision_free_count(
+                plan.xy, val, a=float(cfg.safety.footprint.a), b=float(cfg.safety.footprint.b)
+            ).joint
+        )
         rows.append(
             dict(
                 scenario=Path(task["scenario"]).stem,

@@ -92,9 +92,13 @@ def test_planner_config_file_overrides_fields():
         {"baseline_margin_scale": 1, "w_mmd": 2e4, "reduced_set": {"iterations": 20}}
     )
     assert isinstance(cfg, mmdopt.MMDOptConfig)
-    assert cfg.baseline_margin_scale == 1.0 and isinstance(cfg.baseline_margin_scale, float)
-    assert cfg.w_mmd == 2e4 and cfg.reduced_set.iterations == 20
-    assert cfg.n_samples == mmdopt.MMDOptConfig().n_samples  # untouched fields keep defaults
+    assert cfg.baselines.baseline_margin_scale == 1.0 and isinstance(
+        cfg.baselines.baseline_margin_scale, float
+    )
+    assert cfg.cost.w_mmd == 2e4 and cfg.selection.reduced_set.iterations == 20
+    assert (
+        cfg.cem.n_samples == mmdopt.MMDOptConfig().cem.n_samples
+    )  # untouched fields keep defaults
 
 
 def test_module_entry_point_exit_status():
@@ -176,7 +180,7 @@ def test_smoke_five_scenes_pipeline_bar(tmp_path, capsys):
 
     Its bar is the pipeline's, not the paper's: every plan kinematically feasible and making
     progress, and MMD-Opt's mean collision-free count above a floor measured on these 5 scenes
-    (see docs/benchmarks.md; the full 100-scene sweep is run by hand, not in CI).
+    (see docs/experiments/synthetic.md; the full 100-scene sweep is run by hand, not in CI).
     """
     out = tmp_path / "smoke"
     rc, _ = _run(

@@ -229,7 +229,9 @@ def test_sweep_refuses_to_mix_settings(tmp_path, fake_planner):
 def test_timing_table_has_the_contract_columns_and_algorithm1_inside_plan(tmp_path):
     """``run_timing`` (``mmdopt bench timing``) writes the contract columns; Algorithm 1 (the CEM
     alone) takes no longer than the whole ``plan()`` call that contains it."""
-    cfg = mmdopt.MMDOptConfig(n_samples=200, n_cem=40, n_elite=15, iterations=3, n_brake=5)
+    cfg = mmdopt.MMDOptConfig().replace(
+        n_samples=200, n_cem=40, n_elite=15, iterations=3, n_brake=5
+    )
     rows = timing.run_timing(tmp_path, sizes=[5], samples=[], repeats=2, config=cfg, progress=False)
     with open(tmp_path / "timing.csv") as f:
         got = list(csv.DictReader(f))
@@ -243,7 +245,9 @@ def test_timing_table_has_the_contract_columns_and_algorithm1_inside_plan(tmp_pa
 
 def test_obstacle_timing_table_has_its_columns(tmp_path):
     """``bench timing --obstacles``: one row per obstacle count; far traffic is cheap."""
-    cfg = mmdopt.MMDOptConfig(n_samples=200, n_cem=40, n_elite=15, iterations=3, n_brake=5)
+    cfg = mmdopt.MMDOptConfig().replace(
+        n_samples=200, n_cem=40, n_elite=15, iterations=3, n_brake=5
+    )
     rows = timing.run_obstacle_timing(tmp_path, counts=[3], repeats=1, config=cfg, progress=False)
     assert [r["obstacles"] for r in rows] == [3]
     with open(tmp_path / "timing_obstacles.csv") as f:

@@ -95,7 +95,7 @@ def test_timing_figure(tmp_path, saved):
 @pytest.mark.slow  # compiles Algorithm 1 (~20-30 s on a loaded 2-core machine)
 def test_scene_figure_has_a_legend_per_panel(tmp_path, saved):
     scene = demo_scene()
-    cfg = mmdopt.MMDOptConfig(n_cem=40, n_elite=10, iterations=2, n_brake=5)
+    cfg = mmdopt.MMDOptConfig().replace(n_cem=40, n_elite=10, iterations=2, n_brake=5)
     plans = {
         m: mmdopt.plan(scene.ego(), scene.road(), scene.obstacles, method=m, config=cfg)
         for m in ("degroot", "mmd")

@@ -236,15 +236,15 @@ def test_responsibility_options_validated_and_off_by_default():
     import mmdopt
     from mmdopt.bench.ngsim import ngsim_config
 
-    assert not mmdopt.MMDOptConfig().asymmetric
+    assert not mmdopt.MMDOptConfig().safety.rules.asymmetric
     cfg = ngsim_config()
-    assert cfg.asymmetric and cfg.rear_exempt_width > 0
-    assert mmdopt.MMDOptConfig(headway_time=0.5).asymmetric
+    assert cfg.safety.rules.asymmetric and cfg.safety.rules.rear_exempt_width > 0
+    assert mmdopt.MMDOptConfig().replace(headway_time=0.5).safety.rules.asymmetric
     for name in ("headway_time", "headway_gap", "margin_ahead_scale", "rear_exempt_width"):
         with pytest.raises(ValueError, match=name):
-            mmdopt.MMDOptConfig(**{name: -1.0})
+            mmdopt.MMDOptConfig().replace(**{name: -1.0})
         with pytest.raises(ValueError, match=name):
-            mmdopt.MMDOptConfig(**{name: float("nan")})
+            mmdopt.MMDOptConfig().replace(**{name: float("nan")})
 
 
 def test_traffic_aware_desired_speed():
@@ -287,11 +287,11 @@ def test_plan_keeps_the_time_headway_to_a_slower_leader():
         reduced_set=mmdopt.ReducedSetConfig(population=16, n_elite=4, iterations=3), v_des=25.0,
     )  # fmt: skip
     cfg = ngsim_config(**small, headway_time=1.0, headway_gap=2.0)
-    assert cfg.asymmetric
+    assert cfg.safety.rules.asymmetric
     p = mmdopt.plan_frenet(ego, road, obs, config=cfg, key=jax.random.PRNGKey(0))
     assert p.feasible and not p.fallback, p.status
     # the leader's rear circle (2.5 m behind its centre) to the ego point, minus the rule
-    gap = np.mean(s_lead, 0) - 2.5 - p.s - (cfg.a + 2.0 + 1.0 * p.vs)
+    gap = np.mean(s_lead, 0) - 2.5 - p.s - (cfg.safety.footprint.a + 2.0 + 1.0 * p.vs)
     assert gap.min() >= -0.5, gap.min()
     assert p.vs[-1] > 6.0  # it follows the 10 m/s leader, it does not just stop
 
@@ -301,7 +301,7 @@ def test_crawling_ego_does_not_slide_sideways_at_rest(ngsim_dir):
     """Stop-and-go traffic (training recording 4_1, ego 442 at 1.5 m/s, t0 = 5 s): without the
     kinematic slip limit the plan stopped and then moved 0.4 m sideways, a sideways slide whose
     footprint (heading atan2(ḋ, ṡ) ≈ −90°) touched the car beside it (an at-fault *front*
-    contact, docs/ngsim.md).  With ``ngsim_config()`` (slip_ratio 0.5) the lateral speed
+    contact, docs/experiments/ngsim.md).  With ``ngsim_config()`` (slip_ratio 0.5) the lateral speed
     stays within the limit at every step and the plan is clear of the recorded traffic."""
     import mmdopt
     from mmdopt.bench.ngsim.runner import NgsimParams, _score_recorded, ngsim_config, plan_inputs
@@ -311,7 +311,11 @@ def test_crawling_ego_does_not_slide_sideways_at_rest(ngsim_dir):
         pytest.skip(f"{f} not found")
     p = NgsimParams(egos_per_time=1)
     cfg0 = ngsim_config()
-    assert cfg0.kinematic and cfg0.slip_ratio == 0.5 and cfg0.yaw_aware
+    assert (
+        cfg0.safety.rules.kinematic
+        and cfg0.safety.rules.slip_ratio == 0.5
+        and cfg0.safety.footprint.yaw_aware
+    )
 
     def plan_task(k: int, t0: float):
         """The benchmark's plan of ego 442 at step k (its samples, key and config)."""
@@ -326,9 +330,9 @@ def test_crawling_ego_does_not_slide_sideways_at_rest(ngsim_dir):
     inp, cfg, plan = plan_task(50, 5.0)
     b = inp.task
     e = b["ego"]
-    v0 = max(abs(e.vd) - cfg.slip_ratio * max(e.vs, 0.0), 0.0)
-    excess = np.abs(plan.vd) - cfg.slip_ratio * np.maximum(plan.vs, 0.0) - v0
-    assert excess.max() <= cfg.slip_tol + 1e-3, excess.max()
+    v0 = max(abs(e.vd) - cfg.safety.rules.slip_ratio * max(e.vs, 0.0), 0.0)
+    excess = np.abs(plan.vd) - cfg.safety.rules.slip_ratio * np.maximum(plan.vs, 0.0) - v0
+    assert excess.max() <= cfg.safety.rules.slip_tol + 1e-3, excess.max()
     assert float(e.vs) < 2.0 and plan.vs[-1] < 0.5  # it is the crawling case: the plan stops
     sc = _score_recorded(b, plan, p)
     assert not sc["at_fault_collision"], sc

@@ -54,9 +54,9 @@ def test_output_feeds_the_planner_grid_shape():
 
     cfg = MMDOptConfig()
     s, cur, _, _ = _trajectron_like(T=30, dt=0.5)  # 15 s
-    tg = np.linspace(0.0, cfg.horizon, cfg.num_steps)
+    tg = np.linspace(0.0, cfg.trajectory.horizon, cfg.trajectory.num_steps)
     out = resample_prediction(s, 0.5, tg, current=cur)
-    assert out.shape == (5, cfg.num_steps, 2)
+    assert out.shape == (5, cfg.trajectory.num_steps, 2)
     assert np.all(np.isfinite(out))
 
 
