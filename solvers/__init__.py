@@ -25,6 +25,7 @@ qpsolvers, ...) is imported when that backend is first used.
 """
 
 from .base import Backend
+from .diff import QPGrad, vjp
 from .errors import (
     BackendUnavailableError,
     InvalidSettingError,
@@ -63,4 +64,15 @@ __all__ = [
     "solve",
     "solve_batch",
     "solve_qp",
+    "QPGrad",
+    "vjp",
 ]
+
+
+def __getattr__(name: str):
+    # ``solvers.jax`` (the differentiable JAX layer) is imported on first use: it imports JAX
+    if name == "jax":
+        import importlib
+
+        return importlib.import_module(".jax", __name__)
+    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")

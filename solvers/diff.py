@@ -1,0 +1,160 @@
+"""Host-side derivatives of a solved QP: :func:`vjp` (NumPy/SciPy, sparse-aware).
+
+For ``min ½xᵀPx + qᵀx  s.t.  l ≤ Ax ≤ u`` solved by any backend, :func:`vjp` returns the gradient
+of ``dx · x*`` with respect to ``P, q, A, l, u`` by implicit differentiation of the KKT conditions
+at the returned primal–dual point ``(sol.x, sol.y)``: one solve with the reduced KKT matrix
+
+    K = [[P, Aᵀ S], [S A, −(I − S)]],       K (w_x, w_y) = (dx, 0),
+
+then ``∂/∂q = −w_x``, ``∂/∂P = −½(w_x xᵀ + x w_xᵀ)``, ``∂/∂A = −(y w_xᵀ + w_y xᵀ)``,
+``∂/∂l = W_l w_y``, ``∂/∂u = W_u w_y``.  The conventions are those of :mod:`solvers.jax` (the JAX
+layer computes the same numbers): row ``i`` is active at its lower bound when ``y_i < −τ``, at its
+upper bound when ``y_i > τ`` (``τ = active_tol · max(1, ‖y‖∞)``); equality rows are always active,
+their sensitivity going to ``l`` or ``u`` by the sign of ``y_i`` (half to each when ``|y_i| ≤ τ``);
+weakly active rows count as inactive (a one-sided derivative); a QP that is not ``SOLVED`` gets NaN
+gradients.
+
+``sol.y`` is in OSQP's sign convention (``Px + q + Aᵀy = 0``, ``y ≥ 0`` at upper bounds): every
+backend of :mod:`solvers` returns it so (Clarabel's cone duals, cvxpy's per-constraint duals and
+qpsolvers' ``(z, y)`` are mapped onto the rows of ``A`` by the backend), and :func:`vjp` refuses a
+``y`` that only fits the opposite sign.
+
+Sparse ``P`` or ``A`` give a sparse KKT matrix (SuperLU) and sparse gradients on the sparsity
+pattern of ``P`` and ``A`` (the derivative with respect to an entry that is structurally zero is
+not formed); dense inputs give dense gradients.
+"""
+
+from __future__ import annotations
+
+from typing import Any, NamedTuple
+
+import numpy as np
+import scipy.linalg as sla
+import scipy.sparse as sp
+import scipy.sparse.linalg as spla
+
+from .problem import QP
+from .solution import Status
+
+__all__ = ["QPGrad", "vjp"]
+
+
+class QPGrad(NamedTuple):
+    """Gradients of a scalar ``dx · x*`` with respect to the data of a :class:`solvers.QP`.
+
+    ``P`` (symmetric) and ``A`` are dense arrays, or ``scipy.sparse`` CSC matrices on the pattern
+    of the QP's own ``P`` and ``A`` when those are sparse; ``q (n,)``, ``l, u (m,)``.
+    """
+
+    P: Any
+    q: np.ndarray
+    A: Any
+    l: np.ndarray
+    u: np.ndarray
+
+
+def _active(y: np.ndarray, l: np.ndarray, u: np.ndarray, active_tol: float):
+    tau = active_tol * max(1.0, float(np.max(np.abs(y), initial=0.0)))
+    eq = np.isfinite(l) & (l == u)
+    lo, up = y < -tau, y > tau
+    zero = ~(lo | up)
+    a = (lo | up | eq).astype(np.float64)
+    wl = np.where(lo, 1.0, np.where(eq & zero, 0.5, 0.0))
+    wu = np.where(up, 1.0, np.where(eq & zero, 0.5, 0.0))
+    return a, wl, wu
+
+
+def _nan_grad(qp: QP) -> QPGrad:
+    def mat(M: Any) -> Any:
+        if sp.issparse(M):
+            out = sp.csc_matrix(M, dtype=np.float64, copy=True)
+            out.data[:] = np.nan
+            return out
+        return np.full(np.shape(M), np.nan)
+
+    nan = lambda k: np.full(k, np.nan)  # noqa: E731
+    return QPGrad(mat(qp.P), nan(qp.n), mat(qp.A), nan(qp.m), nan(qp.m))
+
+
+def _on_pattern(M: Any, left: list[np.ndarray], right: list[np.ndarray], scale: float) -> Any:
+    """``scale · Σ left_k right_kᵀ``: dense, or on the sparsity pattern of a sparse ``M``."""
+    if not sp.issparse(M):
+        return scale * sum(np.outer(a, b) for a, b in zip(left, right, strict=True))
+    C = sp.coo_matrix(M)
+    vals = scale * sum(a[C.row] * b[C.col] for a, b in zip(left, right, strict=True))
+    return sp.csc_matrix((vals, (C.row, C.col)), shape=C.shape)
+
+
+def vjp(qp: QP, sol: Any, dx: Any, *, active_tol: float = 1e-6) -> QPGrad:
+    """Gradient of ``dx · x*`` with respect to ``P, q, A, l, u`` at a backend's solution.
+
+    Parameters
+    ----------
+    qp : the :class:`solvers.QP` that was solved.
+    sol : its :class:`solvers.Solution` (any backend; ``sol.x``, ``sol.y``, ``sol.status`` are
+        read).  Not ``SOLVED``, or without finite duals: every gradient entry is NaN.
+    dx : (n,) the cotangent of ``x*`` (e.g. ``∂loss/∂x``).
+    active_tol : relative threshold on ``|y_i|`` for a row to be active (see the module docstring).
+
+    Returns
+    -------
+    QPGrad
+        ``(P, q, A, l, u)`` gradients; see :class:`QPGrad` for dense/sparse.
+    """
+    if not isinstance(qp, QP):
+        raise ValueError(f"qp must be a solvers.QP, got {type(qp).__name__}")
+    for attr in ("x", "y", "status"):
+        if not hasattr(sol, attr):
+            raise ValueError(
+                f"sol must be a solvers.Solution (with .{attr}), got {type(sol).__name__}"
+            )
+    if isinstance(active_tol, bool) or not (
+        isinstance(active_tol, (int, float, np.floating)) and 0.0 <= active_tol < 1.0
+    ):
+        raise ValueError(f"active_tol must be a number in [0, 1), got {active_tol!r}")
+    n, m = qp.n, qp.m
+    g = np.asarray(dx, dtype=np.float64)
+    if g.shape != (n,) or not np.all(np.isfinite(g)):
+        raise ValueError(f"dx must be a finite array of shape ({n},), got shape {g.shape}")
+    x = np.asarray(sol.x, dtype=np.float64).reshape(-1)
+    y = np.asarray(sol.y, dtype=np.float64).reshape(-1)
+    if x.shape != (n,) or y.shape != (m,):
+        raise ValueError(
+            f"sol does not match qp: sol.x has shape {x.shape} (expected ({n},)), "
+            f"sol.y {y.shape} (expected ({m},))"
+        )
+    if Status(int(sol.status)) is not Status.SOLVED or not (
+        np.all(np.isfinite(x)) and np.all(np.isfinite(y))
+    ):
+        return _nan_grad(qp)
+    P, A = qp.P, qp.A
+    if m:
+        # OSQP's sign convention, as every backend returns it: refuse the opposite one
+        base = P @ x + qp.q
+        r_plus = np.max(np.abs(base + A.T @ y))
+        r_minus = np.max(np.abs(base - A.T @ y))
+        if r_minus < 1e-3 * r_plus and r_plus > 1e-6 * max(1.0, np.max(np.abs(base))):
+            raise ValueError(
+                "sol.y fits Px + q − Aᵀy = 0: pass duals in OSQP's convention "
+                "(Px + q + Aᵀy = 0, y ≥ 0 at upper bounds), as solvers' backends return them"
+            )
+    a, wl, wu = _active(y, qp.l, qp.u, active_tol)
+    rhs = np.concatenate([g, np.zeros(m)])
+    if qp.is_sparse:
+        Ps, As = sp.csc_matrix(P), sp.csc_matrix(A)
+        K = sp.bmat([[Ps, As.T @ sp.diags(a)], [sp.diags(a) @ As, sp.diags(a - 1.0)]], format="csc")
+        try:
+            w = spla.splu(K).solve(rhs)
+        except RuntimeError:  # singular: linearly dependent active rows
+            return _nan_grad(qp)
+    else:
+        Pd, Ad = np.asarray(P, np.float64), np.asarray(A, np.float64)
+        K = np.block([[Pd, Ad.T * a[None, :]], [a[:, None] * Ad, np.diag(a - 1.0)]])
+        try:
+            w = sla.solve(K, rhs, assume_a="sym")
+        except (np.linalg.LinAlgError, sla.LinAlgError):
+            return _nan_grad(qp)
+    wx, wy = w[:n], w[n:]
+    gP = _on_pattern(P, [wx, x], [x, wx], -0.5)
+    gA = _on_pattern(A, [y, wy], [wx, x], -1.0)
+    return QPGrad(P=gP, q=-wx, A=gA, l=wl * wy, u=wu * wy)
