@@ -4,7 +4,7 @@
 
     mmdopt bench ngsim --scenarios PATH [PATH ...] --out DIR [--methods mmd,degroot]
                        [--predictor learned|lane|cv] [--config FILE.json]
-                       [--executor local|ray] [--jobs J] [--max-tasks N]
+                       [--executor local|ray] [--jobs J] [--max-tasks N] [--export DIR]
     mmdopt predictor train [--data DIR] [--out PATH] [--steps N] [--seed S] [--no-eval]
     mmdopt predictor eval  [--data DIR] [--weights PATH] [--out FILE.json]
 
@@ -77,6 +77,13 @@ def add_ngsim_parser(bench_subparsers) -> argparse.ArgumentParser:
     add_executor(q)
     q.add_argument("--jobs", type=positive_int, default=1)
     q.add_argument("--max-tasks", type=positive_int, default=None, help="first N tasks only")
+    q.add_argument(
+        "--export",
+        default=None,
+        metavar="DIR",
+        help="write each plan computed in this run as a CommonRoad solution file (KS model) to "
+        "DIR (needs mmdopt[commonroad])",
+    )
     return q
 
 
@@ -110,6 +117,11 @@ def _summary(rows: list[dict]) -> list[dict]:
 def cmd_ngsim(args) -> int:
     from .runner import run_ngsim
 
+    if args.export is not None:
+        from .crcheck import available
+
+        if available() is not None:
+            raise SystemExit(f"mmdopt: error: argument --export: {available()}")
     rows = run_ngsim(
         args.scenarios,
         args.out,
@@ -121,11 +133,15 @@ def cmd_ngsim(args) -> int:
         max_tasks=args.max_tasks,
         address=args.address,
         progress=True,
+        export=args.export,
     )
     summ = _summary(rows)
     Path(args.out, "summary.json").write_text(json.dumps(summ, indent=1))
     for s in summ:
         print(json.dumps(s))
+    from .crcheck import disagreements
+
+    print(disagreements(rows))
     errors = [r for r in rows if str(r.get("status", "")).startswith("error")]
     if errors:
         print(f"{len(errors)} task(s) failed; see 'status' in {args.out}/results.csv")

@@ -46,10 +46,7 @@ def ngsim_scene_figure(
     samples = _predictor(predictor).sample(b["hist"], b["ctx"], p.n_samples, key)
     planned = _pad_ghosts(samples, b["road"], b["ego"], p.max_obstacles)
     fig, ax = plt.subplots(figsize=(8, 8))
-    for lane in sc.lanes.values():
-        for side in (lane.left, lane.right):
-            ax.plot(side[:, 0], side[:, 1], color="0.6", lw=0.8, zorder=1)
-    ax.plot([], [], color="0.6", lw=0.8, label="lanelet boundaries")
+    _draw_lanelets(ax, task["scenario"], sc)
     for o in range(samples.shape[0]):
         for j in range(min(n_draw, samples.shape[1])):
             ax.plot(samples[o, j, :, 0], samples[o, j, :, 1], color="tab:red", alpha=0.12, lw=0.7)
@@ -102,13 +99,35 @@ def ngsim_scene_figure(
         f"{sc.name}, ego {task['ego_id']} at t0 = {task['t0']} s, "
         f"horizon {cfg.trajectory.horizon:g} s"
     )
-    ax.legend(loc="upper left", fontsize=8, framealpha=0.9)
+    ax.legend(loc="upper left", fontsize=8, framealpha=0.9).set_zorder(100)  # over the road
     fig.tight_layout()
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
     fig.savefig(path, dpi=130)
     plt.close(fig)
     return path
+
+
+def _draw_lanelets(ax, scenario_path, sc) -> None:
+    """The scene's lanelet network drawn by commonroad-io's ``MPRenderer`` on ``ax`` (lanelet
+    surfaces and boundaries, under everything else); the lanelet boundary polylines of the
+    loaded scene where the renderer is unavailable."""
+    try:
+        from commonroad.common.file_reader import CommonRoadFileReader
+        from commonroad.visualization.mp_renderer import MPRenderer
+
+        scenario, _ = CommonRoadFileReader(str(scenario_path)).open()
+        rnd = MPRenderer(ax=ax)
+        scenario.lanelet_network.draw(rnd)
+        rnd.render()
+        for c in [*ax.collections, *ax.patches, *ax.lines]:
+            c.set_zorder(0)  # the road under the traffic and the plans
+        ax.plot([], [], color="0.3", lw=0.8, label="lanelets (commonroad-io MPRenderer)")
+    except ImportError:
+        for lane in sc.lanes.values():
+            for side in (lane.left, lane.right):
+                ax.plot(side[:, 0], side[:, 1], color="0.6", lw=0.8, zorder=1)
+        ax.plot([], [], color="0.6", lw=0.8, label="lanelet boundaries")
 
 
 def timing_vs_obstacles_figure(rows, path: str | Path) -> Path:

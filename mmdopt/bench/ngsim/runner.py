@@ -101,6 +101,10 @@ RESULT_COLUMNS = (
     "y_ub",
     "cost",
     "seed",
+    # CommonRoad's checkers on the same plan (:mod:`.crcheck`; empty without the checker)
+    "cr_collision_free",
+    "cr_road_compliant",
+    "cr_feasible",
 )
 
 
@@ -431,9 +435,23 @@ def plan_inputs(task: dict, params: NgsimParams, config, predictor: Any = "learn
 
 
 def run_task(
-    task: dict, methods, predictor: str, params: NgsimParams, config, backend: str = PLANNER_BACKEND
+    task: dict,
+    methods,
+    predictor: str,
+    params: NgsimParams,
+    config,
+    backend: str = PLANNER_BACKEND,
+    export: str | Path | None = None,
 ) -> list[dict]:
-    """Plan one task with every method; one result row per method."""
+    """Plan one task with every method; one result row per method.  With CommonRoad's checkers
+    installed each row also has their verdicts (:data:`.crcheck.CR_COLUMNS`); ``export``: a
+    folder to write each plan to as a CommonRoad solution file (:func:`.crcheck.write_solution`,
+    named like the task's JSON)."""
+    from . import crcheck
+
+    check = crcheck.available() is None
+    if export is not None and not check:
+        raise ValueError(f"export needs CommonRoad's checkers: {crcheck.available()}")
     inp = plan_inputs(task, params, config, predictor)
     b, cfg, planned, k_plan = inp.task, inp.config, inp.planned, inp.key_plan
     val = inp.predictor.sample(b["hist"], b["ctx"], params.n_validation, inp.key_validation)
@@ -475,6 +493,18 @@ def run_task(
                 seed=params.seed,
             )
         )
+        sc, v = b["scene"], b["v"]
+        if check:
+            rows[-1].update(
+                crcheck.check_plan(
+                    plan, task["scenario"], task["ego_id"], b["k"], sc.length[v], sc.width[v]
+                )
+            )
+        if export is not None:
+            crcheck.write_solution(
+                plan, task["scenario"], task["ego_id"], b["k"], export,
+                _task_name(task, m, predictor),
+            )  # fmt: skip
     return rows
 
 
@@ -569,7 +599,8 @@ def _json_default(o):
 
 
 def _group_job(args) -> list[dict]:
-    task, methods, predictor, params, config, out = args
+    task, methods, predictor, params, config, out, *rest = args
+    export = rest[0] if rest else None
     todo = [
         m
         for m in methods
@@ -578,7 +609,7 @@ def _group_job(args) -> list[dict]:
     if not todo:
         return []
     try:
-        rows = run_task(task, todo, predictor, params, config)
+        rows = run_task(task, todo, predictor, params, config, export=export)
     except Exception as exc:  # a bad scene is reported, never crashes the sweep
         rows = [
             dict(
@@ -647,6 +678,7 @@ def run_ngsim(
     max_tasks: int | None = None,
     address: str | None = None,
     progress: bool = False,
+    export: str | Path | None = None,
 ) -> list[dict]:
     """Run the benchmark on the scenario files/folders ``scenarios``; write ``OUT/results.csv``.
 
@@ -656,6 +688,8 @@ def run_ngsim(
     "local" (``jobs`` processes) or "ray" (:func:`mmdopt.bench.executors.run_tasks`);
     ``max_tasks``: the first tasks only (smoke runs).  Resumable: finished (task, method) files
     in ``OUT/tasks`` are skipped; ``OUT/run.json`` must match the settings.  Returns the rows.
+    ``export``: a folder for each plan computed in this run as a CommonRoad solution file
+    (:func:`.crcheck.write_solution`; resumed tasks are not planned again, so not exported).
     """
     from mmdopt.bench.executors import check_manifest, run_tasks
 
@@ -691,7 +725,7 @@ def run_ngsim(
         ),
     )
     args = [
-        (t, methods, predictor, p, cfg, out)
+        (t, methods, predictor, p, cfg, out, None if export is None else Path(export))
         for t in tasks
         if not all(
             (out / "tasks" / (_task_name(t, m, predictor) + ".json")).exists() for m in methods

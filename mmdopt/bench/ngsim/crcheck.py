@@ -1,0 +1,238 @@
+"""CommonRoad's own checkers on the benchmark's plans (``commonroad-drivability-checker``).
+
+A second opinion on every plan of ``mmdopt bench ngsim``, from the tools the CommonRoad
+benchmark suite scores solutions with, on the same recorded scene:
+
+* ``cr_collision_free``: the plan's footprint (the removed car's length × width, centred on the
+  planned position and turned to the planned heading: the footprint of :mod:`.metric`) against
+  every *other* recorded obstacle of the scene (``pycrcc`` time-variant collision objects of the
+  recorded trajectories; the ego's own recording is left out);
+* ``cr_road_compliant``: the same footprint against the road boundary obstacle of the lanelet
+  network (``commonroad_dc.boundary``, method "obb_rectangles": oriented rectangles along
+  the outer lanelet boundaries);
+* ``cr_feasible``: the trajectory is reproducible by the kinematic single-track model (KS) of
+  :data:`VEHICLE_TYPE` (``commonroad_dc.feasibility.feasibility_checker.trajectory_feasibility``:
+  for each 0.1 s step an input within the model's steering-rate and acceleration bounds that
+  reaches the next planned position and orientation within the checker's default tolerance).
+  KS states need a steering angle, which the planner does not output: it is the one of the KS
+  model's path curvature, ``δ = atan(l_wb · θ̇ / v)`` from the planned heading rate.
+
+:func:`solution` / :func:`write_solution` give a plan as a CommonRoad solution file
+(``commonroad.common.solution``: one ``PlanningProblemSolution`` of the KS model, the ego's
+recorded obstacle id as the planning problem id, its trajectory of KS states).
+
+Needs ``commonroad-io`` < 2026 (2024.3 checked) and ``commonroad-drivability-checker`` 2025.4
+(``pip install 'mmdopt[commonroad]'``); :func:`available` says whether they import.
+"""
+
+from __future__ import annotations
+
+from functools import lru_cache
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+__all__ = [
+    "CR_COLUMNS",
+    "VEHICLE_MODEL",
+    "VEHICLE_TYPE",
+    "available",
+    "plan_trajectory",
+    "check_plan",
+    "solution",
+    "write_solution",
+    "disagreements",
+]
+
+#: results.csv columns written by :func:`check_plan` (booleans)
+CR_COLUMNS = ("cr_collision_free", "cr_road_compliant", "cr_feasible")
+#: the vehicle model of the feasibility check and of exported solutions
+VEHICLE_MODEL = "KS"
+#: the vehicle parameters of the KS model (CommonRoad vehicle type 2)
+VEHICLE_TYPE = "BMW_320i"
+
+
+def available() -> str | None:
+    """None if the checker and a compatible commonroad-io import, else why not."""
+    try:
+        import commonroad_dc.boundary.boundary  # noqa: F401
+        import commonroad_dc.feasibility.feasibility_checker  # noqa: F401
+        from commonroad.common.solution import CommonRoadSolutionWriter  # noqa: F401
+        from commonroad_dc.collision.collision_detection.pycrcc_collision_dispatch import (  # noqa: F401
+            create_collision_object,
+        )
+    except Exception as exc:  # ImportError, or a checker built against another commonroad-io
+        return (
+            f"CommonRoad's checkers do not import ({type(exc).__name__}: {exc}); "
+            "pip install 'mmdopt[commonroad]' (commonroad-io<2026, "
+            "commonroad-drivability-checker)"
+        )
+    return None
+
+
+@lru_cache(maxsize=4)
+def _scenario(path: str):
+    """(scenario, obstacle collision objects by id, road boundary collision object) of a file."""
+    from commonroad.common.file_reader import CommonRoadFileReader
+    from commonroad_dc.boundary.boundary import create_road_boundary_obstacle
+    from commonroad_dc.collision.collision_detection.pycrcc_collision_dispatch import (
+        create_collision_object,
+    )
+
+    scenario, _ = CommonRoadFileReader(str(path)).open()
+    objs = {int(o.obstacle_id): create_collision_object(o) for o in scenario.obstacles}
+    _, boundary = create_road_boundary_obstacle(scenario, method="obb_rectangles")
+    return scenario, objs, boundary
+
+
+def _vehicle():
+    from commonroad.common.solution import VehicleModel, VehicleType
+    from commonroad_dc.feasibility.vehicle_dynamics import VehicleDynamics
+
+    return VehicleDynamics.from_model(VehicleModel[VEHICLE_MODEL], VehicleType[VEHICLE_TYPE])
+
+
+def plan_trajectory(plan: Any, k0: int, dt: float):
+    """The plan as a CommonRoad ``Trajectory`` of KS states from time step ``k0`` (the task's
+    planning step), resampled onto the scene's grid of ``dt`` seconds.
+
+    ``plan``: anything with ``t, x, y, heading, speed`` arrays (an :class:`mmdopt.Plan`)."""
+    from commonroad.scenario.state import KSState
+    from commonroad.scenario.trajectory import Trajectory
+
+    if not (isinstance(dt, int | float) and dt > 0):
+        raise ValueError(f"dt must be > 0, got {dt!r}")
+    if not (isinstance(k0, int | np.integer) and k0 >= 0):
+        raise ValueError(f"k0 must be an integer >= 0, got {k0!r}")
+    t = np.asarray(plan.t, float) - float(np.asarray(plan.t)[0])
+    n = int(np.floor(t[-1] / dt + 1e-9)) + 1
+    tg = np.arange(n) * dt
+    x, y, v = (np.interp(tg, t, np.asarray(a, float)) for a in (plan.x, plan.y, plan.speed))
+    th = np.interp(tg, t, np.unwrap(np.asarray(plan.heading, float)))
+    l_wb = float(_vehicle().parameters.a + _vehicle().parameters.b)
+    dth = np.gradient(th, dt) if n > 1 else np.zeros(n)
+    delta = np.arctan(l_wb * dth / np.maximum(v, 0.1))
+    states = [
+        KSState(
+            time_step=int(k0 + i),
+            position=np.array([x[i], y[i]]),
+            steering_angle=float(delta[i]),
+            velocity=float(v[i]),
+            orientation=float(th[i]),
+        )
+        for i in range(n)
+    ]
+    return Trajectory(initial_time_step=int(k0), state_list=states)
+
+
+def check_plan(
+    plan: Any, scenario_path: str | Path, ego_id: int, k0: int, length: float, width: float
+) -> dict[str, bool]:
+    """:data:`CR_COLUMNS` of one plan of the ego ``ego_id`` planned at step ``k0`` of the scene
+    ``scenario_path`` (its footprint ``length`` × ``width`` m)."""
+    from commonroad.geometry.shape import Rectangle
+    from commonroad.prediction.prediction import TrajectoryPrediction
+    from commonroad_dc.collision.collision_detection.pycrcc_collision_dispatch import (
+        create_collision_object,
+    )
+    from commonroad_dc.feasibility.feasibility_checker import trajectory_feasibility
+
+    for name, val in (("length", length), ("width", width)):
+        if not (np.isfinite(val) and val > 0):
+            raise ValueError(f"{name} must be a finite number > 0, got {val!r}")
+    scenario, objs, boundary = _scenario(str(scenario_path))
+    if int(ego_id) not in objs:
+        raise ValueError(f"ego_id {ego_id} is not an obstacle of {scenario_path}")
+    traj = plan_trajectory(plan, k0, float(scenario.dt))
+    ego = create_collision_object(
+        TrajectoryPrediction(traj, Rectangle(float(length), float(width)))
+    )
+    hit = any(o.collide(ego) for i, o in objs.items() if i != int(ego_id))
+    try:
+        feasible, _ = trajectory_feasibility(traj, _vehicle(), float(scenario.dt))
+    except Exception:  # the checker's input reconstruction failed: not reproducible
+        feasible = False
+    return dict(
+        cr_collision_free=not hit,
+        cr_road_compliant=not boundary.collide(ego),
+        cr_feasible=bool(feasible),
+    )
+
+
+def solution(plan: Any, scenario_path: str | Path, ego_id: int, k0: int):
+    """A CommonRoad ``Solution`` of one plan (KS model, :data:`VEHICLE_TYPE`, planning problem
+    id = the ego's recorded obstacle id)."""
+    from commonroad.common.solution import (
+        CostFunction,
+        PlanningProblemSolution,
+        Solution,
+        VehicleModel,
+        VehicleType,
+    )
+
+    scenario, _, _ = _scenario(str(scenario_path))
+    pps = PlanningProblemSolution(
+        planning_problem_id=int(ego_id),
+        vehicle_model=VehicleModel[VEHICLE_MODEL],
+        vehicle_type=VehicleType[VEHICLE_TYPE],
+        cost_function=CostFunction.SM1,
+        trajectory=plan_trajectory(plan, k0, float(scenario.dt)),
+    )
+    return Solution(scenario.scenario_id, [pps], computation_time=float(plan.plan_time_s))
+
+
+def write_solution(
+    plan: Any, scenario_path: str | Path, ego_id: int, k0: int, out_dir: str | Path, name: str
+) -> Path:
+    """Write :func:`solution` to ``out_dir/name.xml`` (CommonRoadSolutionWriter); the path."""
+    from commonroad.common.solution import CommonRoadSolutionWriter
+
+    out_dir = Path(out_dir)
+    out_dir.mkdir(parents=True, exist_ok=True)
+    CommonRoadSolutionWriter(solution(plan, scenario_path, ego_id, k0)).write_to_file(
+        output_path=str(out_dir), filename=f"{name}.xml", overwrite=True
+    )
+    return out_dir / f"{name}.xml"
+
+
+def _is_bool(v: Any) -> bool:
+    return isinstance(v, bool | np.bool_)
+
+
+def disagreements(rows: list[dict]) -> str:
+    """Where CommonRoad's checkers and the benchmark's own scores differ, as report lines.
+
+    Compared: ``cr_collision_free`` with ``not any_collision`` (the same footprint against the
+    same recorded vehicles, so they should agree up to the collision checkers' geometry), and
+    ``cr_feasible`` with ``feasible`` (the planner's constraints vs the KS model: these may
+    differ by design).  ``cr_road_compliant`` has no counterpart and is counted.  Rows without
+    the checker's columns (checker absent, failed tasks) are left out."""
+    rr = [r for r in rows if all(_is_bool(r.get(c)) for c in CR_COLUMNS)]
+    if not rr:
+        return "CommonRoad checkers: no verdicts (" + (available() or "no planned rows") + ")"
+
+    def name(r: dict) -> str:
+        return f"{r['scenario']}/ego {r['ego_id']}/t0 {r['t0']}/{r['method']}"
+
+    coll = [r for r in rr if r["cr_collision_free"] == bool(r.get("any_collision"))]
+    feas = [r for r in rr if r["cr_feasible"] != bool(r.get("feasible"))]
+    off = [r for r in rr if not r["cr_road_compliant"]]
+    lines = [
+        f"CommonRoad checkers on {len(rr)} plans: {sum(r['cr_collision_free'] for r in rr)} "
+        f"collision-free, {len(rr) - len(off)} road-compliant, "
+        f"{sum(r['cr_feasible'] for r in rr)} feasible ({VEHICLE_MODEL}, {VEHICLE_TYPE})",
+        f"  collision (checker vs our any_collision): {len(coll)} disagree"
+        + "".join(
+            f"\n    {name(r)}: checker "
+            f"{'collision-free' if r['cr_collision_free'] else 'collision'}, ours "
+            f"{'collision' if r.get('any_collision') else 'collision-free'}"
+            for r in coll
+        ),
+        f"  feasibility (checker's KS model vs our 'feasible'): {len(feas)} disagree"
+        + "".join(
+            f"\n    {name(r)}: checker {r['cr_feasible']}, ours {r.get('feasible')}" for r in feas
+        ),
+        f"  off the road (checker): {len(off)}" + "".join(f"\n    {name(r)}" for r in off),
+    ]
+    return "\n".join(lines)
