@@ -57,12 +57,13 @@ def main() -> None:
     obstacles = alg.ObstacleSet.create(cfg, centres, np.asarray(rs.weights, np.float64), "mmd")
     dt = jnp.float32
     problem = alg.Problem.create(cfg, sc.ego(), sc.road().bounds())
-    prob = alg.build_problem(cfg, problem.bounds)
-    st = alg.init(cfg, problem, jax.random.PRNGKey(0))
+    planner = mmdopt.Planner(cfg)
+    prob = planner.workspace(problem.bounds)
+    st = planner.init(problem, jax.random.PRNGKey(0))
     for _ in range(5):
-        st = alg.update(st, obstacles)
-    ego = st.problem.state
-    ds = jnp.stack([alg._sample(cfg, k, st.mu, st.cov, st.elites, st.problem) for k in st.keys])
+        st = planner.update(problem, st, obstacles)
+    ego = problem.state
+    ds = jnp.stack([alg._sample(cfg, k, st.mu, st.cov, st.elites, problem) for k in st.keys])
     out = {}
     out["project_rows"] = in_graph_ms(lambda d: alg.project_rows(cfg, prob, d, ego, dt)[2], ds)
     cx, cy, _, n_proj = alg.project_rows(cfg, prob, ds[0], ego, dt)

@@ -74,8 +74,8 @@ def flops_per_iteration(
     Np = N if n_proj is None else n_proj
     nv = prob.nvar
     n2 = 2 * nv
-    rows = prob.problem.num_rows
-    grid_rows = prob.grid_problem.num_rows
+    rows = prob.projection.num_rows
+    grid_rows = prob.grid_projection.num_rows
     K, C = cfg.trajectory.num_steps, 3
     E = cfg.cem.n_cem if n_scored is None else n_scored
     admm_it = -(
@@ -110,7 +110,7 @@ def profile_stages(cfg, scene, repeats=10):
     from mmdopt import collision
 
     road = scene.road()
-    prob = alg.build_problem(cfg, road.bounds())
+    prob = mmdopt.Planner(cfg).workspace(road.bounds())
     m = cfg.selection.reduced_set_size
     dt = jnp.float32
     rng = np.random.default_rng(0)
@@ -208,7 +208,7 @@ def main(argv=None) -> None:
         t = time_plan(scene, cfg, repeats=args.repeats)
         first, first_cpu, wall = t["plan_first_s"], t["plan_first_cpu_s"], t["plan_s"]
         cpu, cem, p = t["plan_cpu_s"], t["algorithm1_s"], t["plan"]
-        prob = alg.build_problem(cfg, scene.road().bounds())
+        prob = mmdopt.Planner(cfg).workspace(scene.road().bounds())
         n_proj = float(np.mean(p.diagnostics["n_projected"]))
         fl = flops_per_iteration(
             cfg, prob, m, alg.n_taylor_terms(cfg), n_proj=n_proj, n_scored=scored_rows(cfg)

@@ -14,7 +14,7 @@ float64 ask for it locally (``jax.enable_x64`` inside the call).
 """
 
 from . import algorithm, risk
-from .api import Plan, Road, plan, plan_frenet
+from .api import Plan, Planner, PlanStatus, Road, plan, plan_frenet
 from .baselines import PLAN_METHODS
 from .collision import (
     CollisionCounts,
@@ -121,6 +121,8 @@ __all__ = [
     "BaselineConfig",
     "Road",
     "Plan",
+    "Planner",
+    "PlanStatus",
     "plan",
     "plan_frenet",
     "PLAN_METHODS",

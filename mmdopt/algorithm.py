@@ -1,17 +1,22 @@
 """Algorithm 1 (paper): sampling-based MMD-augmented trajectory optimisation in the Frenet frame.
 
-A pure step API in the optax/jaxopt manner::
+A pure step API in the optax/jaxopt manner; a :class:`mmdopt.Planner` holds the
+:class:`Workspace` (what is compiled and factorised) and the config, and the state holds arrays
+only::
 
-    from mmdopt import algorithm as alg
-    problem = alg.Problem.create(config, ego, bounds)       # ego state, sampling prior, bounds
-    obstacles = alg.ObstacleSet.create(config, centres, weights, method="mmd")
-    state = alg.init(config, problem, key)                  # CEMState (a pytree)
+    planner = mmdopt.Planner(config)
+    problem = planner.problem(ego, road)                     # ego state, sampling prior, bounds
+    obstacles = alg.ObstacleSet.create(config, centres, weights, "mmd")
+    state = planner.init(problem, key)                       # CEMState (a pytree of arrays)
     for _ in range(config.cem.iterations):
-        state = alg.update(state, obstacles)                # one CEM iteration
-    state = alg.run(config, problem, obstacles, key)        # the same, one jitted scan
+        state = planner.update(problem, state, obstacles)    # one CEM iteration
+    state = planner.run(problem, obstacles, key)             # the same, one jitted scan
     state.best, state.least_violating, state.cost_trace
-    warm = alg.shift(state, dt=0.1)                         # receding horizon: shifted in time
-    state = alg.run(config, problem_next, obstacles_next, key, warm_start=warm)
+    warm = planner.shift(state, dt=0.1)                      # receding horizon: shifted in time
+    state = planner.run(problem_next, obstacles_next, key, warm_start=warm)
+
+The functions below take the workspace and the config explicitly
+(``alg.run(planner.workspace(road.bounds()), config, problem, obstacles, key)``).
 
 One CEM/MPPI iteration ``l`` (paper Alg. 1 lines 4–14, with the reference code's bugs fixed)::
 
@@ -55,6 +60,7 @@ from __future__ import annotations
 import dataclasses
 import math
 from dataclasses import dataclass, field
+from functools import partial
 from typing import Any, NamedTuple
 
 import jax
@@ -83,8 +89,11 @@ __all__ = [
     "ObstacleSet",
     "Best",
     "CEMState",
-    "CEMProblem",
-    "build_problem",
+    "Workspace",
+    "Workspace",
+    "statics",
+    "bounds_key",
+    "bounds_from_key",
     "init",
     "update",
     "run",
@@ -115,10 +124,13 @@ YAW_SPEED_FLOOR = 0.05
 
 
 # ---------------------------------------------------------------------------------- problem set-up
-class CEMProblem:
-    """Host-side constants of one (config statics, road bounds) pair: basis, planner, projection.
+class Workspace:
+    """What Algorithm 1 builds once for one (static config, road bounds) pair: the Bernstein
+    basis, the Frenet planner's closed form, the projection QP with its factorisation and
+    jitted projector, and the jitted steps of Algorithm 1 (``init``, ``step``, ``run``, and
+    the sampling and scoring halves of a host-projected step).
 
-    Built once and cached by :func:`build_problem`; holds the jitted solvers.
+    :class:`mmdopt.Planner` owns its workspaces; nothing here is global.
     """
 
     def __init__(self, cfg: MMDOptConfig, bounds: frenet.ProjectionBounds):
@@ -128,16 +140,17 @@ class CEMProblem:
             self.basis, frenet.PlannerConfig(num_segments=cfg.trajectory.num_segments)
         )
         self.bounds = bounds
-        self.problem = frenet.ProjectionProblem(
+        self.bounds_key = bounds_key(bounds)
+        self.projection = frenet.ProjectionProblem(
             self.basis, bounds, constraint_points=cfg.projection.constraint_points
         )
         # residuals are always reported on the full grid
-        self.grid_problem = (
-            self.problem
+        self.grid_projection = (
+            self.projection
             if cfg.projection.constraint_points == "grid"
             else frenet.ProjectionProblem(self.basis, bounds, constraint_points="grid")
         )
-        self.projector = self.problem.jax_projector(
+        self.projector = self.projection.jax_projector(
             num_iters=cfg.projection.admm_iters,
             dtype=cfg.cem.dtype,
             check_every=min(cfg.projection.admm_check_every, cfg.projection.admm_iters),
@@ -153,13 +166,20 @@ class CEMProblem:
         self.P = np.asarray(self.basis.P)
         self.Pdot = np.asarray(self.basis.Pdot)
         self.Pddot = np.asarray(self.basis.Pddot)
+        # Algorithm 1's jitted steps, with this workspace's constants closed over
+        self.init = jax.jit(partial(_init, self))
+        self.step = jax.jit(partial(_step, self))
+        self.run = jax.jit(partial(_run_fixed, self))
+        self.sample = jax.jit(partial(_sample_plan, self))
+        self.evaluate = jax.jit(partial(_evaluate_host, self))
 
     def t(self) -> np.ndarray:
         return self.basis.grid.t
 
 
-def _statics(cfg: MMDOptConfig):
-    """The static part of ``cfg`` (sizes, modes, rules): its pytree structure, hashable."""
+def statics(cfg: MMDOptConfig):
+    """The static part of ``cfg`` (sizes, modes, rules): its pytree structure, hashable; two
+    configs with equal statics share a :class:`Workspace` and its compiled steps."""
     return jax.tree_util.tree_structure(cfg)
 
 
@@ -176,36 +196,7 @@ def bounds_key(b: frenet.ProjectionBounds) -> tuple:
     )
 
 
-class _ProblemCache:
-    """The one cache of the method's modules: the :class:`CEMProblem` (basis, planner matrix,
-    projection factorisation and its jitted projector) of each (static config, bounds) pair,
-    at most :attr:`maxsize` of them, the oldest dropped first.  The jitted steps look the
-    problem up by its key while tracing, so each pair is factorised and compiled once per
-    process; :meth:`clear` frees them all."""
-
-    maxsize = 16
-
-    def __init__(self) -> None:
-        self._problems: dict[tuple, CEMProblem] = {}
-
-    def get(self, cfg: MMDOptConfig, bounds: frenet.ProjectionBounds | tuple) -> CEMProblem:
-        bkey = bounds if isinstance(bounds, tuple) else bounds_key(bounds)
-        key = (_statics(cfg), bkey)
-        hit = self._problems.get(key)
-        if hit is None:
-            if isinstance(bounds, tuple):
-                bounds = _bounds_from_key(bounds)
-            hit = CEMProblem(cfg, bounds)
-            if len(self._problems) >= self.maxsize:
-                self._problems.pop(next(iter(self._problems)))
-            self._problems[key] = hit
-        return hit
-
-    def clear(self) -> None:
-        self._problems.clear()
-
-
-def _bounds_from_key(bkey: tuple) -> frenet.ProjectionBounds:
+def bounds_from_key(bkey: tuple) -> frenet.ProjectionBounds:
     """The :class:`frenet.ProjectionBounds` that :func:`bounds_key` describes."""
     kw = {
         name: None if v is None else (float(v[0]) if len(v) == 1 else np.asarray(v, float))
@@ -217,15 +208,6 @@ def _bounds_from_key(bkey: tuple) -> frenet.ProjectionBounds:
             kw[name] = int(v)
     return frenet.ProjectionBounds(**kw)
 
-
-#: the CEM problems of this process (see :class:`_ProblemCache`)
-PROBLEMS = _ProblemCache()
-
-
-def build_problem(cfg: MMDOptConfig, bounds: frenet.ProjectionBounds | tuple) -> CEMProblem:
-    """The cached :class:`CEMProblem` for ``cfg``'s static fields and the projection ``bounds``
-    (a :class:`frenet.ProjectionBounds` or its :func:`bounds_key`)."""
-    return PROBLEMS.get(cfg, bounds)
 
 
 # ------------------------------------------------------------------------------ inputs and state
@@ -273,7 +255,6 @@ class Problem:
             [np.repeat(ladder[:, None], S, 1), np.full((cfg.cem.n_brake, S), y0)], 1
         )
         bkey = bounds_key(bounds)
-        build_problem(cfg, bounds)  # factorised and cached once, before any trace
         with jax.enable_x64(True):
             arr = lambda x: jnp.asarray(np.asarray(x, np.float64))  # noqa: E731
             return Problem(
@@ -361,10 +342,9 @@ class Best(NamedTuple):
 
 
 class CEMState(NamedTuple):
-    """The state of Algorithm 1 between iterations (a pytree; see :func:`init`)."""
+    """The state of Algorithm 1 between iterations: arrays only (a pytree; see :func:`init`).
+    The config and the :class:`Problem` it was made for are passed beside it."""
 
-    config: MMDOptConfig
-    problem: Problem
     mu: Any  # (D,) sampling mean
     cov: Any  # (D, D) sampling covariance
     elites: Any  # (n_elite, D) elites carried into the next batch
@@ -436,7 +416,7 @@ def yaw_widening(cfg: MMDOptConfig, vs, vd):
 
 
 def _collision_term(
-    cfg: MMDOptConfig, prob: CEMProblem, s, dd, obstacles: ObstacleSet, dt, vs=None, vd=None
+    cfg: MMDOptConfig, prob: Workspace, s, dd, obstacles: ObstacleSet, dt, vs=None, vd=None
 ):
     """The method's collision term and its weight (eq. c_aug), per ego sample (B,); ``vs``,
     ``vd`` (B, K) the samples' ṡ and ḋ (needed when ``cfg.safety.rules.asymmetric`` /
@@ -530,7 +510,7 @@ def cost_chunk_size(cfg: MMDOptConfig) -> int:
     return max(cfg.cem.n_cem - cfg.cem.n_elite - cfg.cem.n_brake, -(-cfg.cem.n_cem // 4))
 
 
-def _row_costs(cfg: MMDOptConfig, prob: CEMProblem, obstacles: ObstacleSet, cx, cy, res):
+def _row_costs(cfg: MMDOptConfig, prob: Workspace, obstacles: ObstacleSet, cx, cy, res):
     """eq. (c_aug) + residual for coefficient rows (R, nvar): ``(cost, collision term)``."""
     dt = cx.dtype
     P, Pd, Pdd = (jnp.asarray(M, dt) for M in (prob.P, prob.Pdot, prob.Pddot))
@@ -606,8 +586,9 @@ def _next_cache(
 
 
 def _evaluate(
+    cfg: MMDOptConfig,
     state: CEMState,
-    prob: CEMProblem,
+    prob: Workspace,
     obstacles: ObstacleSet,
     d,
     cx,
@@ -621,7 +602,6 @@ def _evaluate(
     rows not projected (:func:`project_rows`) carry ``res = inf``.  With ``cache`` (inside
     :func:`run` only, where the obstacles are fixed) the elites' and brake rows' costs are
     reused and ``(state, next cache)`` is returned."""
-    cfg = state.config
     it = state.iteration
     mu, cov, best, lv = state.mu, state.cov, state.best, state.least_violating
     dt = cx.dtype
@@ -685,7 +665,7 @@ def _evaluate(
     return new, _next_cache(cfg, ces, cost, coll, el, cx, cy, res, end, cache)
 
 
-def slip_residual(cfg: MMDOptConfig, prob: CEMProblem, ego_state, cx, cy):
+def slip_residual(cfg: MMDOptConfig, prob: Workspace, ego_state, cx, cy):
     """Kinematic slip limit (:class:`MMDOptConfig`, not in the paper): per row (B,) the largest
     excess ``max_k max(0, |ḋ_k| − r·max(ṡ_k, 0) − v₀)`` (m/s) of the lateral speed over
     ``r = slip_ratio`` times the longitudinal speed, ``v₀`` that of the initial state
@@ -776,7 +756,7 @@ def margin_ellipse_values(cfg: MMDOptConfig, s, d, centres, margins, vs=None, wi
     return f
 
 
-def planner_output(prob: CEMProblem, d, state, dt):
+def planner_output(prob: Workspace, d, state, dt):
     """Frenet planner, closed form: behavioural inputs (B, D) -> coefficients c̄x, c̄y (B, nvar)."""
     W = jnp.asarray(prob.W, dt)
     n = prob.nvar
@@ -790,10 +770,10 @@ class _WarmStart(NamedTuple):
     y: Any
 
 
-def project_fixed(prob: CEMProblem, cx_bar, cy_bar, state):
+def project_fixed(prob: Workspace, cx_bar, cy_bar, state):
     """The ``admm-fixed`` projection, warm-started from the planner output with zero duals:
     ``(cx, cy, residual)``."""
-    m = prob.problem.num_rows
+    m = prob.projection.num_rows
     ws = _WarmStart(
         jnp.concatenate([cx_bar, cy_bar], axis=1), jnp.zeros((cx_bar.shape[0], m), cx_bar.dtype)
     )
@@ -809,7 +789,7 @@ def project_chunk_size(cfg: MMDOptConfig) -> int:
     return min(c, cfg.cem.n_samples)
 
 
-def project_rows(cfg: MMDOptConfig, prob: CEMProblem, d, ego, dt):
+def project_rows(cfg: MMDOptConfig, prob: Workspace, d, ego, dt):
     """Planner + ``admm-fixed`` projection of the batch ``d`` (B, D), chunk by chunk, until the
     projected rows hold ``n_cem`` feasible ones: ``(cx, cy, res, n_projected)``, ``res = inf``
     on the rows not projected.
@@ -824,7 +804,7 @@ def project_rows(cfg: MMDOptConfig, prob: CEMProblem, d, ego, dt):
     return cx, cy, res, n_proj
 
 
-def _project_fixed_slip(cfg: MMDOptConfig, prob: CEMProblem, cx_bar, cy_bar, ego):
+def _project_fixed_slip(cfg: MMDOptConfig, prob: Workspace, cx_bar, cy_bar, ego):
     """:func:`project_fixed`, its residual with the slip limit's added when
     ``cfg.safety.rules.kinematic``
     (once, where the residual is made: cached rows carry it already)."""
@@ -834,7 +814,7 @@ def _project_fixed_slip(cfg: MMDOptConfig, prob: CEMProblem, cx_bar, cy_bar, ego
     return cx, cy, res
 
 
-def _project_rows(cfg: MMDOptConfig, prob: CEMProblem, d, ego, dt, cache=None):
+def _project_rows(cfg: MMDOptConfig, prob: Workspace, d, ego, dt, cache=None):
     """:func:`project_rows`; with ``cache`` (:func:`run`) the first ``cache.known`` rows (the
     elites and brake rows, projected in an earlier iteration) are taken from it and the chunks,
     ``n_elite + n_brake`` rows shorter, start after them.  Also returns the end of the known
@@ -884,28 +864,39 @@ def _project_rows(cfg: MMDOptConfig, prob: CEMProblem, d, ego, dt, cache=None):
     return cx[:B], cy[:B], res[:B], end - base, end
 
 
-def _step(state: CEMState, obstacles: ObstacleSet, z=None, cache: _CostCache | None = None):
+def _step(
+    prob: Workspace,
+    cfg: MMDOptConfig,
+    problem: Problem,
+    state: CEMState,
+    obstacles: ObstacleSet,
+    z=None,
+    cache: _CostCache | None = None,
+):
     """One iteration with the ``admm-fixed`` projection (traceable); ``z`` optionally this
     iteration's normal draws (the same numbers as drawn from its key here); with ``cache``
     (:func:`run`) returns ``(state, next cache)``."""
-    cfg = state.config
-    prob = build_problem(cfg, state.problem.bounds)
     dt = jnp.dtype(cfg.cem.dtype)
+    problem = _cast(problem, dt)
     k = state.keys[state.iteration]
-    d = _sample(cfg, k, state.mu, state.cov, state.elites, state.problem, z)
-    cx, cy, res, n_proj, end = _project_rows(cfg, prob, d, state.problem.state, dt, cache)
-    return _evaluate(state, prob, obstacles, d, cx, cy, res, n_proj, cache, end)
+    d = _sample(cfg, k, state.mu, state.cov, state.elites, problem, z)
+    cx, cy, res, n_proj, end = _project_rows(cfg, prob, d, problem.state, dt, cache)
+    return _evaluate(cfg, state, prob, obstacles, d, cx, cy, res, n_proj, cache, end)
 
 
 def _init(
-    cfg: MMDOptConfig, problem: Problem, key, warm_start: CEMState | None, z0=None
+    prob: Workspace,
+    cfg: MMDOptConfig,
+    problem: Problem,
+    key,
+    warm_start: CEMState | None,
+    z0=None,
 ) -> CEMState:
     """``z0``: the first rows of a larger standard-normal draw from the init key, when that is
     bit-identical to drawing (n_elite, D) from it (partitionable threefry)."""
     dt = jnp.dtype(cfg.cem.dtype)
     problem = _cast(problem, dt)
     D = cfg.d_dim
-    prob = build_problem(cfg, problem.bounds)
     k_init, k_loop = jax.random.split(key)
     if warm_start is None:
         L0 = jnp.linalg.cholesky(problem.cov0)
@@ -920,8 +911,6 @@ def _init(
     empty = _empty_best(D, prob.nvar, dt)
     N = cfg.cem.iterations
     return CEMState(
-        config=cfg,
-        problem=problem,
         mu=mu,
         cov=cov,
         elites=elites,
@@ -937,20 +926,18 @@ def _init(
     )
 
 
-_init_jit = jax.jit(_init)
-_step_jit = jax.jit(_step)
-
-
-@jax.jit
-def _run_fixed(cfg: MMDOptConfig, problem: Problem, obstacles: ObstacleSet, key, warm_start):
+def _run_fixed(
+    prob: Workspace, cfg: MMDOptConfig, problem: Problem, obstacles: ObstacleSet, key, warm_start
+):
     """The whole of Algorithm 1 as one jitted function (``lax.scan`` over the iterations)."""
     dt = jnp.dtype(cfg.cem.dtype)
+    problem = _cast(problem, dt)
     # every iteration's normal draws in one vmapped call (bit-identical to drawing them from
     # each iteration's key inside the loop, ≈ 2.4× cheaper: threefry on CPU is dispatch-bound
     # at 940 × 8 values)
     prefix = bool(jax.config.jax_threefry_partitionable) and cfg.cem.n_elite <= _n_fresh(cfg)
     if warm_start is not None or not prefix:
-        state = _init(cfg, problem, key, warm_start)
+        state = _init(prob, cfg, problem, key, warm_start)
         z_all = jax.vmap(lambda k: _normals(cfg, k, dt))(state.keys)
     else:
         # the initial elites' draws are the first rows of a draw of the iterations' shape from
@@ -959,39 +946,43 @@ def _run_fixed(cfg: MMDOptConfig, problem: Problem, obstacles: ObstacleSet, key,
         k_init, k_loop = jax.random.split(key)
         keys = jnp.concatenate([k_init[None], jax.random.split(k_loop, cfg.cem.iterations)])
         z = jax.vmap(lambda k: _normals(cfg, k, dt))(keys)
-        state = _init(cfg, problem, key, None, z[0, : cfg.cem.n_elite])
+        state = _init(prob, cfg, problem, key, None, z[0, : cfg.cem.n_elite])
         z_all = z[1:]
     # the obstacles are the same in every iteration: the elites' and brake rows' costs carry
     # over (_CostCache) and only the new rows of each ConstraintEliteSet are scored
     (state, _), _ = lax.scan(
-        lambda c, z: (_step(c[0], obstacles, z, c[1]), None),
-        (state, _empty_cache(cfg, build_problem(cfg, state.problem.bounds).nvar, dt)),
+        lambda c, z: (_step(prob, cfg, problem, c[0], obstacles, z, c[1]), None),
+        (state, _empty_cache(cfg, prob.nvar, dt)),
         z_all,
     )
     return state
 
 
-@jax.jit
-def _sample_plan(state: CEMState):
-    cfg = state.config
-    prob = build_problem(cfg, state.problem.bounds)
+def _sample_plan(prob: Workspace, cfg: MMDOptConfig, problem: Problem, state: CEMState):
     dt = jnp.dtype(cfg.cem.dtype)
-    d = _sample(cfg, state.keys[state.iteration], state.mu, state.cov, state.elites, state.problem)
-    cx_bar, cy_bar = planner_output(prob, d, state.problem.state, dt)
+    problem = _cast(problem, dt)
+    d = _sample(cfg, state.keys[state.iteration], state.mu, state.cov, state.elites, problem)
+    cx_bar, cy_bar = planner_output(prob, d, problem.state, dt)
     return d, cx_bar, cy_bar
 
 
-@jax.jit
-def _evaluate_host(state: CEMState, obstacles: ObstacleSet, d, cx, cy, res):
-    cfg = state.config
-    prob = build_problem(cfg, state.problem.bounds)
+def _evaluate_host(
+    prob: Workspace,
+    cfg: MMDOptConfig,
+    problem: Problem,
+    state: CEMState,
+    obstacles: ObstacleSet,
+    d,
+    cx,
+    cy,
+    res,
+):
     dt = jnp.dtype(cfg.cem.dtype)
+    problem = _cast(problem, dt)
     cx, cy, res = cx.astype(dt), cy.astype(dt), res.astype(dt)
-    if (
-        cfg.safety.rules.kinematic
-    ):  # the slip limit joins the backend's residual (as in _project_rows)
-        res = res + slip_residual(cfg, prob, state.problem.state, cx, cy)
-    return _evaluate(state, prob, obstacles, d, cx, cy, res)
+    if cfg.safety.rules.kinematic:  # the slip limit joins the backend's residual
+        res = res + slip_residual(cfg, prob, problem.state, cx, cy)
+    return _evaluate(cfg, state, prob, obstacles, d, cx, cy, res)
 
 
 # ------------------------------------------------------------------------------------ public API
@@ -1008,23 +999,44 @@ def check_backend(backend: str, settings: dict) -> None:
         )
 
 
-@x64
-def init(
-    config: MMDOptConfig, problem: Problem, key: Any, warm_start: CEMState | None = None
-) -> CEMState:
-    """Initial state: the sampling prior of ``problem`` (or ``warm_start``'s distribution and
-    elites, e.g. from :func:`shift`), ``config.cem.iterations`` PRNG keys, empty best-so-far."""
+def _check_step_inputs(ws, config, problem, state=None, obstacles=None) -> None:
+    if not isinstance(ws, Workspace):
+        raise ValueError(f"ws must be an algorithm.Workspace, got {type(ws).__name__}")
     if not isinstance(config, MMDOptConfig):
         raise ValueError(f"config must be an MMDOptConfig, got {type(config).__name__}")
     if not isinstance(problem, Problem):
         raise ValueError(f"problem must be an algorithm.Problem, got {type(problem).__name__}")
+    if problem.bounds != ws.bounds_key:
+        raise ValueError("problem was made for other road bounds than the workspace's")
+    if state is not None and not isinstance(state, CEMState):
+        raise ValueError(f"state must be a CEMState, got {type(state).__name__}")
+    if obstacles is not None and not isinstance(obstacles, ObstacleSet):
+        raise ValueError(f"obstacles must be an ObstacleSet, got {type(obstacles).__name__}")
+
+
+@x64
+def init(
+    ws: Workspace,
+    config: MMDOptConfig,
+    problem: Problem,
+    key: Any,
+    warm_start: CEMState | None = None,
+) -> CEMState:
+    """Initial state: the sampling prior of ``problem`` (or ``warm_start``'s distribution and
+    elites, e.g. from :func:`shift`), ``config.cem.iterations`` PRNG keys, empty best-so-far.
+    ``ws``: the :class:`Workspace` of ``config``'s statics and ``problem``'s bounds
+    (:meth:`mmdopt.Planner.workspace`)."""
+    _check_step_inputs(ws, config, problem)
     if warm_start is not None and not isinstance(warm_start, CEMState):
         raise ValueError(f"warm_start must be a CEMState, got {type(warm_start).__name__}")
-    return _init_jit(config, problem, key, warm_start)
+    return ws.init(config, problem, key, warm_start)
 
 
 @x64
 def update(
+    ws: Workspace,
+    config: MMDOptConfig,
+    problem: Problem,
     state: CEMState,
     obstacles: ObstacleSet,
     backend: str = PLANNER_BACKEND,
@@ -1032,34 +1044,30 @@ def update(
 ) -> CEMState:
     """One CEM iteration (sample, plan, project, score, update); every row of the
     ConstraintEliteSet is scored (``obstacles`` may differ from the previous call's).  Raises
-    ``ValueError`` once the
-    state has done ``config.cem.iterations`` iterations (its keys are used up: :func:`shift` or
-    :func:`init` a new state)."""
+    ``ValueError`` once the state has done ``config.cem.iterations`` iterations (its keys are
+    used up: :func:`shift` or :func:`init` a new state)."""
     check_backend(backend, backend_settings)
-    if not isinstance(state, CEMState):
-        raise ValueError(f"state must be a CEMState, got {type(state).__name__}")
-    if not isinstance(obstacles, ObstacleSet):
-        raise ValueError(f"obstacles must be an ObstacleSet, got {type(obstacles).__name__}")
-    if int(state.iteration) >= state.config.cem.iterations:
+    _check_step_inputs(ws, config, problem, state, obstacles)
+    if int(state.iteration) >= config.cem.iterations:
         raise ValueError(
-            f"state has done all config.iterations = {state.config.cem.iterations} iterations"
+            f"state has done all config.iterations = {config.cem.iterations} iterations"
         )
     if backend == PLANNER_BACKEND:
-        return _step_jit(state, obstacles)
-    prob = build_problem(state.config, state.problem.bounds)
-    d, cx_bar, cy_bar = _sample_plan(state)
-    pr = prob.problem.project(
+        return ws.step(config, problem, state, obstacles)
+    d, cx_bar, cy_bar = ws.sample(config, problem, state)
+    pr = ws.projection.project(
         np.asarray(cx_bar, np.float64),
         np.asarray(cy_bar, np.float64),
-        np.asarray(state.problem.state, np.float64),
+        np.asarray(problem.state, np.float64),
         backend=backend,
         **backend_settings,
     )
-    return _evaluate_host(state, obstacles, d, pr.cx, pr.cy, pr.residual)
+    return ws.evaluate(config, problem, state, obstacles, d, pr.cx, pr.cy, pr.residual)
 
 
 @x64
 def run(
+    ws: Workspace,
     config: MMDOptConfig,
     problem: Problem,
     obstacles: ObstacleSet,
@@ -1068,19 +1076,18 @@ def run(
     warm_start: CEMState | None = None,
     **backend_settings: Any,
 ) -> CEMState:
-    """:func:`init` then ``config.cem.iterations`` × :func:`update`; with ``admm-fixed`` one jitted
-    ``lax.scan``, in which the obstacles are fixed, so the costs of the elites and brake rows
-    carried into the next batch are reused instead of recomputed (the same plan as the
+    """:func:`init` then ``config.cem.iterations`` × :func:`update`; with ``admm-fixed`` one
+    jitted ``lax.scan``, in which the obstacles are fixed, so the costs of the elites and brake
+    rows carried into the next batch are reused instead of recomputed (the same plan as the
     :func:`update` loop, to float rounding).  Returns the final :class:`CEMState` (``best``,
     ``least_violating``, traces)."""
     check_backend(backend, backend_settings)
+    _check_step_inputs(ws, config, problem, None, obstacles)
     if backend == PLANNER_BACKEND:
-        if not isinstance(config, MMDOptConfig):
-            raise ValueError(f"config must be an MMDOptConfig, got {type(config).__name__}")
-        return _run_fixed(config, problem, obstacles, key, warm_start)
-    state = init(config, problem, key, warm_start)
+        return ws.run(config, problem, obstacles, key, warm_start)
+    state = init(ws, config, problem, key, warm_start)
     for _ in range(config.cem.iterations):
-        state = update(state, obstacles, backend, **backend_settings)
+        state = update(ws, config, problem, state, obstacles, backend, **backend_settings)
     return state
 
 
@@ -1095,18 +1102,26 @@ def _shift_setpoints(v, frac):
 
 
 @x64
-def shift(state: CEMState, dt: float) -> CEMState:
+def shift(config: MMDOptConfig, state: CEMState, dt: float) -> CEMState:
     """Warm start for receding horizon: the sampling distribution and the elites moved ``dt``
     seconds forward in time (each of the ``S`` speed and lateral set-point sequences is
     re-sampled at ``t + dt``, the last set-point held), the covariance kept (plus ``cov_reg``);
     best-so-far, traces and iteration count reset, fresh keys derived from the old ones.  Pass
-    it as ``warm_start`` to :func:`init` / :func:`run` with the new :class:`Problem`."""
+    it as ``warm_start`` to :func:`init` / :func:`run` with the new :class:`Problem`
+    (``config``: the one the state was made with)."""
+    if not isinstance(config, MMDOptConfig):
+        raise ValueError(f"config must be an MMDOptConfig, got {type(config).__name__}")
     if not isinstance(state, CEMState):
         raise ValueError(f"state must be a CEMState, got {type(state).__name__}")
     dt = float(dt)
     if not (math.isfinite(dt) and dt >= 0):
         raise ValueError(f"dt must be finite and >= 0, got {dt}")
-    cfg = state.config
+    cfg = config
+    if tuple(np.shape(state.mu)) != (cfg.d_dim,):
+        raise ValueError(
+            f"state.mu has shape {tuple(np.shape(state.mu))}, but config needs ({cfg.d_dim},): "
+            "shift a state with the config it was made with"
+        )
     S = cfg.trajectory.num_segments
     frac = dt / (cfg.trajectory.horizon / S)
 
@@ -1117,8 +1132,7 @@ def shift(state: CEMState, dt: float) -> CEMState:
 
     D = cfg.d_dim
     dtype = state.mu.dtype
-    prob = build_problem(cfg, state.problem.bounds)
-    empty = _empty_best(D, prob.nvar, dtype)
+    empty = _empty_best(D, state.best.cx.shape[-1], dtype)
     key = jax.random.fold_in(state.keys[-1], 0x5F17)
     N = cfg.cem.iterations
     return state._replace(

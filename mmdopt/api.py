@@ -15,6 +15,7 @@ Cartesian ``(x, y)`` on the planner's time grid (``K = config.trajectory.num_ste
 from __future__ import annotations
 
 import dataclasses
+import enum
 import math
 import time
 from dataclasses import dataclass, field
@@ -42,7 +43,16 @@ from .collision import (
 )
 from .samples import ReducedSet, check_reduced_set
 
-__all__ = ["Road", "Plan", "plan", "plan_frenet", "PLAN_METHODS"]
+__all__ = [
+    "Road",
+    "Plan",
+    "PlanStatus",
+    "Planner",
+    "plan",
+    "plan_frenet",
+    "PLAN_METHODS",
+    "PLANNERS",
+]
 
 #: largest accepted |coordinate| of obstacle samples (m): beyond it positions are not a scene
 MAX_COORD = 1e7
@@ -107,6 +117,39 @@ class Road:
         )
 
 
+class PlanStatus(enum.StrEnum):
+    """What a :class:`Plan` is, in one word (its :attr:`Plan.message` says why).
+
+    ==============  =========================================================================
+    status          meaning
+    ==============  =========================================================================
+    ``OK``          Algorithm 1's lowest-cost plan: within the road and kinematic bounds
+                    (residual ≤ ``res_tol`` on the time grid) and clear of at least one
+                    planning sample of every obstacle
+    ``INACCURATE``  chosen as feasible, but its residual on the full time grid exceeds
+                    ``res_tol`` (the projection's constraint points passed, the grid did not)
+    ``UNSAFE``      feasible, but it collides with every planning sample of some obstacle:
+                    no collision-free plan was found
+    ``FALLBACK``    no plan of Algorithm 1 could be used (an initial state beyond the bounds,
+                    no sample meeting the constraints, a non-finite cost): a braking or the
+                    least-violating plan is returned
+    ==============  =========================================================================
+
+    A ``StrEnum``: ``plan.status == "ok"`` and ``str(plan.status)`` work as strings.
+    """
+
+    OK = "ok"
+    INACCURATE = "inaccurate"
+    UNSAFE = "unsafe"
+    FALLBACK = "fallback"
+
+
+def _split_status(text: str) -> tuple[PlanStatus, str]:
+    """``"fallback: why"`` -> ``(PlanStatus.FALLBACK, "why")``."""
+    head, _, why = text.partition(":")
+    return PlanStatus(head.strip()), why.strip()
+
+
 @dataclass(frozen=True, eq=False)
 class Plan:
     """A planned trajectory and how it was found.  Arrays are NumPy float64, ``(K,)``.
@@ -124,10 +167,10 @@ class Plan:
     final :class:`mmdopt.algorithm.CEMState` (``None`` for a braking fallback), to warm-start the
     next plan with ``plan(..., warm_start=mmdopt.algorithm.shift(p.state, dt))``.
 
-    ``status`` is ``"ok"``; or starts with ``"fallback:"`` (``fallback`` is True: no feasible
-    sample, an infeasible initial state or a non-finite cost; a braking or least-violating plan
-    is returned); or with ``"unsafe:"`` (the plan is feasible but collides with every planning
-    sample of some obstacle: no collision-free plan was found).
+    ``status``: a :class:`PlanStatus` (OK, INACCURATE, UNSAFE, FALLBACK) and ``message`` why
+    (empty when OK); ``status_text`` joins them (``"fallback: no sample met …"``);
+    ``fallback`` is ``status == FALLBACK``.  ``config``: the config the plan was made with
+    (after the risk mapping), for :meth:`next`.
     """
 
     x: NDArray[np.float64]
@@ -146,14 +189,15 @@ class Plan:
     residual: float
     mmd: float
     feasible: bool
-    fallback: bool
-    status: str
+    status: PlanStatus
+    message: str
     method: str
     backend: str
     reduced_set: ReducedSet | None
     plan_time_s: float
     diagnostics: dict[str, Any] = field(repr=False, default_factory=dict)
     state: alg.CEMState | None = field(repr=False, default=None)
+    config: MMDOptConfig | None = field(repr=False, default=None)
 
     @property
     def xy(self) -> NDArray[np.float64]:
@@ -161,9 +205,41 @@ class Plan:
         return np.stack([self.x, self.y], axis=-1)
 
     @property
+    def fallback(self) -> bool:
+        """Whether a braking or least-violating fallback was returned (``status`` FALLBACK)."""
+        return self.status is PlanStatus.FALLBACK
+
+    @property
+    def status_text(self) -> str:
+        """The status and its message as one line: ``"ok"``, ``"fallback: why"``, …"""
+        return str(self.status) if not self.message else f"{self.status}: {self.message}"
+
+    @property
     def progress(self) -> float:
         """Arc length travelled over the horizon (m)."""
         return float(self.s[-1] - self.s[0])
+
+    def ego_at(self, t: float) -> frenet.EgoState:
+        """The planned Frenet state at ``t`` seconds from now (0 ≤ t ≤ horizon), linearly
+        interpolated between the grid points (the grid need not contain ``t``)."""
+        t = _check_time(t, float(self.t[-1]), "t")
+        at = {k: float(np.interp(t, self.t, getattr(self, k))) for k in _FRENET_KEYS}
+        return frenet.EgoState(**at)
+
+    def next(self, dt: float) -> tuple[frenet.EgoState, alg.CEMState | None]:
+        """Replanning in one line: the state ``dt`` seconds ahead and the warm start for the
+        next ``plan(..., warm_start=...)`` (this plan's sampling distribution and elites moved
+        ``dt`` forward, :func:`mmdopt.algorithm.shift`; ``None`` after a braking fallback, which
+        has no Algorithm 1 state)::
+
+            ego, warm = p.next(0.5)
+            p = mmdopt.plan(ego, road, new_obstacles, config=config, warm_start=warm)
+        """
+        dt = _check_time(dt, float(self.t[-1]), "dt")
+        warm = None
+        if self.state is not None and self.config is not None:
+            warm = alg.shift(self.config, self.state, dt)
+        return self.ego_at(dt), warm
 
     def to_dict(self, diagnostics: bool = True) -> dict[str, Any]:
         """The plan as plain JSON-able data (``json.dumps(plan.to_dict())`` works).
@@ -171,7 +247,8 @@ class Plan:
         Keys: the trajectory arrays ``t, x, y, heading, speed, s, d, vs, vd, as_, ad`` as lists
         of floats (SI units, as on the :class:`Plan`); the scalars ``cost, residual, mmd,
         progress, plan_time_s`` (floats; a NaN cost, as in a braking fallback, is ``None``),
-        ``cost_trace`` (list), ``feasible, fallback`` (bool), ``status, method, backend`` (str);
+        ``cost_trace`` (list), ``feasible, fallback`` (bool), ``status, message, method,
+        backend`` (str);
         ``reduced_set``: ``{"method", "indices": [[int]] (O, m), "weights": [[float]] (O, m),
         "mmd2": [float] (O,)}`` (``None`` if the plan has none); and, with ``diagnostics=True``,
         ``diagnostics`` with every array as (nested) lists.  The final ``state``
@@ -191,6 +268,7 @@ class Plan:
             feasible=bool(self.feasible),
             fallback=bool(self.fallback),
             status=str(self.status),
+            message=str(self.message),
             method=str(self.method),
             backend=str(self.backend),
         )
@@ -207,6 +285,22 @@ class Plan:
         if diagnostics:
             out["diagnostics"] = _jsonable(self.diagnostics)
         return out
+
+
+#: the Frenet fields of :class:`frenet.EgoState` and their arrays on :class:`Plan`
+_FRENET_KEYS = ("s", "d", "vs", "vd", "as_", "ad")
+
+
+def _check_time(t: Any, horizon: float, name: str) -> float:
+    if isinstance(t, bool | str | bytes | complex):
+        raise ValueError(f"{name} must be a number of seconds, got {t!r}")
+    try:
+        t = float(t)
+    except (TypeError, ValueError):
+        raise ValueError(f"{name} must be a number of seconds, got {t!r}") from None
+    if not (math.isfinite(t) and 0.0 <= t <= horizon + 1e-9):
+        raise ValueError(f"{name} must lie in [0, {horizon:g}] s (the plan's horizon), got {t}")
+    return min(t, horizon)
 
 
 def _jsonable(v: Any) -> Any:
@@ -295,6 +389,218 @@ def _check_obstacles(obstacles, config: MMDOptConfig, method: str, name="obstacl
     return arr
 
 
+# ------------------------------------------------------------------------------------- planner
+class Planner:
+    """Algorithm 1 for one configuration, owning what it compiles and factorises.
+
+    A planner keeps one :class:`mmdopt.algorithm.Workspace` (basis, planner matrix, projection
+    factorisation, jitted steps) per road's bounds and static configuration it has planned
+    with, at most :attr:`max_workspaces` of them (the oldest dropped first).  Reuse one planner
+    to plan many times without compiling again::
+
+        planner = mmdopt.Planner(config)
+        p = planner.plan(ego, road, obstacles, method="mmd", key=jax.random.PRNGKey(0))
+
+    The same steps one at a time (the step API of :mod:`mmdopt.algorithm`; the state holds
+    arrays only)::
+
+        problem = planner.problem(ego, road)
+        obstacles = mmdopt.algorithm.ObstacleSet.create(config, centres, weights, "mmd")
+        state = planner.init(problem, key)
+        state = planner.update(problem, state, obstacles)      # one CEM iteration
+        state = planner.run(problem, obstacles, key)           # all of them, one jitted scan
+        warm = planner.shift(state, dt)                        # receding horizon
+
+    :func:`plan` is this class behind one bounded cache of planners.
+    """
+
+    max_workspaces = 8
+
+    def __init__(self, config: MMDOptConfig | None = None) -> None:
+        config = MMDOptConfig() if config is None else config
+        if not isinstance(config, MMDOptConfig):
+            raise ValueError(f"config must be an mmdopt.MMDOptConfig, got {type(config).__name__}")
+        self.config = config
+        self._workspaces: dict[tuple, alg.Workspace] = {}
+
+    def __repr__(self) -> str:
+        return f"Planner({len(self._workspaces)} workspace(s))"
+
+    def workspace(
+        self, bounds: frenet.ProjectionBounds | tuple, config: MMDOptConfig | None = None
+    ) -> alg.Workspace:
+        """The workspace of ``config`` (default: the planner's) and the projection ``bounds``
+        (a :class:`frenet.ProjectionBounds` or its :func:`mmdopt.algorithm.bounds_key`), built
+        on first use."""
+        cfg = self.config if config is None else config
+        bkey = bounds if isinstance(bounds, tuple) else alg.bounds_key(bounds)
+        key = (alg.statics(cfg), bkey)
+        ws = self._workspaces.get(key)
+        if ws is None:
+            b = alg.bounds_from_key(bkey) if isinstance(bounds, tuple) else bounds
+            ws = alg.Workspace(cfg, b)
+            if len(self._workspaces) >= self.max_workspaces:
+                self._workspaces.pop(next(iter(self._workspaces)))
+            self._workspaces[key] = ws
+        return ws
+
+    # ------------------------------------------------------------------------------ step API
+    def problem(self, ego: frenet.EgoState, road: Road) -> alg.Problem:
+        """The planning problem of ``ego`` on ``road`` (:meth:`mmdopt.algorithm.Problem.create`)."""
+        if not isinstance(road, Road):
+            raise ValueError(f"road must be an mmdopt.Road, got {type(road).__name__}")
+        return alg.Problem.create(self.config, ego, road.bounds())
+
+    def _ws(self, problem: Any) -> alg.Workspace:
+        if not isinstance(problem, alg.Problem):
+            raise ValueError(f"problem must be an algorithm.Problem, got {type(problem).__name__}")
+        return self.workspace(problem.bounds)
+
+    def init(
+        self, problem: alg.Problem, key: Any, warm_start: alg.CEMState | None = None
+    ) -> alg.CEMState:
+        """:func:`mmdopt.algorithm.init` with this planner's config and workspace."""
+        return alg.init(self._ws(problem), self.config, problem, key, warm_start)
+
+    def update(
+        self,
+        problem: alg.Problem,
+        state: alg.CEMState,
+        obstacles: alg.ObstacleSet,
+        backend: str = PLANNER_BACKEND,
+        **backend_settings: Any,
+    ) -> alg.CEMState:
+        """One CEM iteration (:func:`mmdopt.algorithm.update`)."""
+        ws = self._ws(problem)
+        return alg.update(ws, self.config, problem, state, obstacles, backend, **backend_settings)
+
+    def run(
+        self,
+        problem: alg.Problem,
+        obstacles: alg.ObstacleSet,
+        key: Any,
+        backend: str = PLANNER_BACKEND,
+        warm_start: alg.CEMState | None = None,
+        **backend_settings: Any,
+    ) -> alg.CEMState:
+        """Every iteration (:func:`mmdopt.algorithm.run`)."""
+        ws = self._ws(problem)
+        return alg.run(
+            ws, self.config, problem, obstacles, key, backend, warm_start, **backend_settings
+        )
+
+    def shift(self, state: alg.CEMState, dt: float) -> alg.CEMState:
+        """The warm start ``dt`` seconds later (:func:`mmdopt.algorithm.shift`)."""
+        return alg.shift(self.config, state, dt)
+
+    # ---------------------------------------------------------------------------------- plan
+    @x64
+    def plan(
+        self,
+        ego: frenet.EgoState,
+        road: Road,
+        obstacles: ArrayLike,
+        *,
+        method: str = "mmd",
+        backend: str = PLANNER_BACKEND,
+        key: ArrayLike | None = None,
+        reduced_set: ReducedSet | None = None,
+        warm_start: alg.CEMState | None = None,
+        risk: float | None = None,
+        **backend_settings: Any,
+    ) -> Plan:
+        """:func:`plan` with this planner's config."""
+        return self._plan(
+            self.config, ego, road, obstacles, method, backend, key, reduced_set, warm_start,
+            risk, backend_settings, frenet_frame=False,
+        )  # fmt: skip
+
+    @x64
+    def plan_frenet(
+        self,
+        ego: frenet.EgoState,
+        road: Road,
+        obstacles_frenet: ArrayLike,
+        *,
+        method: str = "mmd",
+        backend: str = PLANNER_BACKEND,
+        key: ArrayLike | None = None,
+        reduced_set: ReducedSet | None = None,
+        warm_start: alg.CEMState | None = None,
+        risk: float | None = None,
+        **backend_settings: Any,
+    ) -> Plan:
+        """:func:`plan_frenet` with this planner's config."""
+        return self._plan(
+            self.config, ego, road, obstacles_frenet, method, backend, key, reduced_set,
+            warm_start, risk, backend_settings, frenet_frame=True,
+        )  # fmt: skip
+
+    def _plan(
+        self, config, ego, road, obstacles, method, backend, key, reduced_set, warm_start, risk,
+        backend_settings, frenet_frame: bool,
+    ) -> Plan:  # fmt: skip
+        t0 = time.perf_counter()
+        key = jax.random.PRNGKey(0) if key is None else key
+        _check_common(ego, road, method, config, backend, key)
+        config = _apply_risk(method, risk, config)
+        alg.check_backend(backend, backend_settings)
+        if frenet_frame:
+            arr = _check_obstacles(obstacles, config, method, name="obstacles_frenet")
+            obs_fr, diag = arr, {"frenet_conversion_s": 0.0}
+        else:
+            arr = _check_obstacles(obstacles, config, method)
+            t1 = time.perf_counter()
+            s, d = road.path.to_frenet(arr[..., 0], arr[..., 1])
+            obs_fr = np.stack([s, d], axis=-1)
+            if not np.all(np.isfinite(obs_fr)):
+                raise ValueError(
+                    "obstacles could not be converted to the road's Frenet frame (non-finite)"
+                )
+            diag = {"frenet_conversion_s": time.perf_counter() - t1}
+        return _plan_impl(
+            self, ego, road, obs_fr, method, config, backend, key, backend_settings, t0, diag,
+            reduced_set, warm_start,
+        )  # fmt: skip
+
+
+class _PlannerCache:
+    """The one cache of planners behind :func:`plan` and :func:`plan_frenet`: one
+    :class:`Planner` per static configuration (sizes, modes, rules: what changes the compiled
+    program), at most :attr:`maxsize` of them, the oldest dropped first.  Configs that differ
+    only in their tunable scalars share a planner, so they do not compile again.  Use your own
+    :class:`Planner` to control what stays alive; :meth:`clear` frees the cached ones."""
+
+    maxsize = 8
+
+    def __init__(self) -> None:
+        self._planners: dict[Any, Planner] = {}
+
+    def get(self, config: MMDOptConfig) -> Planner:
+        key = alg.statics(config)
+        hit = self._planners.get(key)
+        if hit is None:
+            hit = Planner(config)
+            if len(self._planners) >= self.maxsize:
+                self._planners.pop(next(iter(self._planners)))
+            self._planners[key] = hit
+        return hit
+
+    def clear(self) -> None:
+        self._planners.clear()
+
+
+#: the planners of :func:`plan` (:class:`_PlannerCache`; the method's only mutable module state)
+PLANNERS = _PlannerCache()
+
+
+def _cached_planner(config: Any) -> tuple[MMDOptConfig, Planner]:
+    config = MMDOptConfig() if config is None else config
+    if not isinstance(config, MMDOptConfig):
+        raise ValueError(f"config must be an mmdopt.MMDOptConfig, got {type(config).__name__}")
+    return config, PLANNERS.get(config)
+
+
 # ------------------------------------------------------------------------------------------ API
 @x64
 def plan(
@@ -350,22 +656,10 @@ def plan(
     ValueError naming the argument for bad inputs (wrong shapes or horizon, NaN, zero obstacles,
     fewer samples than the reduced-set size, unknown method or backend, a malformed reduced set).
     """
-    t0 = time.perf_counter()
-    config = MMDOptConfig() if config is None else config
-    key = jax.random.PRNGKey(0) if key is None else key
-    _check_common(ego, road, method, config, backend, key)
-    config = _apply_risk(method, risk, config)
-    alg.check_backend(backend, backend_settings)
-    arr = _check_obstacles(obstacles, config, method)
-    t1 = time.perf_counter()
-    s, d = road.path.to_frenet(arr[..., 0], arr[..., 1])
-    obs_fr = np.stack([s, d], axis=-1)
-    if not np.all(np.isfinite(obs_fr)):
-        raise ValueError("obstacles could not be converted to the road's Frenet frame (non-finite)")
-    diag = {"frenet_conversion_s": time.perf_counter() - t1}
-    return _plan_impl(
-        ego, road, obs_fr, method, config, backend, key, backend_settings, t0, diag,
-        reduced_set, warm_start,
+    config, planner = _cached_planner(config)
+    return planner._plan(
+        config, ego, road, obstacles, method, backend, key, reduced_set, warm_start, risk,
+        backend_settings, frenet_frame=False,
     )  # fmt: skip
 
 
@@ -387,17 +681,10 @@ def plan_frenet(
     """:func:`plan` with obstacle samples already in the Frenet frame of ``road.path``:
     ``obstacles_frenet`` (O, n, K, 2) as ``(s, d)``.  On a straight path starting at the origin
     along +x (the default :class:`Road`) this is the same as Cartesian."""
-    t0 = time.perf_counter()
-    config = MMDOptConfig() if config is None else config
-    key = jax.random.PRNGKey(0) if key is None else key
-    _check_common(ego, road, method, config, backend, key)
-    config = _apply_risk(method, risk, config)
-    alg.check_backend(backend, backend_settings)
-    arr = _check_obstacles(obstacles_frenet, config, method, name="obstacles_frenet")
-    diag = {"frenet_conversion_s": 0.0}
-    return _plan_impl(
-        ego, road, arr, method, config, backend, key, backend_settings, t0, diag,
-        reduced_set, warm_start,
+    config, planner = _cached_planner(config)
+    return planner._plan(
+        config, ego, road, obstacles_frenet, method, backend, key, reduced_set, warm_start,
+        risk, backend_settings, frenet_frame=True,
     )  # fmt: skip
 
 
@@ -443,7 +730,7 @@ class _Ctx:
     ego: frenet.EgoState
     road: Road
     config: MMDOptConfig
-    prob: alg.CEMProblem
+    prob: alg.Workspace
     method: str
     backend: str
     rs: Any
@@ -454,8 +741,9 @@ class _Ctx:
 
 
 def _plan_impl(
-    ego, road, obs_fr, method, config, backend, key, backend_settings, t0, diag, rs, warm_start
-):
+    planner, ego, road, obs_fr, method, config, backend, key, backend_settings, t0, diag, rs,
+    warm_start,
+):  # fmt: skip
     # plan in arc length relative to the ego (float32 keeps ~1e-6 relative precision: absolute
     # arc lengths of kilometres would cost millimetres); shifted back in _assemble
     s_off = float(ego.s)
@@ -466,7 +754,7 @@ def _plan_impl(
     diag["s_offset"] = s_off
     if warm_start is not None:
         _check_warm_start(warm_start, config)
-    prob = alg.build_problem(config, road.bounds())
+    prob = planner.workspace(road.bounds(), config)
     k_rs, k_cem = jax.random.split(key)
     # --- obstacle samples used by the cost
     t1 = time.perf_counter()
@@ -517,15 +805,16 @@ def _plan_impl(
 
     # --- infeasible initial state: braking profile, flagged
     try:
-        prob.problem.check_state(ego)
+        prob.projection.check_state(ego)
     except ValueError as exc:
         return _braking_fallback(ctx, f"fallback: {exc}")
 
     t2 = time.perf_counter()
     problem = alg.Problem.create(config, ego, road.bounds())
     state = alg.run(
-        config, problem, obstacles, k_cem, backend, warm_start=warm_start, **backend_settings
-    )
+        prob, config, problem, obstacles, k_cem, backend, warm_start=warm_start,
+        **backend_settings,
+    )  # fmt: skip
     state = jax.block_until_ready(state)
     if config.safety.reselect > 0 and SELECTOR[method] is not None:
         state = _reselect_pass(ctx, state, problem, k_cem, backend, backend_settings)
@@ -625,9 +914,9 @@ def _reselect_pass(ctx: _Ctx, state, problem, key, backend, backend_settings):
     ctx.diag["reselected"] = extra
     ctx.diag["discarded"] = order[:, :k]
     ctx.diag["conflict_depth"] = depth
-    warm = alg.shift(state, 0.0)
+    warm = alg.shift(config, state, 0.0)
     out = alg.run(
-        config, problem, obstacles, jax.random.fold_in(key, 1), backend, warm_start=warm,
+        prob, config, problem, obstacles, jax.random.fold_in(key, 1), backend, warm_start=warm,
         **backend_settings,
     )  # fmt: skip
     return jax.block_until_ready(out)
@@ -654,14 +943,14 @@ def _assemble(ctx: _Ctx, cx, cy, dvec, cost, best_iter, fallback, status, state)
     B = prob.basis
     s, vs, as_ = B.P @ cx, B.Pdot @ cx, B.Pddot @ cx
     d, vd, ad = B.P @ cy, B.Pdot @ cy, B.Pddot @ cy
-    residual, groups = prob.grid_problem.residuals(cx, cy, ego.as_array())  # ego at s = 0
+    residual, groups = prob.grid_projection.residuals(cx, cy, ego.as_array())  # ego at s = 0
     s_off = float(diag.get("s_offset", 0.0))
     x, y, heading, speed = ctx.road.path.trajectory_to_cartesian(s + s_off, d, vs, vd)
     residual = float(residual[0])
     feasible = residual <= float(config.projection.res_tol) + 1e-9
     if not fallback and not feasible:
         status = (
-            f"ok, but the returned plan's grid residual {residual:.3g} exceeds res_tol "
+            f"inaccurate: the returned plan's grid residual {residual:.3g} exceeds res_tol "
             f"{float(config.projection.res_tol):g}"
         )
     ob = ctx.obstacles
@@ -756,12 +1045,13 @@ def _assemble(ctx: _Ctx, cx, cy, dvec, cost, best_iter, fallback, status, state)
         residual=residual,
         mmd=mmd_val,
         feasible=bool(feasible),
-        fallback=bool(fallback),
-        status=status,
+        status=_split_status(status)[0],
+        message=_split_status(status)[1],
         method=ctx.method,
         backend=ctx.backend,
         reduced_set=ctx.rs,
         plan_time_s=time.perf_counter() - ctx.t0,
         diagnostics=diag,
         state=state,
+        config=config,
     )

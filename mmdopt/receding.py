@@ -253,7 +253,7 @@ def _shifted(p: Plan, dt: float):
     """The warm start for the next plan: the plan's Algorithm 1 state shifted by ``dt``
     (:func:`mmdopt.algorithm.shift`); ``None`` for a plan without state (a braking fallback)."""
     state = getattr(p, "state", None)
-    return None if state is None else algorithm.shift(state, dt)
+    return None if state is None else algorithm.shift(p.config, state, dt)
 
 
 def warm_up(obs: Observation, receding: RecedingConfig, config: MMDOptConfig, key=None) -> float:
@@ -333,7 +333,7 @@ def run_receding(
                 cost=float(p.cost),
                 feasible=bool(p.feasible),
                 fallback=bool(p.fallback),
-                status=p.status,
+                status=p.status_text,
                 speed=float(p.speed[0]),
                 s=float(p.s[0]),
                 d=float(p.d[0]),

@@ -56,7 +56,18 @@ import numpy as np
 from .baselines import PLAN_METHODS, SELECTOR
 from .config import W_COVER, MMDOptConfig
 
-__all__ = ["DEFAULT_RISK", "config_for_risk", "coverage_margins", "risk_z", "check_risk"]
+__all__ = [
+    "DEFAULT_RISK",
+    "RISK_CONFIDENCE",
+    "config_for_risk",
+    "coverage_margins",
+    "risk_z",
+    "check_risk",
+    "clopper_pearson_upper",
+    "risk_bound",
+    "risk_floor",
+    "samples_for_risk",
+]
 
 #: the default knob of every method (target collision probability ε); each reproduces a
 #: sensible operating point (docs/experiments/frontier.md)
@@ -215,3 +226,72 @@ def coverage_margins(
 def needs_knn(method: str) -> bool:
     """Whether ``method`` plans on all samples (its margins use k-NN clusters)."""
     return SELECTOR[method] is None
+
+
+# ------------------------------------------------------------------------- what samples support
+#: confidence of :attr:`mmdopt.Plan.risk_bound` and of the risk floor
+RISK_CONFIDENCE = 0.95
+
+
+def _check_counts(collisions, n) -> tuple[np.ndarray, np.ndarray]:
+    k = np.atleast_1d(np.asarray(collisions))
+    m = np.atleast_1d(np.asarray(n))
+    if k.shape != m.shape or k.ndim != 1 or k.size == 0:
+        raise ValueError(
+            f"collisions and n must be 1-D of equal length (one per obstacle), got {k.shape} "
+            f"and {m.shape}"
+        )
+    if not (np.all(m >= 1) and np.all(k >= 0) and np.all(k <= m)):
+        raise ValueError(f"need 0 <= collisions <= n and n >= 1, got {k.tolist()}, {m.tolist()}")
+    return k.astype(int), m.astype(int)
+
+
+def clopper_pearson_upper(k: int, n: int, confidence: float = RISK_CONFIDENCE) -> float:
+    """One-sided Clopper–Pearson upper bound on a probability seen ``k`` times in ``n``
+    independent trials, at ``confidence``: the ``confidence`` quantile of Beta(k + 1, n − k)
+    (``1 − (1 − confidence)^(1/n)`` when ``k = 0``)."""
+    from scipy.stats import beta
+
+    if not 0 < confidence < 1:
+        raise ValueError(f"confidence must be in (0, 1), got {confidence}")
+    if k >= n:
+        return 1.0
+    if k == 0:
+        return float(-np.expm1(np.log1p(-confidence) / n))
+    return float(beta.ppf(confidence, k + 1, n - k))
+
+
+def risk_bound(collisions, n, confidence: float = RISK_CONFIDENCE) -> float:
+    """Upper bound, at ``confidence``, on the probability that a plan meets any of O obstacles,
+    from the ``collisions[o]`` of ``n[o]`` planning samples of obstacle o that it meets.
+
+    Each obstacle's probability is bounded by Clopper–Pearson at ``1 − (1 − confidence)/O``
+    and the bounds are summed (the union bound, with the confidence split by Bonferroni), capped
+    at 1.  Assumptions: each obstacle's samples are independent draws from the predictor's
+    distribution of its future, and the plan is judged as a fixed trajectory.  A plan optimised
+    against the same samples is not independent of them, so the bound is optimistic by the
+    plan's dependence on the few samples that shape it (scenario theory's support samples);
+    validation futures drawn afresh measure the rate without that caveat."""
+    k, m = _check_counts(collisions, n)
+    c = 1.0 - (1.0 - confidence) / k.size
+    return float(
+        min(1.0, sum(clopper_pearson_upper(int(a), int(b), c) for a, b in zip(k, m, strict=True)))
+    )
+
+
+def risk_floor(n, confidence: float = RISK_CONFIDENCE) -> float:
+    """The least :func:`risk_bound` ``n`` samples per obstacle can give: that of a plan that
+    meets none of them.  A request below it cannot be confirmed by these samples."""
+    m = np.atleast_1d(np.asarray(n))
+    return risk_bound(np.zeros_like(m), m, confidence)
+
+
+def samples_for_risk(eps: float, obstacles: int = 1, confidence: float = RISK_CONFIDENCE) -> int:
+    """n(ε): the fewest samples per obstacle whose :func:`risk_floor` is at most ``eps`` for
+    ``obstacles`` obstacles, ``⌈ln(δ/O) / ln(1 − ε/O)⌉`` with δ = 1 − confidence (about
+    3·O/ε at 95 %)."""
+    eps = check_risk(eps, "eps")
+    if isinstance(obstacles, bool) or not isinstance(obstacles, int | np.integer) or obstacles < 1:
+        raise ValueError(f"obstacles must be an int >= 1, got {obstacles!r}")
+    d = (1.0 - confidence) / obstacles
+    return int(math.ceil(math.log(d) / math.log1p(-eps / obstacles)))

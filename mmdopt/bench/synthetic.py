@@ -166,7 +166,7 @@ def check_sweep_config(
             raise ValueError(f"method must be one of {METHODS}, got {m!r}")
         _check_obstacles(scene.obstacles, cfg, m, name="the scene's obstacle samples")
     road = scene.road()
-    alg.build_problem(cfg, road.bounds())
+    mmdopt.Planner(cfg).workspace(road.bounds())  # the projection is built (and checked)
 
 
 #: keys every per-task record must hold, with their JSON types

@@ -98,7 +98,7 @@ def test_initial_speed_above_vmax_gives_flagged_braking_fallback(road):
     ego = frenet.EgoState(vs=35.0)
     p = mmdopt.plan(ego, road, _obstacle(), config=SMALL)
     assert p.fallback and not p.feasible
-    assert "initial speed" in p.status
+    assert "initial speed" in p.message
     assert p.vs[-1] < 31.0  # brakes towards v_max
 
 
@@ -108,7 +108,7 @@ def test_no_feasible_sample_returns_least_violating_plan():
     ego = frenet.EgoState(vs=10.0, vd=1.0)
     p = mmdopt.plan(ego, road, _obstacle(), config=SMALL)
     assert p.fallback and not p.feasible
-    assert "no sample met the constraints" in p.status
+    assert "no sample met the constraints" in p.message
     assert np.all(np.isfinite(p.x))
 
 
@@ -166,7 +166,7 @@ def test_slip_limit_is_validated_off_by_default_and_measures_sideways_motion_at_
         mmdopt.MMDOptConfig().replace(slip_ratio=0.5, slip_tol=0.0)
     cfg = mmdopt.MMDOptConfig().replace(horizon=5.0, num_steps=51, slip_ratio=0.5)
     assert cfg.safety.rules.kinematic
-    prob = alg.build_problem(cfg, mmdopt.Road().bounds())
+    prob = mmdopt.Planner(cfg).workspace(mmdopt.Road().bounds())
     t = prob.t()
     P = np.asarray(prob.P)
 

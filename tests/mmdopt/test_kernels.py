@@ -116,7 +116,7 @@ def test_dirac_form_keeps_relative_accuracy_in_float32_where_the_expansion_loses
     a = rng.uniform(1e-3, 1e-2, 30)  # small penetrations
     w = np.full(30, 1 / 10)
     ref = float(mmd2_to_dirac(a, w, 30.0))  # float64
-    approx = (w @ a) ** 2 / 30.0**2  # the σ ≫ f̄ limit (SPEC §f)
+    approx = (w @ a) ** 2 / 30.0**2  # the σ ≫ f̄ limit (the reference bandwidth)
     np.testing.assert_allclose(ref, approx, rtol=1e-3)
     f32 = float(mmd2_to_dirac(a.astype(np.float32), w.astype(np.float32), np.float32(30.0)))
     np.testing.assert_allclose(f32, ref, rtol=1e-5)

@@ -1,4 +1,4 @@
-"""Plan.to_dict(): a plan as plain JSON-able data (issue 14)."""
+"""Plan.to_dict(): a plan as plain JSON-able data."""
 
 from __future__ import annotations
 

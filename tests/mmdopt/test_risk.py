@@ -1,4 +1,4 @@
-"""The risk knob (target collision probability ε) and the sample-driven margins (issue 11)."""
+"""The risk level (target collision probability ε) and the sample-driven margins."""
 
 from __future__ import annotations
 

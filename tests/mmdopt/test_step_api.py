@@ -37,10 +37,11 @@ def test_init_update_loop_equals_run(mode, slip, yaw):
     cfg = SMALL.replace(slip_ratio=slip, yaw_extent=yaw)
     problem, obstacles = _inputs(mode, config=cfg)
     key = jax.random.PRNGKey(4)
-    ran = alg.run(cfg, problem, obstacles, key)
-    state = alg.init(cfg, problem, key)
+    planner = mmdopt.Planner(cfg)
+    ran = planner.run(problem, obstacles, key)
+    state = planner.init(problem, key)
     for _ in range(cfg.cem.iterations):
-        state = alg.update(state, obstacles)
+        state = planner.update(problem, state, obstacles)
     assert int(state.iteration) == int(ran.iteration) == cfg.cem.iterations
     # costs are float32 sums over the K grid steps (means, the MMD term's Taylor series) which
     # XLA fuses and reassociates differently in the scan and in the separate steps, and with
@@ -52,7 +53,7 @@ def test_init_update_loop_equals_run(mode, slip, yaw):
     # the same sample wins: its set-points agree to float32 rounding of speeds/offsets (≤ 30)
     np.testing.assert_allclose(state.best.d, ran.best.d, rtol=rtol, atol=rtol)
     with pytest.raises(ValueError, match="iterations"):
-        alg.update(state, obstacles)
+        planner.update(problem, state, obstacles)
 
 
 @pytest.mark.parametrize("hard", [False, True])
@@ -71,11 +72,13 @@ def test_run_projects_and_scores_only_what_the_elite_sets_need_with_the_same_pla
     assert chunk == cfg.cem.n_cem + cfg.cem.n_elite < cfg.cem.n_samples and run_chunk >= chunk / 2
     problem, obstacles = _inputs(config=cfg)
     key = jax.random.PRNGKey(7)
-    ran = alg.run(cfg, problem, obstacles, key)
-    full = alg.run(cfg.replace(project_chunk=cfg.cem.n_samples), problem, obstacles, key)
-    state = alg.init(cfg, problem, key)
+    planner = mmdopt.Planner(cfg)
+    ran = planner.run(problem, obstacles, key)
+    full_cfg = cfg.replace(project_chunk=cfg.cem.n_samples)
+    full = mmdopt.Planner(full_cfg).run(problem, obstacles, key)
+    state = planner.init(problem, key)
     for _ in range(cfg.cem.iterations):
-        state = alg.update(state, obstacles)
+        state = planner.update(problem, state, obstacles)
     np.testing.assert_array_equal(full.n_projected, cfg.cem.n_samples)
     n_proj = np.asarray(ran.n_projected)
     assert np.all(np.asarray(ran.n_feasible) >= cfg.cem.n_cem)
@@ -86,9 +89,11 @@ def test_run_projects_and_scores_only_what_the_elite_sets_need_with_the_same_pla
         # chunk after them is enough
         np.testing.assert_array_equal(n_proj[1:], run_chunk)
         np.testing.assert_array_equal(state.n_projected, chunk)  # update(): no reuse
+    # differently fused float32 programs: the tolerance of test_init_update_loop_equals_run
+    rtol = 10 * cfg.trajectory.num_steps * float(np.finfo(np.float32).eps)
     for other in (full, state):
-        np.testing.assert_allclose(ran.cost_trace, other.cost_trace, rtol=1e-5)
-        np.testing.assert_allclose(ran.iter_mean_elite_cost, other.iter_mean_elite_cost, rtol=1e-5)
+        np.testing.assert_allclose(ran.cost_trace, other.cost_trace, rtol=rtol)
+        np.testing.assert_allclose(ran.iter_mean_elite_cost, other.iter_mean_elite_cost, rtol=rtol)
         np.testing.assert_allclose(ran.best.d, other.best.d, rtol=1e-4, atol=1e-4)
     with pytest.raises(ValueError, match="project_chunk"):
         SMALL.replace(project_chunk=-1)
@@ -96,20 +101,19 @@ def test_run_projects_and_scores_only_what_the_elite_sets_need_with_the_same_pla
 
 def test_shift_then_run_is_deterministic_and_moves_set_points():
     problem, obstacles = _inputs()
-    st = alg.run(SMALL, problem, obstacles, jax.random.PRNGKey(0))
-    sh = alg.shift(
-        st, dt=SMALL.trajectory.horizon / SMALL.trajectory.num_segments
-    )  # one whole segment
+    planner = mmdopt.Planner(SMALL)
+    st = planner.run(problem, obstacles, jax.random.PRNGKey(0))
+    sh = planner.shift(st, dt=SMALL.trajectory.horizon / SMALL.trajectory.num_segments)
     S = SMALL.trajectory.num_segments
     np.testing.assert_allclose(sh.mu[: S - 1], st.mu[1:S], rtol=1e-6)  # speeds move one earlier
     np.testing.assert_allclose(sh.mu[S - 1], st.mu[S - 1], rtol=1e-6)  # last held
     assert int(sh.iteration) == 0 and not np.isfinite(float(sh.best.cost))
-    a = alg.run(SMALL, problem, obstacles, jax.random.PRNGKey(1), warm_start=sh)
-    b = alg.run(SMALL, problem, obstacles, jax.random.PRNGKey(1), warm_start=sh)
+    a = planner.run(problem, obstacles, jax.random.PRNGKey(1), warm_start=sh)
+    b = planner.run(problem, obstacles, jax.random.PRNGKey(1), warm_start=sh)
     np.testing.assert_array_equal(np.asarray(a.best.cx), np.asarray(b.best.cx))
     assert float(a.best.cost) == float(b.best.cost)
     with pytest.raises(ValueError, match="dt"):
-        alg.shift(st, dt=float("nan"))
+        planner.shift(st, dt=float("nan"))
 
 
 def test_plan_warm_start_and_state_round_trip():
@@ -117,7 +121,9 @@ def test_plan_warm_start_and_state_round_trip():
     obs = _obstacle()
     p = mmdopt.plan(EGO, road, obs, config=SMALL, key=jax.random.PRNGKey(0))
     assert isinstance(p.state, alg.CEMState)
-    warm = alg.shift(p.state, 0.5)
+    ego, warm = p.next(0.5)
+    np.testing.assert_allclose(ego.s, np.interp(0.5, p.t, p.s))
+    assert ego == p.ego_at(0.5)
     q1 = mmdopt.plan(EGO, road, obs, config=SMALL, key=jax.random.PRNGKey(2), warm_start=warm)
     q2 = mmdopt.plan(EGO, road, obs, config=SMALL, key=jax.random.PRNGKey(2), warm_start=warm)
     np.testing.assert_array_equal(q1.x, q2.x)
@@ -143,13 +149,13 @@ def test_plan_with_a_given_reduced_set_uses_it_and_validates_it():
 
 
 def test_demo_plan_is_unchanged_by_the_restructure():
-    """The demo scene's MMD-Opt plan, as computed before the restructure (commit a722a0c), with
-    the config defaults of then: the time-linear margins and no re-selection pass."""
+    """The demo scene's MMD-Opt plan with the paper's Algorithm 1 (time-linear margins, no
+    re-selection pass), pinned: a refactor that moves it must say why."""
     from mmdopt.bench.scenes import demo_scene
     from mmdopt.bench.synthetic import scene_config
 
     sc = demo_scene()
-    cfg = scene_config(sc, mmdopt.MMDOptConfig().replace(margin_mode="linear", reselect=0))
+    cfg = scene_config(sc, mmdopt.MMDOptConfig.paper())
     p = mmdopt.plan(sc.ego(), sc.road(), sc.obstacles, config=cfg, key=sc.key())
     assert p.cost == pytest.approx(25.484128952026367, rel=1e-6)
     assert p.progress == pytest.approx(78.05859374999413, rel=1e-6)

@@ -538,6 +538,7 @@ def _centres(O=1, J=4):
 
 
 PROBLEM = alg.Problem.create(TINY, EGO, ROAD.bounds())
+WS = mmdopt.Planner(TINY).workspace(ROAD.bounds())
 STEP = [
     (
         "ObstacleSet mode",
@@ -581,18 +582,22 @@ STEP = [
         ),
         "mask",
     ),
-    ("init config", lambda: alg.init({}, PROBLEM, KEY), "config"),
-    ("init problem", lambda: alg.init(TINY, EGO, KEY), "problem"),
-    ("init warm_start", lambda: alg.init(TINY, PROBLEM, KEY, warm_start=3), "warm_start"),
-    ("update state", lambda: alg.update({}, None), "state"),
+    ("init workspace", lambda: alg.init({}, TINY, PROBLEM, KEY), "ws"),
+    ("init config", lambda: alg.init(WS, {}, PROBLEM, KEY), "config"),
+    ("init problem", lambda: alg.init(WS, TINY, EGO, KEY), "problem"),
+    ("init warm_start", lambda: alg.init(WS, TINY, PROBLEM, KEY, warm_start=3), "warm_start"),
+    ("update state", lambda: alg.update(WS, TINY, PROBLEM, {}, None), "state"),
     (
         "update settings on admm-fixed",
-        lambda: alg.update(None, None, "admm-fixed", rho=1.0),
+        lambda: alg.update(WS, TINY, PROBLEM, None, None, "admm-fixed", rho=1.0),
         "admm-fixed",
     ),
-    ("run config", lambda: alg.run({}, PROBLEM, None, KEY), "config"),
-    ("run backend int", lambda: alg.run(TINY, PROBLEM, None, KEY, backend=1), "backend"),
-    ("shift state", lambda: alg.shift({}, 0.1), "state"),
+    ("run config", lambda: alg.run(WS, {}, PROBLEM, None, KEY), "config"),
+    ("run backend int", lambda: alg.run(WS, TINY, PROBLEM, None, KEY, backend=1), "backend"),
+    ("shift config", lambda: alg.shift({}, None, 0.1), "config"),
+    ("shift state", lambda: alg.shift(TINY, {}, 0.1), "state"),
+    ("Planner config", lambda: mmdopt.Planner({}), "config"),
+    ("Planner problem", lambda: mmdopt.Planner(TINY).init(EGO, KEY), "problem"),
 ]
 
 
@@ -604,23 +609,40 @@ def test_step_api_rejects(name, fn, pattern):
 @pytest.fixture(scope="module")
 def state():
     obs = alg.ObstacleSet.create(TINY, _centres(), np.full((1, 4), 0.25), "mmd")
-    return alg.init(TINY, PROBLEM, KEY), obs
+    return mmdopt.Planner(TINY).init(PROBLEM, KEY), obs
 
 
 @pytest.mark.parametrize("dt", [NAN, INF, -0.1], ids=["nan", "inf", "negative"])
 def test_shift_rejects_bad_dt(state, dt):
-    check(lambda: alg.shift(state[0], dt), ValueError, r"\bdt\b")
+    check(lambda: alg.shift(TINY, state[0], dt), ValueError, r"\bdt\b")
 
 
 def test_update_rejects_a_used_up_state(state):
     s, obs = state
+    planner = mmdopt.Planner(TINY)
     for _ in range(TINY.cem.iterations):
-        s = alg.update(s, obs)
-    check(lambda: alg.update(s, obs), ValueError, "iterations")
+        s = planner.update(PROBLEM, s, obs)
+    check(lambda: planner.update(PROBLEM, s, obs), ValueError, "iterations")
 
 
 def test_update_rejects_wrong_obstacles(state):
-    check(lambda: alg.update(state[0], {"centres": 1}), ValueError, "obstacles")
+    check(
+        lambda: mmdopt.Planner(TINY).update(PROBLEM, state[0], {"centres": 1}),
+        ValueError,
+        "obstacles",
+    )
+
+
+def test_shift_and_warm_start_reject_a_state_of_other_sizes(state):
+    other = TINY.replace(num_segments=TINY.trajectory.num_segments + 1)
+    check(lambda: alg.shift(other, state[0], 0.1), ValueError, "state.mu")
+    obs = np.zeros((1, 8, TINY.trajectory.num_steps, 2))
+    obs[..., 0] = 50.0
+    check(
+        lambda: mmdopt.plan(EGO, ROAD, obs, config=other, warm_start=state[0]),
+        ValueError,
+        "warm_start",
+    )
 
 
 # -------------------------------------------------------------- plans: statuses, never a bad 'ok'
@@ -629,7 +651,7 @@ def _status_ok(p):
     if p.status == "ok":
         assert math.isfinite(p.cost) and not p.fallback
         assert all(np.all(np.isfinite(a)) for a in (p.x, p.y, p.s, p.d, p.vs))
-    return p.status
+    return p.status_text
 
 
 @pytest.mark.parametrize("method", ["mmd", "degroot", "saa"])
@@ -640,7 +662,7 @@ def test_obstacle_on_top_of_the_ego_is_unsafe_not_ok(method):
     obs = np.stack([xs, np.zeros_like(xs)], -1)
     p = _plan(obs, method=method)
     assert _status_ok(p).startswith("unsafe:"), p.status
-    assert "obstacle(s) [0]" in p.status and not p.fallback
+    assert "obstacle(s) [0]" in p.message and not p.fallback
 
 
 def test_speed_above_limit_is_a_braking_fallback():

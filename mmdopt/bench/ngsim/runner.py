@@ -172,13 +172,48 @@ class NgsimParams:
             )
         if self.v_des_flow is not None and self.v_des is None:
             raise ValueError("NgsimParams.v_des_flow needs v_des (the cap without traffic)")
+        for name in ("history", "egos_per_time", "max_obstacles", "n_samples", "n_validation"):
+            v = getattr(self, name)
+            if isinstance(v, bool) or not isinstance(v, int | np.integer) or v < 1:
+                raise ValueError(f"NgsimParams.{name} must be an int >= 1, got {v!r}")
+        if self.obstacle_bucket is not None and not (
+            isinstance(self.obstacle_bucket, int | np.integer) and self.obstacle_bucket >= 1
+        ):
+            raise ValueError(
+                f"NgsimParams.obstacle_bucket must be None or an int >= 1, got "
+                f"{self.obstacle_bucket!r}"
+            )
+        for name in ("every", "range_m", "max_ego_length", "bound_step"):
+            v = getattr(self, name)
+            if not (np.isfinite(v) and v > 0):
+                raise ValueError(f"NgsimParams.{name} must be finite and > 0, got {v!r}")
+        for name in ("first_t0", "lane_keep_margin"):
+            v = getattr(self, name)
+            if not (np.isfinite(v) and v >= 0):
+                raise ValueError(f"NgsimParams.{name} must be finite and >= 0, got {v!r}")
 
     @classmethod
     def from_dict(cls, d: dict) -> NgsimParams:
-        names = {f.name for f in dataclasses.fields(cls)}
-        bad = set(d) - names
+        """From JSON-like data: unknown keys and values of the wrong type (a string for a
+        number, a float for a count, NaN) raise ``ValueError`` naming the key."""
+        if not isinstance(d, dict):
+            raise ValueError(f"NgsimParams needs a dict of fields, got {type(d).__name__}")
+        fields = {f.name: f for f in dataclasses.fields(cls)}
+        bad = set(d) - set(fields)
         if bad:
-            raise ValueError(f"unknown NgsimParams keys {sorted(bad)}; known: {sorted(names)}")
+            raise ValueError(f"unknown NgsimParams keys {sorted(bad)}; known: {sorted(fields)}")
+        for k, v in d.items():
+            kind = str(fields[k].type)
+            if v is None and "None" in kind:
+                continue
+            if kind.startswith("bool"):
+                ok = isinstance(v, bool)
+            elif kind.startswith("int"):
+                ok = isinstance(v, int) and not isinstance(v, bool)
+            else:
+                ok = isinstance(v, int | float) and not isinstance(v, bool) and np.isfinite(v)
+            if not ok:
+                raise ValueError(f"NgsimParams.{k} must be of type {kind}, got {v!r}")
         return cls(**d)
 
 
@@ -483,7 +518,7 @@ def run_task(
                 plan_time_s=plan.plan_time_s,
                 n_obstacles=len(b["obs"]),
                 fallback=bool(plan.fallback),
-                status=plan.status,
+                status=plan.status_text,
                 cem_s=float(plan.diagnostics.get("cem_s", np.nan)),
                 predict_s=inp.predict_s,
                 v0=float(b["ego"].vs),
@@ -649,21 +684,13 @@ def _as_config(config) -> tuple[mmdopt.MMDOptConfig, NgsimParams]:
         return ngsim_config(), NgsimParams()
     if isinstance(config, mmdopt.MMDOptConfig):
         return config, NgsimParams()
-    if isinstance(config, str | Path):
-        config = json.loads(Path(config).read_text())
-    if not isinstance(config, dict):
+    if not isinstance(config, str | Path | dict):
         raise ValueError(
             f"config must be None, an MMDOptConfig, a dict or a JSON path, got {config!r}"
         )
-    d = dict(config)
-    bench = NgsimParams.from_dict(d.pop("bench", {}))
-    if isinstance(d.get("reduced_set"), dict):
-        d["reduced_set"] = mmdopt.ReducedSetConfig(**d["reduced_set"])
-    names = {f.name for f in dataclasses.fields(mmdopt.MMDOptConfig)}
-    bad = set(d) - names
-    if bad:
-        raise ValueError(f"unknown MMDOptConfig keys {sorted(bad)}")
-    return ngsim_config(**d), bench
+    from .inputs import load_ngsim_config
+
+    return load_ngsim_config(config)
 
 
 def run_ngsim(
@@ -678,6 +705,7 @@ def run_ngsim(
     max_tasks: int | None = None,
     address: str | None = None,
     progress: bool = False,
+    isolate: bool = False,
     export: str | Path | None = None,
 ) -> list[dict]:
     """Run the benchmark on the scenario files/folders ``scenarios``; write ``OUT/results.csv``.
@@ -688,10 +716,15 @@ def run_ngsim(
     "local" (``jobs`` processes) or "ray" (:func:`mmdopt.bench.executors.run_tasks`);
     ``max_tasks``: the first tasks only (smoke runs).  Resumable: finished (task, method) files
     in ``OUT/tasks`` are skipped; ``OUT/run.json`` must match the settings.  Returns the rows.
+    ``isolate`` as in :func:`~mmdopt.bench.executors.run_tasks` (the CLI: every task in a
+    worker process with one XLA thread, rows independent of ``jobs`` and the executor; the
+    manifest records it).  Every scenario file is read before anything is written: a bad file,
+    or scenes that give no task at all, raise :class:`~mmdopt.bench.ngsim.inputs.ScenarioError`
+    (a ``ValueError``) saying why (:func:`~mmdopt.bench.ngsim.inputs.explain_no_tasks`).
     ``export``: a folder for each plan computed in this run as a CommonRoad solution file
     (:func:`.crcheck.write_solution`; resumed tasks are not planned again, so not exported).
     """
-    from mmdopt.bench.executors import check_manifest, run_tasks
+    from mmdopt.bench.executors import MISSING, check_manifest, run_tasks, worker_layout
 
     cfg, p = _as_config(config)
     p = params if params is not None else p
@@ -703,9 +736,14 @@ def run_ngsim(
             raise ValueError(f"method must be one of {mmdopt.PLAN_METHODS}, got {m!r}")
     if predictor not in PREDICTORS:
         raise ValueError(f"predictor must be one of {PREDICTORS}, got {predictor!r}")
+    # every scenario file is read (and checked) before anything is written into ``out``
+    tasks = select_tasks(scenarios, p, cfg)
+    if not tasks:
+        from .inputs import ScenarioError, explain_no_tasks
+
+        raise ScenarioError(explain_no_tasks(scenario_files(scenarios), p, cfg))
     out = Path(out)
     (out / "tasks").mkdir(parents=True, exist_ok=True)
-    tasks = select_tasks(scenarios, p, cfg)
     if max_tasks is not None:
         tasks = tasks[:max_tasks]
     cfg_d = {
@@ -719,10 +757,12 @@ def run_ngsim(
                     predictor=predictor,
                     params=dataclasses.asdict(p),
                     config=cfg_d,
+                    workers=worker_layout(jobs, executor, isolate),
                 ),
                 default=str,
             )
         ),
+        aliases={"workers": [MISSING]},  # folders written before the manifest recorded it
     )
     args = [
         (t, methods, predictor, p, cfg, out, None if export is None else Path(export))
@@ -740,5 +780,6 @@ def run_ngsim(
         progress=progress,
         desc="ngsim",
         unit="task",
+        isolate=isolate,
     )
     return write_results(out)

@@ -1,4 +1,4 @@
-"""resample_prediction: a predictor's own time step onto the planner's grid (issue 14)."""
+"""resample_prediction: a predictor's own time step onto the planner's grid."""
 
 from __future__ import annotations
 

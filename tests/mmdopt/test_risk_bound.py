@@ -1,0 +1,64 @@
+"""The bound every plan states on its collision probability, and what a sample count supports."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+from scipy.stats import beta
+
+from mmdopt.risk import (
+    RISK_CONFIDENCE,
+    clopper_pearson_upper,
+    risk_bound,
+    risk_floor,
+    samples_for_risk,
+)
+
+
+def test_clopper_pearson_matches_the_beta_quantile_and_its_closed_form():
+    for k, n in [(1, 10), (3, 100), (50, 1000)]:
+        assert clopper_pearson_upper(k, n) == pytest.approx(beta.ppf(0.95, k + 1, n - k))
+    assert clopper_pearson_upper(0, 100) == pytest.approx(1 - 0.05 ** (1 / 100), rel=1e-12)
+    assert clopper_pearson_upper(7, 7) == 1.0
+
+
+def test_the_bound_covers_the_true_probability_as_often_as_its_confidence_says():
+    rng = np.random.default_rng(1)
+    for p, n in [(0.02, 100), (0.002, 1000), (0.1, 50)]:
+        k = rng.binomial(n, p, size=4000)
+        covered = np.mean([clopper_pearson_upper(int(x), n) >= p for x in k])
+        # Clopper–Pearson is conservative: at least the nominal 95 % (minus sampling noise)
+        assert covered >= RISK_CONFIDENCE - 0.01, (p, n, covered)
+
+
+def test_union_over_obstacles_splits_the_confidence():
+    one = risk_bound([0], [100])
+    two = risk_bound([0, 0], [100, 100])
+    assert two == pytest.approx(2 * clopper_pearson_upper(0, 100, 1 - 0.05 / 2))
+    assert one < two <= 1.0
+    assert risk_bound([100, 0], [100, 100]) == 1.0
+
+
+def test_floor_and_the_samples_a_request_needs():
+    assert risk_floor([100]) == pytest.approx(0.0295, abs=1e-4)  # "100 samples support 3e-2"
+    for eps, O in [(0.005, 1), (1e-3, 2), (1e-4, 1)]:
+        n = samples_for_risk(eps, O)
+        assert risk_floor([n] * O) <= eps < risk_floor([n - 1] * O)
+    assert samples_for_risk(0.005) == 598
+
+
+@pytest.mark.parametrize(
+    "call, match",
+    [
+        (lambda: risk_bound([1, 2], [10]), "one per obstacle"),
+        (lambda: risk_bound([11], [10]), "collisions"),
+        (lambda: risk_bound([], []), "one per obstacle"),
+        (lambda: clopper_pearson_upper(0, 10, confidence=1.0), "confidence"),
+        (lambda: samples_for_risk(0.7), "eps"),
+        (lambda: samples_for_risk("0.1"), "eps"),
+        (lambda: samples_for_risk(0.01, obstacles=0), "obstacles"),
+    ],
+)
+def test_bad_inputs_name_the_argument(call, match):
+    with pytest.raises(ValueError, match=match):
+        call()

@@ -1,0 +1,161 @@
+"""The house rules a maintainer relies on, checked on the source: layering without import circles,
+no hidden module state, short functions, small config classes, no diary in the docs."""
+
+from __future__ import annotations
+
+import ast
+import re
+from pathlib import Path
+
+import pytest
+
+ROOT = Path(__file__).resolve().parents[1]
+PACKAGES = ("solvers", "frenet", "mmdopt")
+
+
+def _modules(package: str) -> dict[str, Path]:
+    out = {}
+    for path in sorted((ROOT / package).rglob("*.py")):
+        rel = path.relative_to(ROOT).with_suffix("")
+        parts = list(rel.parts)
+        if parts[-1] == "__init__":
+            parts = parts[:-1]
+        out[".".join(parts)] = path
+    return out
+
+
+def _imports(name: str, path: Path) -> set[str]:
+    """Modules of the repository that ``name`` imports at module level (not inside functions,
+    not under ``TYPE_CHECKING``)."""
+    tree = ast.parse(path.read_text())
+    pkg = name if path.name == "__init__.py" else name.rpartition(".")[0]
+    found: set[str] = set()
+    for node in tree.body:
+        if isinstance(node, ast.If) and "TYPE_CHECKING" in ast.unparse(node.test):
+            continue
+        for sub in ast.walk(node) if not isinstance(node, ast.FunctionDef | ast.ClassDef) else ():
+            if isinstance(sub, ast.Import):
+                found |= {a.name for a in sub.names}
+            elif isinstance(sub, ast.ImportFrom):
+                base = sub.module or ""
+                if sub.level:
+                    up = pkg.split(".")[: len(pkg.split(".")) - (sub.level - 1)]
+                    base = ".".join([*up, base] if base else up)
+                found.add(base)
+                found |= {f"{base}.{a.name}" for a in sub.names}
+    return found
+
+
+def test_no_import_circle_within_a_package():
+    for package in PACKAGES:
+        mods = _modules(package)
+        graph = {m: {i for i in _imports(m, p) if i in mods and i != m} for m, p in mods.items()}
+        # a package's __init__ re-exports its modules: edges into it from its own modules are the
+        # only ones allowed to point up, and none may point back down into a cycle
+        for m in graph:
+            graph[m] = {i for i in graph[m] if not m.startswith(i + ".")}
+        _check_acyclic(graph)
+
+
+def _check_acyclic(graph: dict[str, set[str]]) -> None:
+    state: dict[str, int] = {}
+
+    def visit(m: str, stack: list[str]) -> None:
+        state[m] = 1
+        for n in graph[m]:
+            if state.get(n) == 1:
+                cycle = [*stack[stack.index(n) :], n] if n in stack else [m, n]
+                pytest.fail(f"import circle: {' -> '.join(cycle)}")
+            if n not in state:
+                visit(n, [*stack, n])
+        state[m] = 2
+
+    for m in graph:
+        if m not in state:
+            visit(m, [m])
+
+
+def test_layers_point_one_way():
+    order = {"solvers": 0, "frenet": 1, "mmdopt": 2}
+    for package in PACKAGES:
+        for m, p in _modules(package).items():
+            if m.startswith("mmdopt.bench") or m == "mmdopt.__main__":  # the CLI's entry point
+                continue
+            for i in _imports(m, p):
+                top = i.split(".")[0]
+                assert not (top in order and order[top] > order[package]), f"{m} imports {i}"
+                assert not i.startswith("mmdopt.bench"), f"{m} imports {i}"
+
+
+_MUTABLE = (ast.Dict, ast.List, ast.Set, ast.DictComp, ast.ListComp, ast.SetComp)
+
+
+def test_no_mutable_module_state_in_the_method():
+    """Module-level dicts, lists and sets in the method's modules (outside ``mmdopt.bench``) are
+    read-only (MappingProxyType, tuples); the one exception is the documented planner cache."""
+    allowed = {("mmdopt.api", "PLANNERS")}
+    for m, p in _modules("mmdopt").items():
+        if m.startswith("mmdopt.bench"):
+            continue
+        for node in ast.parse(p.read_text()).body:
+            targets, value = [], None
+            if isinstance(node, ast.Assign):
+                targets, value = node.targets, node.value
+            elif isinstance(node, ast.AnnAssign) and node.value is not None:
+                targets, value = [node.target], node.value
+            for t in targets:
+                name = ast.unparse(t)
+                if name == "__all__" or (m, name) in allowed:
+                    continue
+                mutable = isinstance(value, _MUTABLE) or (
+                    isinstance(value, ast.Call)
+                    and ast.unparse(value.func) in ("dict", "list", "set")
+                )
+                assert not mutable, f"{m}.{name} is a mutable module-level container"
+
+
+def _functions(tree: ast.AST):
+    for node in ast.walk(tree):
+        if isinstance(node, ast.FunctionDef | ast.AsyncFunctionDef):
+            yield node
+
+
+def test_no_function_over_120_lines():
+    long = []
+    for package in PACKAGES:
+        for m, p in _modules(package).items():
+            for fn in _functions(ast.parse(p.read_text())):
+                n = fn.end_lineno - fn.lineno + 1
+                if n > 120:
+                    long.append(f"{m}.{fn.name}: {n} lines")
+    assert not long, long
+
+
+def test_no_config_class_over_20_fields():
+    big = []
+    for package in PACKAGES:
+        for m, p in _modules(package).items():
+            for node in ast.walk(ast.parse(p.read_text())):
+                if isinstance(node, ast.ClassDef) and (
+                    "Config" in node.name or "Settings" in node.name
+                ):
+                    n = sum(isinstance(s, ast.AnnAssign) for s in node.body)
+                    if n > 20:
+                        big.append(f"{m}.{node.name}: {n} fields")
+    assert not big, big
+
+
+def test_no_diary_in_code_docs_or_tests():
+    pattern = re.compile(r"Session [0-9]|SPEC §|\bissue [0-9]+\b|this VM")
+    hits = []
+    roots = [ROOT / d for d in (*PACKAGES, "docs", "tests", "benchmarks")] + [ROOT / "README.md"]
+    for root in roots:
+        files = [root] if root.is_file() else root.rglob("*")
+        for f in files:
+            # the two tests that hold the pattern itself
+            if f.suffix not in (".py", ".md") or f.name in ("test_architecture.py", "test_docs.py"):
+                continue
+            for i, line in enumerate(f.read_text(errors="replace").splitlines(), 1):
+                if pattern.search(line):
+                    hits.append(f"{f.relative_to(ROOT)}:{i}: {line.strip()[:80]}")
+    assert not hits, hits[:20]
