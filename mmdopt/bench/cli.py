@@ -17,7 +17,11 @@
     mmdopt bench ngsim --scenarios PATH [PATH ...] --out DIR            recorded US-101 traffic
     mmdopt predictor train|eval [--data DIR]                            the learned predictor
 
-Bad options exit with status 2 and a message naming the option (argparse).
+Bad options, files and folders exit with status 2 and a message naming the option (argparse),
+before anything is written into ``--out`` (:mod:`.inputs`, :mod:`.ngsim.inputs`); so does
+``bench ngsim`` on scenes that give no task (the message says which condition nobody meets).
+Every sweep plans in worker processes with one XLA thread, ``--jobs 1`` included, so its rows do
+not depend on ``--jobs`` or ``--executor``.
 """
 
 from __future__ import annotations
@@ -526,17 +530,17 @@ def cmd_synthetic(args, parser) -> int:
 def cmd_frontier(args, parser) -> int:
     from .frontier import TARGET_LEVELS, parse_risks, run_frontier
 
-    params = _scene_params(args, parser)
     try:
         risks = parse_risks(args.risks, args.methods)
     except ValueError as e:
         parser.error(f"argument --risks: {e}")
+    params, config = _checked_config(args, parser, args.methods)
     try:
         res = run_frontier(
             args.out,
             risks=risks,
             methods=args.methods,
-            config=_planner_config(args, parser),
+            config=config,
             scenes=args.scenes,
             seed=args.seed,
             params=params,
@@ -545,6 +549,7 @@ def cmd_frontier(args, parser) -> int:
             progress=not args.no_progress,
             executor=args.executor,
             address=args.address,
+            isolate=True,
         )
     except ValueError as e:
         parser.error(str(e))
@@ -682,29 +687,31 @@ def cmd_qp_backends(args, parser) -> int:
 
 def _check_out(args, parser) -> None:
     """``--out`` must be a folder, or a path where one can be created, that this process can
-    write into (exit 2 otherwise).  Nothing is created here."""
+    write into (``predictor``: a file); ``--address`` needs ``--executor ray``.  Exit 2 naming
+    the option otherwise (:mod:`.inputs`).  Nothing is created here."""
+    from .inputs import check_address, check_out_file, check_out_folder
+
     out = getattr(args, "out", None)
-    if out is None:
-        return
-    p = Path(out)
-    if p.exists() and not p.is_dir():
-        parser.error(f"argument --out: {out!r} exists and is not a folder")
-    parent = p
-    while not parent.exists():
-        if parent.parent == parent:
-            break
-        parent = parent.parent
-    if parent.exists() and not parent.is_dir():
-        parser.error(f"argument --out: cannot create folder {out!r}: {str(parent)!r} is a file")
-    if not os.access(parent, os.W_OK | os.X_OK):
-        what = "is not writable" if parent == p else f"cannot be created in {str(parent)!r}"
-        parser.error(f"argument --out: folder {out!r} {what} (permission denied)")
+    try:
+        if args.command == "predictor":
+            if out is not None:  # train: weights base path; eval: a JSON file
+                train = args.predictor_command == "train"
+                check_out_file(f"{out}.eqx" if train else out)
+        elif out is not None:
+            check_out_folder(out)
+    except ValueError as e:
+        parser.error(f"argument --out: {e}")
+    if hasattr(args, "address"):
+        try:
+            check_address(args.executor, args.address)
+        except ValueError as e:
+            parser.error(f"argument --address: {e}")
 
 
-def _cmd_ngsim(args) -> int:
+def _cmd_ngsim(args, parser) -> int:
     from .ngsim.cli import cmd_ngsim
 
-    return cmd_ngsim(args)
+    return cmd_ngsim(args, parser)
 
 
 def _needs(args) -> list[str]:
@@ -746,8 +753,8 @@ def main(argv: Sequence[str] | None = None) -> int:
     elif args.command == "predictor":
         from .ngsim.cli import cmd_predictor
 
-        def cmd(a, _):
-            return cmd_predictor(a)
+        def cmd(a, p):
+            return cmd_predictor(a, p)
     else:
         cmd = {
             "synthetic": cmd_synthetic,
@@ -756,8 +763,8 @@ def main(argv: Sequence[str] | None = None) -> int:
             "timing": cmd_timing,
             "figure": cmd_figure,
             "qp-backends": cmd_qp_backends,
-            "highway": lambda a, _: a.func(a),
-            "ngsim": lambda a, _: _cmd_ngsim(a),
+            "highway": lambda a, p: a.func(a, p),
+            "ngsim": _cmd_ngsim,
         }[args.experiment]
     msg = _missing_extra(args)
     if msg:

@@ -25,7 +25,7 @@ from mmdopt.algorithm import PLANNER_BACKEND
 from mmdopt.baselines import PLAN_METHODS as METHODS
 from mmdopt.risk import check_risk, config_for_risk
 
-from .executors import check_manifest, run_tasks
+from .executors import MISSING, check_manifest, run_tasks, worker_layout
 from .results import write_json, write_results
 from .scenes import SceneParams, make_scene, num_scenes
 from .synthetic import config_overrides, run_scene
@@ -66,6 +66,7 @@ FRONTIER_COLUMNS = (
     "fallback",
     "status",
     "seed",
+    "risk_bound",
 )
 #: target collision-free levels (of 1000) at which progress is interpolated
 TARGET_LEVELS = (990.0, 995.0, 999.0)
@@ -162,9 +163,13 @@ def run_frontier(
     address: str | None = None,
     progress: bool = True,
     levels: Sequence[float] = TARGET_LEVELS,
+    isolate: bool = False,
 ) -> dict[str, Any]:
     """Sweep every method's risk level on the scenes; resumable (existing task files are reused;
-    ``risks``: the grid per method, default :data:`DEFAULT_RISKS`).
+    ``risks``: the grid per method, default :data:`DEFAULT_RISKS`).  ``isolate`` as in
+    :func:`~mmdopt.bench.executors.run_tasks`: ``True`` (the CLI) plans every task in a worker
+    process with one XLA thread, so the rows do not depend on ``jobs`` or the executor; the
+    manifest records where results were computed and a folder refuses a mix.
 
     Returns ``{"rows", "points", "interpolated", "computed", "reused", "wall_s"}``.
     """
@@ -188,7 +193,10 @@ def run_frontier(
             params=params.to_dict(),
             backend=backend,
             config=config_overrides(config),
+            workers=worker_layout(jobs, executor, isolate),
         ),
+        # folders written before the manifest recorded it
+        aliases={"workers": [MISSING]},
     )
     pairs = [(m, k) for m in methods for k in risks[m]]
     tasks, reused = [], 0
@@ -207,6 +215,7 @@ def run_frontier(
         progress=progress,
         desc="frontier scenes",
         unit="scene",
+        isolate=isolate,
     )
     wall = time.perf_counter() - t0
     rows = []

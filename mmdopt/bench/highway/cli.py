@@ -8,7 +8,14 @@ from pathlib import Path
 
 from ..argtypes import add_executor, method_list, nonneg_int, positive_float, positive_int
 from .runner import run_highway, summarize, write_video
-from .settings import METHODS, PREDICTORS, HighwaySettings, highway_available, highway_config
+from .settings import (
+    METHODS,
+    PREDICTORS,
+    HighwaySettings,
+    check_env,
+    highway_available,
+    highway_config,
+)
 
 
 # ------------------------------------------------------------------------------------------ CLI
@@ -77,8 +84,20 @@ def _load_overrides(path) -> dict:
     return raw
 
 
-def cmd_highway(args) -> int:
-    """Run ``mmdopt bench highway``; prints a per-method table; returns the exit status."""
+def _fail(parser, msg: str) -> int:
+    """Exit status 2 with ``msg``: ``parser.error`` (argparse's form) when there is a parser,
+    else one line on stderr and 2 returned."""
+    import sys
+
+    if parser is not None:
+        parser.error(msg)
+    print(f"mmdopt bench highway: {msg}", file=sys.stderr)
+    return 2
+
+
+def cmd_highway(args, parser=None) -> int:
+    """Run ``mmdopt bench highway``; prints a per-method table; returns the exit status.
+    ``--config`` and ``--env`` are checked before anything is written (exit 2 naming them)."""
     import sys
 
     if not highway_available():
@@ -89,6 +108,13 @@ def cmd_highway(args) -> int:
         return 2
     try:
         overrides = _load_overrides(args.config)
+    except ValueError as e:
+        return _fail(parser, str(e))
+    try:
+        check_env(args.env)
+    except ValueError as e:
+        return _fail(parser, f"argument --env: {e}")
+    try:
         settings = HighwaySettings(
             env=args.env,
             duration=float(args.duration),
@@ -97,8 +123,7 @@ def cmd_highway(args) -> int:
             predictor=args.predictor,
         )
     except ValueError as e:
-        print(f"mmdopt bench highway: {e}", file=sys.stderr)
-        return 2
+        return _fail(parser, str(e))
     try:
         rows = run_highway(
             args.out,
@@ -111,10 +136,10 @@ def cmd_highway(args) -> int:
             jobs=args.jobs,
             address=args.address,
             progress=not args.no_progress,
+            isolate=True,
         )
     except ValueError as e:
-        print(f"mmdopt bench highway: {e}", file=sys.stderr)
-        return 2
+        return _fail(parser, str(e))
     summ = summarize(rows)
     cols = [
         "method",
@@ -156,4 +181,4 @@ def main(argv: Sequence[str] | None = None) -> int:
     p = argparse.ArgumentParser(prog="python -m mmdopt.bench.highway")
     add_highway_parser(p.add_subparsers(dest="experiment", required=True))
     args = p.parse_args(["highway", *(sys.argv[1:] if argv is None else argv)])
-    return cmd_highway(args)
+    return cmd_highway(args, p)

@@ -16,10 +16,10 @@ import numpy as np
 import mmdopt
 from mmdopt.receding import RecedingConfig, run_receding, warm_up
 
-from ..executors import EXECUTORS, check_manifest, run_tasks
+from ..executors import EXECUTORS, MISSING, check_manifest, run_tasks, worker_layout
 from ..results import write_json
 from .adapter import HighwaySource
-from .settings import METHODS, HighwaySettings, highway_config
+from .settings import METHODS, HighwaySettings, check_env, highway_config
 
 CSV_COLUMNS = (
     "episode",
@@ -196,10 +196,13 @@ def run_highway(
     jobs: int = 1,
     address: str | None = None,
     progress: bool = True,
+    isolate: bool = False,
 ) -> list[dict]:
     """Resumable benchmark: episode ``i`` uses seed ``seed + i``; each finished (episode, method)
     is ``OUT/episodes/episode_XXXX__METHOD.json`` and never recomputed; ``OUT/episodes.csv`` is
-    rebuilt from them.  Reusing ``out`` with other settings is refused (``ValueError``)."""
+    rebuilt from them.  Reusing ``out`` with other settings is refused (``ValueError``).  The
+    environment id is checked (:func:`~.settings.check_env`) before anything is written;
+    ``isolate`` as in :func:`~mmdopt.bench.executors.run_tasks` (recorded in the manifest)."""
     settings = HighwaySettings() if settings is None else settings
     overrides = dict(config_overrides or {})
     highway_config(overrides)  # validate before starting
@@ -210,9 +213,12 @@ def run_highway(
         raise ValueError(f"methods must be among {METHODS}, got {list(methods)}")
     if executor not in EXECUTORS:
         raise ValueError(f"executor must be one of {EXECUTORS}, got {executor!r}")
+    check_env(settings.env)
     out = Path(out)
     (out / "episodes").mkdir(parents=True, exist_ok=True)
-    check_manifest(out, _manifest(settings, overrides, seed))
+    man = dict(_manifest(settings, overrides, seed), workers=worker_layout(jobs, executor, isolate))
+    # folders written before the manifest recorded where episodes ran
+    check_manifest(out, man, aliases={"workers": [MISSING]})
     todo = [
         (i, seed + i, m, asdict(settings), overrides, str(out), progress)
         for i in range(episodes)
@@ -228,6 +234,7 @@ def run_highway(
         progress=False,
         desc="episodes",
         unit="episode",
+        isolate=isolate,
     )
     rows = []
     for i in range(episodes):

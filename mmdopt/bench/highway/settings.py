@@ -42,6 +42,23 @@ def _require_highway():
     return gym
 
 
+def check_env(env: str) -> None:
+    """Raise ``ValueError`` unless ``env`` is a registered gymnasium id of highway-env (checked
+    before a benchmark writes anything; the message lists highway-env's ids)."""
+    gym = _require_highway()
+    if not isinstance(env, str) or not env:
+        raise ValueError(f"env must be a highway-env id such as 'highway-v0', got {env!r}")
+    try:
+        gym.spec(env)
+    except gym.error.Error as e:
+        ids = sorted(
+            k for k, v in gym.registry.items() if str(v.entry_point).startswith("highway_env")
+        )
+        raise ValueError(
+            f"unknown environment {env!r} ({e}); highway-env's: {', '.join(ids)}"
+        ) from None
+
+
 def highway_config(overrides: dict | None = None) -> mmdopt.MMDOptConfig:
     """The preset :meth:`mmdopt.MMDOptConfig.highway`, then ``overrides`` (field names)."""
     return mmdopt.MMDOptConfig.highway(**(overrides or {}))

@@ -18,6 +18,7 @@ from __future__ import annotations
 import argparse
 import json
 import os
+import sys
 import time
 from collections.abc import Sequence
 from pathlib import Path
@@ -114,27 +115,53 @@ def _summary(rows: list[dict]) -> list[dict]:
     return out
 
 
-def cmd_ngsim(args) -> int:
+def _refuse(parser, option: str, reason) -> int:
+    """``error: argument OPTION: reason`` and exit status 2 (argparse's form); without a parser
+    the same line on stderr and 2 returned."""
+    msg = f"argument {option}: {reason}" if option else str(reason)
+    if parser is not None:
+        parser.error(msg)
+    print(f"mmdopt: error: {msg}", file=sys.stderr)
+    return 2
+
+
+def cmd_ngsim(args, parser=None) -> int:
+    """``bench ngsim``: the scenario files, ``--config`` and ``--out`` are checked before
+    anything is written (exit 2 naming the option); scenes that give no task at all are exit 2
+    naming ``--scenarios`` with the reason (the task conditions and, per file, how many
+    vehicles meet each)."""
+    from .inputs import ScenarioError, load_ngsim_config
     from .runner import run_ngsim
 
+    try:
+        cfg, params = load_ngsim_config(args.config)
+    except ValueError as e:
+        return _refuse(parser, "--config", e)
     if args.export is not None:
         from .crcheck import available
 
         if available() is not None:
-            raise SystemExit(f"mmdopt: error: argument --export: {available()}")
-    rows = run_ngsim(
-        args.scenarios,
-        args.out,
-        methods=args.methods,
-        predictor=args.predictor,
-        config=args.config,
-        executor=args.executor,
-        jobs=args.jobs,
-        max_tasks=args.max_tasks,
-        address=args.address,
-        progress=True,
-        export=args.export,
-    )
+            return _refuse(parser, "--export", available())
+    try:
+        rows = run_ngsim(
+            args.scenarios,
+            args.out,
+            methods=args.methods,
+            predictor=args.predictor,
+            config=cfg,
+            params=params,
+            executor=args.executor,
+            jobs=args.jobs,
+            max_tasks=args.max_tasks,
+            address=args.address,
+            progress=True,
+            isolate=True,
+            export=args.export,
+        )
+    except ScenarioError as e:
+        return _refuse(parser, "--scenarios", e)
+    except ValueError as e:  # a folder of other settings, a damaged run.json, Ray missing
+        return _refuse(parser, "", e)
     summ = _summary(rows)
     Path(args.out, "summary.json").write_text(json.dumps(summ, indent=1))
     for s in summ:
@@ -188,16 +215,61 @@ def evaluate_heldout(
     return [evaluate_predictor(p, W, jax.random.PRNGKey(seed), k=k, n_nll=n_nll) for p in preds]
 
 
-def cmd_train(args) -> int:
+def _checked_split(data, parser, need: str) -> tuple[list[Path], list[Path]]:
+    """(train, held-out) files of ``--data``, every file checked
+    (:func:`~mmdopt.bench.ngsim.inputs.check_scenario_file`) and the split ``need``ed
+    ("train" or "held-out") not empty; exit 2 naming ``--data`` otherwise."""
+    from .data import HOLDOUT_MOD, split_files
+    from .inputs import check_scenario_file
+
+    try:
+        train, test = split_files(data)
+        for f in train + test:
+            check_scenario_file(f)
+    except ValueError as e:
+        _refuse(parser, "--data", e)
+        raise SystemExit(2) from None
+    split = train if need == "train" else test
+    if not split:
+        held = "==" if need == "held-out" else "!="
+        _refuse(
+            parser,
+            "--data",
+            f"{data}: no {need} recordings (USA_US101-N_K_T-1 with N % {HOLDOUT_MOD} {held} 0)",
+        )
+        raise SystemExit(2)
+    return train, test
+
+
+def cmd_train(args, parser=None) -> int:
+    """``predictor train``: ``--data`` (every file, the split, usable windows) and ``--out``
+    are checked before the ~3 min of windows and the training (exit 2 naming the option)."""
     from mmdopt.predict.learned import DEFAULT_WEIGHTS, MDNConfig, save_weights
     from mmdopt.predict.train import fit_mdn
 
-    from .data import HOLDOUT_MOD, split_files, windows
+    from ..inputs import check_out_file
+    from .data import HOLDOUT_MOD, windows
+    from .inputs import ScenarioError
 
     data = default_data_dir() if args.data is None else args.data
-    train, test = split_files(data)
+    train, test = _checked_split(data, parser, "train")
+    out = DEFAULT_WEIGHTS if args.out is None else Path(args.out)
+    try:
+        check_out_file(f"{out}.eqx")
+    except ValueError as e:
+        return _refuse(parser, "--out", e)
     t0 = time.perf_counter()
-    W = windows(train, stride=2)
+    try:
+        W = windows(train, stride=2)
+    except ScenarioError as e:
+        return _refuse(parser, "--data", e)
+    if not W:
+        return _refuse(
+            parser,
+            "--data",
+            f"{data}: no usable training windows in {len(train)} file(s) (a window needs "
+            "vehicles on the lane map recorded over 10 history rows and the 5 s horizon)",
+        )
     print(
         f"{len(train)} training scenes ({len(test)} held out), {len(W)} windows "
         f"({time.perf_counter() - t0:.0f} s)",
@@ -211,7 +283,6 @@ def cmd_train(args) -> int:
         train_files=[f.name for f in train],
         command=f"mmdopt predictor train --steps {args.steps} --seed {args.seed}",
     )
-    out = DEFAULT_WEIGHTS if args.out is None else Path(args.out)
     base = save_weights(out, pred.model, pred.config, pred.norm, info)
     print(
         f"wrote {base}.eqx / .json (final train NLL {info['final_nll']:.3f}, "
@@ -228,7 +299,8 @@ def cmd_train(args) -> int:
 TRAIN_WEIGHT_DECAY = 1e-3
 
 
-def cmd_eval(args) -> int:
+def cmd_eval(args, parser=None) -> int:
+    _checked_split(default_data_dir() if args.data is None else args.data, parser, "held-out")
     rows = evaluate_heldout(args.data, args.weights)
     for r in rows:
         print(json.dumps(r))
@@ -238,8 +310,10 @@ def cmd_eval(args) -> int:
     return 0
 
 
-def cmd_predictor(args) -> int:
-    return cmd_train(args) if args.predictor_command == "train" else cmd_eval(args)
+def cmd_predictor(args, parser=None) -> int:
+    if args.predictor_command == "train":
+        return cmd_train(args, parser)
+    return cmd_eval(args, parser)
 
 
 def main(argv: Sequence[str] | None = None) -> int:
@@ -252,8 +326,8 @@ def main(argv: Sequence[str] | None = None) -> int:
     add_train_parser(sub)
     args = p.parse_args(argv)
     if args.command == "bench":
-        return cmd_ngsim(args)
-    return cmd_predictor(args)
+        return cmd_ngsim(args, p)
+    return cmd_predictor(args, p)
 
 
 if __name__ == "__main__":  # pragma: no cover

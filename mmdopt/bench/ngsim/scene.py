@@ -21,6 +21,8 @@ import numpy as np
 import frenet
 from mmdopt.predict.base import GAP_NONE, PredictionContext, cartesian_to_lane
 
+from .inputs import ScenarioError, check_scenario_file
+
 __all__ = [
     "CHAIN_SPACING",
     "Lane",
@@ -88,30 +90,45 @@ def recording_of(name: str) -> int:
 
 
 def scenario_files(paths) -> list[Path]:
-    """CommonRoad ``.xml`` files named by ``paths`` (files or folders, sorted, de-duplicated)."""
+    """CommonRoad ``.xml`` files named by ``paths`` (files or folders, sorted, de-duplicated).
+    Raises :class:`~mmdopt.bench.ngsim.inputs.ScenarioError` (a ``ValueError``) naming a path
+    that is missing, not an ``.xml`` file, or a folder without ``.xml`` files."""
     if isinstance(paths, str | Path):
         paths = [paths]
     out: list[Path] = []
     for p in map(Path, paths):
         if p.is_dir():
-            out += sorted(p.glob("*.xml"))
+            found = sorted(f for f in p.glob("*.xml") if f.is_file())
+            if not found:
+                names = sorted(x.name for x in p.iterdir())
+                what = f"holds {', '.join(names[:5])}{', …' if names[5:] else ''}"
+                raise ScenarioError(
+                    f"{p}: folder with no .xml files ({what if names else 'it is empty'}); "
+                    "CommonRoad scenarios are .xml files"
+                )
+            out += found
         elif p.is_file() and p.suffix == ".xml":
             out.append(p)
+        elif p.is_file():
+            raise ScenarioError(f"{p}: not an .xml file (CommonRoad scenarios are .xml files)")
         else:
-            raise ValueError(f"scenario path {p} is neither an .xml file nor a folder")
+            raise ScenarioError(f"{p}: does not exist")
     seen, files = set(), []
     for f in out:
         if f.resolve() not in seen:
             seen.add(f.resolve())
             files.append(f)
     if not files:
-        raise ValueError(f"no .xml scenario files under {list(map(str, paths))}")
+        raise ScenarioError(f"no .xml scenario files under {list(map(str, paths))}")
     return files
 
 
 @lru_cache(maxsize=8)
 def load_scenario(path: str | Path) -> NgsimScene:
-    """Read a CommonRoad scenario (commonroad-io) into an :class:`NgsimScene` (cached)."""
+    """Read a CommonRoad scenario (commonroad-io) into an :class:`NgsimScene` (cached).  A file
+    that is not a usable scenario (:func:`~mmdopt.bench.ngsim.inputs.check_scenario_file`, or
+    refused by the CommonRoad reader) raises :class:`~mmdopt.bench.ngsim.inputs.ScenarioError`
+    naming the file and the reason."""
     try:
         from commonroad.common.file_reader import CommonRoadFileReader
     except ImportError as exc:  # pragma: no cover - depends on the environment
@@ -120,8 +137,14 @@ def load_scenario(path: str | Path) -> NgsimScene:
         ) from exc
     path = Path(path)
     if not path.is_file():
-        raise ValueError(f"scenario file {path} does not exist")
-    scenario, _ = CommonRoadFileReader(str(path)).open()
+        raise ScenarioError(f"scenario file {path} does not exist")
+    check_scenario_file(path)
+    try:
+        scenario, _ = CommonRoadFileReader(str(path)).open()
+    except Exception as e:  # the reader's errors are of many kinds; one message naming the file
+        raise ScenarioError(
+            f"{path}: not a readable CommonRoad scenario ({type(e).__name__}: {e})"
+        ) from None
     dt = float(scenario.dt)
     net = scenario.lanelet_network
     lanes: dict[int, Lane] = {}
