@@ -130,9 +130,10 @@ def residual_check(be: Backend, problem: QP | QPBatch, sol: Solution | BatchSolu
     """Check every ``SOLVED`` answer's unscaled primal residual (float64) against the backend's
     stated tolerance; record the outcome in ``sol.extras["residual_check"]``.
 
-    The answer is kept as the solver gave it; where the residual exceeds
-    :data:`RESIDUAL_FLAG_FACTOR` times the tolerance, ``extras["residual_check"]["result"]`` is
-    ``"failed"`` (for a batch: a boolean array ``"failed"`` per problem).
+    This flag changes nothing; where the residual exceeds :data:`RESIDUAL_FLAG_FACTOR` times the
+    tolerance, ``extras["residual_check"]["result"]`` is ``"failed"`` (for a batch: a boolean
+    array ``"failed"`` per problem).  The answer check that runs after it
+    (:mod:`solvers.check`) is what weakens a status the point does not support.
     """
     try:
         eps_abs, eps_rel = be.stated_tolerance(sol.settings)

@@ -95,6 +95,13 @@ class ClarabelBackend(Backend):
         y = qp.clarabel_row_map(z) if z.size == A.shape[0] else np.full(qp.m, np.nan)
         if not np.all(np.isfinite(x)):
             return failed_solution(qp, self.name, status=Status.ERROR, solve_time=dt, settings=used)
+        extras: dict[str, Any] = {"native_status": str(res.status)}
+        # at an infeasibility, Clarabel's (x, z) is the certificate, not a point: it goes to
+        # extras, and the answer check (solvers.check) verifies it and sets x to NaN
+        if status is Status.PRIMAL_INFEASIBLE and np.all(np.isfinite(y)):
+            extras["prim_inf_cert"] = y
+        elif status is Status.DUAL_INFEASIBLE:
+            extras["dual_inf_cert"] = x
         return Solution(
             x=x,
             y=y,
@@ -106,7 +113,7 @@ class ClarabelBackend(Backend):
             dual_residual=qp.dual_residual(x, y) if np.all(np.isfinite(y)) else float("nan"),
             backend=self.name,
             settings=used,
-            extras={"native_status": str(res.status)},
+            extras=extras,
         )
 
 

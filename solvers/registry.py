@@ -22,6 +22,7 @@ from typing import Any
 import numpy as np
 
 from .base import Backend, residual_check
+from .check import check_batch_solution, check_solution
 from .errors import BackendUnavailableError, UnknownBackendError
 from .problem import QP, QPBatch
 from .settings import IGNORED, as_warm_start
@@ -224,7 +225,9 @@ def solve(
     or a tuple ``(x, y)`` (recorded as ``"ignored"`` by backends that cannot use it).
     ``check_convex=True`` runs the convexity check now for a QP built with
     ``check_convex=False``.  A ``SOLVED`` whose primal residual fails the backend's stated
-    tolerance by orders of magnitude is flagged in ``extras["residual_check"]``.  The solution
+    tolerance by orders of magnitude is flagged in ``extras["residual_check"]``; then the answer
+    check of :mod:`solvers.check` (scale-aware residuals, verified infeasibility certificates)
+    weakens any status the point does not support, saying why in ``extras["check"]``.  The solution
     keeps ``qp`` as ``sol.problem`` (for ``sol.duality_gap()`` and ``sol.is_optimal(eps_abs)``).
 
     Example::
@@ -242,6 +245,7 @@ def solve(
     sol = be.solve(qp, warm_start=ws, **settings)
     _record_warm_start(sol.settings, ws is not None, be)
     residual_check(be, qp, sol)
+    sol = check_solution(be, qp, sol)
     _attach(sol, qp)
     return sol
 
@@ -260,7 +264,9 @@ def solve_batch(
     ``backend`` defaults to ``"admm"``; ``solver`` is its alias, settings and ``warm_start`` (a
     :class:`BatchSolution` or a tuple ``(x (B, n), y (B, m))``) as in :func:`solve`.  The result
     keeps ``batch`` as ``sols.problem``; ``sols.status_names`` and ``sols.ok`` give the status
-    of each QP by name and as a boolean array.
+    of each QP by name and as a boolean array.  Every member's answer is checked as in
+    :func:`solve` (``sols.extras["check"]`` holds arrays over the batch; certificates of
+    infeasible members in ``sols.extras["certificates"]``).
     """
     if not isinstance(batch, QPBatch):
         raise TypeError(f"batch must be a solvers.QPBatch, got {type(batch).__name__}")
@@ -283,6 +289,7 @@ def solve_batch(
     sol = be.solve_batch(batch, warm_start=ws, **settings)
     _record_warm_start(sol.settings, ws is not None, be)
     residual_check(be, batch, sol)
+    sol = check_batch_solution(be, batch, sol)
     _attach(sol, batch)
     return sol
 

@@ -5,6 +5,54 @@ Habits kept from qpsolvers: ``print(sol.status)`` shows the name (``SOLVED``), w
 ``SOLVED`` only; ``sol.is_optimal(eps_abs)`` and ``sol.duality_gap()`` check the returned point
 against the problem it solved; ``repr(sol)`` is one line (status, objective, sizes, backend,
 time), not the settings.
+
+Status table
+------------
+What each status guarantees, for every backend: :func:`solvers.solve` and
+:func:`solvers.solve_batch` pass each answer through the answer check of :mod:`solvers.check`
+before returning it (``eps = max(stated eps_abs, stated eps_rel, 1e-6)``; residuals relative and
+row-normalised, see that module; the outcome and any reason in ``sol.extras["check"]``).
+
+=================== ===================================================================
+status              guarantee
+=================== ===================================================================
+SOLVED              the backend converged and the check passed: row-normalised primal
+                    residual, dual residual and duality gap each ≤ ``10·eps`` (dual and gap
+                    where the backend returned duals)
+SOLVED_INACCURATE   every residual ≤ ``min(1e3·eps, 0.1)``; the backend said "inaccurate", or
+                    said SOLVED and the check found a residual above ``10·eps``
+MAX_ITER            no answer: the iteration or time budget ran out, or a SOLVED /
+                    SOLVED_INACCURATE whose residuals exceed ``min(1e3·eps, 0.1)``; ``x`` is
+                    the last iterate (for inspection only) or NaN
+PRIMAL_INFEASIBLE   a Farkas certificate ``y`` verified by the check is in
+                    ``extras["prim_inf_cert"]``; ``x``, ``y``, objective and residuals are NaN
+DUAL_INFEASIBLE     a direction ``d`` (``Pd = 0``, ``qᵀd < 0``, ``Ad`` in the recession cone)
+                    verified by the check is in ``extras["dual_inf_cert"]``; ``x`` etc. NaN
+ERROR               the solver failed, returned non-finite values, or claimed an infeasibility
+                    that no certificate verifies (``extras["check"]["reason"]``; ``x`` NaN)
+=================== ===================================================================
+
+Backend by backend (``eps`` at the backend's defaults; where the certificate comes from):
+
+* ``clarabel`` (``eps`` = ``tol_feas`` 1e-8, floored to 1e-6): native Solved / AlmostSolved /
+  MaxIterations, MaxTime / (Almost)PrimalInfeasible, (Almost)DualInfeasible; Clarabel's own
+  certificate (its ``z`` or ``x`` at the infeasibility), else one computed by the check.  Its
+  false DualInfeasible on Maros–Meszaros PRIMALC1/PRIMALC2 is refuted: ``ERROR``.
+* ``osqp`` (1e-3): native statuses; time limit, non-convex → ``ERROR``.  Its certificates are the
+  last ``δx``/``δy``, which meet OSQP's 1e-4 test but seldom the check's rounding-level one, so the
+  certificate is usually computed; a false infeasibility claim (a row scaled by 1e-6 on a bounded
+  LP) is ``ERROR``.
+* ``cvxpy`` (the inner solver's tolerance): cvxpy's OPTIMAL(_INACCURATE) / INFEASIBLE /
+  UNBOUNDED / USER_LIMIT; no certificate from cvxpy: computed.
+* ``qpsolvers:<name>`` (the solver's stated tolerance): "found" is SOLVED only after its own
+  residual test and then the check; infeasibility only from solvers whose status qpsolvers
+  exposes (``daqp`` and ``quadprog`` report ``ERROR`` instead); certificates computed.
+* ``admm`` (1e-5): its float64 re-check of the returned point, then the check; infeasibility from
+  OSQP-style certificates re-checked in float64, the certificate itself computed by the check.
+* ``ipm`` (1e-9, floored to 1e-6): termination on the unscaled problem, then the check;
+  infeasibility from the certificates of the last step, the certificate computed by the check.
+
+A backend's ``solve`` called directly (not through :func:`solvers.solve`) is not checked.
 """
 
 from __future__ import annotations
@@ -23,6 +71,13 @@ __all__ = ["Status", "Solution", "BatchSolution"]
 
 class Status(IntEnum):
     """Outcome of a QP solve.  Integer codes so a batch can hold them in an array.
+
+    What each status guarantees (every answer from :func:`solvers.solve` /
+    :func:`solvers.solve_batch` is checked first, :mod:`solvers.check`): ``SOLVED``, every
+    relative residual within 10 × the stated tolerance (at least 1e-6); ``SOLVED_INACCURATE``,
+    within ``min(1e3·eps, 0.1)``; ``MAX_ITER``, no answer; ``PRIMAL_INFEASIBLE`` /
+    ``DUAL_INFEASIBLE``, a verified certificate in ``sol.extras``; ``ERROR``, a failure or an
+    unverified infeasibility claim.  The full table is in the docstring of :mod:`solvers.solution`.
 
     ``str()`` and f-strings give the name (``f"{sol.status}"`` is ``"SOLVED"``); a numeric format
     (``f"{sol.status:d}"``) and comparisons with integers use the code.
@@ -67,9 +122,11 @@ def _fmt_time(t: float) -> str:
 class Solution:
     """Result of one QP solve.
 
-    ``x`` is always returned (the last iterate when not solved; NaN only when the backend gave
-    nothing).  ``y`` follows OSQP's sign convention: ``Px + q + Aᵀy = 0`` at the optimum, ``y ≥ 0``
-    on active upper bounds and ``y ≤ 0`` on active lower bounds.
+    ``x`` is always returned: the last iterate when not solved; NaN when the backend gave
+    nothing, for ``PRIMAL_INFEASIBLE`` / ``DUAL_INFEASIBLE`` (the certificate is in ``extras``)
+    and for an infeasibility claim refuted by the answer check (see the status table in the
+    module docstring).  ``y`` follows OSQP's sign convention: ``Px + q + Aᵀy = 0`` at the
+    optimum, ``y ≥ 0`` on active upper bounds and ``y ≤ 0`` on active lower bounds.
     """
 
     x: np.ndarray
@@ -175,10 +232,11 @@ class BatchSolution:
         )
 
     def __getitem__(self, i: int) -> Solution:
+        status = Status(int(self.status[i]))
         return Solution(
             x=self.x[i],
             y=self.y[i],
-            status=Status(int(self.status[i])),
+            status=status,
             objective=float(self.objective[i]),
             iterations=int(self.iterations[i]),
             solve_time=float(self.solve_time[i]),
@@ -186,8 +244,36 @@ class BatchSolution:
             dual_residual=float(self.dual_residual[i]),
             backend=self.backend,
             settings=self.settings,
+            extras=self._extras_of(int(i), status),
             problem=None if self.problem is None else self.problem[i],
         )
+
+    def _extras_of(self, i: int, status: Status) -> dict[str, Any]:
+        """Problem ``i``'s part of the answer check's record (:mod:`solvers.check`): its
+        ``extras["check"]`` and, if infeasible, its certificate under the key a single solve
+        uses."""
+        check = self.extras.get("check")
+        if not isinstance(check, dict):
+            return {}
+        out: dict[str, Any] = {}
+        one = {}
+        for k, v in check.items():
+            if isinstance(v, np.ndarray) and v.shape[:1] == (len(self),):
+                one[k] = v[i].item() if isinstance(v[i], np.generic) else v[i]
+            elif isinstance(v, dict):
+                if i in v:
+                    one[k] = v[i]
+            else:
+                one[k] = v
+        if isinstance(one.get("status_before"), int):
+            one["status_before"] = Status(one["status_before"]).name
+        out["check"] = one
+        cert = self.extras.get("certificates", {}).get(i)
+        if cert is not None and status is Status.PRIMAL_INFEASIBLE:
+            out["prim_inf_cert"] = cert
+        elif cert is not None and status is Status.DUAL_INFEASIBLE:
+            out["dual_inf_cert"] = cert
+        return out
 
     @property
     def solved(self) -> np.ndarray:
