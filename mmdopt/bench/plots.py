@@ -18,6 +18,7 @@ __all__ = [
     "METHOD_COLOURS",
     "collision_box_violin",
     "scene_figure",
+    "demo_figure",
     "reduced_set_figure",
     "timing_figure",
     "reduced_set_indices",
@@ -160,6 +161,108 @@ def reduced_set_indices(plan) -> np.ndarray | None:
     return idx.astype(int) if idx.size else None
 
 
+def _default_validation_index(scene) -> int:
+    """A validation sample of the less probable intent, if there is one."""
+    rare = int(np.argmin(scene.intent_probs))
+    cand = np.flatnonzero(scene.validation_intents == rare)
+    return int(cand[0]) if cand.size else 0
+
+
+def _scene_xlim(scene, plans: Mapping[str, Any], validation_index: int) -> tuple[float, float]:
+    """x range (m) of what a scene panel draws: the samples, the plans, the validation sample."""
+    obs = np.asarray(scene.obstacles[0])[..., 0]
+    xs = [obs.min(), obs.max()]
+    xs += [float(np.min(plan.x)) for plan in plans.values()]
+    xs += [float(np.max(plan.x)) for plan in plans.values()]
+    v = np.asarray(scene.validation[0])[validation_index, :, 0]
+    xs += [v.min(), v.max()]
+    return float(min(xs)) - 5.0, float(max(xs)) + 5.0
+
+
+def _scene_panel(ax, scene, m: str, plan, validation_index: int, title: str | None = None):
+    """One method's panel of :func:`scene_figure`: samples, reduced set, hits, plan, legend."""
+    from matplotlib.lines import Line2D
+
+    from mmdopt.collision import collision_free_count
+
+    obs = np.asarray(scene.obstacles[0])
+    val = np.asarray(scene.validation[0])
+    xy = np.stack([np.asarray(plan.x), np.asarray(plan.y)], -1)
+    t = np.asarray(getattr(plan, "t", np.arange(xy.shape[0])))
+    every = int(dt_every(t, 1.5))
+    for y in (-3.5, 0.0, 3.5):
+        ax.axhline(y, color="k", lw=0.5, ls=":")
+    for y in (-5.25, -1.75, 1.75, 5.25):
+        ax.axhline(y, color="k", lw=0.8)
+    for intent in np.unique(scene.intents):
+        sel = obs[scene.intents == intent]
+        ax.plot(sel[:, :, 0].T, sel[:, :, 1].T, color="0.7", lw=0.6, alpha=0.6)
+    col = METHOD_COLOURS.get(m, "m")
+    handles = [
+        Line2D([], [], color="0.7", lw=1, label=f"planning samples ({obs.shape[0]})"),
+    ]
+    idx = reduced_set_indices(plan)
+    if idx is not None:
+        rs = obs[idx]
+        ax.plot(rs[:, :, 0].T, rs[:, :, 1].T, color=col, lw=1.6)
+        handles.append(
+            Line2D([], [], color=col, lw=1.6, label=f"reduced set used by the cost ({idx.size})")
+        )
+    counts = collision_free_count(xy, val[None])
+    hit = np.asarray(counts.colliding)[0]
+    if hit.any():
+        hv = val[hit][:50]
+        ax.plot(hv[:, :, 0].T, hv[:, :, 1].T, color="red", lw=0.7, alpha=0.5)
+        handles.append(
+            Line2D(
+                [], [], color="red", lw=0.9,
+                label=f"validation samples the plan hits ({int(hit.sum())}"
+                + (", 50 drawn)" if hit.sum() > 50 else ")"),
+            )
+        )  # fmt: skip
+    v = val[validation_index]
+    ax.plot(v[:, 0], v[:, 1], "k--", lw=1.0)
+    ax.plot(v[::every, 0], v[::every, 1], "ks", ms=3)
+    handles.append(
+        Line2D(
+            [], [], color="k", ls="--", marker="s", ms=3, lw=1.0,
+            label=f"one validation sample (■ every {t[every] - t[0]:.1f} s)",
+        )
+    )  # fmt: skip
+    pc = "k"  # the plan in black in every panel (the reduced set has the method colour)
+    ax.plot(xy[:, 0], xy[:, 1], color=pc, lw=2)
+    ax.plot(xy[::every, 0], xy[::every, 1], "o", color=pc, ms=4)
+    handles += [
+        Line2D(
+            [], [], color=pc, lw=2, marker="o", ms=4,
+            label=f"ego plan (● every {t[every] - t[0]:.1f} s)",
+        ),
+        Line2D([], [], color="k", lw=0.8, label="lane boundary"),
+        Line2D([], [], color="k", lw=0.5, ls=":", label="lane centre"),
+    ]  # fmt: skip
+    ax.legend(
+        handles=handles, fontsize=7, loc="upper left", bbox_to_anchor=(1.005, 1.0),
+        borderaxespad=0.0,
+    )  # fmt: skip
+    cf_ = int(counts.joint)
+    prog = float(np.asarray(plan.s)[-1] - np.asarray(plan.s)[0])
+    ax.set_title(
+        f"{title or _label(m)}: {cf_}/{val.shape[0]} validation samples collision-free, "
+        f"progress {prog:.0f} m",
+        fontsize=10,
+    )
+    ax.set_ylim(-6, 6)
+    ax.set_ylabel("y (m)")
+    ax.set_xlabel("x (m)")
+
+
+def _scene_title(scene) -> str:
+    return (
+        f"scene {scene.index}: obstacle at x0 = {scene.x0:.0f} m, y0 = {scene.y0:.1f} m; "
+        f"P(y_d = {scene.params.intent_offsets[0]:g} m) = {scene.intent_probs[0]:.2f}"
+    )
+
+
 def scene_figure(
     scene,
     plans: Mapping[str, Any],
@@ -170,104 +273,78 @@ def scene_figure(
     """Paper Fig. 3 style: one panel per method with the planning samples (grey: by intent),
     the method's reduced set (coloured), its plan (ego positions every 1.5 s) and the validation
     samples it collides with (red), plus one validation sample with its positions at the plan's
-    time steps (black dashed)."""
-    from mmdopt.collision import collision_free_count
-
+    time steps (black dashed).  The x axis spans what is drawn."""
     plt = _plt()
     n = len(plans)
     fig, axs = plt.subplots(n, 1, figsize=(15, 3.1 * n), squeeze=False)
-    obs = np.asarray(scene.obstacles[0])
-    val = np.asarray(scene.validation[0])
     if validation_index is None:
-        # a validation sample of the less probable intent, if there is one
-        rare = int(np.argmin(scene.intent_probs))
-        cand = np.flatnonzero(scene.validation_intents == rare)
-        validation_index = int(cand[0]) if cand.size else 0
-    from matplotlib.lines import Line2D
-
-    lanes = (-3.5, 0.0, 3.5)
+        validation_index = _default_validation_index(scene)
+    xlim = _scene_xlim(scene, plans, validation_index)
     for ax, (m, plan) in zip(axs[:, 0], plans.items(), strict=True):
-        xy = np.stack([np.asarray(plan.x), np.asarray(plan.y)], -1)
-        t = np.asarray(getattr(plan, "t", np.arange(xy.shape[0])))
-        every = int(dt_every(t, 1.5))
-        for y in lanes:
-            ax.axhline(y, color="k", lw=0.5, ls=":")
-        for y in (-5.25, -1.75, 1.75, 5.25):
-            ax.axhline(y, color="k", lw=0.8)
-        for intent in np.unique(scene.intents):
-            sel = obs[scene.intents == intent]
-            ax.plot(sel[:, :, 0].T, sel[:, :, 1].T, color="0.7", lw=0.6, alpha=0.6)
-        col = METHOD_COLOURS.get(m, "m")
-        handles = [
-            Line2D([], [], color="0.7", lw=1, label=f"planning samples ({obs.shape[0]})"),
-        ]
-        idx = reduced_set_indices(plan)
-        if idx is not None:
-            rs = obs[idx]
-            ax.plot(rs[:, :, 0].T, rs[:, :, 1].T, color=col, lw=1.6)
-            handles.append(
-                Line2D(
-                    [], [], color=col, lw=1.6, label=f"reduced set used by the cost ({idx.size})"
-                )
-            )
-        counts = collision_free_count(xy, val[None])
-        hit = np.asarray(counts.colliding)[0]
-        if hit.any():
-            hv = val[hit][:50]
-            ax.plot(hv[:, :, 0].T, hv[:, :, 1].T, color="red", lw=0.7, alpha=0.5)
-            handles.append(
-                Line2D(
-                    [], [], color="red", lw=0.9,
-                    label=f"validation samples the plan hits ({int(hit.sum())}"
-                    + (", 50 drawn)" if hit.sum() > 50 else ")"),
-                )
-            )  # fmt: skip
-        v = val[validation_index]
-        ax.plot(v[:, 0], v[:, 1], "k--", lw=1.0)
-        ax.plot(v[::every, 0], v[::every, 1], "ks", ms=3)
-        handles.append(
-            Line2D(
-                [], [], color="k", ls="--", marker="s", ms=3, lw=1.0,
-                label=f"one validation sample (■ every {t[every] - t[0]:.1f} s)",
-            )
-        )  # fmt: skip
-        pc = "k"  # the plan in black in every panel (the reduced set has the method colour)
-        ax.plot(xy[:, 0], xy[:, 1], color=pc, lw=2)
-        ax.plot(xy[::every, 0], xy[::every, 1], "o", color=pc, ms=4)
-        handles += [
-            Line2D(
-                [], [], color=pc, lw=2, marker="o", ms=4,
-                label=f"ego plan (● every {t[every] - t[0]:.1f} s)",
-            ),
-            Line2D([], [], color="k", lw=0.8, label="lane boundary"),
-            Line2D([], [], color="k", lw=0.5, ls=":", label="lane centre"),
-        ]  # fmt: skip
-        ax.legend(
-            handles=handles, fontsize=7, loc="upper left", bbox_to_anchor=(1.005, 1.0),
-            borderaxespad=0.0,
-        )  # fmt: skip
-        cf_ = int(counts.joint)
-        prog = float(np.asarray(plan.s)[-1] - np.asarray(plan.s)[0])
-        ax.set_title(
-            f"{_label(m)}: {cf_}/{val.shape[0]} validation samples collision-free, "
-            f"progress {prog:.0f} m",
-            fontsize=10,
-        )
-        ax.set_ylim(-6, 6)
-        ax.set_xlim(-5, max(200.0, float(obs[:, -1, 0].max()) + 5))
-        ax.set_ylabel("y (m)")
-        ax.set_xlabel("x (m)")
-    fig.suptitle(
-        title
-        or (
-            f"scene {scene.index}: obstacle at x0 = {scene.x0:.0f} m, y0 = {scene.y0:.1f} m; "
-            f"P(y_d = {scene.params.intent_offsets[0]:g} m) = {scene.intent_probs[0]:.2f}"
-        ),
-        fontsize=11,
-    )
+        _scene_panel(ax, scene, m, plan, validation_index)
+        ax.set_xlim(*xlim)
+    fig.suptitle(title or _scene_title(scene), fontsize=11)
     fig.tight_layout()
     path = Path(path)
     fig.savefig(path, dpi=110)
+    plt.close(fig)
+    return path
+
+
+def demo_figure(
+    scene,
+    plans: Mapping[str, Any],
+    points: Sequence[Mapping[str, Any]],
+    path: str | Path,
+    risk: float,
+    validation_index: int | None = None,
+) -> Path:
+    """The demo's figure: :func:`scene_figure`'s panels of each method's plan at risk level
+    ``risk`` (left), and a safety–progress panel (right): collision-free validation samples
+    against progress, one line per method through its risk levels ε, each point labelled with
+    its ε (``points``: rows with ``method``, ``risk``, ``collision_free``, ``n_validation``,
+    ``progress_m``, as the demo's table)."""
+    plt = _plt()
+    n = len(plans)
+    fig = plt.figure(figsize=(18, max(3.6 * n, 5.0)))
+    # the middle column holds the scene panels' legends
+    gs = fig.add_gridspec(n, 3, width_ratios=[3.0, 1.05, 1.25], wspace=0.05, hspace=0.45)
+    if validation_index is None:
+        validation_index = _default_validation_index(scene)
+    xlim = _scene_xlim(scene, plans, validation_index)
+    for i, (m, plan) in enumerate(plans.items()):
+        ax = fig.add_subplot(gs[i, 0])
+        _scene_panel(ax, scene, m, plan, validation_index, title=f"{_label(m)} at ε = {risk:g}")
+        ax.set_xlim(*xlim)
+    ax = fig.add_subplot(gs[:, 2])
+    nvs = sorted({int(p["n_validation"]) for p in points})
+    for k, m in enumerate(dict.fromkeys(p["method"] for p in points)):
+        pts = sorted((p for p in points if p["method"] == m), key=lambda p: p["progress_m"])
+        x = [float(p["progress_m"]) for p in pts]
+        y = [int(p["collision_free"]) for p in pts]
+        col = METHOD_COLOURS.get(m, "tab:blue")
+        ax.plot(x, y, "o-", color=col, label=f"{_label(m)} ({m})")
+        for p, xi, yi in zip(pts, x, y, strict=True):
+            ax.annotate(
+                f"ε={float(p['risk']):g}", (xi, yi), textcoords="offset points",
+                xytext=(5, 4) if k % 2 == 0 else (-5, -10), ha="left" if k % 2 == 0 else "right",
+                fontsize=7, color=col,
+            )  # fmt: skip
+    xs = [float(p["progress_m"]) for p in points]
+    ys = [int(p["collision_free"]) for p in points]
+    if xs:
+        dx = max(1.0, 0.12 * (max(xs) - min(xs)))
+        dy = max(1.0, 0.12 * (max(ys) - min(ys)))
+        ax.set_xlim(min(xs) - 2 * dx, max(xs) + 2 * dx)
+        ax.set_ylim(min(ys) - dy, min(max(ys) + 2 * dy, (nvs[-1] if nvs else max(ys)) + dy))
+    ax.set_xlabel("progress over the horizon (m)")
+    ax.set_ylabel(f"collision-free validation samples (of {nvs[0] if len(nvs) == 1 else 'N'})")
+    ax.set_title("safety vs progress: one point per risk level ε", fontsize=10)
+    ax.grid(alpha=0.3)
+    ax.legend(fontsize=8, loc="lower left", title="method (demo table)", title_fontsize=7)
+    fig.suptitle(_scene_title(scene), fontsize=11)
+    path = Path(path)
+    fig.savefig(path, dpi=110, bbox_inches="tight")
     plt.close(fig)
     return path
 

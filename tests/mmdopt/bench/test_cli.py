@@ -47,6 +47,9 @@ def _exit_code(argv, capsys):
         (["bench", "timing", "--out", "x", "--sizes", "10,zero"], "--sizes"),
         (["bench", "warp"], "warp"),
         (["demo", "--methods", ""], "--methods"),
+        (["demo", "--risks", "0.5"], "--risks"),
+        (["demo", "--risks", "0.01,low"], "--risks"),
+        (["demo", "--risks", "0.01,0.01"], "--risks"),
     ],
 )
 def test_bad_options_exit_2_naming_the_option(argv, option, capsys):
@@ -125,15 +128,27 @@ def test_module_entry_point_exit_status():
 
 
 def test_demo_writes_png_and_prints_table(tmp_path, capsys):
+    """Both axes of the trade-off per (method, ε), compile time apart from plan time."""
     rc, out = _run(["demo", "--out", str(tmp_path)], capsys)
     assert rc == 0
     png = tmp_path / "demo.png"
     assert png.is_file() and png.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
-    for word in ("method", "collision-free of 1000", "progress (m)", "plan time (s)", "mmd"):
+    for word in (
+        "method", "risk ε", "collision-free of 1000", "progress (m)", "plan_s (s)",
+        "compile_s (s)", "mmd", "degroot", "How to read it", "matched safety",
+    ):  # fmt: skip
         assert word in out.out
     rows = json.loads((tmp_path / "demo.json").read_text())
-    assert {r["method"] for r in rows} == {"mmd", "degroot"}
+    assert {(r["method"], r["risk"]) for r in rows} == {
+        (m, r) for m in ("mmd", "degroot") for r in cli.DEMO_RISKS
+    }
     assert all(0 <= r["collision_free"] <= r["n_validation"] == 1000 for r in rows)
+    for m in ("mmd", "degroot"):
+        rr = [r for r in rows if r["method"] == m]
+        assert len({r["compile_s"] for r in rr}) == 1  # one compile per method
+        # the compile is not in the plan time: every plan is faster than the first call
+        assert all(0 < r["plan_s"] < r["plan_s"] + r["compile_s"] for r in rr)
+        assert max(r["plan_s"] for r in rr) < rr[0]["compile_s"]
 
 
 def test_synthetic_two_scenes_contract_and_resume(tmp_path, capsys):

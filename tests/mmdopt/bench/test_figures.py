@@ -106,6 +106,47 @@ def test_scene_figure_has_a_legend_per_panel(tmp_path, saved):
     legend = " ".join(t.get_text() for t in fig.axes[1].get_legend().get_texts())
     for what in ("planning samples", "reduced set", "validation sample", "ego plan"):
         assert what in legend
+    # the x axis spans what is drawn (the samples end near 150 m), not a fixed 200 m
+    obs_end = float(np.asarray(scene.obstacles)[..., 0].max())
+    for ax in fig.axes:
+        assert ax.get_xlim()[1] <= obs_end + 5.0 + 1e-9
+
+
+def test_demo_figure_has_a_safety_progress_panel(tmp_path, saved):
+    """The scene panels and one safety-progress panel: one line per method through its risk
+    levels, labelled as the console table (method key), axes trimmed to the points."""
+
+    class _Plan:  # plan-shaped: the scene panels draw x, y, s, t and the reduced set
+        def __init__(self, v):
+            self.t = np.linspace(0.0, 15.0, 100)  # the scene's grid
+            self.x = v * self.t
+            self.y = np.zeros_like(self.t)
+            self.s = self.x
+            self.reduced_set = None
+
+    scene = demo_scene()
+    plans = {"mmd": _Plan(6.0), "degroot": _Plan(5.0)}
+    points = [
+        dict(method=m, risk=r, collision_free=cf, n_validation=1000, progress_m=pm)
+        for m, r, cf, pm in (
+            ("mmd", 0.02, 970, 96.1), ("mmd", 0.005, 977, 90.0), ("mmd", 0.001, 992, 78.7),
+            ("degroot", 0.02, 989, 81.6), ("degroot", 0.005, 992, 76.7),
+            ("degroot", 0.001, 996, 72.0),
+        )
+    ]  # fmt: skip
+    p = plots.demo_figure(scene, plans, points, tmp_path / "demo.png", risk=0.005)
+    fig = saved[str(p)]
+    assert_readable(fig, "demo.png")
+    trade = fig.axes[-1]
+    labels = [t.get_text() for t in trade.get_legend().get_texts()]
+    assert any("(mmd)" in t for t in labels) and any("(degroot)" in t for t in labels)
+    assert "of 1000" in trade.get_ylabel() and "(m)" in trade.get_xlabel()
+    lo, hi = trade.get_xlim()
+    assert 60 < lo < 72.0 and 96.1 < hi < 110
+    assert trade.get_ylim()[1] <= 1000 + 5
+    notes = {t.get_text() for t in trade.texts}
+    assert {"ε=0.02", "ε=0.005", "ε=0.001"} <= notes
+    assert "ε = 0.005" in fig.axes[0].get_title()
 
 
 @pytest.mark.slow
