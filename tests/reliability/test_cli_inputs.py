@@ -109,7 +109,6 @@ def _scenario_path(tmp_path: Path, fname, content) -> Path:
     return f
 
 
-@_needs_commonroad
 @pytest.mark.parametrize("name,fname,content,reason", SCENARIOS, ids=[c[0] for c in SCENARIOS])
 def test_bad_scenario_is_exit_2_naming_it_and_writes_nothing(
     name, fname, content, reason, tmp_path, capsys
@@ -136,6 +135,20 @@ def test_scenes_without_a_task_say_why_and_write_nothing(tmp_path, capsys):
     short = tmp_path / "short.xml"
     short.write_text(commonroad_xml(xs=(10.0, 30.0), steps=30))
     err = expect_error(argv[:3] + [short] + argv[4:], capsys, "--scenarios", "too short")
+    assert not out.exists()
+
+
+def test_without_commonroad_a_good_file_names_the_extra(tmp_path, capsys, monkeypatch):
+    import sys
+
+    monkeypatch.setitem(sys.modules, "commonroad.common.file_reader", None)  # not installed
+    f = tmp_path / "s.xml"
+    f.write_text(GOOD)
+    out = tmp_path / "out"
+    rc, err = run_main(
+        ["bench", "ngsim", "--scenarios", f, "--out", out, "--predictor", "cv"], capsys
+    )
+    assert rc == 2 and "mmdopt[commonroad]" in err
     assert not out.exists()
 
 

@@ -128,17 +128,21 @@ def load_scenario(path: str | Path) -> NgsimScene:
     """Read a CommonRoad scenario (commonroad-io) into an :class:`NgsimScene` (cached).  A file
     that is not a usable scenario (:func:`~mmdopt.bench.ngsim.inputs.check_scenario_file`, or
     refused by the CommonRoad reader) raises :class:`~mmdopt.bench.ngsim.inputs.ScenarioError`
-    naming the file and the reason."""
-    try:
-        from commonroad.common.file_reader import CommonRoadFileReader
-    except ImportError as exc:  # pragma: no cover - depends on the environment
-        raise ImportError(
-            "reading CommonRoad scenes needs commonroad-io: pip install 'mmdopt[commonroad]'"
-        ) from exc
+    naming the file and the reason (also without commonroad-io); without commonroad-io a good
+    file raises :class:`~mmdopt.bench._optional.MissingExtra` (an ``ImportError``; the CLI
+    prints it, exit status 2)."""
     path = Path(path)
     if not path.is_file():
         raise ScenarioError(f"scenario file {path} does not exist")
     check_scenario_file(path)
+    try:
+        from commonroad.common.file_reader import CommonRoadFileReader
+    except ImportError as exc:  # pragma: no cover - depends on the environment
+        from .._optional import MissingExtra
+
+        raise MissingExtra(
+            "reading CommonRoad scenes needs commonroad-io: pip install 'mmdopt[commonroad]'"
+        ) from exc
     try:
         scenario, _ = CommonRoadFileReader(str(path)).open()
     except Exception as e:  # the reader's errors are of many kinds; one message naming the file
