@@ -926,18 +926,44 @@ def _init(
     )
 
 
+class _Warm(NamedTuple):
+    """The part of a warm start :func:`run` reads, and whether there is one: a cold start
+    passes zeros with ``cold = True``, so that one compiled program serves both."""
+
+    mu: Any
+    cov: Any
+    elites: Any
+    cold: Any  # () bool
+
+
+def _as_warm(cfg: MMDOptConfig, warm_start: CEMState | None) -> _Warm:
+    D, ne = cfg.d_dim, cfg.cem.n_elite
+    dt = jnp.dtype(cfg.cem.dtype)
+    if warm_start is None:
+        return _Warm(
+            jnp.zeros((D,), dt), jnp.zeros((D, D), dt), jnp.zeros((ne, D), dt), jnp.asarray(True)
+        )
+    return _Warm(
+        jnp.asarray(warm_start.mu, dt),
+        jnp.asarray(warm_start.cov, dt),
+        jnp.asarray(warm_start.elites, dt),
+        jnp.asarray(False),
+    )
+
+
 def _run_fixed(
-    prob: Workspace, cfg: MMDOptConfig, problem: Problem, obstacles: ObstacleSet, key, warm_start
+    prob: Workspace, cfg: MMDOptConfig, problem: Problem, obstacles: ObstacleSet, key, warm: _Warm
 ):
-    """The whole of Algorithm 1 as one jitted function (``lax.scan`` over the iterations)."""
+    """The whole of Algorithm 1 as one jitted function (``lax.scan`` over the iterations); a
+    cold start and a warm start are one program (the state is selected by ``warm.cold``)."""
     dt = jnp.dtype(cfg.cem.dtype)
     problem = _cast(problem, dt)
     # every iteration's normal draws in one vmapped call (bit-identical to drawing them from
     # each iteration's key inside the loop, ≈ 2.4× cheaper: threefry on CPU is dispatch-bound
     # at 940 × 8 values)
     prefix = bool(jax.config.jax_threefry_partitionable) and cfg.cem.n_elite <= _n_fresh(cfg)
-    if warm_start is not None or not prefix:
-        state = _init(prob, cfg, problem, key, warm_start)
+    if not prefix:
+        state = _init(prob, cfg, problem, key, None)
         z_all = jax.vmap(lambda k: _normals(cfg, k, dt))(state.keys)
     else:
         # the initial elites' draws are the first rows of a draw of the iterations' shape from
@@ -948,6 +974,13 @@ def _run_fixed(
         z = jax.vmap(lambda k: _normals(cfg, k, dt))(keys)
         state = _init(prob, cfg, problem, key, None, z[0, : cfg.cem.n_elite])
         z_all = z[1:]
+    # a warm start: its distribution and elites (clipped to the bounds), the same keys
+    ws = state._replace(
+        mu=jnp.clip(warm.mu, problem.lo, problem.hi),
+        cov=warm.cov,
+        elites=jnp.clip(warm.elites, problem.lo, problem.hi),
+    )
+    state = jax.tree_util.tree_map(lambda c, w: jnp.where(warm.cold, c, w), state, ws)
     # the obstacles are the same in every iteration: the elites' and brake rows' costs carry
     # over (_CostCache) and only the new rows of each ConstraintEliteSet are scored
     (state, _), _ = lax.scan(
@@ -1084,7 +1117,9 @@ def run(
     check_backend(backend, backend_settings)
     _check_step_inputs(ws, config, problem, None, obstacles)
     if backend == PLANNER_BACKEND:
-        return ws.run(config, problem, obstacles, key, warm_start)
+        if warm_start is not None and not isinstance(warm_start, CEMState):
+            raise ValueError(f"warm_start must be a CEMState, got {type(warm_start).__name__}")
+        return ws.run(config, problem, obstacles, key, _as_warm(config, warm_start))
     state = init(ws, config, problem, key, warm_start)
     for _ in range(config.cem.iterations):
         state = update(ws, config, problem, state, obstacles, backend, **backend_settings)

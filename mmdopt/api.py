@@ -41,6 +41,7 @@ from .collision import (
     ellipse_values,
     mmd_cost,
 )
+from .risk import risk_bound, risk_floor, samples_for_risk
 from .samples import ReducedSet, check_reduced_set
 
 __all__ = [
@@ -120,28 +121,59 @@ class Road:
 class PlanStatus(enum.StrEnum):
     """What a :class:`Plan` is, in one word (its :attr:`Plan.message` says why).
 
-    ==============  =========================================================================
-    status          meaning
-    ==============  =========================================================================
-    ``OK``          Algorithm 1's lowest-cost plan: within the road and kinematic bounds
-                    (residual ≤ ``res_tol`` on the time grid) and clear of at least one
-                    planning sample of every obstacle
-    ``INACCURATE``  chosen as feasible, but its residual on the full time grid exceeds
-                    ``res_tol`` (the projection's constraint points passed, the grid did not)
-    ``UNSAFE``      feasible, but it collides with every planning sample of some obstacle:
-                    no collision-free plan was found
-    ``FALLBACK``    no plan of Algorithm 1 could be used (an initial state beyond the bounds,
-                    no sample meeting the constraints, a non-finite cost): a braking or the
-                    least-violating plan is returned
-    ==============  =========================================================================
+    =================  ======================================================================
+    status             meaning
+    =================  ======================================================================
+    ``OK``             Algorithm 1's lowest-cost plan: within the road and kinematic bounds
+                       (residual ≤ ``res_tol`` on the time grid), clear of at least one
+                       planning sample of every obstacle and, when a risk level ε is asked
+                       (the "samples" margin mode, the default), with
+                       :attr:`Plan.risk_bound` ≤ ε
+    ``RISK_FLOOR``     as OK, but ε is below what the planning samples can confirm: even a
+                       plan that meets none of them has a bound above ε
+                       (:func:`mmdopt.risk.risk_floor`); the message says how many samples
+                       per obstacle would (:func:`mmdopt.risk.samples_for_risk`)
+    ``RISK_EXCEEDED``  as OK, but the plan meets so many planning samples that its bound
+                       exceeds ε
+    ``INACCURATE``     chosen as feasible, but its residual on the full time grid exceeds
+                       ``res_tol`` (the projection's constraint points passed, the grid did
+                       not)
+    ``UNSAFE``         feasible, but it collides with every planning sample of some
+                       obstacle: no collision-free plan was found
+    ``FALLBACK``       no plan of Algorithm 1 could be used (an initial state beyond the
+                       bounds, no sample meeting the constraints, a non-finite cost): a
+                       braking or the least-violating plan is returned
+    =================  ======================================================================
 
     A ``StrEnum``: ``plan.status == "ok"`` and ``str(plan.status)`` work as strings.
     """
 
     OK = "ok"
+    RISK_FLOOR = "risk floor"
+    RISK_EXCEEDED = "risk exceeded"
     INACCURATE = "inaccurate"
     UNSAFE = "unsafe"
     FALLBACK = "fallback"
+
+
+def _risk_status(eps: float, bound: float, n: int, hits: np.ndarray) -> str:
+    """The status of a plan that is otherwise OK against the requested risk level ``eps``."""
+    O = len(hits)
+    floor = risk_floor([n] * O)
+    who = "the obstacle" if O == 1 else f"each of the {O} obstacles"
+    if eps < floor:
+        return (
+            f"risk floor: asked {eps:.3g}, the {n} samples of {who} support {floor:.2g} at best "
+            f"(95 % bound with no sample met); {samples_for_risk(eps, O)} samples per obstacle "
+            "would support it"
+        )
+    if bound > eps:
+        return (
+            f"risk exceeded: asked {eps:.3g}, the plan meets {int(np.sum(hits))} planning "
+            f"sample(s) ({', '.join(str(int(h)) for h in hits)} of {n} per obstacle): its 95 % "
+            f"bound is {bound:.2g}"
+        )
+    return "ok"
 
 
 def _split_status(text: str) -> tuple[PlanStatus, str]:
@@ -169,6 +201,9 @@ class Plan:
 
     ``status``: a :class:`PlanStatus` (OK, INACCURATE, UNSAFE, FALLBACK) and ``message`` why
     (empty when OK); ``status_text`` joins them (``"fallback: no sample met …"``);
+    ``risk_bound``: an upper bound, at 95 % confidence, on the probability that the plan meets an
+    obstacle, from the planning samples it meets (:func:`mmdopt.risk.risk_bound`: Clopper–Pearson
+    per obstacle, a union bound over obstacles; its assumptions are stated there);
     ``fallback`` is ``status == FALLBACK``.  ``config``: the config the plan was made with
     (after the risk mapping), for :meth:`next`.
     """
@@ -195,6 +230,7 @@ class Plan:
     backend: str
     reduced_set: ReducedSet | None
     plan_time_s: float
+    risk_bound: float = float("nan")
     diagnostics: dict[str, Any] = field(repr=False, default_factory=dict)
     state: alg.CEMState | None = field(repr=False, default=None)
     config: MMDOptConfig | None = field(repr=False, default=None)
@@ -262,6 +298,7 @@ class Plan:
             cost=_jsonable(self.cost),
             cost_trace=_jsonable(self.cost_trace),
             residual=_jsonable(self.residual),
+            risk_bound=_jsonable(self.risk_bound),
             mmd=_jsonable(self.mmd),
             progress=_jsonable(self.progress),
             plan_time_s=_jsonable(self.plan_time_s),
@@ -998,6 +1035,10 @@ def _assemble(ctx: _Ctx, cx, cy, dvec, cost, best_iter, fallback, status, state)
             f"unsafe: the plan collides with every planning sample of obstacle(s) {hit}; "
             "no collision-free plan was found"
         )
+    n_plan, O = int(ctx.obs_fr.shape[1]), int(cf_plan.shape[0])
+    bound = risk_bound(n_plan - cf_plan, [n_plan] * O)
+    if status == "ok" and config.safety.margins.margin_mode == "samples":
+        status = _risk_status(float(config.safety.risk), bound, n_plan, n_plan - cf_plan)
     s = s + s_off
     diag = dict(diag)
     diag.update(
@@ -1047,6 +1088,7 @@ def _assemble(ctx: _Ctx, cx, cy, dvec, cost, best_iter, fallback, status, state)
         feasible=bool(feasible),
         status=_split_status(status)[0],
         message=_split_status(status)[1],
+        risk_bound=bound,
         method=ctx.method,
         backend=ctx.backend,
         reduced_set=ctx.rs,

@@ -698,6 +698,10 @@ def _reduced_set_from(raw: Any, prefix: str) -> ReducedSetConfig:
             raise ValueError(
                 f"unknown ReducedSetConfig field {prefix}.{k}; known: {', '.join(sorted(names))}"
             )
+        if isinstance(v, float) and not math.isfinite(v):
+            raise ValueError(
+                f"{prefix}.{k} is NaN or Infinity; every value must be a finite number"
+            )
         kw[k] = _type_check(f"{prefix}.{k}", v, getattr(base, k))
     try:
         return ReducedSetConfig(**kw)

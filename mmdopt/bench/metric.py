@@ -124,6 +124,7 @@ def evaluate_plan(plan, scene: Scene, road=None) -> dict[str, Any]:
         planner_feasible=planner_feasible,
         fallback=bool(getattr(plan, "fallback", False)),
         status=str(getattr(plan, "status_text", getattr(plan, "status", ""))),
+        risk_bound=_float(getattr(plan, "risk_bound", math.nan)),
         cost=_float(getattr(plan, "cost", math.nan)),
         mmd=_float(getattr(plan, "mmd", math.nan)),
         residual=_float(getattr(plan, "residual", math.nan)),

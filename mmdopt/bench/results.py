@@ -51,6 +51,7 @@ RESULT_COLUMNS = (
     "p",
     "seed",
     "backend",
+    "risk_bound",
 )
 
 #: Bars for MMD-Opt on 100 scenes × 1000 validation samples: the paper's mean and lower quartile

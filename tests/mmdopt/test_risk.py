@@ -60,7 +60,7 @@ def test_the_default_config_is_every_methods_knob_at_its_default():
     for m in ("mmd", "saa"):  # and the plans (the automatic re-selection, SAA's level)
         a = mmdopt.plan(EGO, road, X, method=m, config=small, key=key)
         b = mmdopt.plan(EGO, road, X, method=m, config=small, key=key, risk=DEFAULT_RISK[m])
-        assert a.status == "ok", (m, a.status)
+        assert a.status in ("ok", "risk floor"), (m, a.status_text)
         np.testing.assert_array_equal(a.s, b.s, err_msg=m)
         np.testing.assert_array_equal(a.d, b.d, err_msg=m)
         assert ("reselected" in a.diagnostics) == (m == "mmd")
@@ -194,7 +194,7 @@ def test_plan_risk_knob_trades_progress_for_safety():
     loose = mmdopt.plan(EGO, road, X, method="mmd", config=SMALL, key=key, risk=0.2)
     tight = mmdopt.plan(EGO, road, X, method="mmd", config=SMALL, key=key, risk=0.001)
     for p in (loose, tight):
-        assert p.feasible and not p.fallback and p.status == "ok"
+        assert p.feasible and not p.fallback and p.status in ("ok", "risk floor"), p.status_text
     assert tight.progress <= loose.progress + 1e-6
     # the density bandwidth (an option) widens the slow tail: the plan stays further back
     wide = mmdopt.plan(

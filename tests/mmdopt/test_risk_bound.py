@@ -62,3 +62,57 @@ def test_floor_and_the_samples_a_request_needs():
 def test_bad_inputs_name_the_argument(call, match):
     with pytest.raises(ValueError, match=match):
         call()
+
+
+# ------------------------------------------------------------------------------ on the plan
+def _scene(n, on_ego=0):
+    """n futures of one car 60 m ahead at 10 m/s; ``on_ego`` of them sit on the ego's start for
+    the whole horizon (no plan can avoid them)."""
+    import mmdopt
+
+    cfg = mmdopt.MMDOptConfig().replace(
+        n_samples=60, n_cem=30, n_elite=10, iterations=3, n_brake=2, reduced_set_size=5
+    )
+    K, H = cfg.trajectory.num_steps, cfg.trajectory.horizon
+    t = np.linspace(0.0, H, K)
+    rng = np.random.default_rng(0)
+    x = 60.0 + rng.normal(10.0, 0.5, (n, 1)) * t
+    x[:on_ego] = 0.0
+    return cfg, np.stack([x, np.zeros_like(x)], -1)[None]
+
+
+def test_plan_states_its_bound_and_a_floor_it_cannot_confirm():
+    import jax
+
+    import mmdopt
+
+    cfg, obs = _scene(40)
+    import frenet
+
+    ego = frenet.EgoState(vs=10.0)
+    key = jax.random.PRNGKey(0)
+    asked = mmdopt.plan(ego, mmdopt.Road(), obs, config=cfg, key=key, risk=1e-4)
+    assert asked.status == mmdopt.PlanStatus.RISK_FLOOR
+    assert "asked 0.0001, the 40 samples" in asked.message and "29956 samples" in asked.message
+    assert asked.to_dict()["risk_bound"] == pytest.approx(risk_floor([40]))
+    # a level the 40 samples can confirm, met by a plan clear of them: ok, with its bound
+    ok = mmdopt.plan(ego, mmdopt.Road(), obs, config=cfg, key=key, risk=0.2)
+    assert ok.status == "ok" and ok.risk_bound <= 0.2, ok.status_text
+    # the time-linear margins ask for no risk level: the bound is stated, the status is ok
+    lin = mmdopt.plan(ego, mmdopt.Road(), obs, config=cfg.replace(margin_mode="linear"), key=key)
+    assert lin.status == "ok" and lin.risk_bound == pytest.approx(risk_floor([40]))
+
+
+def test_a_plan_that_meets_more_samples_than_asked_says_so():
+    import jax
+
+    import frenet
+    import mmdopt
+
+    cfg, obs = _scene(40, on_ego=8)  # 8 of 40 futures sit on the ego: every plan meets them
+    p = mmdopt.plan(
+        frenet.EgoState(vs=10.0), mmdopt.Road(), obs, config=cfg, key=jax.random.PRNGKey(0),
+        risk=0.2,
+    )  # fmt: skip
+    assert p.status == mmdopt.PlanStatus.RISK_EXCEEDED, p.status_text
+    assert p.risk_bound > 0.2 and "meets 8 planning sample(s)" in p.message

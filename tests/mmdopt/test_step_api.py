@@ -192,3 +192,17 @@ def test_layers_import_nothing_above_them():
         "print(bad)\n"
     )
     assert _run(code) == "[]"
+
+
+def test_warm_and_cold_starts_share_one_compiled_program():
+    """A replan from ``Plan.next`` runs the program the cold plan compiled (no second compile,
+    so the first warm replan is as fast as a cold one)."""
+    road = mmdopt.Road()
+    obs = _obstacle()
+    planner = mmdopt.Planner(SMALL)
+    p = planner.plan(EGO, road, obs, key=jax.random.PRNGKey(0))
+    ws = planner.workspace(road.bounds(), p.config)
+    assert ws.run._cache_size() == 1
+    ego, warm = p.next(0.5)
+    q = planner.plan(ego, road, obs, key=jax.random.PRNGKey(1), warm_start=warm)
+    assert q.feasible and ws.run._cache_size() == 1

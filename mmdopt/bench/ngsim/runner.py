@@ -105,6 +105,7 @@ RESULT_COLUMNS = (
     "cr_collision_free",
     "cr_road_compliant",
     "cr_feasible",
+    "risk_bound",
 )
 
 
@@ -519,6 +520,7 @@ def run_task(
                 n_obstacles=len(b["obs"]),
                 fallback=bool(plan.fallback),
                 status=plan.status_text,
+                risk_bound=float(plan.risk_bound),
                 cem_s=float(plan.diagnostics.get("cem_s", np.nan)),
                 predict_s=inp.predict_s,
                 v0=float(b["ego"].vs),
