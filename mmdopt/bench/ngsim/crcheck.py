@@ -9,7 +9,8 @@ benchmark suite scores solutions with, on the same recorded scene:
   recorded trajectories; the ego's own recording is left out);
 * ``cr_road_compliant``: the same footprint against the road boundary obstacle of the lanelet
   network (``commonroad_dc.boundary``, method "obb_rectangles": oriented rectangles along
-  the outer lanelet boundaries);
+  the outer lanelet boundaries: a footprint that touches an outer edge is not compliant; recorded
+  drivers do that too, e.g. car 571 of USA_US101-10_1_T-1 in 7 of the 51 steps after t = 1 s);
 * ``cr_feasible``: the trajectory is reproducible by the kinematic single-track model (KS) of
   :data:`VEHICLE_TYPE` (``commonroad_dc.feasibility.feasibility_checker.trajectory_feasibility``:
   for each 0.1 s step an input within the model's steering-rate and acceleration bounds that
@@ -27,6 +28,7 @@ Needs ``commonroad-io`` < 2026 (2024.3 checked) and ``commonroad-drivability-che
 
 from __future__ import annotations
 
+import atexit
 from functools import lru_cache
 from pathlib import Path
 from typing import Any
@@ -84,6 +86,11 @@ def _scenario(path: str):
     objs = {int(o.obstacle_id): create_collision_object(o) for o in scenario.obstacles}
     _, boundary = create_road_boundary_obstacle(scenario, method="obb_rectangles")
     return scenario, objs, boundary
+
+
+# the cached collision objects go before the interpreter tears the extension down (else
+# nanobind reports them as leaked at exit)
+atexit.register(_scenario.cache_clear)
 
 
 def _vehicle():
