@@ -9,8 +9,9 @@ central finite differences of the solver itself (relative error ≤ 1e-5 in floa
 ``max(|fd|, 1)``), JAX against the host, forward against reverse mode, a jitted ``vmap`` against
 one QP at a time, and an infeasible QP gets NaN gradients with its status.
 
-Every JAX shape compiles once (seconds), so every JAX case uses one shape (n = 5, m = 8); x64 is
-switched on inside each test only (``jax.enable_x64`` as a context manager).
+Every JAX shape compiles once (seconds), so the JAX cases share one shape (n = 5, m = 8), the
+Maros–Meszaros problem HS35 (n = 3, m = 4) apart; x64 is switched on inside each test only
+(``jax.enable_x64`` as a context manager).
 """
 
 from __future__ import annotations
