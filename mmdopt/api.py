@@ -975,22 +975,10 @@ def _braking_fallback(ctx: _Ctx, status: str, state=None) -> Plan:
 _mmd_cost_jit = jax.jit(mmd_cost, static_argnums=(4,))
 
 
-def _assemble(ctx: _Ctx, cx, cy, dvec, cost, best_iter, fallback, status, state) -> Plan:
-    config, prob, ego, diag = ctx.config, ctx.prob, ctx.ego, ctx.diag
-    B = prob.basis
-    s, vs, as_ = B.P @ cx, B.Pdot @ cx, B.Pddot @ cx
-    d, vd, ad = B.P @ cy, B.Pdot @ cy, B.Pddot @ cy
-    residual, groups = prob.grid_projection.residuals(cx, cy, ego.as_array())  # ego at s = 0
-    s_off = float(diag.get("s_offset", 0.0))
-    x, y, heading, speed = ctx.road.path.trajectory_to_cartesian(s + s_off, d, vs, vd)
-    residual = float(residual[0])
-    feasible = residual <= float(config.projection.res_tol) + 1e-9
-    if not fallback and not feasible:
-        status = (
-            f"inaccurate: the returned plan's grid residual {residual:.3g} exceeds res_tol "
-            f"{float(config.projection.res_tol):g}"
-        )
-    ob = ctx.obstacles
+def _plan_mmd(ctx: _Ctx, s, d, vs, vd) -> float:
+    """l_dist of the plan (s, d, ṡ, ḋ on the grid) against the method's obstacle samples, with
+    the config's kernel, margins and rules (a diagnostic of the plan)."""
+    config, prob, ob = ctx.config, ctx.prob, ctx.obstacles
     vs1 = jnp.asarray(vs[None]) if config.safety.rules.asymmetric else None
     wide = (
         alg.yaw_widening(config, vs[None], vd[None]) if config.safety.footprint.yaw_aware else None
@@ -1020,11 +1008,29 @@ def _assemble(ctx: _Ctx, cx, cy, dvec, cost, best_iter, fallback, status, state)
             a_behind=a_behind,
             rear_exempt_width=rear_w,
         )
-    mmd_val = float(
+    return float(
         _mmd_cost_jit(
             f, ob.weights, config.cost.bandwidth, config.cost.f_scale, n_taylor_terms(config)
         )[0]
     )
+
+
+def _assemble(ctx: _Ctx, cx, cy, dvec, cost, best_iter, fallback, status, state) -> Plan:
+    config, prob, ego, diag = ctx.config, ctx.prob, ctx.ego, ctx.diag
+    B = prob.basis
+    s, vs, as_ = B.P @ cx, B.Pdot @ cx, B.Pddot @ cx
+    d, vd, ad = B.P @ cy, B.Pdot @ cy, B.Pddot @ cy
+    residual, groups = prob.grid_projection.residuals(cx, cy, ego.as_array())  # ego at s = 0
+    s_off = float(diag.get("s_offset", 0.0))
+    x, y, heading, speed = ctx.road.path.trajectory_to_cartesian(s + s_off, d, vs, vd)
+    residual = float(residual[0])
+    feasible = residual <= float(config.projection.res_tol) + 1e-9
+    if not fallback and not feasible:
+        status = (
+            f"inaccurate: the returned plan's grid residual {residual:.3g} exceeds res_tol "
+            f"{float(config.projection.res_tol):g}"
+        )
+    mmd_val = _plan_mmd(ctx, s, d, vs, vd)
     cnt = collision_free_count(
         np.stack([s, d], -1), ctx.obs_fr, a=config.safety.footprint.a, b=config.safety.footprint.b
     )

@@ -138,7 +138,20 @@ class IPMSettings:
     chunk_size: int | None = 32
 
     def __post_init__(self) -> None:
-        if self.linear_solver not in ("auto", "dense", "banded"):
+        # every real-valued setting is a real number before any comparison (a string or None
+        # would otherwise fail inside NumPy with a message that does not name the setting)
+        for name in (
+            "eps_abs", "eps_rel", "eps_prim_inf", "eps_dual_inf", "step_fraction", "reg_primal",
+            "reg_dual", "band_ratio",
+        ):  # fmt: skip
+            v = getattr(self, name)
+            if isinstance(v, bool) or not isinstance(v, int | float | np.integer | np.floating):
+                raise ValueError(f"{name} must be a real number, got {v!r}")
+        if not isinstance(self.linear_solver, str) or self.linear_solver not in (
+            "auto",
+            "dense",
+            "banded",
+        ):
             raise ValueError(
                 f"linear_solver must be 'auto', 'dense' or 'banded', got {self.linear_solver!r}"
             )

@@ -56,6 +56,31 @@ def test_init_update_loop_equals_run(mode, slip, yaw):
         planner.update(problem, state, obstacles)
 
 
+@pytest.mark.skipif(
+    __import__("platform").machine().lower() not in ("x86_64", "amd64"),
+    reason="XLA's --xla_cpu_max_isa flag names x86 instruction sets",
+)
+def test_init_update_loop_equals_run_under_another_xla_cpu_isa():
+    """The comparison above, compiled for AVX2 instead of the CPU's widest vector ISA (XLA
+    vectorises reductions at the ISA's width, which reassociates float32 sums): the derived
+    tolerance must hold for either program."""
+    import os
+    from pathlib import Path
+
+    env = dict(os.environ, XLA_FLAGS="--xla_cpu_max_isa=AVX2")
+    test = f"{Path(__file__).resolve()}::test_init_update_loop_equals_run"
+    out = subprocess.run(
+        [sys.executable, "-m", "pytest", "-q", "-p", "no:cacheprovider", "-k", "scenario", test],
+        capture_output=True,
+        text=True,
+        env=env,
+        cwd=Path(__file__).resolve().parents[2],
+        timeout=600,
+    )
+    assert out.returncode == 0, out.stdout[-3000:] + out.stderr[-2000:]
+    assert "1 passed" in out.stdout
+
+
 @pytest.mark.parametrize("hard", [False, True])
 def test_run_projects_and_scores_only_what_the_elite_sets_need_with_the_same_plan(hard):
     """run() plans and projects the batch chunk by chunk until n_cem rows are feasible, and

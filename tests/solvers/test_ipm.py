@@ -213,3 +213,13 @@ def test_input_validation(random_qps):
     if not jax.config.jax_enable_x64:
         with pytest.raises(RuntimeError, match="enable_x64"):
             ipm_iterate(setup, qp.q, qp.l, qp.u)
+
+
+@pytest.mark.parametrize(
+    "key, value",
+    [("step_fraction", "x"), ("reg_primal", None), ("eps_abs", [1e-9]), ("band_ratio", True)],
+)
+def test_ipm_setting_of_the_wrong_type_is_refused_naming_it(key, value):
+    qp = QP(np.eye(2), np.ones(2), np.eye(2), -np.ones(2), np.ones(2))
+    with pytest.raises(ValueError, match=key):
+        solve(qp, backend="ipm", **{key: value})
