@@ -128,11 +128,11 @@ class PlanStatus(enum.StrEnum):
                        (residual ≤ ``res_tol`` on the time grid), clear of at least one
                        planning sample of every obstacle and, when a risk level ε is asked
                        (the "samples" margin mode, the default), with
-                       :attr:`Plan.risk_bound` ≤ ε
+                       ``Plan.risk_bound`` ≤ ε
     ``RISK_FLOOR``     as OK, but ε is below what the planning samples can confirm: even a
                        plan that meets none of them has a bound above ε
-                       (:func:`mmdopt.risk.risk_floor`); the message says how many samples
-                       per obstacle would (:func:`mmdopt.risk.samples_for_risk`)
+                       (``mmdopt.risk.risk_floor``); the message says how many samples
+                       per obstacle would (``mmdopt.risk.samples_for_risk``)
     ``RISK_EXCEEDED``  as OK, but the plan meets so many planning samples that its bound
                        exceeds ε
     ``INACCURATE``     chosen as feasible, but its residual on the full time grid exceeds

@@ -8,18 +8,18 @@
     cfg = mmdopt.MMDOptConfig.from_dict({"cem": {"iterations": 10}})   # --config JSON
     cfg = mmdopt.MMDOptConfig.ngsim()                            # a named preset
 
-=========================  ===================================================================
-section                    what it holds
-=========================  ===================================================================
-:class:`CEMConfig`         Algorithm 1's sampler: batch sizes, iterations, γ, η, initial spread
-:class:`TrajectoryConfig`  the time grid and the Bernstein basis of the Frenet planner
-:class:`ProjectionConfig`  the projection QP's fixed ADMM budget and feasibility tolerance
-:class:`CostConfig`        eq. (c_aug): speed tracking, comfort, residual and MMD weights
-:class:`SafetyConfig`      the risk level and the safety model: :class:`~mmdopt.Footprint`
-                           (the one collision ellipse), :class:`MarginConfig`, :class:`RoadRules`
-:class:`SelectionConfig`   the reduced set: its size m and the selector's CEM
-:class:`BaselineConfig`    fields only the baselines read (de Groot, SAA, all samples)
-=========================  ===================================================================
+=====================  =======================================================================
+section                what it holds
+=====================  =======================================================================
+``CEMConfig``          Algorithm 1's sampler: batch sizes, iterations, γ, η, initial spread
+``TrajectoryConfig``   the time grid and the Bernstein basis of the Frenet planner
+``ProjectionConfig``   the projection QP's fixed ADMM budget and feasibility tolerance
+``CostConfig``         eq. (c_aug): speed tracking, comfort, residual and MMD weights
+``SafetyConfig``       the risk level and the safety model: ``Footprint`` (the one collision
+                       ellipse, in ``mmdopt.geometry``), ``MarginConfig``, ``RoadRules``
+``SelectionConfig``    the reduced set: its size m and the selector's CEM
+``BaselineConfig``     fields only the baselines read (de Groot, SAA, all samples)
+=====================  =======================================================================
 
 Sizes and modes are static (changing them recompiles); tunable scalars are pytree leaves.
 Every field name is unique across the sections, so ``replace(name=value)`` reaches any of them.
