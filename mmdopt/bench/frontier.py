@@ -3,10 +3,13 @@
 Each method has one risk level, the target collision probability ε (:mod:`mmdopt.risk`).
 :func:`run_frontier` plans every (scene, method, risk) and writes one JSON file per task into
 ``OUT/tasks/`` as soon as it is done (resumable, any executor of :mod:`.executors`), then
-``OUT/frontier.csv`` (one row per task), ``OUT/frontier_summary.json`` (mean / LQ collision-free
-and mean progress per (method, risk), and each method's progress interpolated at the target
-levels) and ``OUT/frontier.png``.  Folders written when the ``risk`` column was called ``knob``
-are read with the old name mapped to the new one.
+``OUT/frontier.csv`` (one row per task), ``OUT/frontier_summary.json`` (per (method, risk): mean /
+LQ collision-free, mean progress, the collision rate measured on the validation futures pooled
+over scenes with its 95 % Clopper–Pearson interval, the share of plans whose status is "ok" and
+the mean :attr:`mmdopt.Plan.risk_bound`; and each method's progress interpolated at the target
+levels) and ``OUT/frontier.png`` (:func:`frontier_axes`: the frontier and a calibration panel).
+Folders written when the ``risk`` column was called ``knob`` are read with the old name mapped
+to the new one.
 """
 
 from __future__ import annotations
@@ -38,6 +41,8 @@ __all__ = [
     "run_frontier",
     "frontier_points",
     "interpolate_progress",
+    "clopper_pearson_interval",
+    "frontier_axes",
     "frontier_figure",
 ]
 
@@ -72,6 +77,8 @@ FRONTIER_COLUMNS = (
 TARGET_LEVELS = (990.0, 995.0, 999.0)
 #: the name the ``risk`` column had in older folders (task files and ``frontier.csv``)
 OLD_RISK_COLUMN = "knob"
+#: confidence of the measured collision rate's two-sided interval
+RATE_CONFIDENCE = 0.95
 
 
 def parse_risks(spec: str | None, methods: Sequence[str]) -> dict[str, list[float]]:
@@ -194,9 +201,12 @@ def run_frontier(
             backend=backend,
             config=config_overrides(config),
             workers=worker_layout(jobs, executor, isolate),
+            # also inside ``params``; named on their own so a refusal names them
+            n_validation=params.n_validation,
+            n_samples=params.n_samples,
         ),
-        # folders written before the manifest recorded it
-        aliases={"workers": [MISSING]},
+        # folders written before the manifest recorded them
+        aliases={"workers": [MISSING], "n_validation": [MISSING], "n_samples": [MISSING]},
     )
     pairs = [(m, k) for m in methods for k in risks[m]]
     tasks, reused = [], 0
@@ -242,8 +252,12 @@ def run_frontier(
 
 def frontier_points(rows: Sequence[Mapping[str, Any]]) -> list[dict[str, Any]]:
     """Per (method, risk): scenes, mean / LQ / min collision-free (scaled to 1000 validation
-    samples), mean progress (m), median plan time (s), feasible share; sorted by method, risk.
-    Rows of an older folder may name the risk ``knob``."""
+    samples), mean progress (m), median plan time (s), feasible share; the measured collision
+    rate pooled over scenes (``collisions`` of ``validation`` futures, ``rate``) with its 95 %
+    Clopper–Pearson interval (``rate_lo``, ``rate_hi``); the share of plans whose status begins
+    with "ok" (``ok_share``) and the mean :attr:`mmdopt.Plan.risk_bound` (``risk_bound``); NaN
+    where the rows lack the column (older folders).  Sorted by method, risk.  Rows of an older
+    folder may name the risk ``knob``."""
     groups: dict[tuple[str, float], list] = {}
     for r in rows:
         risk = r["risk"] if "risk" in r else r[OLD_RISK_COLUMN]
@@ -262,9 +276,56 @@ def frontier_points(rows: Sequence[Mapping[str, Any]]) -> list[dict[str, Any]]:
                 progress_m=float(np.mean([float(r["progress_m"]) for r in rs])),
                 plan_time_s=float(np.median([float(r["plan_time_s"]) for r in rs])),
                 feasible=float(np.mean([bool(r["feasible"]) for r in rs])),
+                **_measured(rs),
             )
         )
     return pts
+
+
+def _measured(rs: Sequence[Mapping[str, Any]]) -> dict[str, Any]:
+    """Pooled measured collision rate with its interval, ok share and mean risk bound."""
+    nv = sum(int(r["n_validation"]) for r in rs)
+    k = nv - sum(int(r["collision_free"]) for r in rs)
+    lo, hi = clopper_pearson_interval(k, nv, RATE_CONFIDENCE)
+    status = [str(r["status"]) for r in rs if r.get("status") not in (None, "")]
+    bounds = [_num(r.get("risk_bound")) for r in rs]
+    bounds = [b for b in bounds if math.isfinite(b)]
+    return dict(
+        collisions=int(k),
+        validation=int(nv),
+        rate=k / nv,
+        rate_lo=lo,
+        rate_hi=hi,
+        ok_share=float(np.mean([t.startswith("ok") for t in status])) if status else math.nan,
+        risk_bound=float(np.mean(bounds)) if bounds else math.nan,
+    )
+
+
+def _num(v: Any) -> float:
+    try:
+        return float(v)
+    except (TypeError, ValueError):
+        return math.nan
+
+
+def clopper_pearson_interval(
+    k: int, n: int, confidence: float = RATE_CONFIDENCE
+) -> tuple[float, float]:
+    """Two-sided Clopper–Pearson interval at ``confidence`` on a probability seen ``k`` times in
+    ``n`` independent trials: the ``α/2`` quantile of Beta(k, n − k + 1) (0 when ``k = 0``) and
+    the ``1 − α/2`` quantile of Beta(k + 1, n − k) (1 when ``k = n``), α = 1 − confidence."""
+    from scipy.stats import beta
+
+    if isinstance(n, bool) or not isinstance(n, int | np.integer) or n < 1:
+        raise ValueError(f"n must be a positive integer, got {n!r}")
+    if isinstance(k, bool) or not isinstance(k, int | np.integer) or not 0 <= k <= n:
+        raise ValueError(f"k must be an integer in [0, n={n}], got {k!r}")
+    if not 0 < confidence < 1:
+        raise ValueError(f"confidence must be in (0, 1), got {confidence!r}")
+    a = 1.0 - confidence
+    lo = 0.0 if k == 0 else float(beta.ppf(a / 2, k, n - k + 1))
+    hi = 1.0 if k == n else float(beta.ppf(1 - a / 2, k + 1, n - k))
+    return lo, hi
 
 
 def interpolate_progress(
@@ -290,29 +351,120 @@ def interpolate_progress(
     return res
 
 
-def frontier_figure(points: Sequence[Mapping[str, Any]], path: str | Path, title: str = "") -> Path:
-    """Mean collision-free (of 1000) against mean progress (m), one curve per method (risk
-    points in order), error bars down to the lower quartile."""
-    from .plots import _label, _plt
+#: markers per method (in order of appearance) of :func:`frontier_axes`
+_MARKERS = ("o", "s", "^", "D", "v", "P", "X")
 
+
+def _zero_floor(values: Sequence[float], default: float) -> float:
+    """Where a zero is drawn on a log axis: ``default``, or a power of ten below the least
+    positive value when that is not above ``default``."""
+    pos = [v for v in values if v > 0 and math.isfinite(v)]
+    if not pos or min(pos) > default:
+        return default
+    return 10.0 ** (math.floor(math.log10(min(pos))) - 1)
+
+
+def _PlainLogFormatter(**kw):
+    """matplotlib's ``LogFormatter`` (which minor ticks it labels) printing ``f"{v:g}"``."""
+    from matplotlib.ticker import LogFormatter
+
+    class Plain(LogFormatter):
+        def _num_to_string(self, x, vmin, vmax):
+            return f"{x:g}"
+
+    return Plain(**kw)
+
+
+def frontier_axes(points: Sequence[Mapping[str, Any]], title: str = ""):
+    """The frontier figure of :func:`frontier_points` ``points`` as an open matplotlib figure
+    with two axes.  Left: collisions per 1000 validation futures (``1000 − mean``, log axis;
+    a zero is drawn at a floor named in the axis label) against mean progress, one line per
+    method through its risk points (ε named at both ends of each line).  Right: calibration,
+    the requested ε against the measured collision rate pooled over scenes, with its 95 %
+    Clopper–Pearson interval and the line measured = requested."""
+    from .plots import METHOD_COLOURS, _label, _plt
+
+    if not points:
+        raise ValueError("points must not be empty")
     plt = _plt()
-    fig, ax = plt.subplots(figsize=(7, 4.5))
-    for m in dict.fromkeys(p["method"] for p in points):
-        ps = sorted((p for p in points if p["method"] == m), key=lambda p: p["risk"])
+    fig, (ax, cal) = plt.subplots(1, 2, figsize=(12, 4.8))
+    methods = list(dict.fromkeys(p["method"] for p in points))
+    per = {m: sorted((p for p in points if p["method"] == m), key=lambda p: p["risk"])
+           for m in methods}  # fmt: skip
+    coll = {m: [max(1000.0 - p["mean"], 0.0) for p in ps] for m, ps in per.items()}
+    floor = _zero_floor([c for cs in coll.values() for c in cs], 0.01)
+    rfloor = _zero_floor([p["rate"] for p in points], floor / 1000.0)
+    # the grid most methods share is named in the title; ends of other grids are annotated
+    grids = {m: tuple(p["risk"] for p in ps) for m, ps in per.items()}
+    common = max(grids.values(), key=list(grids.values()).count)
+    spread = 10.0 ** (0.04 * (np.arange(len(methods)) - (len(methods) - 1) / 2))
+    for j, m in enumerate(methods):
+        ps, colour = per[m], METHOD_COLOURS.get(m)
+        style = dict(marker=_MARKERS[j % len(_MARKERS)], color=colour, label=_label(m))
         x = [p["progress_m"] for p in ps]
-        y = [p["mean"] for p in ps]
-        lo = [max(p["mean"] - p["q1"], 0.0) for p in ps]
-        ax.errorbar(x, y, yerr=[lo, [0.0] * len(ps)], marker="o", capsize=3, label=_label(m))
-        for p in ps:
-            ax.annotate(f"{p['risk']:g}", (p["progress_m"], p["mean"]), fontsize=7,
-                        xytext=(3, 3), textcoords="offset points")  # fmt: skip
+        y = [max(c, floor) for c in coll[m]]
+        ax.plot(x, y, ms=5, **style)
+        for p, xy, side in ((ps[0], (x[0], y[0]), -1), (ps[-1], (x[-1], y[-1]), 1)):
+            if grids[m] == common or (side == 1 and len(ps) == 1):
+                continue
+            ax.annotate(f"ε={p['risk']:g}", xy, fontsize=7, color=colour,
+                        xytext=(4 * side, 6 if j % 2 else -10), textcoords="offset points",
+                        ha="left" if side == 1 else "right")  # fmt: skip
+        eps = np.array([p["risk"] for p in ps]) * spread[j]
+        rate = np.array([max(p["rate"], rfloor) for p in ps])
+        lo = np.array([max(p["rate_lo"], rfloor) for p in ps])
+        hi = np.array([max(p["rate_hi"], rfloor) for p in ps])
+        cal.errorbar(eps, rate, yerr=[rate - lo, hi - rate], capsize=3, ms=5, lw=1, **style)
+    ax.set_yscale("log")
+    # 0.01, 5, 40 rather than 10^x; minor ticks labelled only on short ranges, as matplotlib's
+    ax.yaxis.set_major_formatter(plt.FuncFormatter(lambda v, _: f"{v:g}"))
+    ax.yaxis.set_minor_formatter(_PlainLogFormatter(labelOnlyBase=False))
+    zero = any(c <= 0 for cs in coll.values() for c in cs)
+    if zero:
+        ax.axhline(floor, color="0.6", lw=0.8, ls=":")
     ax.set_xlabel("mean progress in 15 s (m)")
-    ax.set_ylabel("mean collision-free validation samples (of 1000)")
-    ax.set_title(("safety–progress frontier; labels: risk ε; bars: to LQ" + "\n" + title).strip())
-    ax.grid(alpha=0.3)
-    ax.legend()
+    ax.set_ylabel(
+        "collisions per 1000 validation futures\n(log; lower is safer"
+        + (f"; 0 drawn at {floor:g})" if zero else ")")
+    )
+    ends = f"ε = {common[0]:g} … {common[-1]:g}" if len(common) > 1 else f"ε = {common[0]:g}"
+    ax.set_title(
+        f"safety–progress frontier (best: bottom right)\none marker per risk level, {ends}",
+        fontsize=10,
+    )
+    ax.grid(alpha=0.3, which="both")
+    ax.legend(fontsize=7, loc="best", framealpha=0.85)
+    req = [p["risk"] for p in points]
+    lim = [min(min(req), rfloor) / 2, max(max(req), max(p["rate_hi"] for p in points)) * 2]
+    cal.plot(lim, lim, color="k", lw=0.8, ls="--", label="measured = requested")
+    rzero = any(p["rate"] <= 0 for p in points)
+    if rzero:
+        cal.axhline(rfloor, color="0.6", lw=0.8, ls=":")
+    cal.set_xscale("log")
+    cal.set_yscale("log")
+    cal.set_xlim(min(req) / 3, max(req) * 3)
+    cal.set_ylim((rfloor if rzero else min(p["rate_lo"] for p in points)) / 2, lim[1])
+    cal.set_xlabel("requested risk ε (log)")
+    cal.set_ylabel(
+        "measured collision rate, pooled over scenes\n(log"
+        + (f"; 0 drawn at {rfloor:g})" if rzero else ")")
+    )
+    cal.set_title("calibration: bars are 95 % Clopper–Pearson intervals", fontsize=10)
+    cal.grid(alpha=0.3)
+    (diag,) = [h for h in cal.lines if h.get_label() == "measured = requested"]
+    cal.legend(handles=[diag], fontsize=7, loc="upper left")
+    if title:
+        fig.suptitle(title, fontsize=10)
     fig.tight_layout()
+    return fig
+
+
+def frontier_figure(points: Sequence[Mapping[str, Any]], path: str | Path, title: str = "") -> Path:
+    """Save :func:`frontier_axes` of ``points`` to ``path`` (PNG)."""
+    from .plots import _plt
+
+    fig = frontier_axes(points, title)
     path = Path(path)
     fig.savefig(path, dpi=120)
-    plt.close(fig)
+    _plt().close(fig)
     return path

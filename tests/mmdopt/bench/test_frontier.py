@@ -11,6 +11,8 @@ import pytest
 from mmdopt.bench import cli
 from mmdopt.bench.frontier import (
     DEFAULT_RISKS,
+    clopper_pearson_interval,
+    frontier_axes,
     frontier_points,
     interpolate_progress,
     parse_risks,
@@ -60,7 +62,9 @@ def test_frontier_cli_contract_and_resume(tmp_path, capsys):
     small.write_text(json.dumps({"n_validation": 200, "n_samples": 40}))
     tiny = tmp_path / "cfg.json"
     tiny.write_text(
-        json.dumps({"n_samples": 60, "n_cem": 20, "n_elite": 8, "iterations": 3, "n_brake": 4})
+        json.dumps(
+            {"cem": {"n_samples": 60, "n_cem": 20, "n_elite": 8, "iterations": 3, "n_brake": 4}}
+        )
     )
     out = tmp_path / "f"
     argv = ["bench", "frontier", "--scenes", "1", "--seed", "3", "--out", str(out),
@@ -106,3 +110,109 @@ def test_load_results_reads_an_older_frontier_csv_with_knob_as_risk(tmp_path):
     (tmp_path / "frontier.csv").write_text("method,knob,scene\nmmd,0.005,0\n")
     df = load_results(tmp_path)
     assert list(df.columns) == ["method", "risk", "scene"] and df["risk"][0] == 0.005
+
+
+#: the tiny planner of the option tests (nested sections of ``MMDOptConfig``)
+TINY = {"cem": {"n_samples": 60, "n_cem": 30, "n_elite": 10, "iterations": 3, "n_brake": 2},
+        "selection": {"reduced_set_size": 5}}  # fmt: skip
+
+
+def test_clopper_pearson_interval_and_pooled_rate():
+    lo, hi = clopper_pearson_interval(0, 1000)
+    assert lo == 0.0 and hi == pytest.approx(1 - 0.025 ** (1 / 1000))
+    lo, hi = clopper_pearson_interval(1000, 1000)
+    assert hi == 1.0 and lo == pytest.approx(0.025 ** (1 / 1000))
+    lo, hi = clopper_pearson_interval(7, 400)
+    assert lo < 7 / 400 < hi
+    for k, n, word in ((-1, 10, "k"), (11, 10, "k"), (0, 0, "n"), (1.5, 10, "k")):
+        with pytest.raises(ValueError, match=word):
+            clopper_pearson_interval(k, n)
+    with pytest.raises(ValueError, match="confidence"):
+        clopper_pearson_interval(1, 10, confidence=1.0)
+    # pooled over scenes: 3 + 0 collisions of 2 x 200 futures
+    rows = [dict(_row("a", 0.01, 0, 197, 50.0), n_validation=200, status="ok", risk_bound=0.02),
+            dict(_row("a", 0.01, 1, 200, 50.0), n_validation=200, status="risk floor: too few",
+                 risk_bound=0.04)]  # fmt: skip
+    (p,) = frontier_points(rows)
+    assert (p["collisions"], p["validation"], p["rate"]) == (3, 400, 3 / 400)
+    assert p["rate_lo"] < p["rate"] < p["rate_hi"]
+    assert (p["rate_lo"], p["rate_hi"]) == clopper_pearson_interval(3, 400)
+    assert p["ok_share"] == 0.5 and p["risk_bound"] == pytest.approx(0.03)
+    # rows of an older folder without status / risk_bound
+    (q,) = frontier_points([_row("a", 0.01, 0, 1000, 50.0)])
+    assert q["rate"] == 0.0 and math.isnan(q["ok_share"]) and math.isnan(q["risk_bound"])
+
+
+def test_frontier_figure_has_a_log_frontier_and_a_calibration_panel():
+    pytest.importorskip("matplotlib")
+    rows = []
+    for m, scale in (("mmd", 1.0), ("saa", 3.0)):
+        for k in (0.001, 0.02, 0.1):
+            for s in range(2):
+                c = 0 if k == 0.001 else int(1000 * k * scale) + s
+                rows.append(_row(m, k, s, 1000 - c, 40.0 + 100 * k + scale))
+    fig = frontier_axes(frontier_points(rows), "test")
+    try:
+        front, cal = fig.axes
+        assert front.get_yscale() == "log" and front.get_xscale() == "linear"
+        assert cal.get_xscale() == "log" and cal.get_yscale() == "log"
+        assert "collisions per 1000" in front.get_ylabel() and "0 drawn at" in front.get_ylabel()
+        # a zero (k = 0.001 plans meet no future) is drawn at the floor, above 0
+        lo = min(min(line.get_ydata()) for line in front.lines)
+        assert 0 < lo <= 0.01
+        assert any(line.get_label() == "measured = requested" for line in cal.lines)
+        # ε is named in the title, not at every point
+        assert len(front.texts) == 0 and "0.001 … 0.1" in front.get_title()
+    finally:
+        import matplotlib.pyplot as plt
+
+        plt.close(fig)
+
+
+def test_frontier_cli_sample_options_reach_the_scenes_and_the_manifest(tmp_path, capsys):
+    tiny = tmp_path / "cfg.json"
+    tiny.write_text(json.dumps(TINY))
+    out = tmp_path / "f"
+    argv = ["bench", "frontier", "--scenes", "2", "--seed", "1", "--out", str(out),
+            "--methods", "mmd", "--risks", "0.05", "--jobs", "1", "--config", str(tiny),
+            "--no-progress"]  # fmt: skip
+    for opt in ("--n-validation", "--n-samples"):
+        for bad in ("0", "-3", "x", "2.5"):
+            with pytest.raises(SystemExit) as e:
+                cli.main([*argv, opt, bad])
+            assert e.value.code == 2 and f"argument {opt}" in capsys.readouterr().err
+    assert not out.exists()
+
+    # the options override --scene-params' keys
+    small = tmp_path / "scene.json"
+    small.write_text(json.dumps({"n_validation": 500, "n_samples": 80}))
+    run = [*argv, "--scene-params", str(small), "--n-validation", "200", "--n-samples", "40"]
+    assert cli.main(run) == 0
+    text = capsys.readouterr().out
+    assert "2 plans computed" in text and "rate_hi" in text and "ok_share" in text
+    with open(out / "frontier.csv") as f:
+        rows = list(csv.DictReader(f))
+    assert [(int(r["n_validation"]), int(r["n_samples"])) for r in rows] == [(200, 40)] * 2
+    assert all(r["status"] for r in rows) and all(r["risk_bound"] for r in rows)
+    manifest = json.loads((out / "run.json").read_text())
+    assert (manifest["n_validation"], manifest["n_samples"]) == (200, 40)
+
+    # the summary's calibration: the interval contains the pooled rate
+    (p,) = json.loads((out / "frontier_summary.json").read_text())["points"]
+    k = sum(int(r["n_validation"]) - int(r["collision_free"]) for r in rows)
+    assert (p["collisions"], p["validation"]) == (k, 400) and p["rate"] == k / 400
+    assert p["rate_lo"] <= p["rate"] <= p["rate_hi"]
+    oks = [r["status"].startswith("ok") for r in rows]
+    assert p["ok_share"] == sum(oks) / 2
+    assert p["risk_bound"] == pytest.approx(sum(float(r["risk_bound"]) for r in rows) / 2)
+
+    # resuming with other values is refused (exit 2), naming the setting
+    for opt, val, key in (("--n-validation", "300", "n_validation"),
+                          ("--n-samples", "50", "n_samples")):  # fmt: skip
+        i = run.index(opt)
+        with pytest.raises(SystemExit) as e:
+            cli.main([*run[: i + 1], val, *run[i + 2 :]])
+        err = capsys.readouterr().err
+        assert e.value.code == 2 and "different settings" in err and key in err
+    assert cli.main(run) == 0
+    assert "0 plans computed, 2 reused" in capsys.readouterr().out
