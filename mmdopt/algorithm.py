@@ -47,7 +47,7 @@ with a spread matched to the lane bounds; "brake in lane" rows as a ladder of co
 set-points from ``v_min`` to the current speed; each projection warm-started from its own planner
 output with zero duals; every constant in :class:`MMDOptConfig`.
 
-**Projection backends.**  :data:`PLANNER_BACKEND` = ``"admm-fixed"`` (default): the projection
+**Projectors.**  :data:`PLANNER_PROJECTOR` = ``"admm-fixed"`` (default): the projection
 is :meth:`frenet.ProjectionProblem.jax_projector` (a fixed ADMM iteration budget, warm-started,
 boundary rows corrected exactly) inside the jitted step, so :func:`run` is one ``jit``
 (``lax.scan`` over the iterations).  Any :mod:`solvers` backend name (``"admm"``, ``"clarabel"``,
@@ -83,6 +83,7 @@ from .collision import (
 from .config import SAA_EPS_LINEAR, W_COVER, MMDOptConfig  # noqa: F401 (re-exported)
 
 __all__ = [
+    "PLANNER_PROJECTOR",
     "PLANNER_BACKEND",
     "MMDOptConfig",
     "Problem",
@@ -110,8 +111,10 @@ __all__ = [
     "cost_chunk_size",
 ]
 
-#: the planner's default projection: the jitted fixed-budget ADMM projector inside the CEM step
-PLANNER_BACKEND = "admm-fixed"
+#: the planner's own projection: the jitted fixed-budget ADMM projector inside the CEM step
+PLANNER_PROJECTOR = "admm-fixed"
+#: the former name of :data:`PLANNER_PROJECTOR` (the CLI's ``--backend`` default)
+PLANNER_BACKEND = PLANNER_PROJECTOR
 
 
 #: added to the cost of a row beyond ``res_tol`` when the slip limit is on
@@ -207,7 +210,6 @@ def bounds_from_key(bkey: tuple) -> frenet.ProjectionBounds:
         if isinstance(defaults.get(name), int) and isinstance(v, float):
             kw[name] = int(v)
     return frenet.ProjectionBounds(**kw)
-
 
 
 # ------------------------------------------------------------------------------ inputs and state
@@ -1019,16 +1021,15 @@ def _evaluate_host(
 
 
 # ------------------------------------------------------------------------------------ public API
-def check_backend(backend: str, settings: dict) -> None:
-    """Raise ``ValueError`` for a non-string backend or settings given to ``admm-fixed``."""
-    if not isinstance(backend, str):
-        raise ValueError(f"backend must be a string, got {type(backend).__name__}")
-    if backend == PLANNER_BACKEND and settings:
+def check_backend(projector: str, settings: dict) -> None:
+    """Raise ``ValueError`` for a non-string projector or settings given to ``admm-fixed``."""
+    if not isinstance(projector, str):
+        raise ValueError(f"projector must be a string, got {type(projector).__name__}")
+    if projector == PLANNER_PROJECTOR and settings:
         raise ValueError(
-            f"backend {PLANNER_BACKEND!r} takes no solver settings (got {sorted(settings)}): its "
-            "budget and step size are MMDOptConfig.projection.admm_iters / admm_rho; pass "
-            "backend='admm' "
-            "for the registry's ADMM with settings"
+            f"projector {PLANNER_PROJECTOR!r} takes no solver settings (got {sorted(settings)}): "
+            "its budget and step size are MMDOptConfig.projection.admm_iters / admm_rho; pass "
+            "projector='admm' for the registry's ADMM with settings"
         )
 
 
@@ -1072,28 +1073,28 @@ def update(
     problem: Problem,
     state: CEMState,
     obstacles: ObstacleSet,
-    backend: str = PLANNER_BACKEND,
-    **backend_settings: Any,
+    projector: str = PLANNER_PROJECTOR,
+    **projector_settings: Any,
 ) -> CEMState:
     """One CEM iteration (sample, plan, project, score, update); every row of the
     ConstraintEliteSet is scored (``obstacles`` may differ from the previous call's).  Raises
     ``ValueError`` once the state has done ``config.cem.iterations`` iterations (its keys are
     used up: :func:`shift` or :func:`init` a new state)."""
-    check_backend(backend, backend_settings)
+    check_backend(projector, projector_settings)
     _check_step_inputs(ws, config, problem, state, obstacles)
     if int(state.iteration) >= config.cem.iterations:
         raise ValueError(
             f"state has done all config.iterations = {config.cem.iterations} iterations"
         )
-    if backend == PLANNER_BACKEND:
+    if projector == PLANNER_PROJECTOR:
         return ws.step(config, problem, state, obstacles)
     d, cx_bar, cy_bar = ws.sample(config, problem, state)
     pr = ws.projection.project(
         np.asarray(cx_bar, np.float64),
         np.asarray(cy_bar, np.float64),
         np.asarray(problem.state, np.float64),
-        backend=backend,
-        **backend_settings,
+        backend=projector,
+        **projector_settings,
     )
     return ws.evaluate(config, problem, state, obstacles, d, pr.cx, pr.cy, pr.residual)
 
@@ -1105,24 +1106,24 @@ def run(
     problem: Problem,
     obstacles: ObstacleSet,
     key: Any,
-    backend: str = PLANNER_BACKEND,
+    projector: str = PLANNER_PROJECTOR,
     warm_start: CEMState | None = None,
-    **backend_settings: Any,
+    **projector_settings: Any,
 ) -> CEMState:
     """:func:`init` then ``config.cem.iterations`` × :func:`update`; with ``admm-fixed`` one
     jitted ``lax.scan``, in which the obstacles are fixed, so the costs of the elites and brake
     rows carried into the next batch are reused instead of recomputed (the same plan as the
     :func:`update` loop, to float rounding).  Returns the final :class:`CEMState` (``best``,
     ``least_violating``, traces)."""
-    check_backend(backend, backend_settings)
+    check_backend(projector, projector_settings)
     _check_step_inputs(ws, config, problem, None, obstacles)
-    if backend == PLANNER_BACKEND:
+    if projector == PLANNER_PROJECTOR:
         if warm_start is not None and not isinstance(warm_start, CEMState):
             raise ValueError(f"warm_start must be a CEMState, got {type(warm_start).__name__}")
         return ws.run(config, problem, obstacles, key, _as_warm(config, warm_start))
     state = init(ws, config, problem, key, warm_start)
     for _ in range(config.cem.iterations):
-        state = update(ws, config, problem, state, obstacles, backend, **backend_settings)
+        state = update(ws, config, problem, state, obstacles, projector, **projector_settings)
     return state
 
 

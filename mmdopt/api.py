@@ -18,6 +18,7 @@ import dataclasses
 import enum
 import math
 import time
+import warnings
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -32,7 +33,7 @@ import solvers
 from . import algorithm as alg
 from ._checks import check_key
 from ._x64 import x64
-from .algorithm import PLANNER_BACKEND, MMDOptConfig, n_taylor_terms, planning_semi_axis
+from .algorithm import PLANNER_PROJECTOR, MMDOptConfig, n_taylor_terms, planning_semi_axis
 from .baselines import COLLISION_TERM, PLAN_METHODS, SELECTOR, select_for_method
 from .collision import (
     OBSTACLE_FOOTPRINT,
@@ -53,6 +54,7 @@ __all__ = [
     "plan_frenet",
     "PLAN_METHODS",
     "PLANNERS",
+    "PLANNER_PROJECTOR",
 ]
 
 #: largest accepted |coordinate| of obstacle samples (m): beyond it positions are not a scene
@@ -227,7 +229,7 @@ class Plan:
     status: PlanStatus
     message: str
     method: str
-    backend: str
+    projector: str
     reduced_set: ReducedSet | None
     plan_time_s: float
     risk_bound: float = float("nan")
@@ -284,7 +286,7 @@ class Plan:
         of floats (SI units, as on the :class:`Plan`); the scalars ``cost, residual, mmd,
         progress, plan_time_s`` (floats; a NaN cost, as in a braking fallback, is ``None``),
         ``cost_trace`` (list), ``feasible, fallback`` (bool), ``status, message, method,
-        backend`` (str);
+        projector`` (str);
         ``reduced_set``: ``{"method", "indices": [[int]] (O, m), "weights": [[float]] (O, m),
         "mmd2": [float] (O,)}`` (``None`` if the plan has none); and, with ``diagnostics=True``,
         ``diagnostics`` with every array as (nested) lists.  The final ``state``
@@ -307,7 +309,7 @@ class Plan:
             status=str(self.status),
             message=str(self.message),
             method=str(self.method),
-            backend=str(self.backend),
+            projector=str(self.projector),
         )
         rs = self.reduced_set
         if rs is None:
@@ -369,6 +371,23 @@ def _jsonable(v: Any) -> Any:
 
 
 # ------------------------------------------------------------------------------------- validation
+def _projector(projector: str, backend: str | None) -> str:
+    """``projector``, or ``backend`` (its former name, deprecated) when that is given."""
+    if backend is None:
+        return projector
+    warnings.warn(
+        "backend= is now projector= (the planner's projection: 'admm-fixed', its own jitted "
+        "ADMM, or a solvers backend that projects on the host)",
+        DeprecationWarning,
+        stacklevel=3,
+    )
+    if projector != PLANNER_PROJECTOR and projector != backend:
+        raise ValueError(
+            f"projector={projector!r} and backend={backend!r} (its former name) disagree"
+        )
+    return backend
+
+
 def _check_common(ego, road, method, config, backend, key):
     if not isinstance(ego, frenet.EgoState):
         raise ValueError(f"ego must be a frenet.EgoState, got {type(ego).__name__}")
@@ -379,11 +398,11 @@ def _check_common(ego, road, method, config, backend, key):
     if not isinstance(config, MMDOptConfig):
         raise ValueError(f"config must be an mmdopt.MMDOptConfig, got {type(config).__name__}")
     if not isinstance(backend, str) or (
-        backend != PLANNER_BACKEND and backend not in solvers.available_backends()
+        backend != PLANNER_PROJECTOR and backend not in solvers.available_backends()
     ):
         raise ValueError(
-            f"backend {backend!r} is not available; available: "
-            f"{[PLANNER_BACKEND, *solvers.available_backends()]}"
+            f"projector {backend!r} is not available; available: "
+            f"{[PLANNER_PROJECTOR, *solvers.available_backends()]}"
         )
     check_key(key)
 
@@ -504,26 +523,28 @@ class Planner:
         problem: alg.Problem,
         state: alg.CEMState,
         obstacles: alg.ObstacleSet,
-        backend: str = PLANNER_BACKEND,
-        **backend_settings: Any,
+        projector: str = PLANNER_PROJECTOR,
+        **projector_settings: Any,
     ) -> alg.CEMState:
         """One CEM iteration (:func:`mmdopt.algorithm.update`)."""
         ws = self._ws(problem)
-        return alg.update(ws, self.config, problem, state, obstacles, backend, **backend_settings)
+        return alg.update(
+            ws, self.config, problem, state, obstacles, projector, **projector_settings
+        )
 
     def run(
         self,
         problem: alg.Problem,
         obstacles: alg.ObstacleSet,
         key: Any,
-        backend: str = PLANNER_BACKEND,
+        projector: str = PLANNER_PROJECTOR,
         warm_start: alg.CEMState | None = None,
-        **backend_settings: Any,
+        **projector_settings: Any,
     ) -> alg.CEMState:
         """Every iteration (:func:`mmdopt.algorithm.run`)."""
         ws = self._ws(problem)
         return alg.run(
-            ws, self.config, problem, obstacles, key, backend, warm_start, **backend_settings
+            ws, self.config, problem, obstacles, key, projector, warm_start, **projector_settings
         )
 
     def shift(self, state: alg.CEMState, dt: float) -> alg.CEMState:
@@ -539,17 +560,18 @@ class Planner:
         obstacles: ArrayLike,
         *,
         method: str = "mmd",
-        backend: str = PLANNER_BACKEND,
+        projector: str = PLANNER_PROJECTOR,
         key: ArrayLike | None = None,
         reduced_set: ReducedSet | None = None,
         warm_start: alg.CEMState | None = None,
         risk: float | None = None,
-        **backend_settings: Any,
+        backend: str | None = None,
+        **projector_settings: Any,
     ) -> Plan:
         """:func:`plan` with this planner's config."""
         return self._plan(
-            self.config, ego, road, obstacles, method, backend, key, reduced_set, warm_start,
-            risk, backend_settings, frenet_frame=False,
+            self.config, ego, road, obstacles, method, _projector(projector, backend), key,
+            reduced_set, warm_start, risk, projector_settings, frenet_frame=False,
         )  # fmt: skip
 
     @x64
@@ -560,17 +582,18 @@ class Planner:
         obstacles_frenet: ArrayLike,
         *,
         method: str = "mmd",
-        backend: str = PLANNER_BACKEND,
+        projector: str = PLANNER_PROJECTOR,
         key: ArrayLike | None = None,
         reduced_set: ReducedSet | None = None,
         warm_start: alg.CEMState | None = None,
         risk: float | None = None,
-        **backend_settings: Any,
+        backend: str | None = None,
+        **projector_settings: Any,
     ) -> Plan:
         """:func:`plan_frenet` with this planner's config."""
         return self._plan(
-            self.config, ego, road, obstacles_frenet, method, backend, key, reduced_set,
-            warm_start, risk, backend_settings, frenet_frame=True,
+            self.config, ego, road, obstacles_frenet, method, _projector(projector, backend), key,
+            reduced_set, warm_start, risk, projector_settings, frenet_frame=True,
         )  # fmt: skip
 
     def _plan(
@@ -647,12 +670,13 @@ def plan(
     *,
     method: str = "mmd",
     config: MMDOptConfig | None = None,
-    backend: str = PLANNER_BACKEND,
+    projector: str = PLANNER_PROJECTOR,
     key: ArrayLike | None = None,
     reduced_set: ReducedSet | None = None,
     warm_start: alg.CEMState | None = None,
     risk: float | None = None,
-    **backend_settings: Any,
+    backend: str | None = None,
+    **projector_settings: Any,
 ) -> Plan:
     """Plan with Algorithm 1 against Cartesian obstacle-trajectory samples.
 
@@ -666,10 +690,12 @@ def plan(
     config : :class:`MMDOptConfig` (default: the paper's sizes, and the method's risk knob at
         ε = ``risk`` = 0.005 with sample-driven margins; ``MMDOptConfig().replace(margin_mode=
         "linear")`` plans with the time-linear tuned margins of the paper reproduction)
-    backend : projection backend: ``"admm-fixed"`` (default) runs the whole algorithm in one jit
-        with the fixed-budget ADMM projector; any :mod:`solvers` backend (``"admm"``,
+    projector : the projection of every CEM iteration: ``"admm-fixed"`` (default), the planner's
+        own fixed-budget ADMM projector inside the one jit of the whole algorithm (its settings
+        are ``config.projection``); or the name of any :mod:`solvers` backend (``"admm"``,
         ``"clarabel"``, ``"osqp"``, ...) projects on the host each iteration
-        (``backend_settings`` go to it)
+        (``projector_settings`` go to it); ``backend=``, its former name, still works with a
+        ``DeprecationWarning``
     key : jax PRNG key (default ``PRNGKey(0)``); the same key gives the same plan
     reduced_set : optional precomputed :class:`ReducedSet` with leading axis O (indices into the
         n samples, weights ᾱ ≥ 0 summing to 1 per obstacle) used instead of the method's own
@@ -695,8 +721,8 @@ def plan(
     """
     config, planner = _cached_planner(config)
     return planner._plan(
-        config, ego, road, obstacles, method, backend, key, reduced_set, warm_start, risk,
-        backend_settings, frenet_frame=False,
+        config, ego, road, obstacles, method, _projector(projector, backend), key, reduced_set,
+        warm_start, risk, projector_settings, frenet_frame=False,
     )  # fmt: skip
 
 
@@ -708,20 +734,21 @@ def plan_frenet(
     *,
     method: str = "mmd",
     config: MMDOptConfig | None = None,
-    backend: str = PLANNER_BACKEND,
+    projector: str = PLANNER_PROJECTOR,
     key: ArrayLike | None = None,
     reduced_set: ReducedSet | None = None,
     warm_start: alg.CEMState | None = None,
     risk: float | None = None,
-    **backend_settings: Any,
+    backend: str | None = None,
+    **projector_settings: Any,
 ) -> Plan:
     """:func:`plan` with obstacle samples already in the Frenet frame of ``road.path``:
     ``obstacles_frenet`` (O, n, K, 2) as ``(s, d)``.  On a straight path starting at the origin
     along +x (the default :class:`Road`) this is the same as Cartesian."""
     config, planner = _cached_planner(config)
     return planner._plan(
-        config, ego, road, obstacles_frenet, method, backend, key, reduced_set, warm_start,
-        risk, backend_settings, frenet_frame=True,
+        config, ego, road, obstacles_frenet, method, _projector(projector, backend), key,
+        reduced_set, warm_start, risk, projector_settings, frenet_frame=True,
     )  # fmt: skip
 
 
@@ -1096,7 +1123,7 @@ def _assemble(ctx: _Ctx, cx, cy, dvec, cost, best_iter, fallback, status, state)
         message=_split_status(status)[1],
         risk_bound=bound,
         method=ctx.method,
-        backend=ctx.backend,
+        projector=ctx.backend,
         reduced_set=ctx.rs,
         plan_time_s=time.perf_counter() - ctx.t0,
         diagnostics=diag,

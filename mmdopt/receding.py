@@ -40,7 +40,7 @@ import numpy as np
 import frenet
 
 from . import algorithm
-from .algorithm import PLANNER_BACKEND, MMDOptConfig
+from .algorithm import PLANNER_PROJECTOR, MMDOptConfig
 from .api import Plan, Road, plan
 from .baselines import PLAN_METHODS
 
@@ -111,8 +111,8 @@ class RecedingConfig:
     max_steps : at most this many replans (the source may end the episode earlier)
     budget_s : per-step plan-time budget (s); longer plans are counted, not cut
     method : planning method (:data:`mmdopt.PLAN_METHODS`)
-    backend : projection QP backend of :func:`mmdopt.plan` (default: the planner's jitted
-        projector, :data:`mmdopt.algorithm.PLANNER_BACKEND`)
+    projector : the projection of :func:`mmdopt.plan` (default: the planner's jitted
+        projector, :data:`mmdopt.algorithm.PLANNER_PROJECTOR`; or a :mod:`solvers` backend)
     warm_start : warm-start each plan from the previous solution shifted by δ (False: all cold)
     max_obstacles : pad/truncate the obstacle axis to this many (``None``: as observed).  A fixed
         O keeps the jitted planner from recompiling for every new number of neighbours.
@@ -122,7 +122,7 @@ class RecedingConfig:
     max_steps: int = 10_000
     budget_s: float = 0.5
     method: str = "mmd"
-    backend: str = PLANNER_BACKEND
+    projector: str = PLANNER_PROJECTOR
     warm_start: bool = True
     max_obstacles: int | None = None
 
@@ -241,7 +241,7 @@ def pad_obstacles(
 
 def _plan_once(obs: Observation, rc: RecedingConfig, config: MMDOptConfig, key, warm, t_grid):
     obstacles = pad_obstacles(obs.obstacles, rc.max_obstacles, obs.ego, obs.road, t_grid)
-    kw: dict[str, Any] = dict(method=rc.method, config=config, backend=rc.backend, key=key)
+    kw: dict[str, Any] = dict(method=rc.method, config=config, projector=rc.projector, key=key)
     warm_used = rc.warm_start and warm is not None
     if warm_used:
         kw["warm_start"] = warm

@@ -560,7 +560,14 @@ def cmd_demo(args, parser) -> int:
 
     def plan(m, r, key):
         return mmdopt.plan(
-            ego, road, scene.obstacles, method=m, config=cfg, backend=args.backend, key=key, risk=r
+            ego,
+            road,
+            scene.obstacles,
+            method=m,
+            config=cfg,
+            projector=args.backend,
+            key=key,
+            risk=r,
         )
 
     for m in args.methods:

@@ -70,7 +70,7 @@ def plan_scene(
         scene.obstacles,
         method=method,
         config=cfg,
-        backend=backend,
+        projector=backend,
         key=scene.key() if key is None else key,
         reduced_set=reduced_set,
     )

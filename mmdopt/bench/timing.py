@@ -98,7 +98,7 @@ def time_plan(
         c0, t0 = _cpu(), time.perf_counter()
         p = mmdopt.plan(
             scene.ego(), scene.road(), scene.obstacles, method=method, config=config,
-            backend=backend, key=k,
+            projector=backend, key=k,
         )  # fmt: skip
         np.asarray(p.x)
         walls.append(time.perf_counter() - t0)

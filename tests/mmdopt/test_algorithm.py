@@ -90,12 +90,19 @@ def test_backend_swap_gives_equal_cost(road):
     # differs.  ADMM runs 300 iterations here (the default 25 trades accuracy for speed).
     cfg = SMALL.replace(iterations=1, admm_iters=300)
     obs = _obstacle()
-    pa = mmdopt.plan(EGO, road, obs, config=cfg, backend="admm-fixed", key=jax.random.PRNGKey(3))
-    pc = mmdopt.plan(EGO, road, obs, config=cfg, backend="clarabel", key=jax.random.PRNGKey(3))
+    pa = mmdopt.plan(EGO, road, obs, config=cfg, projector="admm-fixed", key=jax.random.PRNGKey(3))
+    pc = mmdopt.plan(EGO, road, obs, config=cfg, projector="clarabel", key=jax.random.PRNGKey(3))
     # tolerance: 1 % of the cost + 0.05 (the cost is O(10) m²/s²; ADMM's projection is ~1e-3
     # from Clarabel's)
     assert pa.cost == pytest.approx(pc.cost, rel=0.01, abs=0.05)
     assert pa.feasible and pc.feasible
+    assert (pa.projector, pc.projector) == ("admm-fixed", "clarabel")
+    # ``backend=``, the projector's former name, still works (with a warning) and agrees
+    with pytest.warns(DeprecationWarning, match="projector"):
+        pb = mmdopt.plan(EGO, road, obs, config=cfg, backend="clarabel", key=jax.random.PRNGKey(3))
+    np.testing.assert_array_equal(pb.x, pc.x)
+    with pytest.raises(ValueError, match="disagree"):
+        mmdopt.plan(EGO, road, obs, config=cfg, projector="osqp", backend="clarabel")
 
 
 def test_initial_speed_above_vmax_gives_flagged_braking_fallback(road):
@@ -135,8 +142,8 @@ def test_bad_arguments_raise(road):
     obs = _obstacle()
     with pytest.raises(ValueError, match="method"):
         mmdopt.plan(EGO, road, obs, method="nope", config=SMALL)
-    with pytest.raises(ValueError, match="backend"):
-        mmdopt.plan(EGO, road, obs, backend="nope", config=SMALL)
+    with pytest.raises(ValueError, match="projector"):
+        mmdopt.plan(EGO, road, obs, projector="nope", config=SMALL)
     with pytest.raises(ValueError, match="ego"):
         mmdopt.plan((0, 0, 10, 0, 0, 0), road, obs, config=SMALL)
     with pytest.raises(ValueError, match="key"):

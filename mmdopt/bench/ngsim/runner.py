@@ -494,7 +494,7 @@ def run_task(
     rows = []
     for m in methods:
         plan = mmdopt.plan(
-            b["ego"], b["road"], planned, method=m, config=cfg, backend=backend, key=k_plan
+            b["ego"], b["road"], planned, method=m, config=cfg, projector=backend, key=k_plan
         )
         score = _score_recorded(b, plan, params)
         # the paper's metric (§IV-A): validation draws clear of every obstacle
