@@ -19,8 +19,9 @@ backend of :mod:`solvers` returns it so (Clarabel's cone duals, cvxpy's per-cons
 qpsolvers' ``(z, y)`` are mapped onto the rows of ``A`` by the backend), and :func:`vjp` refuses a
 ``y`` that only fits the opposite sign.
 
-Sparse ``P`` or ``A`` give a sparse KKT matrix (SuperLU) and sparse gradients on the sparsity
-pattern of ``P`` and ``A`` (the derivative with respect to an entry that is structurally zero is
+Sparse ``P`` or ``A`` give a sparse KKT matrix (SuperLU; a dense LU below
+``DENSE_KKT_MAX = 200`` rows, where it is faster) and sparse gradients on the sparsity pattern of
+``P`` and ``A`` (the derivative with respect to an entry that is structurally zero is
 not formed); dense inputs give dense gradients.
 """
 
@@ -36,7 +37,11 @@ import scipy.sparse.linalg as spla
 from .problem import QP
 from .solution import Status
 
-__all__ = ["QPGrad", "vjp"]
+__all__ = ["QPGrad", "vjp", "DENSE_KKT_MAX"]
+
+#: a sparse QP whose KKT system has at most this many rows (``n + m``) is solved densely (LAPACK
+#: beats building and factoring a SciPy sparse matrix at these sizes); the gradients stay sparse
+DENSE_KKT_MAX = 200
 
 
 class QPGrad(NamedTuple):
@@ -140,7 +145,7 @@ def vjp(qp: QP, sol: Any, dx: Any, *, active_tol: float = 1e-6) -> QPGrad:
             )
     a, wl, wu = _active(y, qp.l, qp.u, active_tol)
     rhs = np.concatenate([g, np.zeros(m)])
-    if qp.is_sparse:
+    if qp.is_sparse and n + m > DENSE_KKT_MAX:
         Ps, As = sp.csc_matrix(P), sp.csc_matrix(A)
         K = sp.bmat([[Ps, As.T @ sp.diags(a)], [sp.diags(a) @ As, sp.diags(a - 1.0)]], format="csc")
         try:
@@ -148,7 +153,7 @@ def vjp(qp: QP, sol: Any, dx: Any, *, active_tol: float = 1e-6) -> QPGrad:
         except RuntimeError:  # singular: linearly dependent active rows
             return _nan_grad(qp)
     else:
-        Pd, Ad = np.asarray(P, np.float64), np.asarray(A, np.float64)
+        Pd, Ad = (np.asarray(v, np.float64) for v in qp.dense())
         K = np.block([[Pd, Ad.T * a[None, :]], [a[:, None] * Ad, np.diag(a - 1.0)]])
         try:
             w = sla.solve(K, rhs, assume_a="sym")

@@ -234,7 +234,10 @@ def test_host_vjp_matches_jax_for_every_backend(name, settings):
         np.testing.assert_allclose(h, r, rtol=1e-6, atol=1e-7, err_msg=f"{name}: d/d{arg}")
 
 
-def test_host_vjp_matches_finite_differences_and_is_sparse_aware():
+@pytest.mark.parametrize("kkt", ["dense LU", "sparse LU"])
+def test_host_vjp_matches_finite_differences_and_is_sparse_aware(kkt, monkeypatch):
+    if kkt == "sparse LU":  # this small QP would be solved densely
+        monkeypatch.setattr(solvers.diff, "DENSE_KKT_MAX", 0)
     P, q, A, l, u, *_ = make_qp(7)
     g = np.random.default_rng(8).standard_normal(N)
     data = (P, q, A, l, u)
