@@ -11,8 +11,9 @@ then ``∂/∂q = −w_x``, ``∂/∂P = −½(w_x xᵀ + x w_xᵀ)``, ``∂/∂
 layer computes the same numbers): row ``i`` is active at its lower bound when ``y_i < −τ``, at its
 upper bound when ``y_i > τ`` (``τ = active_tol · max(1, ‖y‖∞)``); equality rows are always active,
 their sensitivity going to ``l`` or ``u`` by the sign of ``y_i`` (half to each when ``|y_i| ≤ τ``);
-weakly active rows count as inactive (a one-sided derivative); a QP that is not ``SOLVED`` gets NaN
-gradients.
+weakly active rows count as inactive (a one-sided derivative; an interior-point backend's ``y_i``
+there is of the order of its barrier's ``√μ``, so solve tightly, e.g. ``eps_abs=1e-10``, or
+polish); a QP that is not ``SOLVED`` gets NaN gradients.
 
 ``sol.y`` is in OSQP's sign convention (``Px + q + Aᵀy = 0``, ``y ≥ 0`` at upper bounds): every
 backend of :mod:`solvers` returns it so (Clarabel's cone duals, cvxpy's per-constraint duals and

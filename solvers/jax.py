@@ -56,6 +56,10 @@ Conventions (stated, because the solution map is only piecewise smooth):
 * **Weakly active rows** (``|y_i| ≤ τ`` while ``A_i x`` sits at a bound) are treated as inactive:
   the derivative is the one-sided derivative in the directions that keep the row from becoming
   binding (for instance, loosening that bound).  Under strict complementarity it is the derivative.
+  An interior-point solution at such a point has ``y_i`` and the row's slack both of the order of
+  ``√μ`` (the last barrier parameter): at a loose tolerance ``|y_i|`` can exceed ``τ`` and the
+  row then counts as active (the other one-sided derivative); ADMM and polished solutions have
+  ``y_i = 0`` exactly there.
 * ``P`` enters only through its symmetric part: the derivative with respect to ``P`` is
   symmetric (``∂/∂P = ½(G + Gᵀ)``).
 * **QPs that are not solved** (``status != SOLVED``: infeasible, unbounded, out of iterations) have

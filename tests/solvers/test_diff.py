@@ -282,6 +282,39 @@ def test_host_vjp_validates_and_refuses_the_opposite_dual_sign():
         vjp(qp, flipped, np.ones(N))
 
 
+def test_weakly_active_row_gives_the_one_sided_derivative():
+    """min ½‖x‖² − x₁ s.t. x₂ ≤ 0: the unconstrained optimum (1, 0) sits on the bound with y = 0.
+    The row counts as inactive: ∂x₂/∂q₂ = −1, the derivative for q₂ increasing (x₂ moves into
+    the interior), and the gradient in u is 0."""
+    qp = QP(np.eye(2), [-1.0, 0.0], [[0.0, 1.0]], [-np.inf], [0.0])
+    h = 1e-2  # the map is linear on that side; an interior point sits ~1e-7 off the bound
+    for name, kw in (
+        ("osqp", {"polishing": True}),
+        ("clarabel", {"eps_abs": 1e-12, "eps_rel": 1e-12}),
+    ):
+        sol = solve(qp, backend=name, **kw)
+        grad = vjp(qp, sol, np.array([0.0, 1.0]))
+        up = solve(QP(qp.P, qp.q + [0.0, h], qp.A, qp.l, qp.u), backend=name, **kw)
+        assert grad.q[1] == pytest.approx(-1.0, abs=1e-9), name
+        assert grad.q[1] == pytest.approx((up.x[1] - sol.x[1]) / h, abs=1e-3), name
+        assert grad.u[0] == 0.0, name
+
+
+def test_admm_in_float32_without_x64():
+    if jax.config.jax_enable_x64:
+        pytest.skip("x64 is on globally in this process")
+    P, q, A, l, u, xs, _ = make_qp(0)
+    sol = solvers.jax.solve_qp(P, q, A, l, u, method="admm")
+    assert sol.x.dtype == jnp.float32 and int(sol.status) == Status.SOLVED
+    np.testing.assert_allclose(sol.x, xs, atol=1e-4)
+    g32 = jax.grad(lambda qq: solvers.jax.solve_qp(P, qq, A, l, u, method="admm").x.sum())(
+        jnp.asarray(q, jnp.float32)
+    )
+    with jax.enable_x64(True):
+        g64 = jitted("ipm")[1](P, q, A, l, u, np.ones(N))[1]
+    np.testing.assert_allclose(g32, g64, rtol=1e-3, atol=1e-4)
+
+
 # ------------------------------------------------------------------------- Maros–Meszaros
 def test_maros_meszaros_hs35_jax_host_and_finite_differences_agree():
     path = MM_DIR / "HS35.mat"
