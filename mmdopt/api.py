@@ -42,6 +42,7 @@ from .collision import (
     ellipse_values,
     mmd_cost,
 )
+from .predict.base import Forecast
 from .risk import risk_bound, risk_floor, samples_for_risk
 from .samples import ReducedSet, check_reduced_set
 
@@ -388,6 +389,40 @@ def _projector(projector: str, backend: str | None) -> str:
     return backend
 
 
+def _draw_forecast(fc: Forecast, config: MMDOptConfig, method: str, key) -> tuple:
+    """Draw the futures of a :class:`mmdopt.predict.Forecast`: n(ε) per obstacle for the risk
+    level of ``config`` (the "samples" margin mode), clipped to the forecast's bounds."""
+    O = fc.num_obstacles
+    grid = frenet.TimeGrid(config.trajectory.horizon, config.trajectory.num_steps).t
+    times = fc.context.times
+    if times.shape != grid.shape or not np.allclose(times, grid, atol=1e-9):
+        raise ValueError(
+            f"obstacles.context.times must be the planner's grid ({config.trajectory.num_steps} "
+            f"points over {config.trajectory.horizon} s), got {times.shape[0]} points over "
+            f"{times[-1]:g} s"
+        )
+    lo = fc.min_samples
+    if SELECTOR[method] is not None:
+        lo = max(lo, config.selection.reduced_set_size)
+    needed = None
+    if config.safety.margins.margin_mode == "samples":
+        needed = samples_for_risk(float(config.safety.risk), O)
+    n = int(min(max(lo, needed or lo), max(fc.max_samples, lo)))
+    t0 = time.perf_counter()
+    k_pred = jax.random.fold_in(key, 0x5EED)
+    samples = np.asarray(fc.predictor.sample(fc.history, fc.context, n, k_pred), np.float64)
+    want = (O, n, grid.shape[0], 2)
+    if samples.shape != want:
+        raise ValueError(
+            f"obstacles.predictor.sample returned shape {samples.shape}, expected {want}"
+        )
+    return samples, dict(
+        forecast_samples=n,
+        forecast_samples_needed=needed,
+        forecast_s=time.perf_counter() - t0,
+    )
+
+
 def _check_common(ego, road, method, config, backend, key):
     if not isinstance(ego, frenet.EgoState):
         raise ValueError(f"ego must be a frenet.EgoState, got {type(ego).__name__}")
@@ -605,6 +640,9 @@ class Planner:
         _check_common(ego, road, method, config, backend, key)
         config = _apply_risk(method, risk, config)
         alg.check_backend(backend, backend_settings)
+        forecast_diag: dict[str, Any] = {}
+        if isinstance(obstacles, Forecast):
+            obstacles, forecast_diag = _draw_forecast(obstacles, config, method, key)
         if frenet_frame:
             arr = _check_obstacles(obstacles, config, method, name="obstacles_frenet")
             obs_fr, diag = arr, {"frenet_conversion_s": 0.0}
@@ -618,6 +656,7 @@ class Planner:
                     "obstacles could not be converted to the road's Frenet frame (non-finite)"
                 )
             diag = {"frenet_conversion_s": time.perf_counter() - t1}
+        diag.update(forecast_diag)
         return _plan_impl(
             self, ego, road, obs_fr, method, config, backend, key, backend_settings, t0, diag,
             reduced_set, warm_start,
@@ -684,7 +723,11 @@ def plan(
     ----------
     ego : :class:`frenet.EgoState` in the Frenet frame of ``road.path``
     road : :class:`Road`
-    obstacles : (O, n, K, 2) Cartesian ``(x, y)`` samples of each obstacle's future (m)
+    obstacles : (O, n, K, 2) Cartesian ``(x, y)`` samples of each obstacle's future (m), or a
+        :class:`mmdopt.predict.Forecast` (a predictor, the histories and the context): then
+        ``plan`` draws as many futures as the risk level needs, n(ε) per obstacle
+        (:func:`mmdopt.risk.samples_for_risk`, within the forecast's ``min_samples`` …
+        ``max_samples``; ``diagnostics["forecast_samples"]``)
     method : "mmd" (MMD-Opt) | "degroot" | "random" | "saa" | "scenario_all"
         (:mod:`mmdopt.baselines`)
     config : :class:`MMDOptConfig` (default: the paper's sizes, and the method's risk knob at

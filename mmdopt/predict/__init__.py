@@ -11,6 +11,7 @@ from __future__ import annotations
 
 from .base import (
     GAP_NONE,
+    Forecast,
     PredictionContext,
     Predictor,
     cartesian_to_lane,
@@ -22,6 +23,7 @@ from .resample import resample_prediction
 
 __all__ = [
     "GAP_NONE",
+    "Forecast",
     "PREDICTORS",
     "PredictionContext",
     "Predictor",

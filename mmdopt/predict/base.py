@@ -29,6 +29,7 @@ from .._checks import check_key
 
 __all__ = [
     "GAP_NONE",
+    "Forecast",
     "PredictionContext",
     "Predictor",
     "cartesian_to_lane",
@@ -127,6 +128,53 @@ class Predictor(Protocol):
     name: str
 
     def sample(self, history, context: PredictionContext, n: int, key) -> np.ndarray: ...
+
+
+@dataclass(frozen=True, eq=False)
+class Forecast:
+    """Obstacles given as a predictor to sample from, instead of a fixed array of futures.
+
+    :func:`mmdopt.plan` draws from ``predictor`` as many futures per obstacle as the risk level
+    ε asks for: n(ε) = :func:`mmdopt.risk.samples_for_risk` (ε, O), the fewest whose 95 % bound
+    can confirm ε (598 for ε = 0.005 and one obstacle, ≈ 3·O/ε), at least ``min_samples`` (and
+    the reduced-set size) and at most ``max_samples`` — beyond that cap the plan's status says
+    ``risk floor``.  Without a risk level (the time-linear margins) it draws ``min_samples``.
+    The draw's key is derived from the plan's, so the same key gives the same plan.
+
+    predictor : anything with ``sample(history, context, n, key) -> (O, n, K, 2)``
+    history : (O, H, 2) each obstacle's recent positions;  context : :class:`PredictionContext`
+    whose ``times`` are the planner's grid
+    """
+
+    predictor: Predictor
+    history: np.ndarray
+    context: PredictionContext
+    min_samples: int = 100
+    max_samples: int = 5000
+
+    def __post_init__(self) -> None:
+        if not callable(getattr(self.predictor, "sample", None)):
+            raise ValueError(
+                "Forecast.predictor must have a sample(history, context, n, key) method, got "
+                f"{type(self.predictor).__name__}"
+            )
+        if not isinstance(self.context, PredictionContext):
+            raise ValueError(
+                f"Forecast.context must be a PredictionContext, got {type(self.context).__name__}"
+            )
+        object.__setattr__(self, "history", check_history(self.history, self.context))
+        for name in ("min_samples", "max_samples"):
+            v = getattr(self, name)
+            if isinstance(v, bool) or not isinstance(v, int | np.integer) or v < 1:
+                raise ValueError(f"Forecast.{name} must be an int >= 1, got {v!r}")
+        if self.max_samples < self.min_samples:
+            raise ValueError(
+                f"Forecast.max_samples = {self.max_samples} < min_samples = {self.min_samples}"
+            )
+
+    @property
+    def num_obstacles(self) -> int:
+        return self.context.num_obstacles
 
 
 # ------------------------------------------------------------------------------- input checks
