@@ -27,6 +27,7 @@ from .basis import Basis, BernsteinBasis, TimeGrid, TripleIntegratorBasis, make_
 from .path import ReferencePath, wrap_angle
 from .planner import BehaviouralPlanner, EgoState, PlannerConfig, Trajectories, state_array
 from .projection import (
+    DiffProjection,
     JaxProjection,
     LinearConstraints,
     ProjectionBounds,
@@ -51,5 +52,6 @@ __all__ = [
     "LinearConstraints",
     "ProjectionProblem",
     "ProjectionResult",
+    "DiffProjection",
     "JaxProjection",
 ]

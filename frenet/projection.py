@@ -51,6 +51,7 @@ __all__ = [
     "ProjectionProblem",
     "ProjectionResult",
     "JaxProjection",
+    "DiffProjection",
 ]
 
 _QUANTITY = {"position": "P", "velocity": "Pdot", "acceleration": "Pddot"}
@@ -717,6 +718,52 @@ class ProjectionProblem:
         """
         return _jax_projector(self, num_iters, dtype, settings, split_axes)
 
+    def differentiable_projector(
+        self, method: str = "ipm", *, active_tol: float = 1e-6, **settings: Any
+    ) -> Callable[..., DiffProjection]:
+        """A projector that JAX differentiates end to end, through :func:`solvers.jax.solve_qp`.
+
+        Returns ``project(cx_bar, cy_bar, state, bounds=None, weights=None, extra_bounds=None)
+        -> DiffProjection(cx, cy, status)``: it builds the projection QP of this problem (the
+        same rows, metric and boundary equalities as :meth:`project`) in JAX from its inputs and
+        solves it with ``solve_qp(..., method=method, active_tol=active_tol, **settings)``.
+        Jittable and vmappable; ``jax.grad`` (or ``jax.jvp``, ``jax.jacrev``) of a loss of the
+        projected coefficients works with respect to every input:
+
+        * ``cx_bar, cy_bar`` : ``(nvar,)`` one sample, or ``(B, nvar)`` a batch (then ``state``
+          may be ``(6,)`` shared or ``(B, 6)``, and ``bounds``, ``weights``, ``extra_bounds`` are
+          shared by the batch; ``jax.vmap`` the single-sample form for per-sample values).
+        * ``state`` : the ego state ``(s, d, v_s, v_d, a_s, a_d)`` (or an
+          :class:`~frenet.planner.EgoState` as an array), the boundary rows' right-hand side.
+        * ``bounds`` : a mapping overriding :class:`ProjectionBounds` fields (``"y_lb"``,
+          ``"y_ub"``, ``"vx_min"``, ``"vx_max"``, ``"vy_max"``, ``"ax_max"``, ``"ay_max"``, and
+          ``"a_max"`` when the problem has the acceleration polygon), each a scalar or ``(K,)``;
+          the others keep this problem's values.  Every kinematic row is in the QP (an infinite
+          bound is an inactive row), so any bound can be given a finite value here.  In
+          ``constraint_points="hull"`` mode each bound enters through its tightest value over
+          the horizon (a max or min, differentiable almost everywhere).
+        * ``weights`` : the objective ``½ Σ_axis Σ_i w_{axis,i} (M(c − c̄))_i²``: a scalar,
+          ``(r,)`` (both axes) or ``(2, r)`` (x then y), ``r = K`` for ``metric="waypoint"``
+          and ``r = nvar`` for ``"coefficient"``.  ``None`` (all ones) is :meth:`project`'s
+          objective.  Weights must be positive (not checked inside a trace).
+        * ``extra_bounds`` : one ``(lower, upper)`` pair per user constraint set, each scalar or
+          ``(r,)`` (default: the sets' own bounds).
+
+        Conventions of the derivative (those of :func:`solvers.jax.solve_qp`): it is the
+        derivative of the QP's solution on the active set read from the multipliers; a weakly
+        active row (at its bound with a zero multiplier) counts as inactive, which gives a
+        one-sided derivative at such points.  A QP that is not solved (for instance an ego state
+        outside the bounds, or ``y_lb > y_ub``) returns its :class:`solvers.Status` in
+        ``status`` (``!= SOLVED``) and NaN derivatives: check ``status`` before using a
+        gradient.  No input is validated inside the trace except shapes.
+
+        ``method="ipm"`` (default) needs JAX's x64 mode (``with jax.enable_x64(True):`` around
+        the trace and the calls); ``"admm"`` runs in float32 or float64 with an active-set polish.
+        :meth:`jax_projector` (the planner's fixed-budget ADMM projector) is separate and
+        unchanged by this.  Per-sample user rows are refused (``ValueError``).
+        """
+        return _differentiable_projector(self, method, active_tol, settings)
+
     def distance(
         self, cx: ArrayLike, cy: ArrayLike, cx_bar: ArrayLike, cy_bar: ArrayLike
     ) -> NDArray[np.float64]:
@@ -1153,5 +1200,169 @@ def _split_projector(problem: ProjectionProblem, s, axes: np.ndarray, grid_axes:
         total = jnp.maximum(jnp.max(viols[0], axis=1), jnp.max(viols[1], axis=1))
         total = jnp.broadcast_to(total, (B,))
         return JaxProjection(zs[0], zs[1], total, grp, _merge_axis_states(*outs, inv))
+
+    return project
+
+
+# ---------------------------------------------------------------------- differentiable projector
+class DiffProjection(NamedTuple):
+    """Output of :meth:`ProjectionProblem.differentiable_projector` (JAX arrays).
+
+    cx, cy : ``(nvar,)`` or ``(B, nvar)`` projected coefficients.
+    status : ``()`` or ``(B,)`` int32 :class:`solvers.Status` codes (``SOLVED == 1``); the
+        derivatives of a sample that is not solved are NaN.
+    """
+
+    cx: Any
+    cy: Any
+    status: Any
+
+
+_DIFF_BOUNDS = ("y_lb", "y_ub", "vx_min", "vx_max", "vy_max", "ax_max", "ay_max", "a_max")
+
+
+def _differentiable_projector(problem: ProjectionProblem, method: str, active_tol, settings):
+    import jax
+    import jax.numpy as jnp
+
+    from solvers.jax import METHODS, solve_qp
+
+    if method not in METHODS:
+        raise ValueError(f"method must be one of {METHODS}, got {method!r}")
+    if problem.per_sample_rows:
+        raise ValueError(
+            "differentiable_projector needs rows shared by the batch; these user constraints "
+            "have per-sample rows"
+        )
+    basis = problem.basis
+    K, n = basis.num_steps, problem.nvar
+    if problem.constraint_points == "grid":
+        Mp, Mv, Ma = basis.P, basis.Pdot, basis.Pddot
+    else:
+        Mp, Mv, Ma = basis.control_point_maps()
+    Mobj = basis.P if problem.metric == "waypoint" else np.eye(n)
+    r_w = Mobj.shape[0]
+    Aex, Aey = problem._Aex, problem._Aey
+    rho = problem._rho_eq
+    final_lat = problem.final_lateral_velocity
+    polygon = problem.bounds.a_max is not None
+    sides = int(problem.bounds.accel_polygon_sides)
+    defaults = dict(problem._bounds_k)
+    hull = problem.constraint_points == "hull"
+
+    def xs(M):
+        return np.hstack([M, np.zeros_like(M)])
+
+    def ys(M):
+        return np.hstack([np.zeros_like(M), M])
+
+    blocks = [
+        np.block([[Aex, np.zeros_like(Aex)], [np.zeros_like(Aey), Aey]]),
+        ys(Mp),  # lane
+        xs(Mv),  # speed
+        ys(Mv),  # lateral velocity
+        xs(Ma),  # accel_x
+        ys(Ma),  # accel_y
+    ]
+    if polygon:
+        phi = 2 * np.pi * np.arange(sides) / sides
+        blocks.append(np.concatenate([np.hstack([np.cos(p) * Ma, np.sin(p) * Ma]) for p in phi]))
+    extra_rows = [problem.A[g.rows] for g in problem._extra_groups]
+    A = np.vstack(blocks + extra_rows)
+    A.setflags(write=False)
+    allowed = _DIFF_BOUNDS if polygon else _DIFF_BOUNDS[:-1]
+
+    def one(cx_bar, cy_bar, state, bounds, weights, extra_bounds):
+        dt = cx_bar.dtype
+        b = dict(defaults)
+        b.update(bounds)
+
+        def bound(key, rows):
+            v = jnp.broadcast_to(jnp.asarray(b[key], dt), (K,))
+            if hull:  # the tightest value over the horizon, on every control point
+                v = jnp.max(v) if key in ("y_lb", "vx_min") else jnp.min(v)
+            return jnp.broadcast_to(v, (rows,))
+
+        rp, rv, ra = Mp.shape[0], Mv.shape[0], Ma.shape[0]
+        lo = [bound("y_lb", rp), bound("vx_min", rv), -bound("vy_max", rv)]
+        hi = [bound("y_ub", rp), bound("vx_max", rv), bound("vy_max", rv)]
+        lo += [-bound("ax_max", ra), -bound("ay_max", ra)]
+        hi += [bound("ax_max", ra), bound("ay_max", ra)]
+        if polygon:
+            lo.append(jnp.full(ra * sides, -jnp.inf, dt))
+            hi.append(jnp.tile(bound("a_max", ra) * np.cos(np.pi / sides), sides))
+        for e, (el, eu) in zip(problem.extra, extra_bounds, strict=True):
+            lo.append(jnp.broadcast_to(jnp.asarray(el, dt), (e.num_rows,)))
+            hi.append(jnp.broadcast_to(jnp.asarray(eu, dt), (e.num_rows,)))
+        st = jnp.asarray(state, dt)
+        bx = st[jnp.array([0, 2, 4])]
+        by = st[jnp.array([1, 3, 5])]
+        if final_lat:
+            by = jnp.concatenate([by, jnp.zeros(1, dt)])
+        beq = jnp.concatenate([bx, by])
+        l = jnp.concatenate([beq] + lo)
+        u = jnp.concatenate([beq] + hi)
+        w = jnp.broadcast_to(jnp.asarray(weights, dt), (2, r_w))
+        Mj = jnp.asarray(Mobj, dt)
+        Hx = Mj.T @ (w[0][:, None] * Mj)
+        Hy = Mj.T @ (w[1][:, None] * Mj)
+        Aexj, Aeyj = jnp.asarray(Aex, dt), jnp.asarray(Aey, dt)
+        Z = jnp.zeros((n, n), dt)
+        P = jnp.block([[Hx + rho * Aexj.T @ Aexj, Z], [Z, Hy + rho * Aeyj.T @ Aeyj]])
+        q = -jnp.concatenate([Hx @ cx_bar + rho * Aexj.T @ bx, Hy @ cy_bar + rho * Aeyj.T @ by])
+        sol = solve_qp(
+            P, q, jnp.asarray(A, dt), l, u, method=method, active_tol=active_tol, **settings
+        )
+        return DiffProjection(sol.x[:n], sol.x[n:], sol.status)
+
+    def project(
+        cx_bar, cy_bar, state, bounds=None, weights=None, extra_bounds=None
+    ) -> DiffProjection:
+        dt = jnp.float64 if jax.config.jax_enable_x64 else jnp.float32
+        cx_bar, cy_bar = jnp.asarray(cx_bar, dt), jnp.asarray(cy_bar, dt)
+        if cx_bar.shape != cy_bar.shape or cx_bar.ndim not in (1, 2) or cx_bar.shape[-1] != n:
+            raise ValueError(
+                f"cx_bar and cy_bar must both have shape ({n},) or (B, {n}), "
+                f"got {cx_bar.shape} and {cy_bar.shape}"
+            )
+        from .planner import EgoState
+
+        state = jnp.asarray(state.as_array() if isinstance(state, EgoState) else state, dt)
+        batched = cx_bar.ndim == 2
+        if state.shape != (6,) and not (batched and state.shape == (cx_bar.shape[0], 6)):
+            raise ValueError(f"state must have shape (6,) or (B, 6), got {state.shape}")
+        bounds = dict(bounds or {})
+        for key, v in bounds.items():
+            if key not in allowed:
+                raise ValueError(f"bounds has an unknown key {key!r}; known: {allowed}")
+            if np.shape(v) not in ((), (K,)):
+                raise ValueError(f"bounds[{key!r}] must be a scalar or ({K},), got {np.shape(v)}")
+        if weights is None:
+            weights = jnp.ones((), dt)
+        if np.shape(weights) not in ((), (r_w,), (2, r_w)):
+            raise ValueError(
+                f"weights must be a scalar, ({r_w},) or (2, {r_w}), got {np.shape(weights)}"
+            )
+        if extra_bounds is None:
+            extra_bounds = [(e.lower, e.upper) for e in problem.extra]
+        if len(extra_bounds) != len(problem.extra):
+            raise ValueError(
+                f"extra_bounds needs one (lower, upper) pair per user constraint set "
+                f"({len(problem.extra)}), got {len(extra_bounds)}"
+            )
+        for e, pair in zip(problem.extra, extra_bounds, strict=True):
+            for v in pair:
+                if np.shape(v) not in ((), (e.num_rows,)):
+                    raise ValueError(
+                        f"extra_bounds for {e.name!r} must be scalars or ({e.num_rows},), "
+                        f"got {np.shape(v)}"
+                    )
+        extra_bounds = [tuple(pair) for pair in extra_bounds]
+        if not batched:
+            return one(cx_bar, cy_bar, state, bounds, weights, extra_bounds)
+        st_axis = 0 if state.ndim == 2 else None
+        return jax.vmap(one, in_axes=(0, 0, st_axis, None, None, None))(
+            cx_bar, cy_bar, state, bounds, weights, extra_bounds
+        )
 
     return project
