@@ -758,7 +758,12 @@ class ProjectionProblem:
         gradient.  No input is validated inside the trace except shapes.
 
         ``method="ipm"`` (default) needs JAX's x64 mode (``with jax.enable_x64(True):`` around
-        the trace and the calls); ``"admm"`` runs in float32 or float64 with an active-set polish.
+        the trace and the calls); for derivatives solve it tightly (e.g. ``eps_abs=eps_rel=1e-11``):
+        at the default tolerance the interior-point multipliers of rows that are merely close to
+        their bound (a trajectory riding along the lane edge) can exceed the active threshold,
+        and a set of nearly dependent active rows makes the reduced KKT system singular (NaN
+        derivatives although ``status`` is ``SOLVED``).  ``"admm"`` runs in float32 or float64
+        with an active-set polish (give it enough ``max_iter`` to be ``SOLVED``).
         :meth:`jax_projector` (the planner's fixed-budget ADMM projector) is separate and
         unchanged by this.  Per-sample user rows are refused (``ValueError``).
         """

@@ -178,8 +178,14 @@ def _site_extras_missing() -> str | None:
     return None
 
 
-TUTORIALS = ("01_quickstart", "02_qp_backends", "03_reduced_set", "04_projection_research")
-BUILD_TIMEOUT_S = 1200  # four notebooks executed on a loaded 2-core CI machine
+TUTORIALS = (
+    "01_quickstart",
+    "02_qp_backends",
+    "03_reduced_set",
+    "04_projection_research",
+    "05_learning_through_the_projection",
+)
+BUILD_TIMEOUT_S = 1200  # five notebooks executed on a loaded 2-core CI machine
 
 
 API_NAMES = {

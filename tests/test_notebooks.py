@@ -20,7 +20,13 @@ pytest.importorskip("ipykernel")
 
 REPO = Path(__file__).resolve().parents[1]
 NOTEBOOK_DIR = REPO / "notebooks"
-TUTORIALS = ("01_quickstart", "02_qp_backends", "03_reduced_set", "04_projection_research")
+TUTORIALS = (
+    "01_quickstart",
+    "02_qp_backends",
+    "03_reduced_set",
+    "04_projection_research",
+    "05_learning_through_the_projection",
+)
 CELL_TIMEOUT_S = 240  # per cell: generous, for loaded CI machines (JAX compilation dominates)
 PASSED = "CHECKS PASSED"
 
