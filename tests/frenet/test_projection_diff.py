@@ -12,7 +12,14 @@ jax = pytest.importorskip("jax")
 import jax.numpy as jnp  # noqa: E402
 
 import solvers  # noqa: E402
-from frenet import BernsteinBasis, EgoState, ProjectionBounds, ProjectionProblem, TimeGrid  # noqa: E402
+from frenet import (  # noqa: E402
+    BernsteinBasis,
+    EgoState,
+    LinearConstraints,
+    ProjectionBounds,
+    ProjectionProblem,
+    TimeGrid,
+)
 
 STATE = EgoState(vs=11.0)
 TIGHT = {"eps_abs": 1e-11, "eps_rel": 1e-11}
@@ -148,3 +155,25 @@ def test_arguments_are_validated():
             proj(cx[0], cy[0], STATE, weights=np.ones(3))
         with pytest.raises(ValueError, match="cx_bar"):
             proj(cx[0, :3], cy[0], STATE)
+
+
+@pytest.mark.parametrize("variant", ["hull", "extra", "polygon"])
+def test_other_problem_forms_match_clarabel(variant):
+    basis = BernsteinBasis(TimeGrid(5.0, 20), degree=6)
+    bounds = ProjectionBounds(y_lb=-0.5, y_ub=0.5, vx_max=12.0)
+    if variant == "hull":
+        prob = ProjectionProblem(basis, bounds, constraint_points="hull")
+    elif variant == "extra":
+        zone = LinearConstraints.at_steps(
+            range(10, 20), nx=1.0, ny=0.0, upper=10.5, num_steps=20, quantity="velocity"
+        )
+        prob = ProjectionProblem(basis, bounds, extra=zone)
+    else:
+        prob = ProjectionProblem(basis, ProjectionBounds(y_lb=-0.5, y_ub=0.5, a_max=4.0))
+    cx, cy = _samples(prob, 2)
+    ref = prob.project(cx, cy, STATE, backend="clarabel", **CLARABEL_TIGHT)
+    assert np.all(ref.solved)
+    with jax.enable_x64(True):  # x64 only inside this block
+        out = prob.differentiable_projector(**TIGHT)(cx, cy, STATE)
+    np.testing.assert_allclose(out.cx, ref.cx, atol=1e-6)
+    np.testing.assert_allclose(out.cy, ref.cy, atol=1e-6)
