@@ -1226,6 +1226,72 @@ class DiffProjection(NamedTuple):
 _DIFF_BOUNDS = ("y_lb", "y_ub", "vx_min", "vx_max", "vy_max", "ax_max", "ay_max", "a_max")
 
 
+def _check_diff_args(problem, allowed, K, r_w, cx_bar, state, bounds, weights, extra_bounds, dt):
+    """The checked ``bounds``, ``weights`` and ``extra_bounds`` of a differentiable projection
+    (``ValueError`` naming the argument)."""
+    import jax.numpy as jnp
+
+    batched = cx_bar.ndim == 2
+    if state.shape != (6,) and not (batched and state.shape == (cx_bar.shape[0], 6)):
+        raise ValueError(f"state must have shape (6,) or (B, 6), got {state.shape}")
+    bounds = dict(bounds or {})
+    for key, v in bounds.items():
+        if key not in allowed:
+            raise ValueError(f"bounds has an unknown key {key!r}; known: {allowed}")
+        if np.shape(v) not in ((), (K,)):
+            raise ValueError(f"bounds[{key!r}] must be a scalar or ({K},), got {np.shape(v)}")
+    if weights is None:
+        weights = jnp.ones((), dt)
+    if np.shape(weights) not in ((), (r_w,), (2, r_w)):
+        raise ValueError(
+            f"weights must be a scalar, ({r_w},) or (2, {r_w}), got {np.shape(weights)}"
+        )
+    if extra_bounds is None:
+        extra_bounds = [(e.lower, e.upper) for e in problem.extra]
+    if len(extra_bounds) != len(problem.extra):
+        raise ValueError(
+            f"extra_bounds needs one (lower, upper) pair per user constraint set "
+            f"({len(problem.extra)}), got {len(extra_bounds)}"
+        )
+    for e, pair in zip(problem.extra, extra_bounds, strict=True):
+        for v in pair:
+            if np.shape(v) not in ((), (e.num_rows,)):
+                raise ValueError(
+                    f"extra_bounds for {e.name!r} must be scalars or ({e.num_rows},), "
+                    f"got {np.shape(v)}"
+                )
+    return bounds, weights, extra_bounds
+
+
+def _diff_rows(problem, Mp, Mv, Ma, sides: int) -> np.ndarray:
+    """The constraint matrix of the differentiable projection: boundary equalities, lane,
+    speed, lateral velocity, accelerations, the acceleration polygon (``sides`` > 0) and the
+    user rows (every kinematic row kept, infinite bounds making it inactive)."""
+    Aex, Aey = problem._Aex, problem._Aey
+
+    def xs(M):
+        return np.hstack([M, np.zeros_like(M)])
+
+    def ys(M):
+        return np.hstack([np.zeros_like(M), M])
+
+    blocks = [
+        np.block([[Aex, np.zeros_like(Aex)], [np.zeros_like(Aey), Aey]]),
+        ys(Mp),  # lane
+        xs(Mv),  # speed
+        ys(Mv),  # lateral velocity
+        xs(Ma),  # accel_x
+        ys(Ma),  # accel_y
+    ]
+    if sides:
+        phi = 2 * np.pi * np.arange(sides) / sides
+        blocks.append(np.concatenate([np.hstack([np.cos(p) * Ma, np.sin(p) * Ma]) for p in phi]))
+    extra_rows = [problem.A[g.rows] for g in problem._extra_groups]
+    A = np.vstack(blocks + extra_rows)
+    A.setflags(write=False)
+    return A
+
+
 def _differentiable_projector(problem: ProjectionProblem, method: str, active_tol, settings):
     import jax
     import jax.numpy as jnp
@@ -1255,26 +1321,7 @@ def _differentiable_projector(problem: ProjectionProblem, method: str, active_to
     defaults = dict(problem._bounds_k)
     hull = problem.constraint_points == "hull"
 
-    def xs(M):
-        return np.hstack([M, np.zeros_like(M)])
-
-    def ys(M):
-        return np.hstack([np.zeros_like(M), M])
-
-    blocks = [
-        np.block([[Aex, np.zeros_like(Aex)], [np.zeros_like(Aey), Aey]]),
-        ys(Mp),  # lane
-        xs(Mv),  # speed
-        ys(Mv),  # lateral velocity
-        xs(Ma),  # accel_x
-        ys(Ma),  # accel_y
-    ]
-    if polygon:
-        phi = 2 * np.pi * np.arange(sides) / sides
-        blocks.append(np.concatenate([np.hstack([np.cos(p) * Ma, np.sin(p) * Ma]) for p in phi]))
-    extra_rows = [problem.A[g.rows] for g in problem._extra_groups]
-    A = np.vstack(blocks + extra_rows)
-    A.setflags(write=False)
+    A = _diff_rows(problem, Mp, Mv, Ma, sides if polygon else 0)
     allowed = _DIFF_BOUNDS if polygon else _DIFF_BOUNDS[:-1]
 
     def one(cx_bar, cy_bar, state, bounds, weights, extra_bounds):
@@ -1334,34 +1381,9 @@ def _differentiable_projector(problem: ProjectionProblem, method: str, active_to
 
         state = jnp.asarray(state.as_array() if isinstance(state, EgoState) else state, dt)
         batched = cx_bar.ndim == 2
-        if state.shape != (6,) and not (batched and state.shape == (cx_bar.shape[0], 6)):
-            raise ValueError(f"state must have shape (6,) or (B, 6), got {state.shape}")
-        bounds = dict(bounds or {})
-        for key, v in bounds.items():
-            if key not in allowed:
-                raise ValueError(f"bounds has an unknown key {key!r}; known: {allowed}")
-            if np.shape(v) not in ((), (K,)):
-                raise ValueError(f"bounds[{key!r}] must be a scalar or ({K},), got {np.shape(v)}")
-        if weights is None:
-            weights = jnp.ones((), dt)
-        if np.shape(weights) not in ((), (r_w,), (2, r_w)):
-            raise ValueError(
-                f"weights must be a scalar, ({r_w},) or (2, {r_w}), got {np.shape(weights)}"
-            )
-        if extra_bounds is None:
-            extra_bounds = [(e.lower, e.upper) for e in problem.extra]
-        if len(extra_bounds) != len(problem.extra):
-            raise ValueError(
-                f"extra_bounds needs one (lower, upper) pair per user constraint set "
-                f"({len(problem.extra)}), got {len(extra_bounds)}"
-            )
-        for e, pair in zip(problem.extra, extra_bounds, strict=True):
-            for v in pair:
-                if np.shape(v) not in ((), (e.num_rows,)):
-                    raise ValueError(
-                        f"extra_bounds for {e.name!r} must be scalars or ({e.num_rows},), "
-                        f"got {np.shape(v)}"
-                    )
+        bounds, weights, extra_bounds = _check_diff_args(
+            problem, allowed, K, r_w, cx_bar, state, bounds, weights, extra_bounds, dt
+        )
         extra_bounds = [tuple(pair) for pair in extra_bounds]
         if not batched:
             return one(cx_bar, cy_bar, state, bounds, weights, extra_bounds)
