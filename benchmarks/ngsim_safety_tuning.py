@@ -37,10 +37,10 @@ from mmdopt.bench.ngsim.runner import (
     task_config,
 )
 
-#: name -> (MMDOptConfig overrides on top of ngsim_config's *before* this change, NgsimParams
-#: overrides).  "before" is the configuration of the first held-out run (docs/experiments/ngsim.md).
-#: every variant starts from these (the planner and benchmark before this change) and sets
-#: what it names on top, so a variant means the same whatever today's defaults are
+#: name -> (MMDOptConfig overrides on top of ngsim_config's first held-out configuration,
+#: NgsimParams overrides) (docs/experiments/ngsim.md).  Every variant starts from that
+#: configuration and sets what it names on top, so a variant means the same whatever today's
+#: defaults are
 OFF = dict(
     headway_time=0.0,
     headway_gap=0.0,

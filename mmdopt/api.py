@@ -1115,6 +1115,7 @@ def _assemble(ctx: _Ctx, cx, cy, dvec, cost, best_iter, fallback, status, state)
     bound = risk_bound(n_plan - cf_plan, [n_plan] * O)
     if status == "ok" and config.safety.margins.margin_mode == "samples":
         status = _risk_status(float(config.safety.risk), bound, n_plan, n_plan - cf_plan)
+    kind, why = _split_status(status)
     s = s + s_off
     diag = dict(diag)
     diag.update(
@@ -1162,8 +1163,8 @@ def _assemble(ctx: _Ctx, cx, cy, dvec, cost, best_iter, fallback, status, state)
         residual=residual,
         mmd=mmd_val,
         feasible=bool(feasible),
-        status=_split_status(status)[0],
-        message=_split_status(status)[1],
+        status=kind,
+        message=why,
         risk_bound=bound,
         method=ctx.method,
         projector=ctx.backend,

@@ -145,17 +145,29 @@ def test_no_config_class_over_20_fields():
     assert not big, big
 
 
+#: a development diary's wording (work sessions and issue numbers, an internal spec's sections,
+#: the machine a change was made on), spelled in parts so that no file holds the phrases
+DIARY = re.compile(
+    "|".join(
+        (
+            r"\b[Ss]ess" + r"ion \d",
+            r"\bissues? " + r"\d",
+            "SP" + "EC §",
+            r"\bthis " + r"VM\b",
+        )
+    )
+)
+
+
 def test_no_diary_in_code_docs_or_tests():
-    pattern = re.compile(r"Session [0-9]|SPEC §|\bissue [0-9]+\b|this VM")
     hits = []
     roots = [ROOT / d for d in (*PACKAGES, "docs", "tests", "benchmarks")] + [ROOT / "README.md"]
     for root in roots:
         files = [root] if root.is_file() else root.rglob("*")
         for f in files:
-            # the two tests that hold the pattern itself
-            if f.suffix not in (".py", ".md") or f.name in ("test_architecture.py", "test_docs.py"):
+            if f.suffix not in (".py", ".md"):
                 continue
             for i, line in enumerate(f.read_text(errors="replace").splitlines(), 1):
-                if pattern.search(line):
+                if DIARY.search(line):
                     hits.append(f"{f.relative_to(ROOT)}:{i}: {line.strip()[:80]}")
     assert not hits, hits[:20]

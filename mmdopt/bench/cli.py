@@ -409,13 +409,9 @@ def load_planner_config(path):
     :meth:`mmdopt.MMDOptConfig.from_dict` (``{"cem": {"iterations": 10}, "safety": {"risk":
     0.001}}``) or flat field names (``{"iterations": 10}``).  Unknown keys, wrong types,
     NaN/Infinity or invalid values raise ``ValueError`` naming the key."""
-    try:
-        raw = json.loads(Path(path).read_text())
-    except json.JSONDecodeError as e:
-        raise ValueError(f"{path} is not valid JSON: {e}") from None
-    except (OSError, UnicodeDecodeError) as e:
-        raise ValueError(f"{path} cannot be read: {e}") from None
-    return load_planner_config_from_dict(raw)
+    from .inputs import read_json
+
+    return load_planner_config_from_dict(read_json(path))
 
 
 def load_planner_config_from_dict(raw):

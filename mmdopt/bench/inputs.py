@@ -18,6 +18,19 @@ from pathlib import Path
 __all__ = ["check_out_folder", "check_out_file", "check_address"]
 
 
+def read_json(path: str | os.PathLike):
+    """The parsed JSON value of the file ``path``; ``ValueError`` naming the file when it cannot
+    be read or is not valid JSON."""
+    import json
+
+    try:
+        return json.loads(Path(path).read_text())
+    except json.JSONDecodeError as e:
+        raise ValueError(f"{path} is not valid JSON: {e}") from None
+    except (OSError, UnicodeDecodeError) as e:
+        raise ValueError(f"{path} cannot be read: {e}") from None
+
+
 def _existing_ancestor(p: Path) -> Path:
     """``p`` or its nearest ancestor that exists."""
     a = p

@@ -12,22 +12,12 @@ from pathlib import Path
 
 import pytest
 
-from mmdopt.bench import cli
+from .test_cli_corpus import run_main
 
 TINY = {
     "cem": {"n_samples": 60, "n_cem": 30, "n_elite": 10, "iterations": 3, "n_brake": 2},
     "selection": {"reduced_set_size": 5},
 }
-
-
-def run_main(argv, capsys):
-    try:
-        rc = cli.main([str(a) for a in argv])
-    except SystemExit as e:
-        rc = e.code
-    cap = capsys.readouterr()
-    assert "Traceback" not in cap.err and "Traceback" not in cap.out
-    return rc, cap.err
 
 
 def expect_error(argv, capsys, *named):

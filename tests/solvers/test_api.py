@@ -1,5 +1,5 @@
 """The one-call API, the common settings vocabulary, warm starts as arrays, convexity refusal,
-lazy backend discovery and one meaning for ``backend="admm"`` (issues 10, 14, 16)."""
+lazy backend discovery and one meaning for ``backend="admm"``."""
 
 from __future__ import annotations
 

@@ -61,7 +61,7 @@ def check_env(env: str) -> None:
 
 def highway_config(overrides: dict | None = None) -> mmdopt.MMDOptConfig:
     """The preset :meth:`mmdopt.MMDOptConfig.highway`, then ``overrides`` (field names)."""
-    return mmdopt.MMDOptConfig.highway(**(overrides or {}))
+    return mmdopt.MMDOptConfig.from_dict(overrides or {}, base=mmdopt.MMDOptConfig.highway())
 
 
 @dataclass(frozen=True)

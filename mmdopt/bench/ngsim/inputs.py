@@ -15,7 +15,6 @@ why a set of scenes gives no task.
 
 from __future__ import annotations
 
-import json
 from pathlib import Path
 from typing import Any
 from xml.parsers import expat
@@ -80,15 +79,9 @@ def load_ngsim_config(source: Any = None):
 
     if source is None:
         return ngsim_config(), NgsimParams()
-    if isinstance(source, str | Path):
-        try:
-            raw = json.loads(Path(source).read_text())
-        except json.JSONDecodeError as e:
-            raise ValueError(f"{source} is not valid JSON: {e}") from None
-        except (OSError, UnicodeDecodeError) as e:
-            raise ValueError(f"{source} cannot be read: {e}") from None
-    else:
-        raw = source
+    from ..inputs import read_json
+
+    raw = read_json(source) if isinstance(source, str | Path) else source
     if not isinstance(raw, dict):
         raise ValueError(
             "the config must be a JSON object of planner fields (and an optional 'bench' object)"
