@@ -232,12 +232,19 @@ class Problem:
     hi: Any
     brake: Any
     bounds: tuple = field(metadata=dict(static=True))
+    lanes: Any = None
 
     @staticmethod
-    def create(cfg: MMDOptConfig, ego: frenet.EgoState, bounds: frenet.ProjectionBounds) -> Problem:
+    def create(
+        cfg: MMDOptConfig,
+        ego: frenet.EgoState,
+        bounds: frenet.ProjectionBounds,
+        lanes: tuple[float, ...] = (),
+    ) -> Problem:
         """The problem of planning from ``ego`` (Frenet) within ``bounds``: the sampling prior is
         centred on the ego's speed and lateral offset (clipped to the bounds), with spreads
-        ``speed_std0`` and ``lateral_std_scale`` × half the lane width."""
+        ``speed_std0`` and ``lateral_std_scale`` × half the lane width.  ``lanes``: the road's
+        lane-centre offsets, kept (for :func:`lane_cost`) when ``cfg.cost.w_lane > 0``."""
         S = cfg.trajectory.num_segments
         b = bounds.per_step(1)
         v_min, v_max = float(b["vx_min"][0]), float(b["vx_max"][0])
@@ -259,8 +266,18 @@ class Problem:
         bkey = bounds_key(bounds)
         with jax.enable_x64(True):
             arr = lambda x: jnp.asarray(np.asarray(x, np.float64))  # noqa: E731
+            lane_arr = None
+            if (float(cfg.cost.w_lane) > 0.0 or cfg.trajectory.lane_setpoints) and len(lanes) > 0:
+                lane_arr = arr(np.sort(np.asarray(lanes, np.float64)))
             return Problem(
-                arr(ego.as_array()), arr(mu0), arr(cov0), arr(lo), arr(hi), arr(brake), bkey
+                arr(ego.as_array()),
+                arr(mu0),
+                arr(cov0),
+                arr(lo),
+                arr(hi),
+                arr(brake),
+                bkey,
+                lane_arr,
             )
 
 
@@ -512,8 +529,30 @@ def cost_chunk_size(cfg: MMDOptConfig) -> int:
     return max(cfg.cem.n_cem - cfg.cem.n_elite - cfg.cem.n_brake, -(-cfg.cem.n_cem // 4))
 
 
-def _row_costs(cfg: MMDOptConfig, prob: Workspace, obstacles: ObstacleSet, cx, cy, res):
-    """eq. (c_aug) + residual for coefficient rows (R, nvar): ``(cost, collision term)``."""
+def lane_inputs(cfg: MMDOptConfig, d, lanes):
+    """The behavioural inputs the Frenet planner follows: ``d`` (B, D) itself, or with
+    ``cfg.trajectory.lane_setpoints`` and lane centres ``lanes`` (L,) each lateral set-point
+    moved to the nearest lane centre (lane discipline, not in the paper)."""
+    if lanes is None or not cfg.trajectory.lane_setpoints:
+        return d
+    S = cfg.trajectory.num_segments
+    lat = d[:, S:]
+    near = jnp.argmin(jnp.abs(lat[..., None] - lanes), axis=-1)
+    return jnp.concatenate([d[:, :S], lanes[near].astype(d.dtype)], axis=1)
+
+
+def lane_cost(dd, lanes):
+    """Lane discipline (not in the paper): the mean over the grid of the squared distance of the
+    lateral offsets ``dd`` (R, K) to the nearest lane centre of ``lanes`` (L,), (R,) in m².  A
+    plan that changes lanes pays only while it is between them; one that holds an offset between
+    two lanes pays all the way."""
+    dev = jnp.min(jnp.abs(dd[..., None] - lanes), axis=-1)
+    return jnp.mean(dev * dev, axis=-1)
+
+
+def _row_costs(cfg: MMDOptConfig, prob: Workspace, obstacles: ObstacleSet, cx, cy, res, lanes=None):
+    """eq. (c_aug) + residual (+ :func:`lane_cost` when ``lanes`` is given) for coefficient rows
+    (R, nvar): ``(cost, collision term)``."""
     dt = cx.dtype
     P, Pd, Pdd = (jnp.asarray(M, dt) for M in (prob.P, prob.Pdot, prob.Pddot))
     s, vs, as_ = cx @ P.T, cx @ Pd.T, cx @ Pdd.T
@@ -523,6 +562,8 @@ def _row_costs(cfg: MMDOptConfig, prob: Workspace, obstacles: ObstacleSet, cx, c
     vd = cy @ Pd.T if cfg.safety.footprint.yaw_aware else None
     coll, w = _collision_term(cfg, prob, s, dd, obstacles, dt, vs=vs, vd=vd)
     cost = cfg.cost.w_speed * j_speed + cfg.cost.w_accel * j_acc + w * coll + cfg.cost.w_res * res
+    if lanes is not None:
+        cost = cost + cfg.cost.w_lane * lane_cost(dd, lanes)
     if cfg.safety.rules.kinematic:
         # feasibility first (a hard slip limit; the collision term may reach 10⁶): a row whose
         # residual, slip included, exceeds res_tol ranks after every row within it
@@ -530,7 +571,7 @@ def _row_costs(cfg: MMDOptConfig, prob: Workspace, obstacles: ObstacleSet, cx, c
     return jnp.where(jnp.isfinite(cost), cost, jnp.asarray(1e30, dt)), coll
 
 
-def _cached_costs(cfg, prob, obstacles, ces, cx_c, cy_c, res_c, cache: _CostCache):
+def _cached_costs(cfg, prob, obstacles, ces, cx_c, cy_c, res_c, cache: _CostCache, lanes=None):
     """:func:`_row_costs` of the ConstraintEliteSet ``ces`` (n_cem,), reusing the cached costs of
     elites and brake rows; the other rows are scored in chunks of :func:`cost_chunk_size`
     (one chunk once the cache is filled, as many as needed before: a while loop)."""
@@ -553,7 +594,7 @@ def _cached_costs(cfg, prob, obstacles, ces, cx_c, cy_c, res_c, cache: _CostCach
         q, cost, coll = c
         sl = lax.dynamic_slice_in_dim(order, q * U, U)
         i = jnp.maximum(sl, 0)
-        cq, kq = _row_costs(cfg, prob, obstacles, cx_c[i], cy_c[i], res_c[i])
+        cq, kq = _row_costs(cfg, prob, obstacles, cx_c[i], cy_c[i], res_c[i], lanes)
         tgt = jnp.where(sl >= 0, i, nces)  # empty slots are dropped
         cost = cost.at[tgt].set(cq, mode="drop")
         coll = coll.at[tgt].set(kq.astype(coll.dtype), mode="drop")
@@ -599,6 +640,7 @@ def _evaluate(
     n_projected=None,
     cache: _CostCache | None = None,
     end=None,
+    lanes=None,
 ):
     """ConstraintEliteSet, cost, EliteSet, distribution update, best-so-far (one iteration);
     rows not projected (:func:`project_rows`) carry ``res = inf``.  With ``cache`` (inside
@@ -615,9 +657,9 @@ def _evaluate(
     d_c, cx_c, cy_c, res_c = d[ces], cx[ces], cy[ces], res[ces]
     # --- cost, eq. (c_aug) + residual
     if cache is None:
-        cost, coll = _row_costs(cfg, prob, obstacles, cx_c, cy_c, res_c)
+        cost, coll = _row_costs(cfg, prob, obstacles, cx_c, cy_c, res_c, lanes)
     else:
-        cost, coll = _cached_costs(cfg, prob, obstacles, ces, cx_c, cy_c, res_c, cache)
+        cost, coll = _cached_costs(cfg, prob, obstacles, ces, cx_c, cy_c, res_c, cache, lanes)
     # --- EliteSet and the MPPI-weighted update, eqs. (mean_update), (cov_update), (s_formula)
     neg, el = lax.top_k(-cost, cfg.cem.n_elite)
     cost_e = -neg
@@ -882,8 +924,9 @@ def _step(
     problem = _cast(problem, dt)
     k = state.keys[state.iteration]
     d = _sample(cfg, k, state.mu, state.cov, state.elites, problem, z)
-    cx, cy, res, n_proj, end = _project_rows(cfg, prob, d, problem.state, dt, cache)
-    return _evaluate(cfg, state, prob, obstacles, d, cx, cy, res, n_proj, cache, end)
+    d_plan = lane_inputs(cfg, d, problem.lanes)
+    cx, cy, res, n_proj, end = _project_rows(cfg, prob, d_plan, problem.state, dt, cache)
+    return _evaluate(cfg, state, prob, obstacles, d, cx, cy, res, n_proj, cache, end, problem.lanes)
 
 
 def _init(
@@ -997,7 +1040,7 @@ def _sample_plan(prob: Workspace, cfg: MMDOptConfig, problem: Problem, state: CE
     dt = jnp.dtype(cfg.cem.dtype)
     problem = _cast(problem, dt)
     d = _sample(cfg, state.keys[state.iteration], state.mu, state.cov, state.elites, problem)
-    cx_bar, cy_bar = planner_output(prob, d, problem.state, dt)
+    cx_bar, cy_bar = planner_output(prob, lane_inputs(cfg, d, problem.lanes), problem.state, dt)
     return d, cx_bar, cy_bar
 
 
@@ -1017,7 +1060,7 @@ def _evaluate_host(
     cx, cy, res = cx.astype(dt), cy.astype(dt), res.astype(dt)
     if cfg.safety.rules.kinematic:  # the slip limit joins the backend's residual
         res = res + slip_residual(cfg, prob, problem.state, cx, cy)
-    return _evaluate(cfg, state, prob, obstacles, d, cx, cy, res)
+    return _evaluate(cfg, state, prob, obstacles, d, cx, cy, res, lanes=problem.lanes)
 
 
 # ------------------------------------------------------------------------------------ public API

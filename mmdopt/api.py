@@ -77,6 +77,9 @@ class Road:
     v_min, v_max : bounds of the longitudinal speed ṡ (m/s).
     vy_max : bound of |ḋ| (m/s; ``inf`` = none).
     ax_max, ay_max : bounds of |s̈|, |d̈| (m/s²).
+    lane_centres : lateral offsets of the lane centres in the path's Frenet frame (m; empty: no
+        lanes).  With ``MMDOptConfig.cost.w_lane > 0`` the planner's cost penalises the distance
+        to the nearest lane centre (lane discipline, :func:`mmdopt.algorithm.lane_cost`).
     """
 
     path: frenet.ReferencePath = field(default_factory=_straight_path)
@@ -87,6 +90,7 @@ class Road:
     vy_max: float = float("inf")
     ax_max: float = 6.0
     ay_max: float = 4.0
+    lane_centres: tuple[float, ...] = ()
 
     def __post_init__(self) -> None:
         if not isinstance(self.path, frenet.ReferencePath):
@@ -107,6 +111,15 @@ class Road:
         for name in ("vy_max", "ax_max", "ay_max"):
             if getattr(self, name) <= 0:
                 raise ValueError(f"Road.{name} must be > 0")
+        try:
+            lanes = tuple(float(c) for c in np.ravel(np.asarray(self.lane_centres, dtype=float)))
+        except (TypeError, ValueError):
+            raise ValueError(
+                f"Road.lane_centres must be a sequence of real numbers, got {self.lane_centres!r}"
+            ) from None
+        if not all(np.isfinite(lanes)):
+            raise ValueError(f"Road.lane_centres must be finite, got {lanes}")
+        object.__setattr__(self, "lane_centres", tuple(sorted(lanes)))
 
     def bounds(self) -> frenet.ProjectionBounds:
         """The projection's :class:`frenet.ProjectionBounds`."""
@@ -540,7 +553,7 @@ class Planner:
         """The planning problem of ``ego`` on ``road`` (:meth:`mmdopt.algorithm.Problem.create`)."""
         if not isinstance(road, Road):
             raise ValueError(f"road must be an mmdopt.Road, got {type(road).__name__}")
-        return alg.Problem.create(self.config, ego, road.bounds())
+        return alg.Problem.create(self.config, ego, road.bounds(), lanes=road.lane_centres)
 
     def _ws(self, problem: Any) -> alg.Workspace:
         if not isinstance(problem, alg.Problem):
@@ -917,7 +930,7 @@ def _plan_impl(
         return _braking_fallback(ctx, f"fallback: {exc}")
 
     t2 = time.perf_counter()
-    problem = alg.Problem.create(config, ego, road.bounds())
+    problem = alg.Problem.create(config, ego, road.bounds(), lanes=road.lane_centres)
     state = alg.run(
         prob, config, problem, obstacles, k_cem, backend, warm_start=warm_start,
         **backend_settings,
@@ -948,7 +961,8 @@ def _plan_impl(
         ctx,
         np.asarray(chosen.cx, np.float64),
         np.asarray(chosen.cy, np.float64),
-        np.asarray(chosen.d),
+        # the set-points the Frenet planner followed (lane centres with lane_setpoints)
+        np.asarray(alg.lane_inputs(config, chosen.d[None], problem.lanes)[0]),
         float(chosen.cost),
         int(chosen.iteration),
         fallback,

@@ -171,12 +171,20 @@ class CEMConfig(_Section):
 @dataclass(frozen=True)
 class TrajectoryConfig(_Section):
     """The Frenet planner's trajectories: ``num_segments`` speed/offset set-point pairs over
-    ``horizon`` seconds on ``num_steps`` grid points, a Bernstein basis of ``degree``."""
+    ``horizon`` seconds on ``num_steps`` grid points, a Bernstein basis of ``degree``.
+
+    lane_setpoints : lane discipline (not in the paper; off by default): each sampled lateral
+        set-point is moved to the nearest lane centre of the road (``Road.lane_centres``) before
+        the Frenet planner, so every candidate drives at lane centres and leaves one only to
+        change lanes; the sampling distribution stays continuous (its update sees the sampled
+        inputs), so lane changes stay explored.
+    """
 
     num_segments: int = _static(4)
     horizon: float = _static(15.0)
     num_steps: int = _static(100)
     degree: int = _static(10)
+    lane_setpoints: bool = _static(False)
 
     _ints = ("num_segments", "num_steps", "degree")
     _positive = ("horizon",)
@@ -237,7 +245,9 @@ class CostConfig(_Section):
     v_des : desired speed (m/s);  w_speed, w_accel : speed-tracking and comfort weights;
     w_res : weight of the constraint residual;  w_mmd : w, the weight of l_dist (eq. l_dist);
     w_cover : weight of the coverage term in the "samples" margin mode (:mod:`mmdopt.risk`);
-    bandwidth : the Gaussian kernel σ of the MMD on f̄;  f_scale : f̄ is scaled by it first.
+    bandwidth : the Gaussian kernel σ of the MMD on f̄;  f_scale : f̄ is scaled by it first;
+    w_lane : lane discipline (not in the paper; 0 = off): weight of the mean squared distance of
+    the lateral trajectory to the nearest lane centre of the road (``Road.lane_centres``), m².
     """
 
     v_des: float = 10.0
@@ -248,9 +258,10 @@ class CostConfig(_Section):
     w_cover: float = W_COVER
     bandwidth: float = 0.5
     f_scale: float = 1.0
+    w_lane: float = 0.0
 
     _positive = ("bandwidth",)
-    _nonneg = ("w_speed", "w_accel", "w_res", "w_mmd", "w_cover")
+    _nonneg = ("w_speed", "w_accel", "w_res", "w_mmd", "w_cover", "w_lane")
 
     def __post_init__(self) -> None:
         self._check()
