@@ -885,16 +885,23 @@ def _plan_impl(
         if method == "degroot":
             t = prob.t()
             ego_guess = np.stack([ego.s + ego.vs * t, np.full(K, ego.d)], axis=-1)
+        pool = _selection_pool(method, config, n, k_rs)
         rs = select_for_method(
             method,
             k_rs,
-            obs_fr,
+            obs_fr if pool is None else obs_fr[:, pool],
             config.selection.reduced_set_size,
             config.selection.reduced_set,
             lateral_scale=float(config.selection.rs_lateral_scale),
             ego_guess=ego_guess,
             footprint=config.safety.footprint,
         )
+        if pool is not None:  # back to positions among all n samples
+            alpha = np.zeros((O, n))
+            alpha[:, pool] = np.asarray(rs.alpha)
+            rs = dataclasses.replace(
+                rs, indices=jnp.asarray(pool[np.asarray(rs.indices)]), alpha=jnp.asarray(alpha)
+            )
     diag["reduced_set_s"] = time.perf_counter() - t1
     sel = np.take_along_axis(obs_fr, np.asarray(rs.indices)[:, :, None, None], axis=1)
     centres = circle_centres(jnp.asarray(sel), OBSTACLE_FOOTPRINT)  # (O, J, C, K, 2)
@@ -936,8 +943,12 @@ def _plan_impl(
         **backend_settings,
     )  # fmt: skip
     state = jax.block_until_ready(state)
+    passes = [state]
     if config.safety.reselect > 0 and SELECTOR[method] is not None:
         state = _reselect_pass(ctx, state, problem, k_cem, backend, backend_settings)
+        passes.append(state)
+    if config.safety.margins.margin_mode == "samples":
+        state = _final_check(ctx, passes, problem, k_cem, backend, backend_settings)
     diag["cem_s"] = time.perf_counter() - t2
     best, lv = state.best, state.least_violating
     if not math.isfinite(float(best.cost)) or float(best.cost) >= 1e29:
@@ -1039,6 +1050,134 @@ def _reselect_pass(ctx: _Ctx, state, problem, key, backend, backend_settings):
     out = alg.run(
         prob, config, problem, obstacles, jax.random.fold_in(key, 1), backend, warm_start=warm,
         **backend_settings,
+    )  # fmt: skip
+    return jax.block_until_ready(out)
+
+
+# ------------------------------------------------------------------ the risk dial's final check
+#: the most samples MMD-Opt's kernel selection sees in the risk mode: beyond it the reduced set
+#: is chosen among a random subset of this size (the n² kernel would dominate the plan time),
+#: while the margins and the final check use every sample
+SELECTION_POOL = 1000
+
+
+def _selection_pool(method: str, config: MMDOptConfig, n: int, key) -> np.ndarray | None:
+    """Sorted positions of the :data:`SELECTION_POOL` samples MMD-Opt selects from (the same
+    for every obstacle; derived from ``key``), or ``None``: all of them (fewer samples, another
+    method, or the time-linear margins, whose plans stay as they were)."""
+    if method != "mmd" or n <= SELECTION_POOL or config.safety.margins.margin_mode != "samples":
+        return None
+    perm = np.asarray(jax.random.permutation(jax.random.fold_in(key, 0x9001), n))
+    return np.sort(perm[:SELECTION_POOL])
+
+
+#: the most "tail" passes of :func:`_final_check` (each adds the planning samples the best plan
+#: so far meets to the reduced set and plans again, warm-started)
+TAIL_PASSES = 3
+
+
+def _bounds_of(ctx: _Ctx, bests) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The 95 % risk bound (C,), task cost (C,) and planning samples met (C, O, n) of candidate
+    plans ``bests`` against every planning sample (as :func:`collision_free_count` counts a
+    collision: any circle pair, any step)."""
+    config, B = ctx.config, ctx.prob.basis
+    cx = np.stack([np.asarray(b.cx, np.float64) for b in bests])
+    cy = np.stack([np.asarray(b.cy, np.float64) for b in bests])
+    s, d = cx @ B.P.T, cy @ B.P.T
+    cnt = collision_free_count(
+        np.stack([s, d], -1), ctx.obs_fr, a=config.safety.footprint.a, b=config.safety.footprint.b
+    )
+    hits = np.asarray(cnt.colliding)  # (C, O, n)
+    O, n = ctx.obs_fr.shape[:2]
+    bound = np.array([risk_bound(h.sum(-1), [n] * O) for h in hits])
+    vs, as_, ad = cx @ B.Pdot.T, cx @ B.Pddot.T, cy @ B.Pddot.T
+    c = config.cost
+    task = c.w_speed * np.mean((vs - c.v_des) ** 2, -1) + c.w_accel * np.mean(as_**2 + ad**2, -1)
+    ok = np.array([math.isfinite(float(b.cost)) and float(b.res) <= config.projection.res_tol
+                   for b in bests])  # fmt: skip
+    return np.where(ok, bound, np.inf), task, hits
+
+
+def _final_check(ctx: _Ctx, passes, problem, key, backend, backend_settings):
+    """The risk dial's final check ("samples" margin mode): every pass's best plan is scored
+    against **all** n planning samples and its :func:`mmdopt.risk.risk_bound` computed; while no
+    candidate's bound is ≤ ε (and the method selects a reduced set), up to :data:`TAIL_PASSES`
+    more passes add the samples the best-bounded candidate meets (deepest conflict first, at
+    most ``reduced_set_size`` per obstacle) to the reduced set and plan again, warm-started.
+    Returns the state of the pass whose best is the chosen plan: among candidates with bound
+    ≤ ε the one of least task cost (speed tracking and comfort, the terms every pass shares),
+    else the one of least bound (its status then says "risk exceeded")."""
+    eps = float(ctx.config.safety.risk)
+    states = list(passes)
+    bound, task, hits = _bounds_of(ctx, [p.best for p in states])
+    tails = 0
+    while not np.any(bound <= eps) and SELECTOR[ctx.method] is not None and tails < TAIL_PASSES:
+        j = int(np.argmin(bound))
+        if not np.isfinite(bound[j]) or not hits[j].any():
+            break
+        nxt = _tail_pass(ctx, states[j], hits[j], problem, jax.random.fold_in(key, 2 + tails),
+                         backend, backend_settings)  # fmt: skip
+        if nxt is None:
+            break
+        states.append(nxt)
+        b, t, h = _bounds_of(ctx, [nxt.best])
+        bound, task, hits = (np.concatenate([bound, b]), np.concatenate([task, t]),
+                             np.concatenate([hits, h]))  # fmt: skip
+        tails += 1
+    good = np.flatnonzero(bound <= eps)
+    j = int(good[np.argmin(task[good])]) if good.size else int(np.argmin(bound))
+    if not np.isfinite(bound[j]):
+        j = len(passes) - 1
+    ctx.diag.update(final_check_bounds=bound, final_check_choice=j, tail_passes=tails)
+    return states[j]
+
+
+def _tail_pass(ctx: _Ctx, state, hits, problem, key, backend, backend_settings):
+    """One more pass of Algorithm 1 with the planning samples ``hits`` (O, n) that ``state``'s
+    best plan meets added to the points of the last pass (weight 1/n each, deepest conflict
+    first, at most ``reduced_set_size`` per obstacle), warm-started from ``state``; ``None``
+    when there is nothing to add."""
+    config, obs_fr = ctx.config, ctx.obs_fr
+    O, n = obs_fr.shape[:2]
+    idx0 = np.asarray(ctx.diag.get("tail_indices", ctx.rs.indices))
+    w0 = np.asarray(ctx.diag.get("tail_weights", ctx.rs.weights), np.float64)
+    if "tail_indices" not in ctx.diag and "reselected" in ctx.diag:
+        extra = np.asarray(ctx.diag["reselected"])
+        r = extra.shape[1]
+        idx0 = np.concatenate([idx0, extra], 1)
+        w0 = np.concatenate([w0 * (1.0 - r / n), np.full((O, r), 1.0 / n)], 1)
+    h = np.asarray(hits, bool).copy()
+    np.put_along_axis(h, idx0, False, axis=1)
+    if not h.any():
+        return None
+    # a fixed number of points per pass (one compiled program per pass): the hit samples first
+    # (in order of index: all of them are met), padded with repeats of the first hit sample of
+    # any obstacle (weight 0; of the obstacle's first point where it has none)
+    r = config.selection.reduced_set_size
+    order = np.argsort(~h, axis=1, kind="stable")[:, :r]
+    valid = np.take_along_axis(h, order, 1)
+    pad = np.where(valid[:, :1], order[:, :1], idx0[:, :1])
+    extra = np.where(valid, order, pad).astype(idx0.dtype)
+    idx = np.concatenate([idx0, extra], 1)
+    w = np.concatenate([w0 * (1.0 - valid.sum(1, keepdims=True) / n), valid / n], 1)
+    sel = np.take_along_axis(obs_fr, idx[:, :, None, None], axis=1)
+    cen = circle_centres(jnp.asarray(sel), OBSTACLE_FOOTPRINT)
+    from .risk import coverage_margins
+
+    margins = coverage_margins(
+        obs_fr,
+        idx,
+        float(config.safety.risk),
+        lateral_scale=float(config.selection.rs_lateral_scale),
+        prior=float(config.safety.margins.coverage_prior),
+        bandwidth=float(config.safety.margins.coverage_bandwidth),
+    )
+    obstacles = alg.ObstacleSet.create(config, cen, w, COLLISION_TERM[ctx.method], margins=margins)
+    ctx.obstacles = obstacles
+    ctx.diag.update(tail_indices=idx, tail_weights=w)
+    out = alg.run(
+        ctx.prob, config, problem, obstacles, key, backend,
+        warm_start=alg.shift(config, state, 0.0), **backend_settings,
     )  # fmt: skip
     return jax.block_until_ready(out)
 

@@ -210,6 +210,19 @@ def _add_synthetic_parser(bs) -> None:
         ["mmd", "degroot", "random", "saa"],
         "comma-separated methods (default: mmd,degroot,random,saa)",
     )
+    _add_n_samples(s)
+
+
+def _add_n_samples(p) -> None:
+    p.add_argument(
+        "--n-samples",
+        type=positive_int,
+        default=None,
+        metavar="N",
+        help="plan on N fixed samples per obstacle (overrides --scene-params' n_samples); "
+        "without it every plan draws n(ε) futures from the scene's predictor "
+        "(mmdopt.risk.samples_for_risk, at least the preset's n_samples, at most 5000)",
+    )
 
 
 def _add_frontier_parser(bs) -> None:
@@ -234,14 +247,7 @@ def _add_frontier_parser(bs) -> None:
         help="validation futures per scene, the measure of the collision rate (default: the "
         "preset's, 1000; 10000 resolves ε = 1e-4); overrides --scene-params' n_validation",
     )
-    fr.add_argument(
-        "--n-samples",
-        type=positive_int,
-        default=None,
-        metavar="N",
-        help="planning samples per obstacle (default: the preset's); overrides "
-        "--scene-params' n_samples",
-    )
+    _add_n_samples(fr)
 
 
 def _add_reduced_set_parser(bs) -> None:
@@ -619,6 +625,7 @@ def cmd_synthetic(args, parser) -> int:
             executor=args.executor,
             address=args.address,
             isolate=True,
+            forecast=args.n_samples is None,
         )
     except ValueError as e:
         parser.error(str(e))
@@ -663,10 +670,12 @@ def cmd_frontier(args, parser) -> int:
             executor=args.executor,
             address=args.address,
             isolate=True,
+            forecast=args.n_samples is None,
         )
     except ValueError as e:
         parser.error(str(e))
-    cols = ["method", "risk", "scenes", "mean", "q1", "min", "progress_m", "plan_time_s"]
+    cols = ["method", "risk", "scenes", "mean", "q1", "min", "progress_m", "plan_time_s",
+            "n_planning"]  # fmt: skip
     print(_table(res["points"], cols))
     print(
         "measured collision rate (pooled over scenes, with its 95 % Clopper-Pearson interval), "

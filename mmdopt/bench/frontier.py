@@ -31,7 +31,7 @@ from mmdopt.risk import check_risk, config_for_risk
 from .executors import MISSING, check_manifest, run_tasks, worker_layout
 from .results import write_json, write_results
 from .scenes import SceneParams, make_scene, num_scenes
-from .synthetic import config_overrides, run_scene
+from .synthetic import config_overrides, planning_samples, run_scene
 
 __all__ = [
     "DEFAULT_RISKS",
@@ -72,6 +72,7 @@ FRONTIER_COLUMNS = (
     "status",
     "seed",
     "risk_bound",
+    "n_planning",
 )
 #: target collision-free levels (of 1000) at which progress is interpolated
 TARGET_LEVELS = (990.0, 995.0, 999.0)
@@ -140,7 +141,7 @@ def _read_task(path: Path) -> dict[str, Any]:
 
 def _frontier_task(args) -> int:
     """Worker: scene ``index``, plan every missing (method, risk), one file per plan."""
-    index, seed, params_dict, todo, backend, out, config = args
+    index, seed, params_dict, todo, backend, out, config, forecast = args
     scene = make_scene(index, seed, SceneParams.from_dict(params_dict))
     done = 0
     for method, risk in todo:
@@ -148,7 +149,7 @@ def _frontier_task(args) -> int:
         if path.exists():
             continue
         cfg = config_for_risk(method, risk, config)
-        row, _ = run_scene(scene, method, config=cfg, backend=backend)
+        row, _ = run_scene(scene, method, config=cfg, backend=backend, forecast=forecast)
         row.update(risk=float(risk), seed=int(seed))
         write_json(path, row)
         done += 1
@@ -171,9 +172,15 @@ def run_frontier(
     progress: bool = True,
     levels: Sequence[float] = TARGET_LEVELS,
     isolate: bool = False,
+    forecast: bool = False,
 ) -> dict[str, Any]:
     """Sweep every method's risk level on the scenes; resumable (existing task files are reused;
-    ``risks``: the grid per method, default :data:`DEFAULT_RISKS`).  ``isolate`` as in
+    ``risks``: the grid per method, default :data:`DEFAULT_RISKS`).  ``forecast=True`` plans
+    through the scene's predictor (:meth:`~mmdopt.bench.scenes.Scene.forecast`): n(ε) futures
+    per (scene, ε), at least ``params.n_samples`` and at most
+    :data:`~mmdopt.bench.synthetic.MAX_FORECAST_SAMPLES`, the same for every method; ``False``
+    on the scene's ``params.n_samples`` fixed samples (the CLI's ``--n-samples N``).  ``isolate``
+    as in
     :func:`~mmdopt.bench.executors.run_tasks`: ``True`` (the CLI) plans every task in a worker
     process with one XLA thread, so the rows do not depend on ``jobs`` or the executor; the
     manifest records where results were computed and a folder refuses a mix.
@@ -204,9 +211,15 @@ def run_frontier(
             # also inside ``params``; named on their own so a refusal names them
             n_validation=params.n_validation,
             n_samples=params.n_samples,
+            planning_samples=planning_samples(forecast),
         ),
-        # folders written before the manifest recorded them
-        aliases={"workers": [MISSING], "n_validation": [MISSING], "n_samples": [MISSING]},
+        # folders written before the manifest recorded them (with the fixed samples)
+        aliases={
+            "workers": [MISSING],
+            "n_validation": [MISSING],
+            "n_samples": [MISSING],
+            "planning_samples": [] if forecast else [MISSING],
+        },
     )
     pairs = [(m, k) for m in methods for k in risks[m]]
     tasks, reused = [], 0
@@ -214,7 +227,7 @@ def run_frontier(
         todo = [(m, k) for m, k in pairs if not _task_path(out, i, m, k).exists()]
         reused += len(pairs) - len(todo)
         if todo:
-            tasks.append((i, seed, params.to_dict(), todo, backend, str(out), config))
+            tasks.append((i, seed, params.to_dict(), todo, backend, str(out), config, forecast))
     t0 = time.perf_counter()
     done = run_tasks(
         _frontier_task,
@@ -252,7 +265,8 @@ def run_frontier(
 
 def frontier_points(rows: Sequence[Mapping[str, Any]]) -> list[dict[str, Any]]:
     """Per (method, risk): scenes, mean / LQ / min collision-free (scaled to 1000 validation
-    samples), mean progress (m), median plan time (s), feasible share; the measured collision
+    samples), mean progress (m), median plan time (s), feasible share, median planning futures
+    per obstacle (``n_planning``); the measured collision
     rate pooled over scenes (``collisions`` of ``validation`` futures, ``rate``) with its 95 %
     Clopper–Pearson interval (``rate_lo``, ``rate_hi``); the share of plans whose status begins
     with "ok" (``ok_share``) and the mean :attr:`mmdopt.Plan.risk_bound` (``risk_bound``); NaN
@@ -276,6 +290,9 @@ def frontier_points(rows: Sequence[Mapping[str, Any]]) -> list[dict[str, Any]]:
                 progress_m=float(np.mean([float(r["progress_m"]) for r in rs])),
                 plan_time_s=float(np.median([float(r["plan_time_s"]) for r in rs])),
                 feasible=float(np.mean([bool(r["feasible"]) for r in rs])),
+                n_planning=float(
+                    np.median([_num(r.get("n_planning", r.get("n_samples"))) for r in rs])
+                ),
                 **_measured(rs),
             )
         )

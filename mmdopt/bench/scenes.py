@@ -18,6 +18,12 @@ independent of each other and of how many scenes are generated, and the validati
 independent of the planning samples (the reference re-used the same speed draws in every scene
 and left the lateral draws unseeded).
 
+Instead of the fixed planning samples, a planner may draw as many futures as its risk level needs
+from the scene's own generative model: :meth:`Scene.forecast` is a :class:`mmdopt.predict.Forecast`
+of a :class:`ScenePredictor` (the ``mmdopt.predict`` protocol; its random stream is derived from
+the JAX key it is given and tagged with ``role`` 4, so it is independent of the validation
+samples).
+
 Presets (:data:`PRESETS`):
 
 ``paper100``     the paper's protocol: 100 scenes, ``x0 ~ U[45, 75]`` m, ``y0`` ∈ {−3, 0} m
@@ -60,9 +66,13 @@ __all__ = [
     "ROLE_PLANNING",
     "ROLE_VALIDATION",
     "ROLE_PLANNER_KEY",
+    "ROLE_FORECAST",
+    "ScenePredictor",
 ]
 
-ROLE_PARAMS, ROLE_PLANNING, ROLE_VALIDATION, ROLE_PLANNER_KEY = 0, 1, 2, 3
+ROLE_PARAMS, ROLE_PLANNING, ROLE_VALIDATION, ROLE_PLANNER_KEY, ROLE_FORECAST = 0, 1, 2, 3, 4
+#: spacing (s) and rows of the constant-velocity history of :meth:`Scene.forecast`
+HISTORY_DT, HISTORY_ROWS = 0.1, 10
 
 HORIZON_S = 15.0
 NUM_STEPS = 100
@@ -312,6 +322,80 @@ class Scene:
         import jax
 
         return jax.random.PRNGKey(self.planner_seed)
+
+    def predictor(self) -> ScenePredictor:
+        """The scene's generative model of the obstacle as a predictor (:class:`ScenePredictor`)."""
+        return ScenePredictor(self.params, self.x0, self.y0, self.intent_probs)
+
+    def forecast(self, min_samples: int = 100, max_samples: int = 5000):
+        """The obstacle as a :class:`mmdopt.predict.Forecast` of :meth:`predictor`: a plan with a
+        risk level ε draws n(ε) = :func:`mmdopt.risk.samples_for_risk` (ε, 1) futures, within
+        ``min_samples`` … ``max_samples`` (the history: ``HISTORY_ROWS`` positions at
+        ``obstacle_speed`` along the road, ``HISTORY_DT`` s apart; the context: the scene's
+        straight road on the planner's grid)."""
+        from mmdopt.predict import Forecast, PredictionContext
+
+        p = self.params
+        back = HISTORY_DT * np.arange(HISTORY_ROWS - 1, -1, -1)
+        hist = np.stack([self.x0 - p.obstacle_speed * back, np.full(HISTORY_ROWS, self.y0)], -1)
+        line = np.array([[self.x0 - 100.0, 0.0], [self.x0 + 2000.0, 0.0]])
+        ctx = PredictionContext(
+            times=self.t,
+            dt_history=HISTORY_DT,
+            centerline=line[None],
+            lane_width=np.array([3.5]),
+            has_left=np.array([len(p.intent_offsets) > 1]),
+            has_right=np.array([False]),
+            gaps=np.full((1, 6), 100.0),
+            rel_speed=np.zeros((1, 6)),
+        )
+        return Forecast(self.predictor(), hist[None], ctx, min_samples, max_samples)
+
+
+@dataclass(frozen=True, eq=False)
+class ScenePredictor:
+    """The synthetic scene's own model of its obstacle as a predictor (the ``mmdopt.predict``
+    protocol): every future draws an intent with the scene's probabilities and a Gaussian speed
+    set-point, through :func:`sample_obstacle`, exactly as the planning and validation samples.
+
+    ``sample(history, context, n, key)`` returns (1, n, K, 2) futures on the scene's grid
+    (``context.times`` must be it); the history and context are checked but the model is the
+    scene's, not learned from them.  The random stream is ``SeedSequence([*key_data,
+    ROLE_FORECAST])``: deterministic for a given JAX key, and independent of the scene's planning
+    (``role`` 1) and validation (``role`` 2) streams.
+    """
+
+    params: SceneParams
+    x0: float
+    y0: float
+    probs: np.ndarray
+    name: str = "scene model"
+
+    def sample(self, history, context, n: int, key) -> np.ndarray:
+        import jax
+
+        from mmdopt.predict.base import check_history, check_key, check_n
+
+        n = check_n(n)
+        check_history(history, context)
+        if context.num_obstacles != 1:
+            raise ValueError(
+                f"context must describe the scene's 1 obstacle, got {context.num_obstacles}"
+            )
+        t = np.linspace(0, HORIZON_S, NUM_STEPS)
+        if context.times.shape != t.shape or not np.allclose(context.times, t, atol=1e-9):
+            raise ValueError(
+                f"context.times must be the scene's grid ({NUM_STEPS} points over {HORIZON_S:g} s)"
+            )
+        k = check_key(key)
+        if jax.dtypes.issubdtype(np.asarray(k).dtype if not hasattr(k, "dtype") else k.dtype,
+                                 jax.dtypes.prng_key):  # fmt: skip
+            k = jax.random.key_data(k)
+        data = np.asarray(k, np.uint32).ravel()
+        ss = np.random.SeedSequence([*data.tolist(), ROLE_FORECAST])
+        rngs = tuple(np.random.default_rng(c) for c in ss.spawn(2))
+        xy, _, _ = sample_obstacle(rngs, self.params, self.x0, self.y0, self.probs, n)
+        return xy[None]
 
 
 @functools.lru_cache(maxsize=1)

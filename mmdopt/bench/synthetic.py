@@ -58,16 +58,18 @@ def plan_scene(
     backend: str = PLANNER_BACKEND,
     key: Any = None,
     reduced_set: Any = None,
+    obstacles: Any = None,
 ) -> tuple[mmdopt.Plan, mmdopt.Road, float]:
     """Run Algorithm 1 (``mmdopt.plan``) on a scene with ``config`` as given; returns
-    ``(plan, road, wall_s)``."""
+    ``(plan, road, wall_s)``.  ``obstacles``: the scene's fixed planning samples by default, or
+    e.g. :meth:`Scene.forecast` (then the plan draws n(ε) futures)."""
     road = scene.road()
     cfg = mmdopt.MMDOptConfig() if config is None else config
     t0 = time.perf_counter()
     plan = mmdopt.plan(
         scene.ego(),
         road,
-        scene.obstacles,
+        scene.obstacles if obstacles is None else obstacles,
         method=method,
         config=cfg,
         projector=backend,
@@ -78,15 +80,42 @@ def plan_scene(
     return plan, road, time.perf_counter() - t0
 
 
+#: the most futures per obstacle a plan through the scene's predictor draws (:meth:`Scene.forecast`)
+MAX_FORECAST_SAMPLES = 5000
+
+
 def run_scene(
-    scene: Scene, method: str = "mmd", *, config=None, backend: str = PLANNER_BACKEND
+    scene: Scene,
+    method: str = "mmd",
+    *,
+    config=None,
+    backend: str = PLANNER_BACKEND,
+    forecast: bool = False,
+    max_samples: int = MAX_FORECAST_SAMPLES,
 ) -> tuple[dict[str, Any], mmdopt.Plan]:
-    """Plan and evaluate one scene with one method: ``(row, plan)``."""
+    """Plan and evaluate one scene with one method: ``(row, plan)``.
+
+    ``forecast=False`` plans on the scene's fixed planning samples; ``True`` through the scene's
+    predictor (:meth:`Scene.forecast`): the plan draws n(ε) futures (at most ``max_samples``),
+    the same ones for every method at a given risk level (the draw's key is the scene's planner
+    key).  ``n_planning`` (= ``n_samples``) and ``collision_free_planning`` of the row are those
+    of the futures the plan met."""
     cfg = scene_config(scene, config)
-    plan, road, wall = plan_scene(scene, method, config=cfg, backend=backend)
+    obstacles = None
+    if forecast:
+        obstacles = scene.forecast(min_samples=scene.params.n_samples, max_samples=max_samples)
+    plan, road, wall = plan_scene(scene, method, config=cfg, backend=backend, obstacles=obstacles)
     row = evaluate_plan(plan, scene, road)
+    diag = getattr(plan, "diagnostics", {}) or {}
+    n_plan = int(diag.get("n_planning_samples", row["n_samples"]))
+    if forecast:
+        row.update(
+            n_samples=n_plan,
+            collision_free_planning=int(np.min(diag["collision_free_planning"])),
+        )
     row.update(
         method=method,
+        n_planning=n_plan,
         plan_time_s=_float(getattr(plan, "plan_time_s", wall)),
         wall_s=wall,
         backend=backend,
@@ -109,7 +138,7 @@ def _row_path(out: Path, scene: int, method: str) -> Path:
 
 def _scene_task(args) -> int:
     """Worker: generate scene ``index``, plan the missing methods, write one file per method."""
-    index, seed, params_dict, methods, backend, out, config = args
+    index, seed, params_dict, methods, backend, out, config, forecast = args
     params = SceneParams.from_dict(params_dict)
     scene = make_scene(index, seed, params)
     done = 0
@@ -117,7 +146,7 @@ def _scene_task(args) -> int:
         path = _row_path(Path(out), index, m)
         if path.exists():
             continue
-        row, plan = run_scene(scene, m, config=config, backend=backend)
+        row, plan = run_scene(scene, m, config=config, backend=backend, forecast=forecast)
         rec = dict(row)
         rec["plan_xy"] = np.stack([np.asarray(plan.x), np.asarray(plan.y)], -1).round(4)
         write_json(path, rec)
@@ -125,7 +154,9 @@ def _scene_task(args) -> int:
     return done
 
 
-def _manifest(seed, params: SceneParams, backend, config, layout: str = "in-process"):
+def _manifest(
+    seed, params: SceneParams, backend, config, layout: str = "in-process", forecast=False
+):
     # the effective config (the default when none is given): the same settings, the same manifest
     cfg = mmdopt.MMDOptConfig() if config is None else config
     return dict(
@@ -134,13 +165,20 @@ def _manifest(seed, params: SceneParams, backend, config, layout: str = "in-proc
         backend=backend,
         config=config_overrides(cfg),
         workers=layout,
+        planning_samples=planning_samples(forecast),
     )
 
 
-def _manifest_aliases(config) -> dict[str, list[Any]]:
-    """Older manifests had no ``workers`` key.  (They recorded the default config as ``{}``:
-    the time-linear margins, which are no longer the default, so such a folder is refused.)"""
-    return {"workers": [MISSING]}
+def planning_samples(forecast: bool) -> str:
+    """The manifest's description of where a sweep's planning futures come from."""
+    return f"forecast n(eps) <= {MAX_FORECAST_SAMPLES}" if forecast else "fixed"
+
+
+def _manifest_aliases(config, forecast: bool = False) -> dict[str, list[Any]]:
+    """Older manifests had no ``workers`` key, nor ``planning_samples`` (they planned on the
+    fixed samples).  (They recorded the default config as ``{}``: the time-linear margins, which
+    are no longer the default, so such a folder is refused.)"""
+    return {"workers": [MISSING], "planning_samples": [] if forecast else [MISSING]}
 
 
 def check_sweep_config(
@@ -245,8 +283,10 @@ def run_synthetic(
     executor: str = "local",
     address: str | None = None,
     isolate: bool = False,
+    forecast: bool = False,
 ) -> dict[str, Any]:
-    """Plan and score a sweep of synthetic scenes; resumable and parallel.
+    """Plan and score a sweep of synthetic scenes; resumable and parallel.  ``forecast`` as in
+    :func:`run_scene` (``True``: every plan draws n(ε) futures from the scene's predictor).
 
     Writes ``out/scenes/scene_XXXX__METHOD.json`` (one per finished plan; existing ones are
     reused, never recomputed), ``out/results.csv`` (all rows,
@@ -267,7 +307,9 @@ def run_synthetic(
     (out / "scenes").mkdir(parents=True, exist_ok=True)
     layout = worker_layout(jobs, executor, isolate)
     check_manifest(
-        out, _manifest(seed, params, backend, config, layout), aliases=_manifest_aliases(config)
+        out,
+        _manifest(seed, params, backend, config, layout, forecast),
+        aliases=_manifest_aliases(config, forecast),
     )
     remove_temp_files(out / "scenes")
     remove_temp_files(out)
@@ -282,7 +324,7 @@ def run_synthetic(
         ]
         reused += len(methods) - len(missing)
         if missing:
-            todo.append((i, seed, params.to_dict(), missing, backend, str(out), config))
+            todo.append((i, seed, params.to_dict(), missing, backend, str(out), config, forecast))
 
     t0 = time.perf_counter()
     try:
