@@ -43,6 +43,8 @@ from . import algorithm
 from .algorithm import PLANNER_PROJECTOR, MMDOptConfig
 from .api import Plan, Road, plan
 from .baselines import PLAN_METHODS
+from .safety import RSSConfig, obstacle_states_from_cartesian, obstacle_states_from_samples
+from .safety import shield as rss_shield
 
 __all__ = [
     "Observation",
@@ -71,6 +73,10 @@ class Observation:
     time : simulation time (s)
     info : anything the source wants recorded with the step (e.g. ``predict_s``, the predictor's
         wall time)
+    obstacle_states : optional ``(M, 4)`` Cartesian ``(x, y, vx, vy)`` of the obstacles now, for
+        the safety shield (:mod:`mmdopt.safety`); may list more cars than ``obstacles`` (all
+        that the sensors see).  ``None``: the shield derives them from the samples at the first
+        two grid times
     """
 
     ego: frenet.EgoState
@@ -78,6 +84,7 @@ class Observation:
     obstacles: np.ndarray
     time: float = 0.0
     info: dict = field(default_factory=dict)
+    obstacle_states: np.ndarray | None = None
 
 
 @dataclass(frozen=True)
@@ -116,6 +123,9 @@ class RecedingConfig:
     warm_start : warm-start each plan from the previous solution shifted by δ (False: all cold)
     max_obstacles : pad/truncate the obstacle axis to this many (``None``: as observed).  A fixed
         O keeps the jitted planner from recompiling for every new number of neighbours.
+    shield : :class:`mmdopt.safety.RSSConfig` to check every plan against RSS's longitudinal safe
+        distance before it runs and brake (a checked fallback) when it fails
+        (:func:`mmdopt.safety.shield`); ``None`` (default): plans run unchecked
     """
 
     dt: float = 0.5
@@ -125,6 +135,7 @@ class RecedingConfig:
     projector: str = PLANNER_PROJECTOR
     warm_start: bool = True
     max_obstacles: int | None = None
+    shield: RSSConfig | None = None
 
     def __post_init__(self) -> None:
         if not (isinstance(self.dt, int | float) and math.isfinite(self.dt) and self.dt > 0):
@@ -154,12 +165,20 @@ class RecedingConfig:
                 "RecedingConfig.max_obstacles must be None or an int >= 1, got "
                 f"{self.max_obstacles!r}"
             )
+        if self.shield is not None and not isinstance(self.shield, RSSConfig):
+            raise ValueError(
+                "RecedingConfig.shield must be None or an mmdopt.safety.RSSConfig, got "
+                f"{type(self.shield).__name__}"
+            )
 
 
 @dataclass(frozen=True)
 class StepRecord:
     """One replan: simulation time, plan time and outcome (JSON-friendly scalars); ``info`` is
-    the observation's, ``timings`` the plan's own (``reduced_set_s``, ``cem_s``, ...)."""
+    the observation's, ``timings`` the plan's own (``reduced_set_s``, ``cem_s``, ...);
+    ``intervened``: the safety shield replaced the plan by its braking fallback, ``shield`` why
+    (empty without a shield or when the plan passed).  ``cost``, ``feasible``, ``fallback`` and
+    ``status`` are the planner's, before the shield."""
 
     time: float
     plan_time_s: float
@@ -175,6 +194,8 @@ class StepRecord:
     d: float
     info: dict = field(default_factory=dict)
     timings: dict = field(default_factory=dict)
+    intervened: bool = False
+    shield: str = ""
 
 
 @dataclass
@@ -208,6 +229,7 @@ class RecedingResult:
             "over_budget": self.n_over_budget,
             "budget_s": float(self.budget_s),
             "fallbacks": int(sum(r.fallback for r in self.steps)),
+            "interventions": int(sum(r.intervened for r in self.steps)),
         }
 
 
@@ -254,6 +276,17 @@ def _shifted(p: Plan, dt: float):
     (:func:`mmdopt.algorithm.shift`); ``None`` for a plan without state (a braking fallback)."""
     state = getattr(p, "state", None)
     return None if state is None else algorithm.shift(p.config, state, dt)
+
+
+def _shielded(p: Plan, obs: Observation, rc: RecedingConfig, t_grid: np.ndarray):
+    """``rc.shield`` applied to ``p``: the obstacles' current Frenet states from
+    ``obs.obstacle_states`` when given, else from the prediction samples."""
+    path = obs.road.path
+    if obs.obstacle_states is not None:
+        states = obstacle_states_from_cartesian(path, obs.obstacle_states)
+    else:
+        states = obstacle_states_from_samples(path, obs.obstacles, t_grid)
+    return rss_shield(p, path, states, rc.shield, executed=rc.dt)
 
 
 def warm_up(obs: Observation, receding: RecedingConfig, config: MMDOptConfig, key=None) -> float:
@@ -322,6 +355,11 @@ def run_receding(
         t0 = time.perf_counter()
         p, warm_used = _plan_once(obs, rc, config, jax.random.fold_in(key, i), warm, t_grid)
         plan_s = time.perf_counter() - t0
+        planned, shield_rec = p, None
+        if rc.shield is not None:
+            t1 = time.perf_counter()
+            p, shield_rec = _shielded(planned, obs, rc, t_grid)
+            planned.diagnostics["shield_s"] = time.perf_counter() - t1
         out = source.step(p, rc.dt)
         steps.append(
             StepRecord(
@@ -330,19 +368,21 @@ def run_receding(
                 over_budget=plan_s > rc.budget_s,
                 warm_started=warm_used,
                 n_obstacles=int(np.asarray(obs.obstacles).shape[0]),
-                cost=float(p.cost),
-                feasible=bool(p.feasible),
-                fallback=bool(p.fallback),
-                status=p.status_text,
+                cost=float(planned.cost),
+                feasible=bool(planned.feasible),
+                fallback=bool(planned.fallback),
+                status=planned.status_text,
                 speed=float(p.speed[0]),
                 s=float(p.s[0]),
                 d=float(p.d[0]),
                 info=dict(obs.info),
                 timings={
                     k: float(v)
-                    for k, v in p.diagnostics.items()
+                    for k, v in planned.diagnostics.items()
                     if k.endswith("_s") and isinstance(v, int | float)
                 },
+                intervened=bool(shield_rec is not None and shield_rec.intervened),
+                shield="" if shield_rec is None else shield_rec.reason,
             )
         )
         if callback is not None:

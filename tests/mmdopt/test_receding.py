@@ -142,6 +142,26 @@ def test_closed_loop_keeps_clear_of_the_slower_car(run):
     assert src.min_gap > 8.0
 
 
+def test_the_rss_shield_brakes_behind_a_close_slower_car_and_records_it(run):
+    from mmdopt.safety import RSSConfig
+
+    _, plain = run
+    assert not any(r.intervened or r.shield for r in plain.steps)  # no shield: nothing checked
+    assert plain.summary()["interventions"] == 0
+    # 20 m behind a car 7 m/s slower: no plan that keeps driving for δ passes RSS's rule
+    src = TwoLaneScene(duration=1.5, gap=20.0)
+    res = run_receding(
+        src,
+        RecedingConfig(dt=0.5, budget_s=60.0, shield=RSSConfig()),
+        config=CFG,
+        key=jax.random.PRNGKey(3),
+    )
+    first = res.steps[0]
+    assert first.intervened and "obstacle 0" in first.shield
+    assert res.summary()["interventions"] >= 1
+    assert src.min_gap > RSSConfig().contact  # the fallback kept it off the car
+
+
 def test_same_key_same_run():
     a = run_receding(TwoLaneScene(duration=1.5), config=CFG, key=jax.random.PRNGKey(7))
     b = run_receding(TwoLaneScene(duration=1.5), config=CFG, key=jax.random.PRNGKey(7))

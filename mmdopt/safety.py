@@ -1,0 +1,349 @@
+"""A last line of defence for any planner: the longitudinal safe distance of
+Responsibility-Sensitive Safety (RSS; Shalev-Shwartz, Shammah and Shashua, "On a formal model of
+safe and scalable self-driving cars", 2017, Definition 1) checked on every plan before it is
+executed, with a braking fallback that is itself checked.
+
+::
+
+    from mmdopt.safety import RSSConfig, shield
+
+    plan, record = shield(plan, road.path, obstacles, RSSConfig(), executed=0.5)
+    record.intervened, record.reason
+
+**The rule.**  A front car at speed ``v_f`` may brake at up to ``b_max``; the ego (the rear car)
+reacts after a response time ρ, accelerating at up to ``a_max`` meanwhile, and then brakes at
+least at ``b_min``.  The gap between them must be at least (:func:`rss_safe_distance`)
+
+    d_min = [v_r ρ + ½ a_max ρ² + (v_r + ρ a_max)² / (2 b_min) − v_f² / (2 b_max)]₊ .
+
+**The check** (:func:`check_plan`) applies the same worst case to the plan that is about to run:
+the ego executes the plan for ``executed`` seconds (the receding-horizon step δ: the next
+chance to react) and then brakes at ``b_min`` to a stop at the lateral offset it has reached;
+every obstacle ahead whose lateral offset overlaps the ego's corridor brakes at ``b_max`` from its
+current position and speed.  The plan passes when the longitudinal centre-to-centre distance
+stays at least ``contact + margin`` until both have stopped.  With the plan's own accelerations
+in place of the bound ``a_max`` during ρ = ``executed``, this is RSS's condition for that plan
+(a plan that accelerates at ``a_max`` passes exactly when the gap is at least ``d_min`` plus the
+contact distance).  **The fallback** (:func:`braking_plan`) holds the current lateral offset and
+brakes at ``b_min`` (then harder, up to ``b_emergency``) from now; it is checked with the same
+rule (``executed = 0``), and the gentlest braking that passes is used.
+
+**What it guarantees.**  Suppose the first state passes the fallback check, every obstacle in
+the corridor brakes at most at ``b_max`` and does not change its lateral offset, the obstacle
+states are exact and the ego executes its plans to within ``margin``.  Then no rear-end collision
+with those obstacles happens: a plan runs only if the check passed, so at the next replan the
+braking fallback (the continuation the check assumed) passes again, by induction.  Not covered:
+an obstacle that cuts into the corridor closer than the safe distance (RSS assigns that to the
+car cutting in), obstacles behind or beside the ego, obstacles braking harder than ``b_max``
+(a crashed car), and lateral safety (RSS's lateral distance is not checked).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+from dataclasses import dataclass
+
+import numpy as np
+
+import frenet
+
+from .api import Plan, PlanStatus
+
+__all__ = [
+    "RSSConfig",
+    "PlanCheck",
+    "ShieldRecord",
+    "rss_safe_distance",
+    "obstacle_states_from_samples",
+    "obstacle_states_from_cartesian",
+    "check_plan",
+    "braking_plan",
+    "shield",
+]
+
+
+@dataclass(frozen=True)
+class RSSConfig:
+    """Parameters of the RSS longitudinal rule and of the shield (SI units).
+
+    response_time : ρ of :func:`rss_safe_distance` (s)
+    a_max : the ego's largest acceleration during ρ in :func:`rss_safe_distance` (m/s²)
+    b_min : the braking the ego is guaranteed to apply after ρ (m/s², > 0)
+    b_max : the hardest braking of a front car (m/s², ≥ ``b_min`` in RSS's usual setting)
+    b_emergency : the hardest braking the fallback may use when ``b_min`` does not pass (m/s²,
+        ≥ ``b_min``)
+    contact : longitudinal centre-to-centre distance at which two cars touch (m; a car length)
+    margin : extra gap for tracking and state errors (m, ≥ 0)
+    lateral_overlap : an obstacle is in the ego's corridor when its lateral offset is closer
+        than this to the ego's (m; the car width plus a lateral margin)
+    """
+
+    response_time: float = 0.5
+    a_max: float = 3.0
+    b_min: float = 6.0
+    b_max: float = 6.0
+    b_emergency: float = 8.0
+    contact: float = 5.0
+    margin: float = 1.0
+    lateral_overlap: float = 2.5
+
+    def __post_init__(self) -> None:
+        for name in ("response_time", "a_max", "margin"):
+            v = getattr(self, name)
+            if not (isinstance(v, int | float) and math.isfinite(v) and v >= 0):
+                raise ValueError(f"RSSConfig.{name} must be a finite number >= 0, got {v!r}")
+        for name in ("b_min", "b_max", "b_emergency", "contact", "lateral_overlap"):
+            v = getattr(self, name)
+            if not (isinstance(v, int | float) and math.isfinite(v) and v > 0):
+                raise ValueError(f"RSSConfig.{name} must be a finite number > 0, got {v!r}")
+        if self.b_emergency < self.b_min:
+            raise ValueError(
+                f"RSSConfig.b_emergency ({self.b_emergency}) must be >= b_min ({self.b_min})"
+            )
+
+
+@dataclass(frozen=True)
+class PlanCheck:
+    """The result of :func:`check_plan`.
+
+    safe : every obstacle in the corridor keeps the required gap
+    margin : the least (gap − contact − margin) over the checked obstacles and times (m; +inf
+        when no obstacle is in the corridor ahead); negative when unsafe
+    obstacle : index of the obstacle that sets ``margin`` (−1: none)
+    time : when that least gap occurs (s from now)
+    n_checked : obstacles in the corridor ahead
+    """
+
+    safe: bool
+    margin: float
+    obstacle: int
+    time: float
+    n_checked: int
+
+
+@dataclass(frozen=True)
+class ShieldRecord:
+    """What :func:`shield` did with one plan (JSON-friendly scalars).
+
+    intervened : the plan was replaced by a braking fallback
+    reason : why (empty when the plan passed)
+    plan_margin : :attr:`PlanCheck.margin` of the planner's plan (m)
+    fallback_decel : the fallback's braking (m/s²; 0 when not intervened)
+    fallback_safe : the fallback passed the check (``False``: even ``b_emergency`` does not; the
+        hardest braking is used)
+    n_checked : obstacles in the corridor ahead
+    """
+
+    intervened: bool
+    reason: str
+    plan_margin: float
+    fallback_decel: float
+    fallback_safe: bool
+    n_checked: int
+
+
+# ------------------------------------------------------------------------------------ the rule
+def rss_safe_distance(v_rear, v_front, config: RSSConfig | None = None):
+    """RSS's longitudinal safe distance (m) between a rear car at ``v_rear`` and a front car at
+    ``v_front`` (m/s, ≥ 0; arrays broadcast), Definition 1 of Shalev-Shwartz et al. (2017):
+    ``[v_r ρ + ½ a_max ρ² + (v_r + ρ a_max)²/(2 b_min) − v_f²/(2 b_max)]₊``.  The gap is between
+    the rear car's front and the front car's rear."""
+    c = RSSConfig() if config is None else config
+    if not isinstance(c, RSSConfig):
+        raise ValueError(f"config must be an RSSConfig, got {type(c).__name__}")
+    vr = np.asarray(v_rear, dtype=np.float64)
+    vf = np.asarray(v_front, dtype=np.float64)
+    if not (np.all(np.isfinite(vr)) and np.all(vr >= 0)):
+        raise ValueError("v_rear must be finite and >= 0")
+    if not (np.all(np.isfinite(vf)) and np.all(vf >= 0)):
+        raise ValueError("v_front must be finite and >= 0")
+    rho, a = c.response_time, c.a_max
+    d = (
+        vr * rho
+        + 0.5 * a * rho**2
+        + (vr + rho * a) ** 2 / (2.0 * c.b_min)
+        - vf**2 / (2.0 * c.b_max)
+    )
+    out = np.maximum(d, 0.0)
+    return float(out) if out.ndim == 0 else out
+
+
+# ------------------------------------------------------------------------- obstacles' states
+def obstacle_states_from_samples(path: frenet.ReferencePath, obstacles, t) -> np.ndarray:
+    """Current Frenet states ``(O, 3)`` = ``(s, d, ṡ)`` of obstacles from prediction samples
+    ``(O, n, K, 2)`` on the grid ``t`` (K,): the mean position at ``t[0]`` and the slowest
+    sample's speed along the path over ``[t[0], t[1]]`` (the lower speed is the cautious one for
+    a car ahead).  Speeds are clipped at 0."""
+    arr = np.asarray(obstacles, dtype=np.float64)
+    t = np.asarray(t, dtype=np.float64)
+    if arr.ndim != 4 or arr.shape[-1] != 2 or arr.shape[1] < 1:
+        raise ValueError(f"obstacles must have shape (O, n, K, 2), got {arr.shape}")
+    if t.ndim != 1 or t.shape[0] != arr.shape[2] or t.shape[0] < 2 or not t[1] > t[0]:
+        raise ValueError(f"t must be an increasing (K,) grid with K = {arr.shape[2]} >= 2")
+    if arr.shape[0] == 0:
+        return np.zeros((0, 3))
+    s0, d0 = path.to_frenet(arr[:, :, 0, 0], arr[:, :, 0, 1])
+    s1, _ = path.to_frenet(arr[:, :, 1, 0], arr[:, :, 1, 1])
+    v = np.min((s1 - s0) / (t[1] - t[0]), axis=1)
+    return np.stack([s0.mean(axis=1), d0.mean(axis=1), np.maximum(v, 0.0)], axis=-1)
+
+
+def obstacle_states_from_cartesian(path: frenet.ReferencePath, states) -> np.ndarray:
+    """Frenet states ``(O, 3)`` = ``(s, d, ṡ)`` from Cartesian ``(O, 4)`` = ``(x, y, vx, vy)``
+    (the velocity projected on the path's tangent, ``ṡ = v·t̂ / (1 − dκ)``, clipped at 0)."""
+    st = np.asarray(states, dtype=np.float64)
+    if st.ndim != 2 or st.shape[1] != 4 or not np.all(np.isfinite(st)):
+        raise ValueError(f"states must be a finite (O, 4) array (x, y, vx, vy), got {st.shape}")
+    if st.shape[0] == 0:
+        return np.zeros((0, 3))
+    s, d = path.to_frenet(st[:, 0], st[:, 1])
+    th = path.heading(s)
+    one = np.maximum(1.0 - d * path.curvature(s), 1e-6)
+    vs = (st[:, 2] * np.cos(th) + st[:, 3] * np.sin(th)) / one
+    return np.stack([s, d, np.maximum(vs, 0.0)], axis=-1)
+
+
+# ----------------------------------------------------------------------------------- the check
+def _braking(s0: float, v0: float, b: float, t: np.ndarray) -> np.ndarray:
+    """Position along the path of a car braking at ``b`` from ``(s0, v0)`` until it stops."""
+    v0 = max(v0, 0.0)
+    tt = np.minimum(t, v0 / b)
+    return s0 + v0 * tt - 0.5 * b * tt**2
+
+
+def check_plan(
+    t,
+    s,
+    d,
+    vs,
+    obstacles: np.ndarray,
+    config: RSSConfig | None = None,
+    *,
+    executed: float,
+) -> PlanCheck:
+    """Check a plan ``(t, s, d, ṡ)`` (K,) in the Frenet frame against RSS's longitudinal rule.
+
+    The ego follows the plan for ``executed`` seconds (0: not at all), then brakes at
+    ``config.b_min`` to a stop at the lateral offset reached; each obstacle of ``obstacles``
+    ``(O, 3)`` = current ``(s, d, ṡ)`` that is ahead (``s > s(0)``) and in the corridor (its
+    offset closer than ``lateral_overlap`` to the plan's over ``[0, executed]``) brakes at
+    ``config.b_max`` from now.  Safe when the distance along the path stays
+    ``≥ contact + margin`` until both have stopped (the distance is concave while both brake, so
+    it is checked on a 20 ms grid plus the instants where a phase ends).
+    """
+    c = RSSConfig() if config is None else config
+    if not isinstance(c, RSSConfig):
+        raise ValueError(f"config must be an RSSConfig, got {type(c).__name__}")
+    t, s, d, vs = (np.asarray(a, dtype=np.float64) for a in (t, s, d, vs))
+    if t.ndim != 1 or t.shape[0] < 2 or any(a.shape != t.shape for a in (s, d, vs)):
+        raise ValueError("t, s, d, vs must be (K,) arrays of one length K >= 2")
+    if not all(np.all(np.isfinite(a)) for a in (t, s, d, vs)):
+        raise ValueError("t, s, d, vs must be finite")
+    ob = np.asarray(obstacles, dtype=np.float64).reshape(-1, 3)
+    if not np.all(np.isfinite(ob)):
+        raise ValueError("obstacles must be a finite (O, 3) array of (s, d, vs)")
+    ex = float(executed)
+    if not (math.isfinite(ex) and 0.0 <= ex <= t[-1] - t[0]):
+        raise ValueError(f"executed must be in [0, {t[-1] - t[0]:g}] s, got {executed!r}")
+    tp = t - t[0]
+    d_ex = np.append(d[tp <= ex], np.interp(ex, tp, d))
+    s_ex, v_ex = float(np.interp(ex, tp, s)), max(float(np.interp(ex, tp, vs)), 0.0)
+    ahead = ob[:, 0] > s[0]
+    lateral = np.min(np.abs(ob[:, 1][:, None] - d_ex[None, :]), axis=1)
+    idx = np.flatnonzero(ahead & (lateral < c.lateral_overlap))
+    if idx.size == 0:
+        return PlanCheck(True, math.inf, -1, 0.0, 0)
+    t_stop = ex + v_ex / c.b_min
+    t_front = ob[idx, 2] / c.b_max
+    t_end = max(t_stop, float(np.max(t_front))) + 1e-3
+    tc = np.unique(np.concatenate([np.arange(0.0, t_end, 0.02), [ex, t_stop, t_end], t_front]))
+    tc = tc[tc <= t_end]
+    ego = np.where(
+        tc <= ex, np.interp(tc, tp, s), _braking(s_ex, v_ex, c.b_min, np.maximum(tc - ex, 0.0))
+    )
+    need = c.contact + c.margin
+    best = (math.inf, -1, 0.0)
+    for o in idx:
+        gap = _braking(ob[o, 0], ob[o, 2], c.b_max, tc) - ego - need
+        k = int(np.argmin(gap))
+        if gap[k] < best[0]:
+            best = (float(gap[k]), int(o), float(tc[k]))
+    return PlanCheck(best[0] >= 0.0, best[0], best[1], best[2], int(idx.size))
+
+
+# -------------------------------------------------------------------------------- the fallback
+def braking_plan(plan: Plan, path: frenet.ReferencePath, decel: float, *, reason: str = "") -> Plan:
+    """The braking fallback of ``plan``: from the plan's first state, hold the lateral offset
+    and brake at ``decel`` (m/s²) to a stop, on the plan's time grid; a :class:`Plan` with status
+    FALLBACK, no Algorithm 1 state (the next plan starts cold) and ``message`` ``reason``."""
+    b = float(decel)
+    if not (math.isfinite(b) and b > 0):
+        raise ValueError(f"decel must be a finite number > 0, got {decel!r}")
+    t = np.asarray(plan.t, dtype=np.float64)
+    tp = t - t[0]
+    s0, d0, v0 = float(plan.s[0]), float(plan.d[0]), max(float(plan.vs[0]), 0.0)
+    s = _braking(s0, v0, b, tp)
+    vs = np.maximum(v0 - b * tp, 0.0)
+    as_ = np.where(vs > 0.0, -b, 0.0)
+    d = np.full_like(t, d0)
+    zero = np.zeros_like(t)
+    x, y, heading, speed = path.trajectory_to_cartesian(s, d, vs, zero)
+    diag = dict(plan.diagnostics)
+    diag["shield_decel"] = b
+    return dataclasses.replace(
+        plan,
+        x=x,
+        y=y,
+        heading=heading,
+        speed=speed,
+        s=s,
+        d=d,
+        vs=vs,
+        vd=zero,
+        as_=as_,
+        ad=zero.copy(),
+        cost=float("nan"),
+        status=PlanStatus.FALLBACK,
+        message=reason,
+        diagnostics=diag,
+        state=None,
+    )
+
+
+def shield(
+    plan: Plan,
+    path: frenet.ReferencePath,
+    obstacles: np.ndarray,
+    config: RSSConfig | None = None,
+    *,
+    executed: float,
+) -> tuple[Plan, ShieldRecord]:
+    """Check ``plan`` with :func:`check_plan` (``executed`` seconds of it run before the next
+    check) against ``obstacles`` ``(O, 3)`` = current ``(s, d, ṡ)`` in ``path``'s frame; return
+    it unchanged when it passes, else the gentlest checked braking fallback (:func:`braking_plan`
+    at ``b_min``, then harder up to ``b_emergency``; the hardest when none passes), with a
+    :class:`ShieldRecord` of what was done and why."""
+    c = RSSConfig() if config is None else config
+    if not isinstance(plan, Plan):
+        raise ValueError(f"plan must be an mmdopt.Plan, got {type(plan).__name__}")
+    chk = check_plan(plan.t, plan.s, plan.d, plan.vs, obstacles, c, executed=executed)
+    if chk.safe:
+        return plan, ShieldRecord(False, "", chk.margin, 0.0, True, chk.n_checked)
+    ob = np.asarray(obstacles, dtype=np.float64).reshape(-1, 3)[chk.obstacle]
+    why = (
+        f"the plan closes to {chk.margin + c.contact + c.margin:.2f} m (needs "
+        f"{c.contact + c.margin:.2f} m) at t = {chk.time:.2f} s on obstacle {chk.obstacle}, "
+        f"{ob[0] - plan.s[0]:.1f} m ahead at {ob[2]:.1f} m/s, in the RSS worst case"
+    )
+    decels = np.unique(np.linspace(c.b_min, c.b_emergency, 5))
+    ok, b = False, float(decels[-1])
+    for b_try in decels:
+        cand = braking_plan(plan, path, float(b_try))
+        if check_plan(cand.t, cand.s, cand.d, cand.vs, obstacles, c, executed=0.0).safe:
+            ok, b = True, float(b_try)
+            break
+    fb = braking_plan(plan, path, b, reason=f"shield: {why}; braking at {b:g} m/s²")
+    if not ok:
+        fb = dataclasses.replace(fb, message=fb.message + " (no braking passes the check)")
+    return fb, ShieldRecord(True, why, chk.margin, b, ok, chk.n_checked)
