@@ -9,11 +9,16 @@ at the returned primal–dual point ``(sol.x, sol.y)``: one solve with the reduc
 then ``∂/∂q = −w_x``, ``∂/∂P = −½(w_x xᵀ + x w_xᵀ)``, ``∂/∂A = −(y w_xᵀ + w_y xᵀ)``,
 ``∂/∂l = W_l w_y``, ``∂/∂u = W_u w_y``.  The conventions are those of :mod:`solvers.jax` (the JAX
 layer computes the same numbers): row ``i`` is active at its lower bound when ``y_i < −τ``, at its
-upper bound when ``y_i > τ`` (``τ = active_tol · max(1, ‖y‖∞)``); equality rows are always active,
+upper bound when ``y_i > τ`` (``τ = active_tol · max(1, ‖y‖∞)``), and in both cases only if it is
+at that bound (its slack relative to ``max(1, |bound|, (|A||x|)_i)`` at most ``|y_i| / max(1,
+‖y‖∞)``, plus ten times the solution's own bound violation); equality rows are always active,
 their sensitivity going to ``l`` or ``u`` by the sign of ``y_i`` (half to each when ``|y_i| ≤ τ``);
 weakly active rows count as inactive (a one-sided derivative; an interior-point backend's ``y_i``
 there is of the order of its barrier's ``√μ``, so solve tightly, e.g. ``eps_abs=1e-10``, or
-polish); a QP that is not ``SOLVED`` gets NaN gradients.
+polish); a QP that is not ``SOLVED`` gets NaN gradients.  Linearly dependent active rows make
+``K`` singular: it is solved with a proximal ``−ε`` on the active rows' diagonal and one
+refinement step (the gradients in ``P, q`` are then those of ``x*``; those in ``l, u, A`` are one
+of the non-unique splits between the dependent rows).
 
 ``sol.y`` is in OSQP's sign convention (``Px + q + Aᵀy = 0``, ``y ≥ 0`` at upper bounds): every
 backend of :mod:`solvers` returns it so (Clarabel's cone duals, cvxpy's per-constraint duals and
@@ -59,10 +64,30 @@ class QPGrad(NamedTuple):
     u: np.ndarray
 
 
-def _active(y: np.ndarray, l: np.ndarray, u: np.ndarray, active_tol: float):
-    tau = active_tol * max(1.0, float(np.max(np.abs(y), initial=0.0)))
-    eq = np.isfinite(l) & (l == u)
+def _active(y: np.ndarray, l: np.ndarray, u: np.ndarray, active_tol: float, Ax=None, size=None):
+    """Active rows, as in :func:`solvers.jax._active_set` (with ``Ax``, ``size = |A||x|``: a side
+    also has to be at its bound, its relative slack at most its relative multiplier plus ten
+    times the solution's own bound violation)."""
+    ymax = max(1.0, float(np.max(np.abs(y), initial=0.0)))
+    tau = active_tol * ymax
+    fin_l, fin_u = np.isfinite(l), np.isfinite(u)
+    eq = fin_l & (l == u)
     lo, up = y < -tau, y > tau
+    if Ax is not None:
+        lf, uf = np.where(fin_l, l, 0.0), np.where(fin_u, u, 0.0)
+        viol = np.where(fin_l, np.maximum(lf - Ax, 0.0), 0.0) + np.where(
+            fin_u, np.maximum(Ax - uf, 0.0), 0.0
+        )
+        slack_tol = 10.0 * (
+            float(np.max(viol, initial=0.0)) + 1e-9 * max(1.0, np.max(np.abs(Ax), initial=0.0))
+        )
+        yn = np.abs(y) / ymax
+        lo = (
+            lo & fin_l & (Ax - lf <= yn * np.maximum(np.maximum(1.0, np.abs(lf)), size) + slack_tol)
+        )
+        up = (
+            up & fin_u & (uf - Ax <= yn * np.maximum(np.maximum(1.0, np.abs(uf)), size) + slack_tol)
+        )
     zero = ~(lo | up)
     a = (lo | up | eq).astype(np.float64)
     wl = np.where(lo, 1.0, np.where(eq & zero, 0.5, 0.0))
@@ -144,22 +169,34 @@ def vjp(qp: QP, sol: Any, dx: Any, *, active_tol: float = 1e-6) -> QPGrad:
                 "sol.y fits Px + q − Aᵀy = 0: pass duals in OSQP's convention "
                 "(Px + q + Aᵀy = 0, y ≥ 0 at upper bounds), as solvers' backends return them"
             )
-    a, wl, wu = _active(y, qp.l, qp.u, active_tol)
+    Ax = np.asarray(A @ x, np.float64).reshape(-1)
+    size = np.asarray(abs(A) @ np.abs(x), np.float64).reshape(-1)
+    a, wl, wu = _active(y, qp.l, qp.u, active_tol, Ax, size)
     rhs = np.concatenate([g, np.zeros(m)])
+    # a proximal −ε on the active rows' diagonal keeps K nonsingular when active rows are
+    # linearly dependent; one refinement step against K itself (as in the JAX layer)
     if qp.is_sparse and n + m > DENSE_KKT_MAX:
         Ps, As = sp.csc_matrix(P), sp.csc_matrix(A)
         K = sp.bmat([[Ps, As.T @ sp.diags(a)], [sp.diags(a) @ As, sp.diags(a - 1.0)]], format="csc")
+        eps = 1e-12 * max(1.0, float(np.max(np.abs(K.data), initial=0.0)))
+        reg = sp.diags(np.concatenate([np.zeros(n), a * eps]))
         try:
-            w = spla.splu(K).solve(rhs)
-        except RuntimeError:  # singular: linearly dependent active rows
+            solve_reg = spla.splu(sp.csc_matrix(K - reg)).solve
+        except RuntimeError:  # singular beyond the proximal term
             return _nan_grad(qp)
     else:
         Pd, Ad = (np.asarray(v, np.float64) for v in qp.dense())
         K = np.block([[Pd, Ad.T * a[None, :]], [a[:, None] * Ad, np.diag(a - 1.0)]])
+        eps = 1e-12 * max(1.0, float(np.max(np.abs(K), initial=0.0)))
         try:
-            w = sla.solve(K, rhs, assume_a="sym")
+            lu = sla.lu_factor(K - np.diag(np.concatenate([np.zeros(n), a * eps])))
         except (np.linalg.LinAlgError, sla.LinAlgError):
             return _nan_grad(qp)
+        solve_reg = lambda r: sla.lu_solve(lu, r)  # noqa: E731
+    w = solve_reg(rhs)
+    w = w + solve_reg(rhs - K @ w)
+    if not np.all(np.isfinite(w)):
+        return _nan_grad(qp)
     wx, wy = w[:n], w[n:]
     gP = _on_pattern(P, [wx, x], [x, wx], -0.5)
     gA = _on_pattern(A, [y, wy], [wx, x], -1.0)

@@ -48,24 +48,33 @@ and ``jax.jacfwd`` all work, and compose with ``jit`` and ``vmap``.  One dense L
 
 Conventions (stated, because the solution map is only piecewise smooth):
 
-* **Active set.**  Row ``i`` is active at its lower bound when ``y_i < −τ`` and at its upper bound
-  when ``y_i > τ``, with ``τ = active_tol · max(1, ‖y‖∞)`` (``active_tol = 1e-6`` by default).
-  Equality rows (``l_i == u_i``) are always active; their sensitivity goes to ``l_i`` when
+* **Active set.**  Row ``i`` is active at its lower bound when ``y_i < −τ`` and the row is at
+  that bound, and at its upper bound when ``y_i > τ`` and the row is at that bound, with
+  ``τ = active_tol · max(1, ‖y‖∞)`` (``active_tol = 1e-6`` by default).  "At its bound" is
+  relative to the multiplier: the slack ``A_i x − l_i`` (or ``u_i − A_i x``), divided by the
+  row's size ``max(1, |bound|, (|A||x|)_i)``, is at most ``|y_i| / max(1, ‖y‖∞)`` (plus ten
+  times the solver's primal tolerance).  An interior-point solution has slack × multiplier ≈ μ
+  on every row: an active row has a slack far below its multiplier, a row that only approaches
+  its bound the reverse, even when its multiplier passes ``τ`` at a loose tolerance.  Equality
+  rows (``l_i == u_i``) are always active; their sensitivity goes to ``l_i`` when
   ``y_i < −τ``, to ``u_i`` when ``y_i > τ`` and half to each otherwise (so ``d/dl + d/du`` is the
   derivative with respect to the common right-hand side).
 * **Weakly active rows** (``|y_i| ≤ τ`` while ``A_i x`` sits at a bound) are treated as inactive:
   the derivative is the one-sided derivative in the directions that keep the row from becoming
   binding (for instance, loosening that bound).  Under strict complementarity it is the derivative.
   An interior-point solution at such a point has ``y_i`` and the row's slack both of the order of
-  ``√μ`` (the last barrier parameter): at a loose tolerance ``|y_i|`` can exceed ``τ`` and the
-  row then counts as active (the other one-sided derivative); ADMM and polished solutions have
-  ``y_i = 0`` exactly there.
+  ``√μ`` (the last barrier parameter): the row counts as active only if its relative slack is
+  below its relative multiplier (then it gives the other one-sided derivative); ADMM and
+  polished solutions have ``y_i = 0`` exactly there.
 * ``P`` enters only through its symmetric part: the derivative with respect to ``P`` is
   symmetric (``∂/∂P = ½(G + Gᵀ)``).
 * **QPs that are not solved** (``status != SOLVED``: infeasible, unbounded, out of iterations) have
   NaN derivatives — every entry of the tangent, and every gradient entry that depends on them —
-  together with their status; check ``status`` before using a gradient.  A singular reduced KKT
-  system (linearly dependent active rows) also gives non-finite derivatives.
+  together with their status; check ``status`` before using a gradient.
+* **Linearly dependent active rows** (the same constraint twice, more active rows than
+  variables): the reduced KKT system is singular.  It is solved with a proximal term ``−ε`` on
+  the active rows' diagonal (``ε = 1e-12·max(1, ‖K‖max)``) and one refinement step: ``dx`` is
+  the derivative, ``dy`` one of the (non-unique) multiplier derivatives.
 
 The host-side counterpart for a :class:`solvers.QP` solved by any backend is
 :func:`solvers.vjp`.
@@ -133,17 +142,51 @@ class _Active(NamedTuple):
     wu: Any  # (m,) weight of du
 
 
-def _active_set(y, l, u, active_tol: float) -> _Active:
-    """The convention of the module docstring, as 0/1 (and ½) masks in ``y``'s dtype."""
+def _active_set(y, l, u, active_tol: float, A=None, x=None, slack_tol=0.0) -> _Active:
+    """The convention of the module docstring, as 0/1 (and ½) masks in ``y``'s dtype.
+
+    With ``A`` and ``x`` given, an inequality side also has to be at its bound: a row whose
+    multiplier passes ``τ`` while ``A_i x`` is still ``> τ_s,i`` away from the bound (an
+    interior-point iterate on a row that only approaches it) is inactive, ``τ_s,i =
+    active_tol · max(1, |b_i|, (|A||x|)_i) + slack_tol``.
+    """
     dt = y.dtype
     tau = active_tol * jnp.maximum(1.0, jnp.max(jnp.abs(y), initial=0.0))
-    eq = jnp.isfinite(l) & (l == u)
+    fin_l, fin_u = jnp.isfinite(l), jnp.isfinite(u)
+    eq = fin_l & (l == u)
     lo, up = y < -tau, y > tau
+    if A is not None:
+        Ax = A @ x
+        size = jnp.abs(A) @ jnp.abs(x)
+        lf, uf = jnp.where(fin_l, l, 0.0), jnp.where(fin_u, u, 0.0)
+        # the row's slack, relative to its size, below its multiplier, relative to ‖y‖∞
+        ynorm = jnp.abs(y) / jnp.maximum(1.0, jnp.max(jnp.abs(y), initial=0.0))
+        tol_l = ynorm * jnp.maximum(jnp.maximum(1.0, jnp.abs(lf)), size) + slack_tol
+        tol_u = ynorm * jnp.maximum(jnp.maximum(1.0, jnp.abs(uf)), size) + slack_tol
+        lo = lo & fin_l & (Ax - lf <= tol_l)
+        up = up & fin_u & (uf - Ax <= tol_u)
     zero = ~(lo | up)
     a = (lo | up | eq).astype(dt)
     wl = jnp.where(lo, 1.0, jnp.where(eq & zero, 0.5, 0.0)).astype(dt)
     wu = jnp.where(up, 1.0, jnp.where(eq & zero, 0.5, 0.0)).astype(dt)
     return _Active(a, wl, wu)
+
+
+def _kkt_solve(K, act: _Active, rhs, n: int):
+    """Solve ``K d = rhs`` for the reduced KKT matrix of :func:`_kkt_matrix`, robustly.
+
+    One LU of ``K`` with ``−ε`` added on the active rows' diagonal (``ε = 1e-12·max(1, ‖K‖max)``,
+    a proximal term that keeps the matrix nonsingular when active rows are linearly dependent),
+    then one step of iterative refinement against ``K`` itself.  For a nonsingular ``K`` the
+    result is its solution to about ``(ε·‖K⁻¹‖)²``; with dependent active rows and a consistent
+    right-hand side, ``dx`` is the solution and ``dy`` one of the solutions.
+    """
+    dt = K.dtype
+    eps = 1e-12 * jnp.maximum(1.0, jnp.max(jnp.abs(K)))
+    reg = jnp.concatenate([jnp.zeros(n, dt), act.a * eps])
+    lu = jax.scipy.linalg.lu_factor(K - jnp.diag(reg))
+    d = jax.scipy.linalg.lu_solve(lu, rhs)
+    return d + jax.scipy.linalg.lu_solve(lu, rhs - K @ d)
 
 
 def _kkt_matrix(P, A, act: _Active):
@@ -246,6 +289,7 @@ def _kkt_ok(P, q, A, l, u, x, y, eps_abs, eps_rel):
 def _solver(method: str, settings: Any, polish: bool, active_tol: float):
     """The custom-JVP solve for one (method, settings) pair (cached: one Python function each,
     so ``jit`` caches its traces)."""
+    eps_abs, eps_rel = float(settings.eps_abs), float(settings.eps_rel)
     if method == "ipm":
         forward = functools.partial(_ipm_forward, settings)
     else:
@@ -264,7 +308,9 @@ def _solver(method: str, settings: Any, polish: bool, active_tol: float):
         dt = x.dtype
         P, A, l, u = (v.astype(dt) for v in (P, A, l, u))
         dP, dq, dA, dl, du = (v.astype(dt) for v in (dP, dq, dA, dl, du))
-        act = _active_set(y, l, u, active_tol)
+        # active: multiplier above τ and the row at its bound to the solver's accuracy
+        slack_tol = 10.0 * (eps_abs + eps_rel * jnp.max(jnp.abs(A @ x), initial=0.0))
+        act = _active_set(y, l, u, active_tol, A, x, slack_tol)
         K = _kkt_matrix(0.5 * (P + P.T), A, act)
         dPs = 0.5 * (dP + dP.T)
         r1 = -(dPs @ x + dq + dA.T @ y)
@@ -272,7 +318,7 @@ def _solver(method: str, settings: Any, polish: bool, active_tol: float):
         dlf = jnp.where(jnp.isfinite(l), dl, 0.0)
         duf = jnp.where(jnp.isfinite(u), du, 0.0)
         r2 = act.wl * dlf + act.wu * duf - act.a * (dA @ x)
-        d = jnp.linalg.solve(K, jnp.concatenate([r1, r2]))
+        d = _kkt_solve(K, act, jnp.concatenate([r1, r2]), x.shape[0])
         # NaN derivatives for a QP that is not solved (a product, so reverse mode inherits it)
         bad = jnp.where(status == _SOLVED, 1.0, jnp.nan).astype(dt)
         n = x.shape[0]

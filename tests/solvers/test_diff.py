@@ -356,3 +356,70 @@ def test_maros_meszaros_hs35_jax_host_and_finite_differences_agree():
 
     an = float(host.q @ fin[1] + host.l @ fin[3])
     _assert_close(an, _fd(f, data, fin), "HS35: d/dq, d/dl")
+
+
+# ------------------------------------------------- the active set at the default ipm tolerance
+def _lane_projection():
+    """A curve of 9 Bernstein coefficients projected onto ``|p(t_k)| ≤ 0.5`` and
+    ``|ṗ(t_k)| ≤ v`` at 60 grid points: several grid rows near a touching point only approach
+    the bound, and at ipm's default tolerance their multipliers exceed the activity threshold."""
+    from math import comb
+
+    K, deg = 60, 8
+    t = np.linspace(0.0, 1.0, K)
+    Bm = np.stack([comb(deg, i) * t**i * (1 - t) ** (deg - i) for i in range(deg + 1)], axis=1)
+    A = np.vstack([Bm, np.diff(Bm, axis=0) * (K - 1)])
+    target = 0.73794889665 * np.sin(2.89526087630 * t + 0.52467070482) + 0.14230050068
+    l = np.concatenate([np.full(K, -0.5), np.full(K - 1, -2.72082466976)])
+    return Bm.T @ Bm, -Bm.T @ target, A, l, -l
+
+
+def test_rows_approaching_their_bound_do_not_make_the_gradient_wrong():
+    P, q, A, l, u = _lane_projection()
+    d = np.random.default_rng(0).standard_normal(q.size)
+    with jax.enable_x64(True):
+        sol = solvers.jax.solve_qp(P, q, A, l, u)  # default tolerance (1e-9)
+        assert int(sol.status) == Status.SOLVED
+        y, Ax = np.asarray(sol.y), A @ np.asarray(sol.x)
+        slack = np.minimum(Ax - l, u - Ax)
+        tau = 1e-6 * np.abs(y).max()
+        # the situation: a row with a multiplier above τ that is not at its bound
+        assert np.any((np.abs(y) > tau) & (slack > 1e-6))
+
+        def loss(qq):
+            return jnp.sum(solvers.jax.solve_qp(P, qq, A, l, u).x ** 2)
+
+        def tight(qq):  # finite differences of a tight solve
+            return jnp.sum(
+                solvers.jax.solve_qp(P, qq, A, l, u, eps_abs=1e-11, eps_rel=1e-11).x ** 2
+            )
+
+        g = np.asarray(jax.grad(loss)(jnp.asarray(q)))
+        assert np.all(np.isfinite(g))
+        fd = _fd(jax.jit(tight), (q,), (d,))
+        # (the default tolerance leaves ~1e-4 in the derivative; the old rule was off by 10×)
+        assert g @ d == pytest.approx(fd, rel=1e-3)
+
+
+def test_dependent_active_rows_give_a_finite_gradient():
+    """A row repeated (the same constraint twice, both active): the reduced KKT system is
+    singular; the derivative of ``x`` still exists and is finite, and matches finite
+    differences."""
+    P, q, A, l, u, _, ys = make_qp(3)
+    i = int(np.argmax(np.abs(ys) * (l != u)))  # an active inequality row
+    A2, l2, u2 = np.vstack([A, A[i]]), np.append(l, l[i]), np.append(u, u[i])
+    data = (P, q, A2, l2, u2)
+    d = random_direction(7, data)
+    d[3][-1], d[4][-1] = d[3][i], d[4][i]  # move both copies of the row together
+    g = np.ones(N)
+    with jax.enable_x64(True):
+
+        def value(*dd):
+            return solvers.jax.solve_qp(*dd, eps_abs=1e-11, eps_rel=1e-11).x @ g
+
+        sol = solvers.jax.solve_qp(*data)
+        assert int(sol.status) == Status.SOLVED
+        grads = jax.grad(value, argnums=(0, 1, 2, 3, 4))(*data)
+        assert all(np.all(np.isfinite(np.asarray(gr))) for gr in grads)
+        an = sum(float(np.sum(np.asarray(gr) * dv)) for gr, dv in zip(grads, d, strict=True))
+        _assert_close(an, _fd(jax.jit(value), data, d), "dependent rows")
