@@ -11,13 +11,16 @@ episode, the resumable sweep, videos) and ``cli``.
   highway-env's y axis points to the right of travel on screen, which is only a mirror image for
   the planner); the ego's lateral bounds ``y_lb, y_ub`` are the centres of the outermost lanes of
   its road, so the planner may change lanes.
-* **The ego follows the plan exactly**: it is a :class:`PlanFollower` vehicle whose pose and speed
-  are set along the planned trajectory (linear interpolation of the plan's grid) at every
-  simulator step; no tracking controller.  The plan is kinematically feasible within the
-  :class:`mmdopt.Road` limits, so this isolates the planner from a controller's tracking error.
-  The other vehicles are highway-env's own IDM/MOBIL drivers, they see the ego as an ordinary
-  vehicle, and highway-env's own collision checker (rotated rectangles, ``Road.step``) decides
-  crashes.
+* **The ego drives through its vehicle model** (``ego_model="bicycle"``, the default): a
+  :class:`PlanFollower` whose tracking controller (curvature feed-forward and lateral/heading
+  feedback, a speed and along-track loop) sends highway-env's ``{"steering", "acceleration"}``
+  every simulator step and highway-env's kinematic bicycle integrates them; the lateral tracking
+  error is recorded.  ``ego_model="exact"`` sets the pose and speed along the plan (linear
+  interpolation), which isolates the planner from tracking error.  Every plan is checked against
+  RSS's longitudinal safe distance before it runs (:mod:`mmdopt.safety`, :data:`SHIELD`); a plan
+  that fails is replaced by a checked braking fallback.  The other vehicles are highway-env's own
+  IDM/MOBIL drivers, they see the ego as an ordinary vehicle, and highway-env's own collision
+  checker (rotated rectangles, ``Road.step``) decides crashes.
 * Frequencies are explicit: ``simulation_frequency`` (default 10 Hz) and ``policy_frequency`` =
   1/δ (default 2 Hz: replan every δ = 0.5 s, five simulator steps per plan).
 * Predictors (each returns ``(O, n, K, 2)`` Cartesian samples on the planner's grid and is timed
@@ -37,8 +40,10 @@ episode, the resumable sweep, videos) and ``cli``.
 from .adapter import (
     HighwaySource,
     PlanFollower,
+    bicycle_limits,
     classify_crash,
     frenet_to_pose,
+    plan_curvature,
     vehicle_to_frenet,
 )
 from .cli import add_highway_parser, cmd_highway, main
@@ -50,9 +55,11 @@ from .predictors import (
 )
 from .runner import CSV_COLUMNS, run_episode, run_highway, summarize, write_csv, write_video
 from .settings import (
+    EGO_MODELS,
     HIGHWAY_PLANNER,
     METHODS,
     PREDICTORS,
+    SHIELD,
     HighwaySettings,
     highway_available,
     highway_config,
@@ -66,6 +73,10 @@ __all__ = [
     "HighwaySettings",
     "HighwaySource",
     "PlanFollower",
+    "EGO_MODELS",
+    "SHIELD",
+    "bicycle_limits",
+    "plan_curvature",
     "SimulatorPredictor",
     "ConstantVelocityPredictor",
     "make_predictor",

@@ -12,7 +12,7 @@ import mmdopt
 from mmdopt.receding import Observation, StepOutcome
 
 from .predictors import ConstantVelocityPredictor, make_predictor
-from .settings import METHODS, HighwaySettings, _require_highway
+from .settings import EGO_MODELS, METHODS, HighwaySettings, _require_highway
 
 
 # ------------------------------------------------------------------------------ state conversion
@@ -44,34 +44,113 @@ def classify_crash(ego_pose, other_pose) -> str:
 
 
 # --------------------------------------------------------------------------------- the ego vehicle
+def bicycle_limits(length: float = 5.0, max_steer: float = math.pi / 3) -> float:
+    """The largest path curvature (1/m) of highway-env's kinematic bicycle: its centre turns
+    with slip angle ``β = atan(½ tan δ)`` and heading rate ``v sin β / (L/2)``, so
+    ``κ_max = sin(atan(½ tan δ_max)) / (L/2)``; the yaw-rate limit at speed ``v`` is
+    ``v κ_max``."""
+    if not (length > 0 and 0 < max_steer < math.pi / 2):
+        raise ValueError(f"length must be > 0 and max_steer in (0, π/2), got {length}, {max_steer}")
+    return math.sin(math.atan(0.5 * math.tan(max_steer))) / (length / 2.0)
+
+
+def plan_curvature(plan) -> tuple[float, float]:
+    """``(max |κ|, max |ψ̇|)`` of a plan's Cartesian path: the yaw rate from its heading
+    (unwrapped) on the time grid, the curvature ``ψ̇ / v`` where it moves at ≥ 1 m/s (below, the
+    heading is held and the curvature is undefined)."""
+    t = np.asarray(plan.t, float)
+    rate = np.gradient(np.unwrap(np.asarray(plan.heading, float)), t)
+    v = np.asarray(plan.speed, float)
+    moving = v >= 1.0
+    kappa = np.abs(rate[moving] / v[moving]) if moving.any() else np.zeros(1)
+    return float(np.max(kappa)), float(np.max(np.abs(rate)))
+
+
+def _reference(plan, ff, tc: float) -> tuple[float, ...]:
+    """``(x, y, heading, speed, acceleration, curvature)`` of a follower's plan at ``tc`` s
+    (constant speed along the last heading past its end)."""
+    t, x, y, h, v, _ = plan
+    a, k = ff
+    if tc <= t[-1]:
+        return tuple(float(np.interp(tc, t, arr)) for arr in (x, y, h, v, a, k))
+    sp, dt = float(v[-1]), tc - t[-1]
+    return (
+        float(x[-1] + sp * dt * math.cos(h[-1])),
+        float(y[-1] + sp * dt * math.sin(h[-1])),
+        float(h[-1]),
+        sp,
+        0.0,
+        0.0,
+    )
+
+
+def _tracking_errors(vehicle, ref) -> tuple[float, float, float]:
+    """Lateral error (m, left of the reference positive), along-track error (m, ahead positive)
+    and velocity-direction error (rad: the heading plus the bicycle's slip angle) of a vehicle
+    against a reference ``(x, y, heading, ...)``."""
+    xr, yr, hr = ref[0], ref[1], ref[2]
+    dx, dy = vehicle.position[0] - xr, vehicle.position[1] - yr
+    lat = -math.sin(hr) * dx + math.cos(hr) * dy
+    lon = math.cos(hr) * dx + math.sin(hr) * dy
+    beta = math.atan(0.5 * math.tan(float(vehicle.action.get("steering", 0.0))))
+    eh = math.remainder(vehicle.heading + beta - hr, 2 * math.pi)
+    return lat, lon, eh
+
+
 def _follower_class():
+    from highway_env.vehicle.controller import ControlledVehicle
     from highway_env.vehicle.kinematics import Vehicle
 
     class PlanFollower(Vehicle):
-        """A highway-env vehicle that drives exactly along a planned trajectory.
+        """A highway-env vehicle that executes planned trajectories.
 
-        ``set_plan(t, x, y, heading, speed, frenet)`` (grid arrays) restarts the plan clock; each
-        ``step(dt)`` advances it and sets the pose and speed by linear interpolation (constant
-        speed along the last heading past the plan's end).  Its ``act`` ignores actions.  After a
-        crash it brakes like any highway-env vehicle.
+        ``set_plan(t, x, y, heading, speed, frenet)`` (grid arrays) restarts the plan clock;
+        each ``step(dt)`` advances it.  ``model="bicycle"``: ``act`` computes highway-env's
+        ``{"steering", "acceleration"}`` from the plan at the plan clock and ``step`` integrates
+        highway-env's kinematic bicycle.  The steering is a curvature command: the plan's
+        curvature (feed-forward) plus state feedback on the lateral and heading errors with
+        speed-scheduled gains (closed-loop lateral error ``ë + 2ζω ė + ω² e = 0``, ω = 1.5 rad/s,
+        ζ = 0.8, for the linearised bicycle), turned into a steering angle and clipped at
+        highway-env's ±60°; the acceleration is the plan's plus a speed and along-track position
+        loop (``k_v = 2/s, k_s = 1/s²``), clipped to ``[−8, 6]`` m/s² and never reversing.
+        ``model="exact"``: the pose and speed are set by linear interpolation of the plan (no
+        vehicle model; constant speed along the last heading past the plan's end).  After a
+        crash it brakes like any highway-env vehicle.  ``tracking_errors``: the lateral distance
+        from the plan's path at the plan clock after every step (m).
         """
 
-        def __init__(self, road, position, heading=0.0, speed=0.0):
+        MAX_STEERING_ANGLE = ControlledVehicle.MAX_STEERING_ANGLE
+        ACC_MIN, ACC_MAX = -8.0, 6.0
+        OMEGA, ZETA, K_V, K_S = 1.5, 0.8, 2.0, 1.0
+
+        def __init__(self, road, position, heading=0.0, speed=0.0, model="exact"):
             super().__init__(road, position, heading, speed)
+            if model not in EGO_MODELS:
+                raise ValueError(f"model must be one of {EGO_MODELS}, got {model!r}")
+            self.model = model
             self.plan_clock = 0.0
             self._plan = None
+            self._plan_ff = None
+            self.tracking_errors: list[float] = []
+            self.action = {"steering": 0.0, "acceleration": 0.0}
 
         def set_plan(self, t, x, y, heading, speed, frenet_arrays=None):
+            t = np.asarray(t, float)
+            h = np.unwrap(np.asarray(heading, float))
+            v = np.asarray(speed, float)
+            ds = np.maximum(v, 1.0)  # curvature = yaw rate / speed (finite at a stop)
             self._plan = (
-                np.asarray(t, float),
+                t,
                 np.asarray(x, float),
                 np.asarray(y, float),
-                np.unwrap(np.asarray(heading, float)),
-                np.asarray(speed, float),
+                h,
+                v,
                 None
                 if frenet_arrays is None
-                else {k: np.asarray(v, float) for k, v in frenet_arrays.items()},
+                else {k: np.asarray(val, float) for k, val in frenet_arrays.items()},
             )
+            # the plan's acceleration and curvature, for the tracking controller's feed-forward
+            self._plan_ff = (np.gradient(v, t), np.gradient(h, t) / ds)
             self.plan_clock = 0.0
 
         def frenet_now(self):
@@ -81,8 +160,27 @@ def _follower_class():
             t = self._plan[0]
             return {k: float(np.interp(self.plan_clock, t, v)) for k, v in self._plan[5].items()}
 
+        def reference(self, tc):
+            """``(x, y, heading, speed, acceleration, curvature)`` of the plan at ``tc`` s."""
+            return _reference(self._plan, self._plan_ff, tc)
+
+        def _errors(self, ref):
+            return _tracking_errors(self, ref)
+
         def act(self, action=None):
-            pass
+            if self.model != "bicycle" or self._plan is None or self.crashed:
+                return
+            ref = self.reference(self.plan_clock)
+            lat, lon, eh = self._errors(ref)
+            v = max(float(self.speed), 2.0)
+            w, z = self.OMEGA, self.ZETA
+            kappa = ref[5] - (w * w / (v * v)) * lat - (2.0 * z * w / v) * eh
+            sin_beta = float(np.clip(kappa * self.LENGTH / 2.0, -0.99, 0.99))
+            steer = math.atan(2.0 * math.tan(math.asin(sin_beta)))
+            steer = float(np.clip(steer, -self.MAX_STEERING_ANGLE, self.MAX_STEERING_ANGLE))
+            acc = ref[4] + self.K_V * (ref[3] - self.speed) - self.K_S * lon
+            acc = float(np.clip(acc, self.ACC_MIN, self.ACC_MAX))
+            self.action = {"steering": steer, "acceleration": acc}
 
         def step(self, dt):
             if self.crashed or self._plan is None:
@@ -93,16 +191,19 @@ def _follower_class():
                 Vehicle.step(self, dt)
                 return
             self.plan_clock += dt
-            t, x, y, h, v, _ = self._plan
-            tc = self.plan_clock
-            if tc <= t[-1]:
-                px, py = np.interp(tc, t, x), np.interp(tc, t, y)
-                heading, speed = np.interp(tc, t, h), np.interp(tc, t, v)
+            if self.model == "bicycle":
+                # brake to a stop, never reverse
+                acc = max(float(self.action["acceleration"]), -max(float(self.speed), 0.0) / dt)
+                self.action = dict(self.action, acceleration=acc)
+                Vehicle.step(self, dt)
             else:
-                heading, speed = h[-1], v[-1]
-                px = x[-1] + speed * (tc - t[-1]) * math.cos(heading)
-                py = y[-1] + speed * (tc - t[-1]) * math.sin(heading)
-            self.position = np.array([px, py], dtype=float)
+                self._set_pose(dt)
+            lat = self._errors(self.reference(self.plan_clock))[0]
+            self.tracking_errors.append(abs(lat))
+
+        def _set_pose(self, dt):
+            xr, yr, heading, speed, _, _ = self.reference(self.plan_clock)
+            self.position = np.array([xr, yr], dtype=float)
             self.heading = float((heading + math.pi) % (2 * math.pi) - math.pi)
             self.speed = float(speed)
             if self.impact is not None:
@@ -114,13 +215,15 @@ def _follower_class():
     return PlanFollower
 
 
-def PlanFollower(road, position, heading=0.0, speed=0.0):
-    """A plan-following highway-env vehicle (the class is built on first use: highway-env is an
-    optional dependency)."""
+def PlanFollower(road, position, heading=0.0, speed=0.0, model: str = "exact"):
+    """A plan-executing highway-env vehicle, ``model`` of :data:`EGO_MODELS` (the class is built
+    on first use: highway-env is an optional dependency)."""
     global _PLAN_FOLLOWER
+    if model not in EGO_MODELS:
+        raise ValueError(f"model must be one of {EGO_MODELS}, got {model!r}")
     if _PLAN_FOLLOWER is None:
         _PLAN_FOLLOWER = _follower_class()
-    return _PLAN_FOLLOWER(road, position, heading, speed)
+    return _PLAN_FOLLOWER(road, position, heading, speed, model)
 
 
 _PLAN_FOLLOWER = None
@@ -182,7 +285,10 @@ class HighwaySource:
                 road, old.position.copy(), old.heading, old.speed, target_speed=config.cost.v_des
             )
         else:
-            ego = PlanFollower(road, old.position.copy(), old.heading, old.speed)
+            ego = PlanFollower(
+                road, old.position.copy(), old.heading, old.speed, model=settings.ego_model
+            )
+
         ego.color = (50, 200, 0)  # highway-env's ego green in videos
         road.vehicles[road.vehicles.index(old)] = ego
         self.env.controlled_vehicles = [ego]
@@ -195,6 +301,8 @@ class HighwaySource:
         self.speeds: list[float] = [float(ego.speed)]
         self.predict_times: list[float] = []
         self.crash_kind = ""
+        self.between_lanes_s = 0.0  # time the ego's centre is > 1 m from every lane centre
+        self.plan_limits: list[tuple[float, float]] = []  # (max |κ|, max |ψ̇|) of each plan
         if render:
             self.frames.append(self.env.render())
 
@@ -212,9 +320,48 @@ class HighwaySource:
 
     def ego_state(self) -> frenet.EgoState:
         fr = self.ego.frenet_now() if hasattr(self.ego, "frenet_now") else None
+        if fr is not None and not self.ego.crashed and self.ego.model == "bicycle":
+            return self._measured_state(fr)
         if fr is not None and not self.ego.crashed:
             return frenet.EgoState(**fr)
         return vehicle_to_frenet(self.path, self.ego)
+
+    def _measured_state(self, fr: dict) -> frenet.EgoState:
+        """The bicycle ego's state for the next plan: position and velocity measured (the
+        velocity's direction is the heading plus the slip angle), the accelerations of the plan
+        being tracked, clipped to the planner's bounds."""
+        ego = self.ego
+        beta = math.atan(0.5 * math.tan(float(ego.action.get("steering", 0.0))))
+        x, y = (float(v) for v in ego.position)
+        st = self.path.ego_state(x, y, max(float(ego.speed), 0.0), float(ego.heading) + beta)
+        ax, ay = self.road.ax_max, self.road.ay_max
+        return frenet.EgoState(
+            s=st.s,
+            d=st.d,
+            vs=st.vs,
+            vd=st.vd,
+            as_=float(np.clip(fr["as_"], -ax, ax)),
+            ad=float(np.clip(fr["ad"], -ay, ay)),
+        )
+
+    def _obstacle_states(self) -> np.ndarray:
+        """``(M, 4)`` = ``(x, y, vx, vy)`` of every other car and road object within 200 m of
+        the ego (what the safety shield checks; more than the planner's targets)."""
+        road, ego = self.env.road, self.ego
+        rows = [
+            (*v.position, *v.velocity)
+            for v in road.vehicles + road.objects
+            if v is not ego and float(np.linalg.norm(v.position - ego.position)) < 200.0
+        ]
+        return np.array(rows, dtype=float).reshape(-1, 4)
+
+    def _between_lanes(self) -> bool:
+        """Whether the ego's centre is more than 1 m from the centre of every lane beside its
+        own (highway-env's lanes, ``all_side_lanes``, lateral offsets by
+        ``lane.local_coordinates``)."""
+        net, pos = self.env.road.network, self.ego.position
+        lanes = [net.get_lane(i) for i in net.all_side_lanes(self.ego.lane_index)]
+        return min(abs(float(lane.local_coordinates(pos)[1])) for lane in lanes) > 1.0
 
     def observe(self) -> Observation:
         targets = self._targets()
@@ -234,6 +381,7 @@ class HighwaySource:
             obstacles=obstacles,
             time=float(self.env.time),
             info={"predict_s": pred_s, "n_targets": len(targets)},
+            obstacle_states=self._obstacle_states(),
         )
 
     # -- execution
@@ -244,6 +392,8 @@ class HighwaySource:
             env.road.step(1.0 / self.settings.simulation_frequency)
             env.steps += 1
             self.speeds.append(float(self.ego.speed))
+            if self._between_lanes():
+                self.between_lanes_s += 1.0 / self.settings.simulation_frequency
             if self.render:
                 self.frames.append(env.render())
             if self.ego.crashed:
@@ -270,6 +420,7 @@ class HighwaySource:
         self.ego.set_plan(
             trajectory.t, trajectory.x, trajectory.y, trajectory.heading, trajectory.speed, fr
         )
+        self.plan_limits.append(plan_curvature(trajectory))
         return self._advance()
 
     def run_idm(self) -> StepOutcome:

@@ -9,6 +9,7 @@ from pathlib import Path
 from ..argtypes import add_executor, method_list, nonneg_int, positive_float, positive_int
 from .runner import run_highway, summarize, write_video
 from .settings import (
+    EGO_MODELS,
     METHODS,
     PREDICTORS,
     HighwaySettings,
@@ -49,6 +50,18 @@ def add_highway_parser(bench_subparsers):
         "--dt", type=positive_float, default=0.5, help="replan period δ (s, default 0.5)"
     )
     h.add_argument("--samples", type=positive_int, default=20, help="predictor samples per car")
+    h.add_argument(
+        "--ego-model",
+        choices=EGO_MODELS,
+        default="bicycle",
+        help="bicycle: highway-env's kinematic bicycle steered by a tracking controller; "
+        "exact: the ego's pose set from the plan, no vehicle model (default bicycle)",
+    )
+    h.add_argument(
+        "--no-shield",
+        action="store_true",
+        help="run plans unchecked (default: the RSS safe-distance shield of mmdopt.safety)",
+    )
     add_executor(h)
     h.add_argument("--jobs", type=positive_int, default=1, help="parallel episodes (default 1)")
     h.add_argument(
@@ -120,6 +133,8 @@ def cmd_highway(args, parser=None) -> int:
             duration=float(args.duration),
             dt=float(args.dt),
             n_samples=int(args.samples),
+            ego_model=getattr(args, "ego_model", "bicycle"),
+            shield=not getattr(args, "no_shield", False),
             predictor=args.predictor,
         )
     except ValueError as e:
@@ -150,6 +165,9 @@ def cmd_highway(args, parser=None) -> int:
         "median_plan_s",
         "max_plan_s",
         "median_predict_s",
+        "tracking_error_m",
+        "between_lanes_s",
+        "interventions",
     ]
     print("  ".join(f"{c:>14}" for c in cols))
     for s in summ:

@@ -18,8 +18,8 @@ from mmdopt.receding import RecedingConfig, run_receding, warm_up
 
 from ..executors import EXECUTORS, MISSING, check_manifest, run_tasks, worker_layout
 from ..results import write_json
-from .adapter import HighwaySource
-from .settings import METHODS, HighwaySettings, check_env, highway_config
+from .adapter import HighwaySource, bicycle_limits
+from .settings import METHODS, SHIELD, HighwaySettings, check_env, highway_config
 
 CSV_COLUMNS = (
     "episode",
@@ -41,6 +41,9 @@ CSV_COLUMNS = (
     "first_plan_s",
     "fallbacks",
     "crash_kind",
+    "tracking_error_m",
+    "between_lanes_s",
+    "interventions",
 )
 
 
@@ -71,7 +74,8 @@ def run_episode(
     }
     plan_times: list[float] = []
     first_plan = float("nan")
-    fallbacks = 0
+    fallbacks = interventions = 0
+    shield_reasons: list[str] = []
     steps_status: list[str] = []
     if method == "idm":
         out = src.run_idm()
@@ -84,6 +88,7 @@ def run_episode(
             method=planner_method,
             max_obstacles=settings.max_obstacles,
             max_steps=int(math.ceil(settings.duration / settings.dt)) + 1,
+            shield=SHIELD if settings.shield else None,
         )
         # compile once on the first scene (shapes are fixed by max_obstacles), untimed by the loop
         obs0 = src.observe()
@@ -95,12 +100,17 @@ def run_episode(
         plan_times = [float(x) for x in res.plan_times]
         fallbacks = sum(r.fallback for r in res.steps)
         steps_status = [r.status for r in res.steps if r.status != "ok"]
+        interventions = sum(r.intervened for r in res.steps)
+        shield_reasons = [f"t={r.time:.1f} s: {r.shield}" for r in res.steps if r.intervened]
         rec["plan_d"] = [r.d for r in res.steps]  # lateral offset at each replan (m)
         for name in ("reduced_set_s", "cem_s"):
             rec[name] = [r.timings.get(name, float("nan")) for r in res.steps]
     pt = np.array(plan_times) if plan_times else np.array([np.nan])
     pr = np.array(src.predict_times) if src.predict_times else np.array([np.nan])
     speeds = np.array(src.speeds)
+    # None where it does not apply (the IDM ego tracks no plan)
+    errors = getattr(src.ego, "tracking_errors", None)
+    limits = np.array(src.plan_limits).reshape(-1, 2)
     rec.update(
         crashed=bool(crashed),
         mean_speed=float(speeds.mean()),
@@ -121,6 +131,15 @@ def run_episode(
         speeds=[float(x) for x in speeds],
         statuses=steps_status[:20],
         wall_s=time.perf_counter() - t_start,
+        tracking_error_m=float(np.mean(errors)) if errors else None,
+        max_tracking_error_m=float(np.max(errors)) if errors else None,
+        between_lanes_s=float(src.between_lanes_s),
+        interventions=int(interventions),
+        shield=shield_reasons[:20],
+        ego_model=settings.ego_model,
+        max_plan_curvature=float(np.max(limits[:, 0])) if limits.size else None,
+        max_plan_yaw_rate=float(np.max(limits[:, 1])) if limits.size else None,
+        curvature_limit=bicycle_limits(),
     )
     if render:
         rec["frames"] = src.frames
@@ -159,8 +178,16 @@ def write_csv(rows: Sequence[dict], path: Path) -> None:
             w.writerow({k: r.get(k, "") for k in CSV_COLUMNS})
 
 
+def _nanmean(values) -> float:
+    """Mean of the finite values (NaN when none: e.g. the IDM ego has no tracking error)."""
+    v = np.array([np.nan if x is None else float(x) for x in values], dtype=float)
+    v = v[np.isfinite(v)]
+    return float(v.mean()) if v.size else float("nan")
+
+
 def summarize(rows: Sequence[dict]) -> list[dict]:
-    """Per method: episodes, crashes, mean speed, mean distance, median/mean/max plan time."""
+    """Per method: episodes, crashes, mean speed, mean distance, median/mean/max plan time, mean
+    tracking error and time between lanes per episode, and shield interventions in all."""
     out = []
     for m in dict.fromkeys(r["method"] for r in rows):
         rs = [r for r in rows if r["method"] == m]
@@ -179,6 +206,9 @@ def summarize(rows: Sequence[dict]) -> list[dict]:
                 "mean_plan_s": float(np.mean(pts)) if pts.size else float("nan"),
                 "max_plan_s": float(np.max(pts)) if pts.size else float("nan"),
                 "median_predict_s": float(np.median(prs)) if prs.size else float("nan"),
+                "tracking_error_m": _nanmean(r.get("tracking_error_m") for r in rs),
+                "between_lanes_s": _nanmean(r.get("between_lanes_s") for r in rs),
+                "interventions": int(sum(int(r.get("interventions") or 0) for r in rs)),
             }
         )
     return out

@@ -8,6 +8,7 @@ from dataclasses import dataclass, field
 from typing import Any
 
 import mmdopt
+from mmdopt.safety import RSSConfig
 
 METHODS = ("mmd", "degroot", "cv", "idm")
 PREDICTORS = ("sim", "cv")
@@ -18,6 +19,24 @@ PREDICTORS = ("sim", "cv")
 #: neighbouring 4 m lanes.
 #: the planner of this benchmark (:meth:`mmdopt.MMDOptConfig.highway`), in its nested JSON form
 HIGHWAY_PLANNER: dict[str, Any] = mmdopt.MMDOptConfig.highway().to_dict()
+
+
+#: how the ego executes a plan (:func:`~.adapter.PlanFollower`)
+EGO_MODELS = ("bicycle", "exact")
+#: the safety shield of the benchmark (:mod:`mmdopt.safety`): highway-env's IDM cars brake at
+#: most 6 m/s² (``IDMVehicle.ACC_MAX``), the ego brakes at 6 m/s² after a replan period and at
+#: up to 8 m/s² in an emergency, 5 m long cars, 1 m of margin for tracking errors, a corridor
+#: of 2.5 m (2 m wide cars plus 0.5 m) either side of the ego's lateral offset
+SHIELD = RSSConfig(
+    response_time=0.5,
+    a_max=5.0,
+    b_min=6.0,
+    b_max=6.0,
+    b_emergency=8.0,
+    contact=5.0,
+    margin=1.0,
+    lateral_overlap=2.5,
+)
 
 
 def highway_available() -> bool:
@@ -80,6 +99,11 @@ class HighwaySettings:
     predictor : "sim" | "cv"
     v_max, ax_max, ay_max, vy_max : the planner's kinematic limits (:class:`mmdopt.Road`)
     env_config : extra highway-env configuration keys
+    ego_model : how the ego executes plans: "bicycle" (highway-env's kinematic bicycle with a
+        tracking controller, :func:`~.adapter.PlanFollower`) or "exact" (the pose set from the
+        plan)
+    shield : check every plan against RSS's longitudinal safe distance and brake when it fails
+        (:mod:`mmdopt.safety`, :data:`SHIELD`)
     """
 
     env: str = "highway-v0"
@@ -97,6 +121,8 @@ class HighwaySettings:
     ay_max: float = 3.0
     vy_max: float = 3.0
     env_config: dict = field(default_factory=dict)
+    ego_model: str = "bicycle"
+    shield: bool = True
 
     def __post_init__(self) -> None:
         if not (math.isfinite(self.duration) and self.duration > 0):
@@ -113,6 +139,10 @@ class HighwaySettings:
                 f"simulation_frequency · dt must be a positive integer, got "
                 f"{self.simulation_frequency} Hz · {self.dt} s"
             )
+        if self.ego_model not in EGO_MODELS:
+            raise ValueError(f"ego_model must be one of {EGO_MODELS}, got {self.ego_model!r}")
+        if not isinstance(self.shield, bool):
+            raise ValueError(f"shield must be a bool, got {self.shield!r}")
         if self.predictor not in PREDICTORS:
             raise ValueError(f"predictor must be one of {PREDICTORS}, got {self.predictor!r}")
         for name in ("n_samples", "max_obstacles"):

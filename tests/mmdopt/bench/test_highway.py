@@ -7,6 +7,7 @@ Skipped when highway-env is not installed (``pip install -e ".[highway]"``).  Ep
 from __future__ import annotations
 
 import csv
+import dataclasses
 import json
 import math
 
@@ -66,12 +67,27 @@ def test_road_bounds_cover_every_lane_and_frequencies_are_explicit():
         src.close()
 
 
-def test_ego_follows_the_plan_exactly():
+def _one_plan(src):
     import jax
 
     import mmdopt
 
-    src = _source()
+    obs = src.observe()
+    return mmdopt.plan(
+        obs.ego,
+        obs.road,
+        pad_obstacles(obs.obstacles, 3, obs.ego, obs.road, src.t_grid),
+        config=hw.highway_config(TINY),
+        key=jax.random.PRNGKey(0),
+    )
+
+
+def test_exact_ego_model_follows_the_plan_exactly():
+    import jax
+
+    import mmdopt
+
+    src = _source(settings=dataclasses.replace(SETTINGS, ego_model="exact"))
     try:
         obs = src.observe()
         cfg = hw.highway_config(TINY)
@@ -88,6 +104,26 @@ def test_ego_follows_the_plan_exactly():
         assert src.ego.speed == pytest.approx(at["speed"], abs=1e-9)
         assert src.ego_state().s == pytest.approx(np.interp(0.5, p.t, p.s), abs=1e-9)
         assert src.env.time == pytest.approx(0.5)
+    finally:
+        src.close()
+
+
+def test_bicycle_ego_drives_through_its_model_close_to_the_plan():
+    src = _source()  # the default ego model: highway-env's kinematic bicycle
+    try:
+        assert src.ego.model == "bicycle"
+        p = _one_plan(src)
+        src.step(p, 0.5)
+        at = {k: np.interp(0.5, p.t, getattr(p, k)) for k in ("x", "y", "speed")}
+        # steered and accelerated by the tracking controller, not placed on the plan
+        assert tuple(src.ego.position) != (at["x"], at["y"])
+        assert np.hypot(src.ego.position[0] - at["x"], src.ego.position[1] - at["y"]) < 0.3
+        assert src.ego.speed == pytest.approx(at["speed"], abs=0.3)
+        assert abs(src.ego.action["steering"]) <= math.pi / 3  # highway-env's steering limit
+        errs = src.ego.tracking_errors
+        assert len(errs) == SETTINGS.frames_per_step and all(0 <= e < 0.3 for e in errs)
+        k, _ = hw.plan_curvature(p)
+        assert k < hw.bicycle_limits()  # the plan is within the bicycle's curvature limit
     finally:
         src.close()
 
@@ -182,6 +218,13 @@ def test_short_episode_writes_every_csv_column_and_resumes(tmp_path):
     assert float(mmd["mean_speed"]) > 0 and float(mmd["distance_m"]) > 0
     assert 0 < float(mmd["mean_plan_s"]) <= float(mmd["max_plan_s"])
     assert int(mmd["steps"]) == 2
+    # appended after the original columns: the bicycle ego's mean tracking error, time between
+    # lanes and shield interventions
+    cols = list(table[0])
+    i = cols.index("crash_kind")
+    assert cols[i + 1 : i + 4] == ["tracking_error_m", "between_lanes_s", "interventions"]
+    assert 0 <= float(mmd["tracking_error_m"]) < 0.5
+    assert 0 <= float(mmd["between_lanes_s"]) <= 1.0 and int(mmd["interventions"]) >= 0
     idm = next(r for r in table if r["method"] == "idm")
     assert float(idm["distance_m"]) > 0
     # resumable: finished episodes are read back, not recomputed
