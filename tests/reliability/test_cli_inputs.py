@@ -323,6 +323,24 @@ def test_unknown_highway_env_is_exit_2_before_anything_is_written(tmp_path, caps
     assert not out.exists()  # no run.json that would refuse the corrected command
 
 
+def test_unknown_env_config_key_is_exit_2_before_anything_is_written(tmp_path, capsys):
+    from mmdopt.bench.highway.settings import highway_available
+
+    if not highway_available():
+        pytest.skip("highway-env is not installed")
+    out, cfg = tmp_path / "out", tmp_path / "env.json"
+    cfg.write_text(json.dumps({"vehicles_density": 2, "vehicle_density": 2}))
+    argv = ["bench", "highway", "--env-config", cfg, "--out", out, "--episodes", "1"]
+    # the misspelt key is named, with the env's own keys to choose from
+    expect_error(argv, capsys, "--env-config", "'vehicle_density'", "vehicles_density")
+    assert not out.exists()
+    cfg.write_text(json.dumps({"duration": 3}))  # set by --duration, not by the env's config
+    expect_error(argv, capsys, "--env-config", "duration", "--duration")
+    cfg.write_text("[2]")
+    expect_error(argv, capsys, "--env-config", "JSON object")
+    assert not out.exists()
+
+
 @pytest.mark.parametrize(
     "argv",
     [

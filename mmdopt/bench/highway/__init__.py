@@ -6,11 +6,13 @@ conversion, the plan-following ego, :class:`HighwaySource`), ``predictors``, ``r
 episode, the resumable sweep, videos) and ``cli``.
 
 * :class:`HighwaySource` — the scene source of :func:`mmdopt.receding.run_receding`.  Headless
-  (``render_mode=None``; ``"rgb_array"`` for videos).  The Frenet frame is a straight
-  :class:`frenet.ReferencePath` along highway-env's lanes (+x at ``y = 0``, the centre of lane 0;
-  highway-env's y axis points to the right of travel on screen, which is only a mirror image for
-  the planner); the ego's lateral bounds ``y_lb, y_ub`` are the centres of the outermost lanes of
-  its road, so the planner may change lanes.
+  (``render_mode=None``; ``"rgb_array"`` for videos).  The Frenet frame and the lane bounds come
+  from the env's lane network (:mod:`.roads`): on roads of straight lanes along +x a straight
+  :class:`frenet.ReferencePath` (+x at ``y = 0``, the centre of lane 0; highway-env's y axis
+  points to the right of travel on screen, which is only a mirror image for the planner), on
+  curved roads (``racetrack-v0``) the centre line of the ego's lane; the ego's lateral bounds
+  ``y_lb, y_ub`` are the centres of the outermost lanes of its road, so the planner may change
+  lanes.
 * **The ego drives through its vehicle model** (``ego_model="bicycle"``, the default): a
   :class:`PlanFollower` whose tracking controller (curvature feed-forward and lateral/heading
   feedback, a speed and along-track loop) sends highway-env's ``{"steering", "acceleration"}``
@@ -34,7 +36,8 @@ episode, the resumable sweep, videos) and ``cli``.
   that ignores uncertainty) and ``idm`` (highway-env's own IDM/MOBIL driver as the ego: the
   reference for speed).
 * :func:`run_highway` — the resumable benchmark behind ``mmdopt bench highway`` (one JSON per
-  finished episode, ``episodes.csv`` rebuilt from them), :func:`write_video` for one episode.
+  finished episode, ``episodes.csv`` rebuilt from them), :func:`write_video` for one episode with
+  the planner drawn on it (:mod:`.video`).
 """
 
 from .adapter import (

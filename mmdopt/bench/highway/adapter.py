@@ -12,6 +12,7 @@ import mmdopt
 from mmdopt.receding import Observation, StepOutcome
 
 from .predictors import ConstantVelocityPredictor, make_predictor
+from .roads import build_road, on_road, reanchor
 from .settings import EGO_MODELS, METHODS, HighwaySettings, _require_highway
 
 
@@ -260,24 +261,29 @@ class HighwaySource:
         self.env.configure(env_cfg)
         self.env.reset(seed=self.seed)
         self.frames: list[np.ndarray] = []
+        self.frame_views: list[tuple[np.ndarray, float]] = []
         self.render = render
         road = self.env.road
         old = self.env.vehicle
-        ego_lane = road.network.get_lane(old.lane_index)
-        side = road.network.all_side_lanes(old.lane_index)
-        s_lane = ego_lane.local_coordinates(old.position)[0]
-        ys = [float(road.network.get_lane(i).position(s_lane, 0.0)[1]) for i in side]
-        self.path = frenet.ReferencePath.straight(20_000.0, start=(-5000.0, 0.0))
-        self.road = mmdopt.Road(
-            path=self.path,
-            y_lb=min(ys),
-            y_ub=max(ys),
-            v_min=0.0,
-            v_max=settings.v_max,
-            vy_max=settings.vy_max,
-            ax_max=settings.ax_max,
-            ay_max=settings.ay_max,
+        # the Frenet path and lane bounds from the lane network at the ego (roads.build_road)
+        self.road_model = build_road(
+            road.network,
+            old.lane_index,
+            old.position,
+            limits=dict(
+                v_min=0.0,
+                v_max=settings.v_max,
+                vy_max=settings.vy_max,
+                ax_max=settings.ax_max,
+                ay_max=settings.ay_max,
+            ),
+            back=settings.behind + 10.0,
+            ahead=settings.ahead,
+            horizon=config.trajectory.horizon,
         )
+        self._s_shift = 0.0  # path arc length moved by the last re-anchoring of a loop's window
+        self._s_travelled = 0.0  # arc length of the windows left behind (m)
+        self.off_road = False
         if method == "idm":
             from highway_env.vehicle.behavior import IDMVehicle
 
@@ -288,7 +294,6 @@ class HighwaySource:
             ego = PlanFollower(
                 road, old.position.copy(), old.heading, old.speed, model=settings.ego_model
             )
-
         ego.color = (50, 200, 0)  # highway-env's ego green in videos
         road.vehicles[road.vehicles.index(old)] = ego
         self.env.controlled_vehicles = [ego]
@@ -297,24 +302,55 @@ class HighwaySource:
         self.predictor = make_predictor(settings.predictor)
         self.cv_mean = ConstantVelocityPredictor(sigma_long=0.0, sigma_lat=0.0)
         self.step_index = 0
-        self.x0 = float(ego.position[0])
+        self.s0 = float(self.path.to_frenet(*ego.position)[0])
         self.speeds: list[float] = [float(ego.speed)]
         self.predict_times: list[float] = []
         self.crash_kind = ""
         self.between_lanes_s = 0.0  # time the ego's centre is > 1 m from every lane centre
         self.plan_limits: list[tuple[float, float]] = []  # (max |κ|, max |ψ̇|) of each plan
         if render:
-            self.frames.append(self.env.render())
+            self._render()
+
+    def _render(self) -> None:
+        """Append highway-env's ``rgb_array`` frame to ``frames`` and its view (the world
+        position of the frame's top-left pixel and the pixels per metre) to ``frame_views``, for
+        drawing on the frame afterwards (:mod:`.video`)."""
+        self.frames.append(self.env.render())
+        surf = self.env.viewer.sim_surface
+        self.frame_views.append((np.array(surf.origin, dtype=float), float(surf.scaling)))
+
+    # -- the road
+    @property
+    def path(self) -> frenet.ReferencePath:
+        """The Frenet reference path (:func:`~.roads.build_road`; on a loop it moves with the
+        ego, see :meth:`observe`)."""
+        return self.road_model.road.path
+
+    @property
+    def road(self) -> mmdopt.Road:
+        """The planner's :class:`mmdopt.Road` (path, lane bounds, lane centres, limits)."""
+        return self.road_model.road
+
+    def _note_off_road(self) -> None:
+        """Record whether the ego's centre has left every lane (``roads.on_road``)."""
+        if not self.off_road and not on_road(self.env.road.network, self.ego.position):
+            self.off_road = True
 
     # -- observation
     def _targets(self):
-        ex = self.ego.position[0]
-        cands = [
-            v
-            for v in self.env.road.vehicles
-            if v is not self.ego
-            and -self.settings.behind <= v.position[0] - ex <= self.settings.ahead
-        ]
+        """The ``max_obstacles`` cars nearest the ego among those from ``behind`` m behind to
+        ``ahead`` m ahead of it along the path (Frenet ``s``) and at most 20 m beside the
+        outermost lane centres."""
+        others = [v for v in self.env.road.vehicles if v is not self.ego]
+        if not others:
+            return []
+        pos = np.array([v.position for v in others], dtype=float)
+        s, d = self.path.to_frenet(pos[:, 0], pos[:, 1])
+        s_ego = float(self.path.to_frenet(*self.ego.position)[0])
+        rel = s - s_ego
+        keep = (rel >= -self.settings.behind) & (rel <= self.settings.ahead)
+        keep &= (d >= self.road.y_lb - 20.0) & (d <= self.road.y_ub + 20.0)
+        cands = [v for v, k in zip(others, keep, strict=True) if k]
         cands.sort(key=lambda v: float(np.linalg.norm(v.position - self.ego.position)))
         return cands[: self.settings.max_obstacles]
 
@@ -323,7 +359,8 @@ class HighwaySource:
         if fr is not None and not self.ego.crashed and self.ego.model == "bicycle":
             return self._measured_state(fr)
         if fr is not None and not self.ego.crashed:
-            return frenet.EgoState(**fr)
+            # a plan made before the loop's window moved: its arc lengths shift with it
+            return frenet.EgoState(**dict(fr, s=fr["s"] - self._s_shift))
         return vehicle_to_frenet(self.path, self.ego)
 
     def _measured_state(self, fr: dict) -> frenet.EgoState:
@@ -363,7 +400,17 @@ class HighwaySource:
         lanes = [net.get_lane(i) for i in net.all_side_lanes(self.ego.lane_index)]
         return min(abs(float(lane.local_coordinates(pos)[1])) for lane in lanes) > 1.0
 
+    def _reanchor(self) -> None:
+        """On a loop, move the path's window forward when the ego nears its end
+        (:func:`~.roads.reanchor`); the distance driven is kept across windows."""
+        s = float(self.path.to_frenet(*self.ego.position)[0])
+        self.road_model, shift = reanchor(self.road_model, s, back=self.settings.behind + 10.0)
+        self._s_shift = shift
+        self._s_travelled += shift
+
     def observe(self) -> Observation:
+        self._reanchor()
+        self._note_off_road()
         targets = self._targets()
         rng = np.random.default_rng([self.seed, self.step_index])
         if self.method == "cv":
@@ -394,8 +441,9 @@ class HighwaySource:
             self.speeds.append(float(self.ego.speed))
             if self._between_lanes():
                 self.between_lanes_s += 1.0 / self.settings.simulation_frequency
+            self._note_off_road()
             if self.render:
-                self.frames.append(env.render())
+                self._render()
             if self.ego.crashed:
                 break
         env.time += self.settings.dt
@@ -443,7 +491,9 @@ class HighwaySource:
         return classify_crash((*ego.position, ego.heading), tuple(o.position))
 
     def distance(self) -> float:
-        return float(self.ego.position[0] - self.x0)
+        """Metres driven along the path (Frenet ``s``; Δx on a straight road along +x)."""
+        s = float(self.path.to_frenet(*self.ego.position)[0])
+        return s + self._s_travelled - self.s0
 
     def close(self) -> None:
         self.env.close()

@@ -14,6 +14,7 @@ from .settings import (
     PREDICTORS,
     HighwaySettings,
     check_env,
+    check_env_config,
     highway_available,
     highway_config,
 )
@@ -33,6 +34,13 @@ def add_highway_parser(bench_subparsers):
     h.add_argument("--duration", type=positive_float, default=20.0, help="seconds per episode")
     h.add_argument("--out", required=True, help="output folder (resumable)")
     h.add_argument("--env", default="highway-v0", help="highway-env id (default highway-v0)")
+    h.add_argument(
+        "--env-config",
+        default=None,
+        metavar="FILE.json",
+        help='JSON object of the env\'s own config keys, e.g. {"vehicles_density": 2} '
+        "(keys of its default_config(); recorded in the manifest)",
+    )
     h.add_argument(
         "--methods",
         type=method_list(METHODS),
@@ -97,6 +105,24 @@ def _load_overrides(path) -> dict:
     return raw
 
 
+def _load_env_config(path, env: str) -> dict:
+    """The ``--env-config`` file's JSON object, checked against ``env``'s own config keys."""
+    if path is None:
+        return {}
+    p = Path(path)
+    if not p.is_file():
+        raise ValueError(f"argument --env-config: file {str(path)!r} does not exist")
+    try:
+        raw = json.loads(p.read_text())
+    except json.JSONDecodeError as e:
+        raise ValueError(f"argument --env-config: {path} is not valid JSON: {e}") from None
+    try:
+        check_env_config(env, raw)
+    except ValueError as e:
+        raise ValueError(f"argument --env-config: {e}") from None
+    return raw
+
+
 def _fail(parser, msg: str) -> int:
     """Exit status 2 with ``msg``: ``parser.error`` (argparse's form) when there is a parser,
     else one line on stderr and 2 returned."""
@@ -110,7 +136,8 @@ def _fail(parser, msg: str) -> int:
 
 def cmd_highway(args, parser=None) -> int:
     """Run ``mmdopt bench highway``; prints a per-method table; returns the exit status.
-    ``--config`` and ``--env`` are checked before anything is written (exit 2 naming them)."""
+    ``--config``, ``--env`` and ``--env-config`` are checked before anything is written (exit 2
+    naming them)."""
     import sys
 
     if not highway_available():
@@ -128,8 +155,13 @@ def cmd_highway(args, parser=None) -> int:
     except ValueError as e:
         return _fail(parser, f"argument --env: {e}")
     try:
+        env_config = _load_env_config(getattr(args, "env_config", None), args.env)
+    except ValueError as e:
+        return _fail(parser, str(e))
+    try:
         settings = HighwaySettings(
             env=args.env,
+            env_config=env_config,
             duration=float(args.duration),
             dt=float(args.dt),
             n_samples=int(args.samples),

@@ -11,6 +11,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from .roads import follow_lanes
 from .settings import PREDICTORS
 
 
@@ -406,7 +407,10 @@ def _ego_motion(ego):
 class ConstantVelocityPredictor:
     """Each car keeps its current velocity; sample ``j > 0`` adds Gaussian velocity noise
     (``sigma_long`` m/s along the road, ``sigma_lat`` m/s across), sample 0 is the noise-free
-    extrapolation.  Unimodal."""
+    extrapolation.  Unimodal.  On a road with curved lanes the velocity is kept in each car's lane
+    frame (speed along the lane's centre line, through its successors, and across it:
+    :func:`~.roads.follow_lanes`), so the futures follow the curves instead of leaving the road
+    in a straight line."""
 
     sigma_long: float = 1.0
     sigma_lat: float = 0.3
@@ -423,6 +427,19 @@ class ConstantVelocityPredictor:
         vel = np.array([v.velocity for v in targets], float)
         noise = rng.normal(size=(O, n, 2)) * np.array([self.sigma_long, self.sigma_lat])
         noise[:, 0] = 0.0
+        if not _straight_parallel(road.network):
+            # curved lanes: constant velocity in each car's lane frame, along the lane's centre
+            lanes = [road.network.get_lane(v.lane_index) for v in targets]
+            rel = np.array(
+                [v.heading - ln.heading_at(ln.local_coordinates(v.position)[0])
+                 for v, ln in zip(targets, lanes, strict=True)]
+            )  # fmt: skip
+            sp = np.array([v.speed for v in targets], float)
+            v_long = (sp * np.cos(rel))[:, None] + noise[..., 0]
+            v_lat = (sp * np.sin(rel))[:, None] + noise[..., 1]
+            out = follow_lanes(road.network, targets, t_grid, v_long, v_lat)
+            self.last_time_s = time.perf_counter() - t0
+            return out
         v = vel[:, None, :] + noise  # (O, n, 2) — highway-v0 lanes run along +x
         out = pos[:, None, None, :] + v[:, :, None, :] * t_grid[None, None, :, None]
         self.last_time_s = time.perf_counter() - t0

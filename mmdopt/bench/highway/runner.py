@@ -19,7 +19,7 @@ from mmdopt.receding import RecedingConfig, run_receding, warm_up
 from ..executors import EXECUTORS, MISSING, check_manifest, run_tasks, worker_layout
 from ..results import write_json
 from .adapter import HighwaySource, bicycle_limits
-from .settings import METHODS, SHIELD, HighwaySettings, check_env, highway_config
+from .settings import METHODS, SHIELD, HighwaySettings, check_env_config, highway_config
 
 CSV_COLUMNS = (
     "episode",
@@ -44,6 +44,7 @@ CSV_COLUMNS = (
     "tracking_error_m",
     "between_lanes_s",
     "interventions",
+    "off_road",
 )
 
 
@@ -56,9 +57,12 @@ def run_episode(
     config: mmdopt.MMDOptConfig,
     *,
     render: bool = False,
+    callback=None,
 ) -> dict[str, Any]:
     """Drive one episode with ``method``; the episode record (a JSON-friendly dict with the CSV
-    columns, per-step plan and predictor times, and the frames when ``render``)."""
+    columns, per-step plan and predictor times, and the frames and their views when ``render``).
+    ``callback(i, observation, plan, outcome)`` is :func:`mmdopt.receding.run_receding`'s, after
+    each replan (not called for ``idm``)."""
     import jax
 
     src = HighwaySource(settings, seed, config, method=method, render=render)
@@ -95,7 +99,7 @@ def run_episode(
         src.predict_times.clear()
         src.step_index = 0
         first_plan = warm_up(obs0, rc, config, jax.random.PRNGKey(seed))
-        res = run_receding(src, rc, config=config, key=jax.random.PRNGKey(seed))
+        res = run_receding(src, rc, config=config, key=jax.random.PRNGKey(seed), callback=callback)
         crashed = res.crashed
         plan_times = [float(x) for x in res.plan_times]
         fallbacks = sum(r.fallback for r in res.steps)
@@ -135,6 +139,7 @@ def run_episode(
         max_tracking_error_m=float(np.max(errors)) if errors else None,
         between_lanes_s=float(src.between_lanes_s),
         interventions=int(interventions),
+        off_road=bool(src.off_road),
         shield=shield_reasons[:20],
         ego_model=settings.ego_model,
         max_plan_curvature=float(np.max(limits[:, 0])) if limits.size else None,
@@ -143,6 +148,7 @@ def run_episode(
     )
     if render:
         rec["frames"] = src.frames
+        rec["frame_views"] = src.frame_views
     src.close()
     return rec
 
@@ -243,7 +249,7 @@ def run_highway(
         raise ValueError(f"methods must be among {METHODS}, got {list(methods)}")
     if executor not in EXECUTORS:
         raise ValueError(f"executor must be one of {EXECUTORS}, got {executor!r}")
-    check_env(settings.env)
+    check_env_config(settings.env, settings.env_config)
     out = Path(out)
     (out / "episodes").mkdir(parents=True, exist_ok=True)
     man = dict(_manifest(settings, overrides, seed), workers=worker_layout(jobs, executor, isolate))
@@ -293,24 +299,24 @@ def write_video(
     settings: HighwaySettings,
     config: mmdopt.MMDOptConfig,
 ) -> Path:
-    """Render one episode (highway-env's ``rgb_array``) to ``path``: MP4 when imageio's ffmpeg
-    plugin is installed and ``path`` ends in ``.mp4``, otherwise a GIF (suffix replaced)."""
-    import imageio.v2 as imageio
+    """Render one episode (highway-env's ``rgb_array``) with the planner drawn on it (the executed
+    plan, the predicted futures with the reduced set highlighted, method, time, speed and status:
+    :mod:`.video`) to ``path``: MP4 when imageio's ffmpeg plugin is installed and ``path`` ends
+    in ``.mp4``, otherwise a GIF (suffix replaced).  Returns the path written."""
+    from . import video
 
-    rec = run_episode(episode, seed, method, settings, config, render=True)
-    frames = [np.asarray(f) for f in rec["frames"] if f is not None]
-    if not frames:
+    video.headless_display()
+    recorder = video.PlanRecorder()
+    rec = run_episode(episode, seed, method, settings, config, render=True, callback=recorder)
+    if not rec["frames"] or any(f is None for f in rec["frames"]):
         raise RuntimeError("highway-env rendered no frames")
-    path = Path(path)
-    fps = settings.simulation_frequency
-    if path.suffix == ".mp4":
-        try:
-            import imageio_ffmpeg  # noqa: F401
-
-            imageio.mimsave(path, frames, fps=fps)
-            return path
-        except ImportError:
-            path = path.with_suffix(".gif")
-    path = path.with_suffix(".gif")
-    imageio.mimsave(path, frames, duration=1000.0 / fps, loop=0)
-    return path
+    frames = video.overlay_episode(
+        [np.asarray(f) for f in rec["frames"]],
+        rec["frame_views"],
+        recorder.steps,
+        method=method,
+        speeds=rec["speeds"],
+        frame_dt=1.0 / settings.simulation_frequency,
+        frames_per_step=settings.frames_per_step,
+    )
+    return video.encode(path, frames, fps=settings.simulation_frequency)

@@ -78,6 +78,41 @@ def check_env(env: str) -> None:
         ) from None
 
 
+#: highway-env keys the benchmark sets from its own options (refused in ``env_config``)
+ENV_KEYS_SET_BY_OPTIONS = {
+    "simulation_frequency": "HighwaySettings.simulation_frequency",
+    "policy_frequency": "--dt",
+    "duration": "--duration",
+}
+
+
+def check_env_config(env: str, env_config) -> None:
+    """Raise ``ValueError`` unless ``env_config`` is a dict of keys of the environment's own
+    ``default_config()`` (naming the unknown ones and the known ones) other than those the
+    benchmark sets itself (:data:`ENV_KEYS_SET_BY_OPTIONS`)."""
+    from gymnasium.envs.registration import load_env_creator
+
+    check_env(env)
+    if not isinstance(env_config, dict):
+        raise ValueError(
+            f"env_config must be a JSON object of {env}'s config keys, "
+            f"got {type(env_config).__name__}"
+        )
+    known = load_env_creator(_require_highway().spec(env).entry_point).default_config()
+    unknown = sorted(str(k) for k in env_config if k not in known)
+    if unknown:
+        raise ValueError(
+            f"unknown {env} config key(s) {', '.join(map(repr, unknown))}; {env}'s keys: "
+            f"{', '.join(sorted(k for k in known if k not in ENV_KEYS_SET_BY_OPTIONS))}"
+        )
+    owned = sorted(k for k in env_config if k in ENV_KEYS_SET_BY_OPTIONS)
+    if owned:
+        raise ValueError(
+            "env_config must not set "
+            + ", ".join(f"{k!r} (set by {ENV_KEYS_SET_BY_OPTIONS[k]})" for k in owned)
+        )
+
+
 def highway_config(overrides: dict | None = None) -> mmdopt.MMDOptConfig:
     """The preset :meth:`mmdopt.MMDOptConfig.highway`, then ``overrides`` (field names)."""
     return mmdopt.MMDOptConfig.from_dict(overrides or {}, base=mmdopt.MMDOptConfig.highway())

@@ -1,0 +1,331 @@
+"""The ego's road in the planner's terms, built from highway-env's lane network.
+
+* :class:`LaneChain` — a lane followed through its successors (``_from → _to → …``, the same lane
+  id where the next road has it), sampled every 0.5 m: arc length, centre points and normals.
+  A chain that returns to its first road is *closed* (a loop such as ``racetrack-v0``'s).
+* :func:`build_road` — the Frenet reference path and the :class:`mmdopt.Road` at the ego's
+  position.  Roads whose lanes all run straight along +x (``highway-v0``, ``highway-fast-v0``,
+  ``merge-v0``'s main road) keep the straight path along +x at ``y = 0`` (Frenet ``d`` = ``y``).
+  Any other road uses the centre line of the ego's own lane: on a loop a window of it that starts
+  ``back`` metres behind the ego and stops short of closing, so every point has one Frenet
+  coordinate; :func:`reanchor` moves the window forward as the ego drives round (the planner plans
+  in arc length relative to the ego, so a moved window changes nothing but the offset).
+  Lateral bounds are the centres of the outermost lanes beside the ego's; the lane-centre offsets
+  are the Frenet ``d`` of every lane beside the ego's.
+* :func:`on_road` — whether a point lies on any lane of the network (highway-env's ``on_lane``).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import math
+from dataclasses import dataclass
+
+import numpy as np
+
+import frenet
+import mmdopt
+
+#: spacing (m) of the dense samples of a lane chain
+SPACING = 0.5
+#: length (m) over which a jump between consecutive lanes of a chain is blended out
+BLEND = 5.0
+
+
+# ------------------------------------------------------------------------------------ lane chain
+def _successor(network, index):
+    """The lane following ``index``: the next road (the straightest continuation where a node
+    has several) and the same lane id where that road has it, else its nearest; ``None`` at a
+    dead end."""
+    _from, _to, _id = index
+    nxt = network.graph.get(_to)
+    if not nxt:
+        return None
+    end_heading = network.get_lane(index).heading_at(network.get_lane(index).length)
+
+    def turn(road):
+        h = network.graph[_to][road][0].heading_at(0.0)
+        return abs(math.remainder(h - end_heading, 2 * math.pi))
+
+    road = min(nxt, key=turn)
+    return (_to, road, min(int(_id), len(nxt[road]) - 1))
+
+
+def chain_indices(network, index, length: float | None = None, *, start_s: float = 0.0):
+    """``(indices, closed)``: the lanes of the chain from ``index`` (see :meth:`LaneChain.follow`)
+    without sampling them."""
+    lanes, idx, total, closed = [], tuple(index), 0.0, False
+    for _ in range(10_000):
+        lanes.append(idx)
+        total += network.get_lane(idx).length
+        nxt = _successor(network, idx)
+        if nxt is None:
+            break
+        if nxt[:2] == tuple(index)[:2]:
+            closed = True
+            break
+        if length is not None and total - start_s >= length:
+            break
+        idx = nxt
+    return lanes, closed
+
+
+@dataclass(frozen=True, eq=False)
+class LaneChain:
+    """The centre line of a lane followed through its successors (see the module docstring).
+
+    ``indices``: the lane indices in order; ``s`` (M,): arc length; ``xy`` (M, 2): centre points;
+    ``normal`` (M, 2): unit normals to the left of travel (highway-env's lateral direction, the
+    Frenet ``+d``); ``closed``: whether the chain returns to its first road (then ``length`` is
+    the lap and the samples do not repeat the first point).
+    """
+
+    indices: tuple
+    s: np.ndarray
+    xy: np.ndarray
+    normal: np.ndarray
+    closed: bool
+    length: float
+
+    @classmethod
+    def follow(cls, network, index, length: float | None = None, *, start_s: float = 0.0):
+        """The chain from lane ``index`` of highway-env's ``network``: until it returns to its
+        first road (closed), reaches a dead end, or covers ``length`` metres past ``start_s``
+        (the longitudinal position on the first lane where the chain begins)."""
+        if length is not None and not (math.isfinite(length) and length > 0):
+            raise ValueError(f"length must be > 0 m, got {length!r}")
+        lanes, closed = chain_indices(network, index, length, start_s=start_s)
+        pts, nrm, lane_no, s_lane = [], [], [], []
+        for k, li in enumerate(lanes):
+            lane = network.get_lane(li)
+            last = k == len(lanes) - 1 and not closed
+            n = max(2, int(math.ceil(lane.length / SPACING)) + 1)
+            ss = np.linspace(0.0, lane.length, n)[: (None if last else -1)]
+            for s in ss:
+                pts.append(lane.position(float(s), 0.0))
+                h = lane.heading_at(float(s))
+                nrm.append((-math.sin(h), math.cos(h)))
+            lane_no += [k] * len(ss)
+            s_lane += list(ss)
+        xy, normal = np.array(pts, float), np.array(nrm, float)
+        lane_no, s_lane = np.array(lane_no), np.array(s_lane)
+        _blend_jumps(xy, lanes, lane_no, s_lane, network, closed)
+        seg = np.linalg.norm(np.diff(xy, axis=0), axis=1)
+        keep = np.concatenate([[True], seg > 1e-6])
+        xy, normal = xy[keep], normal[keep]
+        s = np.concatenate([[0.0], np.cumsum(np.linalg.norm(np.diff(xy, axis=0), axis=1))])
+        lap = s[-1] + (float(np.linalg.norm(xy[0] - xy[-1])) if closed else 0.0)
+        return cls(tuple(lanes), s, xy, normal, closed, float(lap))
+
+    def _wrap(self, s):
+        s = np.asarray(s, dtype=float)
+        return np.mod(s, self.length) if self.closed else s
+
+    def position(self, s, d=0.0) -> np.ndarray:
+        """Points ``(..., 2)`` at arc length ``s`` (modulo the lap on a closed chain; linear past
+        an open chain's ends) and lateral offset ``d`` (m, left of travel)."""
+        s = self._wrap(s)
+        s, d = np.broadcast_arrays(s, np.asarray(d, dtype=float))
+        if self.closed:  # the closing segment: append the first sample at the lap's length
+            ks = np.append(self.s, self.length)
+            kxy, kn = np.vstack([self.xy, self.xy[:1]]), np.vstack([self.normal, self.normal[:1]])
+        else:
+            ks, kxy, kn = self.s, self.xy, self.normal
+        out = np.empty(s.shape + (2,))
+        for c in (0, 1):
+            out[..., c] = np.interp(s, ks, kxy[:, c]) + d * np.interp(s, ks, kn[:, c])
+        if not self.closed:  # straight extension beyond the ends
+            t0 = (kxy[1] - kxy[0]) / np.linalg.norm(kxy[1] - kxy[0])
+            t1 = (kxy[-1] - kxy[-2]) / np.linalg.norm(kxy[-1] - kxy[-2])
+            before, after = s < 0, s > ks[-1]
+            out[before] = kxy[0] + s[before, None] * t0 + d[before, None] * kn[0]
+            e = s[after, None] - ks[-1]
+            out[after] = kxy[-1] + e * t1 + d[after, None] * kn[-1]
+        return out
+
+    def window(self, start: float, length: float) -> np.ndarray:
+        """Centre points from arc length ``start`` over ``length`` metres (every sample in
+        between, unwrapped round a closed chain), for a :class:`frenet.ReferencePath`."""
+        if self.closed and length >= self.length:
+            raise ValueError(
+                f"length {length:.1f} m must be shorter than the lap {self.length:.1f} m"
+            )
+        if self.closed:
+            start = float(np.mod(start, self.length))
+        laps = np.arange(-1, 2 + int(length // max(self.length, 1e-9)))
+        if self.closed:
+            s_all = (self.s[None, :] + self.length * laps[:, None]).ravel()
+            xy_all = np.tile(self.xy, (len(laps), 1))
+        else:
+            s_all, xy_all = self.s, self.xy
+        inside = (s_all > start) & (s_all < start + length)
+        ends = self.position(np.array([start, start + length]))
+        pts = np.vstack([ends[:1], xy_all[inside], ends[1:]])
+        step = np.linalg.norm(np.diff(pts, axis=0), axis=1)
+        return pts[np.concatenate([[True], step > 0.05])]
+
+
+def _blend_jumps(xy, lanes, lane_no, s_lane, network, closed) -> None:
+    """Spread each jump between the end of a lane and the start of the next (highway-env's lanes
+    need not meet exactly: up to 2.6 m on ``racetrack-v0``) linearly over ``BLEND`` metres on
+    either side, in place, so the centre line is continuous; points farther from a junction are
+    unchanged."""
+    n_lanes = len(lanes)
+    for k in range(n_lanes if closed else n_lanes - 1):
+        a = network.get_lane(lanes[k])
+        b = network.get_lane(lanes[(k + 1) % n_lanes])
+        gap = b.position(0.0, 0.0) - a.position(a.length, 0.0)
+        if float(np.linalg.norm(gap)) < 1e-6:
+            continue
+        on_a = lane_no == k
+        w_a = np.clip(1.0 - (a.length - s_lane[on_a]) / BLEND, 0.0, 1.0)
+        xy[on_a] += 0.5 * w_a[:, None] * gap
+        on_b = lane_no == (k + 1) % n_lanes
+        w_b = np.clip(1.0 - s_lane[on_b] / BLEND, 0.0, 1.0)
+        xy[on_b] -= 0.5 * w_b[:, None] * gap
+
+
+# ------------------------------------------------------------------------------------ the road
+@dataclass(frozen=True, eq=False)
+class RoadModel:
+    """The planner's road: ``road`` (:class:`mmdopt.Road`, with ``road.path``), the lane-centre
+    offsets ``lane_centres`` (m, Frenet ``d``), ``chain`` (the ego's lane chain; ``None`` on a
+    straight road along +x), ``start`` (arc length along ``chain`` of the path's ``s = 0``) and
+    ``reach`` (m of path the ego needs ahead of it before :func:`reanchor` moves the window)."""
+
+    road: mmdopt.Road
+    lane_centres: tuple[float, ...]
+    chain: LaneChain | None = None
+    start: float = 0.0
+    reach: float = math.inf
+
+    @property
+    def path(self) -> frenet.ReferencePath:
+        return self.road.path
+
+
+def straight_along_x(network, lanes) -> bool:
+    """Whether every lane in ``lanes`` (indices of ``network``) is a straight lane along +x."""
+    from highway_env.road.lane import StraightLane
+
+    for li in lanes:
+        lane = network.get_lane(li)
+        if type(lane) is not StraightLane or abs(math.sin(lane.heading)) > 1e-9:
+            return False
+        if math.cos(lane.heading) < 0:
+            return False
+    return True
+
+
+def _make_road(path, offsets, limits: dict) -> mmdopt.Road:
+    kw = dict(limits)
+    if "lane_centres" in {f.name for f in dataclasses.fields(mmdopt.Road)}:
+        kw["lane_centres"] = tuple(offsets)
+    return mmdopt.Road(path=path, y_lb=min(offsets), y_ub=max(offsets), **kw)
+
+
+def build_road(
+    network,
+    lane_index,
+    position,
+    *,
+    limits: dict,
+    back: float = 40.0,
+    ahead: float = 80.0,
+    horizon: float = 5.0,
+) -> RoadModel:
+    """The :class:`RoadModel` of a vehicle at ``position`` on lane ``lane_index`` of highway-env's
+    ``network`` (see the module docstring).
+
+    ``limits``: the :class:`mmdopt.Road` fields other than the path and lane bounds (``v_max``,
+    ``ax_max``, ...); on a curved road ``v_max`` is also capped at the lane's speed limit (the
+    Frenet bounds do not limit the centripetal acceleration).  ``back``: metres of path behind the
+    vehicle; ``ahead``: the perception range (m) and ``horizon`` the planning horizon (s): the
+    path keeps ``ahead + v_max·horizon + 10`` m ahead of the vehicle (on a loop by
+    :func:`reanchor`).
+    """
+    for name, v in (("back", back), ("ahead", ahead), ("horizon", horizon)):
+        if not (isinstance(v, int | float) and math.isfinite(v) and v > 0):
+            raise ValueError(f"{name} must be > 0, got {v!r}")
+    if "v_max" not in limits:
+        raise ValueError("limits must contain v_max (m/s)")
+    position = np.asarray(position, dtype=float)
+    side = network.all_side_lanes(lane_index)
+    lane = network.get_lane(lane_index)
+    s_lane = float(lane.local_coordinates(position)[0])
+    need = back + ahead + float(limits["v_max"]) * horizon + 410.0
+    indices, _ = chain_indices(network, lane_index, need, start_s=s_lane)
+    if straight_along_x(network, [li for c in indices for li in network.all_side_lanes(c)]):
+        path = frenet.ReferencePath.straight(20_000.0, start=(-5000.0, 0.0))
+        ys = [float(network.get_lane(i).position(s_lane, 0.0)[1]) for i in side]
+        return RoadModel(_make_road(path, sorted(ys), limits), tuple(sorted(ys)))
+    chain = LaneChain.follow(network, lane_index, need, start_s=s_lane)
+    limits = dict(limits)
+    if lane.speed_limit is not None:
+        limits["v_max"] = min(float(limits["v_max"]), float(lane.speed_limit))
+    reach = ahead + limits["v_max"] * horizon + 10.0
+    start = s_lane - back
+    if chain.closed:
+        length = chain.length - back
+        if length - back < reach:
+            raise ValueError(
+                f"the loop of lane {lane_index} ({chain.length:.0f} m) is too short for "
+                f"{reach:.0f} m ahead and {back:.0f} m behind the ego"
+            )
+    else:
+        length = chain.s[-1] - start
+    path = frenet.ReferencePath.from_waypoints(chain.window(start, length), spacing=SPACING)
+    offsets = []
+    for li in side:
+        other = network.get_lane(li)
+        p = other.position(float(other.local_coordinates(position)[0]), 0.0)
+        offsets.append(float(path.to_frenet(p[0], p[1])[1]))
+    offsets = sorted(offsets)
+    return RoadModel(_make_road(path, offsets, limits), tuple(offsets), chain, start, reach)
+
+
+def reanchor(model: RoadModel, s: float, *, back: float = 40.0) -> tuple[RoadModel, float]:
+    """On a loop, when the vehicle at Frenet ``s`` has less than ``model.reach`` metres of path
+    ahead, the same road with the path window moved to start ``back`` metres behind it; returns
+    ``(model, shift)`` where ``shift`` (m) is subtracted from arc lengths of the old path to get
+    those of the new one (0 and the same model when nothing moved)."""
+    if model.chain is None or not model.chain.closed or s + model.reach <= model.path.length:
+        return model, 0.0
+    shift = float(s) - back
+    start = model.start + shift
+    path = frenet.ReferencePath.from_waypoints(
+        model.chain.window(start, model.path.length), spacing=SPACING
+    )
+    road = dataclasses.replace(model.road, path=path)
+    return dataclasses.replace(model, road=road, start=start), shift
+
+
+def on_road(network, position) -> bool:
+    """Whether ``position`` lies on some lane of highway-env's ``network`` (``lane.on_lane``:
+    within half its width of its centre line, between its ends)."""
+    p = np.asarray(position, dtype=float)
+    return any(lane.on_lane(p) for lane in network.lanes_list())
+
+
+def follow_lanes(network, vehicles, t, v_long, v_lat) -> np.ndarray:
+    """Positions ``(O, n, K, 2)`` of ``vehicles`` moving along their lanes: each starts at its
+    lane coordinates ``(s, d)`` and moves by ``v_long`` (O, n) m/s along its lane's centre line
+    (through the lane's successors, :class:`LaneChain`) and ``v_lat`` (O, n) m/s across it, at the
+    times ``t`` (K,) s — constant velocity in the lane's own frame, which follows the curves."""
+    t = np.asarray(t, dtype=float)
+    v_long, v_lat = np.asarray(v_long, dtype=float), np.asarray(v_lat, dtype=float)
+    if v_long.shape != v_lat.shape or v_long.shape[0] != len(vehicles):
+        raise ValueError(
+            f"v_long and v_lat must have shape (O, n) with O = {len(vehicles)}, got "
+            f"{v_long.shape}, {v_lat.shape}"
+        )
+    out = np.empty(v_long.shape + (t.shape[0], 2))
+    for o, v in enumerate(vehicles):
+        lane = network.get_lane(v.lane_index)
+        s0, d0 = (float(c) for c in lane.local_coordinates(np.asarray(v.position, float)))
+        reach = float(np.max(np.abs(v_long[o]))) * float(t[-1]) + 10.0
+        chain = LaneChain.follow(network, v.lane_index, reach, start_s=max(s0, 0.0))
+        s = s0 + v_long[o][:, None] * t[None, :]
+        d = d0 + v_lat[o][:, None] * t[None, :]
+        out[o] = chain.position(s, d)
+    return out

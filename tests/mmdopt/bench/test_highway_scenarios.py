@@ -1,0 +1,144 @@
+"""highway-env scenarios beyond the straight highway: the Frenet frame of a curved road
+(``racetrack-v0``), predictions that follow curved lanes, the off-road record and the planner's
+video overlay.
+
+Skipped when highway-env is not installed (``pip install -e ".[highway]"``).
+"""
+
+from __future__ import annotations
+
+import csv
+
+import numpy as np
+import pytest
+
+from mmdopt.bench import highway as hw
+from mmdopt.bench.highway import roads
+
+pytestmark = pytest.mark.skipif(
+    not hw.highway_available(),
+    reason='highway-env/gymnasium not installed (pip install ".[highway]")',
+)
+
+TINY = {
+    "cem": {"n_samples": 60, "n_cem": 30, "n_elite": 10, "iterations": 3, "n_brake": 5},
+    "trajectory": {"num_steps": 26},
+    "selection": {"reduced_set_size": 3},
+}
+RACETRACK = hw.HighwaySettings(
+    env="racetrack-v0",
+    env_config={"other_vehicles": 20},
+    duration=2.0,
+    n_samples=4,
+    max_obstacles=3,
+    predictor="cv",
+)
+
+
+def _racetrack(seed=1):
+    return hw.HighwaySource(RACETRACK, seed, hw.highway_config(TINY), method="mmd")
+
+
+def _lane_points(network, indices, margin=6.0):
+    """Points of the lane centres ``indices``, away from the junctions between lanes."""
+    pts = []
+    for li in indices:
+        lane = network.get_lane(li)
+        for s in np.linspace(margin, lane.length - margin, 5):
+            pts.append(lane.position(float(s), 0.0))
+    return np.array(pts)
+
+
+def test_racetrack_path_is_the_centre_line_of_the_ego_lane():
+    src = _racetrack()
+    try:
+        net, path = src.env.road.network, src.path
+        model = src.road_model
+        assert model.chain is not None and model.chain.closed  # a loop
+        pts = _lane_points(net, model.chain.indices)
+        s, d = path.to_frenet(pts[:, 0], pts[:, 1])
+        inside = (s > 0) & (s < path.length)
+        assert inside.sum() >= 30  # most of the lap is in the window
+        x, y = path.to_cartesian(s[inside], np.zeros(inside.sum()))
+        # Frenet -> Cartesian at d = 0 is the env's lane centre, to the centimetre
+        assert np.max(np.hypot(x - pts[inside, 0], y - pts[inside, 1])) < 0.01
+        assert np.max(np.abs(d[inside])) < 0.01
+        # the bounds and lane centres are the two lanes' centres (5 m wide lanes)
+        assert sorted(np.round(model.lane_centres, 3)) in ([-5.0, 0.0], [0.0, 5.0])
+        assert (src.road.y_lb, src.road.y_ub) == pytest.approx(
+            (min(model.lane_centres), max(model.lane_centres))
+        )
+        assert src.road.v_max == 10.0  # racetrack-v0's speed limit caps the planner's
+        # moving the window round the loop keeps the geometry: arc lengths shift by `shift`
+        moved, shift = roads.reanchor(model, path.length - 10.0, back=40.0)
+        assert shift > 100.0
+        s_old = np.array([shift + 20.0, path.length - 5.0])
+        p = path.to_cartesian(s_old, np.full(2, 2.0))
+        s2, d2 = moved.path.to_frenet(p[0], p[1])
+        assert s2 == pytest.approx(s_old - shift, abs=0.05)
+        assert d2 == pytest.approx([2.0, 2.0], abs=0.01)
+        # and the new window runs on past the old one's end, round the loop
+        assert moved.path.length == pytest.approx(path.length, abs=0.5)
+    finally:
+        src.close()
+
+
+def test_constant_velocity_futures_follow_the_curved_lanes():
+    src = _racetrack(seed=4)
+    try:
+        net, targets = src.env.road.network, src._targets()
+        assert targets
+        pred = hw.ConstantVelocityPredictor(sigma_long=0.0, sigma_lat=0.0)
+        out = pred(src.env.road, src.ego, targets, src.t_grid, 2, np.random.default_rng(0))
+        assert out.shape == (len(targets), 2, len(src.t_grid), 2)
+        # every predicted position is on the track, at the car's speed along its lane
+        assert all(roads.on_road(net, p) for p in out.reshape(-1, 2))
+        for o, v in enumerate(targets):
+            step = np.linalg.norm(np.diff(out[o, 0], axis=0), axis=1).sum()
+            assert step == pytest.approx(v.speed * src.t_grid[-1], rel=0.05)
+        # a straight-line extrapolation would leave the track on these curves
+        pos = np.array([v.position for v in targets])
+        vel = np.array([v.velocity for v in targets])
+        straight = pos[:, None] + vel[:, None] * src.t_grid[None, :, None]
+        assert not all(roads.on_road(net, p) for p in straight.reshape(-1, 2))
+    finally:
+        src.close()
+
+
+def test_short_racetrack_episode_stays_on_the_road_and_its_video_shows_the_plan(tmp_path):
+    import imageio.v2 as imageio
+
+    from mmdopt.bench.highway import video
+
+    rows = hw.run_highway(
+        tmp_path / "run",
+        episodes=1,
+        seed=1,
+        methods=["mmd"],
+        settings=RACETRACK,
+        config_overrides=TINY,
+        progress=False,
+    )
+    (row,) = rows
+    assert not row["crashed"] and row["off_road"] is False
+    # distance along the curved path, not along x: about speed x duration
+    assert row["distance_m"] == pytest.approx(row["mean_speed"] * 2.0, rel=0.2)
+    with open(tmp_path / "run" / "episodes.csv") as f:
+        header = next(csv.reader(f))
+    assert header[-1] == "off_road"
+    # the video: 2 s at 10 Hz, the plan and the samples drawn over highway-env's frames
+    path = hw.write_video(tmp_path / "v.mp4", 0, 1, "mmd", RACETRACK, hw.highway_config(TINY))
+    frames = [np.asarray(f)[..., :3].astype(int) for f in imageio.mimread(path)]
+    assert len(frames) == 21
+    raw = hw.HighwaySource(RACETRACK, 1, hw.highway_config(TINY), method="mmd", render=True)
+    try:
+        first = np.asarray(raw.frames[0]).astype(int)  # highway-env's own first frame
+    finally:
+        raw.close()
+    assert first.shape == frames[0].shape
+    changed = np.any(np.abs(frames[0] - first) > 40, axis=-1)
+    assert changed.sum() > 500  # the labels, the plan and the predicted futures
+    orange = np.all(np.abs(frames[0] - np.array(video.REDUCED_COLOUR)) < 40, axis=-1)
+    assert orange.sum() > 20 and not np.any(
+        np.all(np.abs(first - np.array(video.REDUCED_COLOUR)) < 40, axis=-1)
+    )
