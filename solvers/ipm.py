@@ -21,7 +21,13 @@ Method
   on the host (:func:`ipm_setup`).  When that ordering leaves ``M`` banded (half-bandwidth ``w``
   small against ``n``, as on trajectory projections), ``M`` is assembled in band storage from the
   nonzeros of ``A`` only and factored by a banded Cholesky (``O(n w²)`` per QP); otherwise dense
-  (``O(n³)``, LAPACK).  Products with ``A``, ``Aᵀ``, ``P`` are dense batched matmuls.
+  (``O(n³)``, LAPACK).  The band assembly groups the rows of ``A`` by their first column
+  (:func:`_slot_tables`: shifted slices, one small gather) when that pads ``m`` by at most 4×,
+  else it gathers per band entry.  Products with ``A``, ``Aᵀ`` are dense batched matmuls (on a
+  CPU XLA runs them faster than products over the nonzeros, slices or gathers, at these sizes;
+  they are a small part of an iteration), ``P`` in band storage when banded.
+* A batch passed to the backend drops the rows that are free in every one of its QPs before the
+  setup (their multipliers are 0).
 * Termination on the unscaled problem, per QP: ``SOLVED`` when the bound violation, the dual
   residual ``‖Px + q + Aᵀy‖∞`` and the duality gap ``|xᵀPx + qᵀx + S(y)|`` (``S`` the support
   function of ``[l, u]``) meet ``eps_abs + eps_rel · scale``; ``PRIMAL_INFEASIBLE`` /
@@ -308,6 +314,54 @@ def _band_tables(Ps: np.ndarray, As: np.ndarray, w: int):
     return Pb, coef, rows
 
 
+def _slot_tables(Ap: np.ndarray, max_pad: float = 4.0) -> dict[str, np.ndarray] | None:
+    """Rows of ``Ā`` (permuted columns) regrouped by their first nonzero column, to assemble the
+    band of ``M = P̄ + Āᵀ diag(d) Ā`` with slices instead of a gather per band entry.
+
+    Row ``i`` starting at column ``j`` with span ``≤ s`` goes to slot ``t·n + j`` (``t`` its rank
+    among the rows starting at ``j``, ``t < R``), with values ``V[k, t, j] = Ā[i, j + k]`` (``n``
+    the minor axis, so that the work vectorises along it).  Then band column ``a − b`` of ``M``
+    gets ``Σ_t V[a, t, c − b] V[b, t, c − b] d[t, c − b]`` at row ``c``: one term per pair
+    ``b ≤ a < s``, stored shifted (``VV``).  ``d`` reaches the slots by one gather of ``n·R``
+    entries (unused slots read a zero).  Returns ``None`` when the slots would pad ``m`` by
+    more than ``max_pad``.
+    """
+    m, n = Ap.shape
+    if m == 0:
+        return None
+    nz = Ap != 0
+    has = nz.any(axis=1)
+    start = np.where(has, nz.argmax(axis=1), 0)
+    last = np.where(has, n - 1 - nz[:, ::-1].argmax(axis=1), 0)
+    span = int(np.max(last - start + 1, initial=1))
+    cnt = np.bincount(start, minlength=n)
+    R = int(max(1, cnt.max()))
+    if n * R > max_pad * m:
+        return None
+    order = np.argsort(start, kind="stable")
+    first = np.concatenate([[0], np.cumsum(cnt)[:-1]])
+    rank = np.empty(m, np.int64)
+    rank[order] = np.arange(m) - first[start[order]]
+    slot = rank * n + start  # slot of each row
+    row_of_slot = np.full(n * R, m, np.int64)  # m: an unused slot
+    row_of_slot[slot] = np.arange(m)
+    V = np.zeros((span, R, n))
+    for k in range(span):
+        cols = start + k
+        ok = cols < n
+        V[k, rank[ok], start[ok]] = Ap[np.nonzero(ok)[0], cols[ok]]
+    pairs = [(a, b) for a in range(span) for b in range(a + 1)]
+
+    def shifted(v: np.ndarray, k: int) -> np.ndarray:  # out[..., c] = v[..., c − k]
+        out = np.zeros_like(v)
+        out[..., k:] = v[..., : n - k]
+        return out
+
+    # M's terms at the column they land on: VV[p, t, c] = V[a, t, c − b] V[b, t, c − b]
+    VV = np.stack([shifted(V[a] * V[b], b) for a, b in pairs])
+    return {"slot_VV": VV, "row_of_slot": row_of_slot.astype(np.int32)}
+
+
 def ipm_setup(P: Any, A: Any, settings: IPMSettings | None = None) -> IPMSetup:
     """Precompute the shared data for :func:`ipm_iterate` (NumPy, float64), once per ``P, A``.
 
@@ -360,8 +414,13 @@ def ipm_setup(P: Any, A: Any, settings: IPMSettings | None = None) -> IPMSetup:
         "params": _params(s),
     }
     if kind == "banded":
-        Pb, coef, rows = _band_tables(Pp, Ap, w)
-        arrays["band_P"], arrays["band_coef"], arrays["band_rows"] = Pb, coef, rows
+        slots = _slot_tables(Ap)
+        if slots is None:  # rows too uneven for slots: gather tables for M, dense products
+            Pb, coef, rows = _band_tables(Pp, Ap, w)
+            arrays["band_P"], arrays["band_coef"], arrays["band_rows"] = Pb, coef, rows
+        else:
+            arrays["band_P"] = _band_tables(Pp, Ap[:0], w)[0]
+            arrays.update(slots)
     return IPMSetup(arrays, kind, w, n, m, s.refine_iter, s.chunk_size, s)
 
 
@@ -526,6 +585,8 @@ def _linear_algebra(st: IPMSetup, rho) -> _LinAlg:
     def Pmul(x):
         return Pd @ x
 
+    if "slot_VV" in ar:
+        return _slot_linear_algebra(st, rho)
     if st.kind == "banded":
         Pb, coef, rows = ar["band_P"], ar["band_coef"], ar["band_rows"]
 
@@ -546,6 +607,58 @@ def _linear_algebra(st: IPMSetup, rho) -> _LinAlg:
         def msolve(L, r):
             t = jax.scipy.linalg.solve_triangular(L, r, lower=True)
             return jax.scipy.linalg.solve_triangular(L, t, lower=True, trans="T")
+
+    return _LinAlg(Amul, ATmul, Pmul, factor, msolve)
+
+
+def _shift(v, k: int):
+    """``out[c] = v[c − k]`` (zero for ``c < k``), along the first axis."""
+    if k == 0:
+        return v
+    return jnp.concatenate([jnp.zeros((k, *v.shape[1:]), v.dtype), v[: v.shape[0] - k]])
+
+
+def _slot_linear_algebra(st: IPMSetup, rho) -> _LinAlg:
+    """Banded ``M`` assembled from the slots of :func:`_slot_tables` (one gather of ``d`` to the
+    slots, then shifted slices), ``P̄`` applied in band storage; ``Ā`` and ``Āᵀ`` by the dense
+    batched matmul, which XLA's CPU backend runs faster than any product over the nonzeros that
+    was tried (slices over the slots, gathers: see docs/experiments/qp-backends.md)."""
+    ar, n, w, f64 = st.arrays, st.n, st.width, jnp.float64
+    Ad, VV, Pb = ar["A"], ar["slot_VV"], ar["band_P"]
+    R = VV.shape[1]
+    span = int(round((np.sqrt(8 * VV.shape[0] + 1) - 1) / 2))  # pairs = span(span+1)/2
+    pairs = [(a, b) for a in range(span) for b in range(a + 1)]
+
+    def Amul(x):
+        return Ad @ x
+
+    def ATmul(y):
+        return y @ Ad
+
+    def left_padded(v):  # (R·n,) → (R, n + span − 1), v at columns span − 1 …
+        return jnp.concatenate([jnp.zeros((R, span - 1), f64), v.reshape(R, n)], axis=1)
+
+    def Pmul(x):
+        xe = jnp.concatenate([x, jnp.zeros(w, f64)])
+        out = sum(Pb[:, k] * xe[k : k + n] for k in range(w + 1))  # on and below the diagonal
+        return out + sum(_shift(Pb[:, k] * x, k) for k in range(1, w + 1))
+
+    def factor(d):
+        # d to the slots (a gather of n·R entries; the gather tables of _band_tables had
+        # n·(w+1)·T), then M's band columns from shifted slices
+        d = jnp.concatenate([d, jnp.zeros(1, f64)])[ar["row_of_slot"]]
+        De, o = left_padded(d), span - 1
+        terms: list[list[Any]] = [[] for _ in range(w + 1)]
+        for p, (a, b) in enumerate(pairs):  # a row at j: Ā[·, j+a] Ā[·, j+b] → M[j+a, j+b]
+            terms[a - b].append(VV[p] * De[:, o - b : o - b + n])
+        cols = [
+            Pb[:, k] + (jnp.sum(sum(terms[k]), axis=0) if terms[k] else 0.0) for k in range(w + 1)
+        ]
+        cols[0] = cols[0] + rho
+        return _band_cholesky(jnp.stack(cols, axis=1), w, 1e-13, 1e-8)
+
+    def msolve(L, r):
+        return _band_solve(L, r, w)
 
     return _LinAlg(Amul, ATmul, Pmul, factor, msolve)
 
@@ -829,7 +942,8 @@ def _ipm_one(st: IPMSetup, q, l, u):
     D, E, c = ar["D"], ar["E"], ar["c"]
     sc = _Scaling(D, E, c, 1.0 / D, 1.0 / E)
     rows = _classify_rows(l, u)
-    qp = _QP(q, l, u, st.n, st.m, st.refine_iter, prm, sc, rows, _linear_algebra(st, prm.rho))
+    m = l.shape[0]
+    qp = _QP(q, l, u, st.n, m, st.refine_iter, prm, sc, rows, _linear_algebra(st, prm.rho))
     out = lax.while_loop(
         lambda carry: carry.status == _RUNNING,
         lambda carry: _ipm_step(qp, carry),
@@ -970,13 +1084,19 @@ class IPMBackend(Backend):
         P, A = batch.dense()
         P = np.asarray(P, np.float64)
         A = np.asarray(A, np.float64).reshape(batch.m, batch.n)
-        setup, cached = self._setup(P, A, s)
+        # rows free in every QP of the batch (both bounds infinite) leave the iteration
+        keep = ~np.all(np.isneginf(batch.l) & np.isposinf(batch.u), axis=0)
+        setup, cached = self._setup(P, A[keep], s)
         t_setup = time.perf_counter() - t0
         t1 = time.perf_counter()
         try:
             with jax.enable_x64(True):
-                res = _ipm_iterate_jit(setup, batch.q, batch.l, batch.u)
+                res = _ipm_iterate_jit(setup, batch.q, batch.l[:, keep], batch.u[:, keep])
                 res = jax.tree_util.tree_map(np.asarray, res)
+            if not keep.all():  # a free row's multiplier is 0
+                y_all = np.zeros((len(batch), batch.m))
+                y_all[:, keep] = res.y
+                res = res._replace(y=y_all)
         except Exception as exc:  # noqa: BLE001 - a backend returns a status, never raises
             B = len(batch)
             sols = [

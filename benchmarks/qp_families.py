@@ -1,0 +1,228 @@
+"""``ipm`` on projection QP families it was not tuned for, against PIQP and Clarabel.
+
+The families of ``mmdopt bench qp-backends`` are the team's own (Bernstein coefficients, or
+waypoints in ``[x…, y…]`` order with every row finite).  These two are built differently, as a
+user's projection would be:
+
+``positions``
+    Waypoint positions interleaved ``(x_0, y_0, x_1, y_1, …)``, ``N = 100`` steps, ``n = 200``,
+    ``m = 796``.  ``P`` tracks a target with unequal axis weights plus a second-difference
+    smoother (banded, not the identity).  Rows: the ``x_k`` values (free except an obstacle window
+    ``x_k ≤ s_obs`` of ten steps), a narrowing lane ``|y_k| ≤ w_k``, ``0 ≤ Δx_k ≤ v_max Δt``,
+    ``|Δy_k| ≤ v_y Δt`` (free past the middle of the horizon in half of the QPs), per-axis
+    ``|Δ²·| ≤ a Δt²``, the coupled ``|Δ²x_k ± Δ²y_k| ≤ a_max Δt²`` (free in half of the QPs) and
+    six initial-state equalities.  About a third of the rows are free (both bounds infinite).
+``coupled``
+    ``[x…, y…]`` order, ``N = 80``, ``n = 160``, ``m = 714``.  ``P`` tracks a target plus a jerk
+    smoother.  Rows: two halfspaces per step ``n_k·(x_k, y_k) ≤ c_k`` (a corridor along a curving
+    road: each row couples the two axes, 80 columns apart before reordering), the velocity rows
+    ``|Δx_k ± Δy_k| ≤ v Δt``, per-axis acceleration ``|Δ²·|`` and jerk ``|Δ³·|`` bounds,
+    progress rows ``x_k ≥ s_k`` (finite at one step in five, free elsewhere) and six
+    initial-state equalities.
+
+Every QP of a family shares ``P`` and ``A`` (``scipy.sparse``, as a user with this structure
+passes them: the sparse solvers then see only the nonzeros); ``q``, ``l``, ``u`` differ
+(seeded).  Bounds are set around a smooth reference that satisfies every row with a margin, so
+each QP is feasible; targets are the reference plus smooth deviations and noise, so many rows
+are active.  Each backend solves the whole batch
+with ``solvers.solve_batch`` (:func:`mmdopt.bench.qp_backends.run_family`: time per QP, max
+violation, max objective gap to Clarabel at tolerance 1e-12, ratio to ``qpsolvers:piqp`` in the
+same run).
+
+::
+
+    python -m benchmarks.qp_families                               # both, 1000 QPs each
+    python -m benchmarks.qp_families --family positions --batch 200 --backends ipm
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+
+import numpy as np
+import scipy.sparse as sp
+
+from mmdopt.bench.qp_backends import PEER, SETTINGS, run_family
+from solvers import QPBatch
+
+__all__ = ["positions_batch", "coupled_batch", "FAMILIES", "main"]
+
+
+def _diff(n: int, order: int) -> np.ndarray:
+    D = np.eye(n)
+    for _ in range(order):
+        D = D[1:] - D[:-1]
+    return D
+
+
+def _rows_between(ref: np.ndarray, rng: np.random.Generator, lo: float, hi: float, floor: float):
+    """Two-sided bounds around ``ref``: a margin in ``[lo, hi]`` times ``floor`` each side."""
+    return (
+        ref - floor * rng.uniform(lo, hi, ref.shape),
+        ref + floor * rng.uniform(lo, hi, ref.shape),
+    )
+
+
+def _wiggle(rng: np.random.Generator, t: np.ndarray, scale: float, noise: float) -> np.ndarray:
+    """A smooth random deviation (four sines of random phase) plus white noise."""
+    T = t[-1] if t[-1] > 0 else 1.0
+    smooth = sum(
+        rng.normal(0.0, scale) * np.sin((k + 1) * np.pi * t / T + rng.uniform(0.0, np.pi))
+        for k in range(4)
+    )
+    return smooth + rng.normal(0.0, noise, t.shape)
+
+
+def positions_batch(batch_size: int = 1000, horizon: int = 100, *, seed: int = 0) -> QPBatch:
+    """The ``positions`` family (module docstring): ``n = 2N``, ``m = 8N − 4``."""
+    if batch_size < 1 or horizon < 8:
+        raise ValueError("batch_size must be ≥ 1 and horizon ≥ 8")
+    N, dt = horizon, 0.1
+    rng = np.random.default_rng(seed)
+    Sx, Sy = np.zeros((N, 2 * N)), np.zeros((N, 2 * N))
+    Sx[np.arange(N), 2 * np.arange(N)] = 1.0  # interleaved variables
+    Sy[np.arange(N), 2 * np.arange(N) + 1] = 1.0
+    D1, D2 = _diff(N, 1), _diff(N, 2)
+    A = np.vstack(
+        [Sx, Sy, D1 @ Sx, D1 @ Sy, D2 @ Sx, D2 @ Sy, D2 @ Sx + D2 @ Sy, D2 @ Sx - D2 @ Sy]
+        + [Sx[:1], Sy[:1], (D1 @ Sx)[:1], (D1 @ Sy)[:1], (D2 @ Sx)[:1], (D2 @ Sy)[:1]]
+    )
+    wx, wy, lam = 1.0, 4.0, 0.5
+    W = np.diag(np.tile([wx, wy], N))
+    P = W + lam * ((D2 @ Sx).T @ (D2 @ Sx) + (D2 @ Sy).T @ (D2 @ Sy))
+    t = np.arange(N) * dt
+    inf = np.inf
+    qs, ls, us = [], [], []
+    for _ in range(batch_size):
+        v0, acc = rng.uniform(4.0, 10.0), rng.uniform(-0.5, 0.5)
+        amp, freq = rng.uniform(0.2, 0.8), rng.uniform(0.3, 1.0)
+        rx = v0 * t + 0.5 * acc * t**2
+        ry = amp * np.sin(freq * t + rng.uniform(0.0, np.pi))
+        ref = np.stack([rx, ry], axis=1).reshape(-1)
+        Ar = A @ ref
+        lx, ux = np.full(N, -inf), np.full(N, inf)
+        k0 = rng.integers(20, N - 10)
+        ux[k0 : k0 + 10] = rx[k0 : k0 + 10] + rng.uniform(0.2, 1.0)  # obstacle ahead
+        lane = np.abs(ry).max() + rng.uniform(0.05, 0.3) + np.linspace(0.5, 0.0, N)
+        ly, uy = -lane, lane
+        dx = Ar[2 * N : 3 * N - 1]
+        ldx, udx = np.zeros(N - 1), np.full(N - 1, max(dx.max(), 0.0) + rng.uniform(0.05, 0.3))
+        ldy, udy = _rows_between(Ar[3 * N - 1 : 4 * N - 2], rng, 0.5, 2.0, 0.05)
+        if rng.random() < 0.5:  # lateral speed free in the second half
+            ldy[N // 2 :], udy[N // 2 :] = -inf, inf
+        rest = Ar[4 * N - 2 : 8 * N - 10]
+        la, ua = _rows_between(rest, rng, 0.5, 2.0, 0.02)
+        if rng.random() < 0.5:  # no coupled acceleration rows in this QP
+            la[2 * (N - 2) :], ua[2 * (N - 2) :] = -inf, inf
+        eq = Ar[8 * N - 10 :]
+        noise = np.stack([_wiggle(rng, t, 2.0, 0.2), _wiggle(rng, t, 1.0, 0.1)], axis=1)
+        target = ref + noise.reshape(-1) + np.tile([rng.uniform(0.0, 3.0), 0.0], N)
+        qs.append(-W @ target)
+        ls.append(np.concatenate([lx, ly, ldx, ldy, la, eq]))
+        us.append(np.concatenate([ux, uy, udx, udy, ua, eq]))
+    return QPBatch(sp.csc_matrix(P), sp.csc_matrix(A), np.array(qs), np.array(ls), np.array(us))
+
+
+def coupled_batch(batch_size: int = 1000, horizon: int = 80, *, seed: int = 0) -> QPBatch:
+    """The ``coupled`` family (module docstring): ``n = 2N``, ``m = 9N − 6``."""
+    if batch_size < 1 or horizon < 8:
+        raise ValueError("batch_size must be ≥ 1 and horizon ≥ 8")
+    N, dt = horizon, 0.1
+    rng = np.random.default_rng(seed)
+    I, Z = np.eye(N), np.zeros((N, N))
+    X, Y = np.hstack([I, Z]), np.hstack([Z, I])
+    D1, D2, D3 = _diff(N, 1), _diff(N, 2), _diff(N, 3)
+    t = np.arange(N) * dt
+    # corridor along a road of constant curvature: unit normals rotate with the heading
+    heading = 0.25 * t
+    nx, ny = -np.sin(heading), np.cos(heading)
+    H = np.vstack([nx[:, None] * X + ny[:, None] * Y, -(nx[:, None] * X + ny[:, None] * Y)])
+    A = np.vstack(
+        [H, D1 @ X + D1 @ Y, D1 @ X - D1 @ Y, D2 @ X, D2 @ Y, D3 @ X, D3 @ Y, X]
+        + [X[:1], Y[:1], (D1 @ X)[:1], (D1 @ Y)[:1], (D2 @ X)[:1], (D2 @ Y)[:1]]
+    )
+    W = np.diag(np.concatenate([np.full(N, 1.0), np.full(N, 2.0)]))
+    P = W + 2.0 * ((D3 @ X).T @ (D3 @ X) + (D3 @ Y).T @ (D3 @ Y))
+    inf = np.inf
+    qs, ls, us = [], [], []
+    for _ in range(batch_size):
+        v0 = rng.uniform(3.0, 8.0)
+        # the reference follows the road's centre line (arc length v0 t) with a lateral offset
+        s = v0 * t
+        off = rng.uniform(-0.3, 0.3) * np.sin(rng.uniform(0.2, 0.8) * t)
+        cx = np.cumsum(v0 * dt * np.cos(heading)) - v0 * dt
+        cy = np.cumsum(v0 * dt * np.sin(heading)) - v0 * dt * np.sin(heading[0])
+        rx, ry = cx + off * nx, cy + off * ny
+        ref = np.concatenate([rx, ry])
+        Ar = A @ ref
+        half = rng.uniform(0.5, 1.5)
+        uh = np.concatenate([Ar[:N] + half - off, Ar[N : 2 * N] + half + off])
+        lh = np.full(2 * N, -inf)
+        lv, uv = _rows_between(Ar[2 * N : 4 * N - 2], rng, 0.5, 2.0, 0.1)
+        lk, uk = _rows_between(Ar[4 * N - 2 : 8 * N - 8], rng, 0.5, 2.0, 0.01)
+        lp, up = np.full(N, -inf), np.full(N, inf)
+        every = np.arange(0, N, 5)
+        lp[every] = Ar[8 * N - 8 : 9 * N - 8][every] - rng.uniform(0.0, 0.5)
+        eq = Ar[9 * N - 8 :]
+        target = ref + np.concatenate([_wiggle(rng, t, 1.0, 0.1), _wiggle(rng, t, 1.5, 0.1)])
+        target[:N] += rng.uniform(-0.5, 0.5) * s  # faster or slower than the reference
+        qs.append(-W @ target)
+        ls.append(np.concatenate([lh, lv, lk, lp, eq]))
+        us.append(np.concatenate([uh, uv, uk, up, eq]))
+    return QPBatch(sp.csc_matrix(P), sp.csc_matrix(A), np.array(qs), np.array(ls), np.array(us))
+
+
+FAMILIES = {"positions": positions_batch, "coupled": coupled_batch}
+
+
+def main(argv: list[str] | None = None) -> int:
+    """Command line; returns the exit status."""
+    ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    ap.add_argument("--batch", type=int, default=1000, help="QPs per family (default 1000)")
+    ap.add_argument("--family", default="positions,coupled", help="comma-separated names")
+    ap.add_argument("--backends", default="ipm,qpsolvers:piqp,clarabel", help="comma-separated")
+    ap.add_argument("--repeats", type=int, default=1, help="warm runs per backend (min is shown)")
+    ap.add_argument("--seed", type=int, default=0)
+    args = ap.parse_args(argv)
+    if args.batch < 1 or args.repeats < 1:
+        ap.error("--batch and --repeats must be ≥ 1")
+    families = [f for f in args.family.split(",") if f]
+    unknown = sorted(set(families) - set(FAMILIES))
+    if unknown:
+        ap.error(f"unknown family {unknown}; choose from {sorted(FAMILIES)}")
+    names = [s for s in args.backends.split(",") if s]
+    if PEER not in names:
+        names.append(PEER)
+    print(f"load average at start: {os.getloadavg()[0]:.1f} on {os.cpu_count()} CPUs")
+    for fam in families:
+        batch = FAMILIES[fam](args.batch, seed=args.seed)
+        free = np.mean(np.isinf(batch.l) & np.isinf(batch.u))
+        print(f"\n## {fam}: n = {batch.n}, m = {batch.m}, {len(batch)} QPs, {free:.0%} free rows")
+        rows = run_family(fam, batch, names, args.repeats)
+        peer = next((r for r in rows if r["name"] == PEER), None)
+        print(
+            "\n| backend | time per QP (ms) | max violation | max obj. gap (rel) | solved "
+            f"| ÷ {PEER} |\n|---|---:|---:|---:|---:|---:|"
+        )
+        for r in rows:
+            ratio = f"{r['per_qp'] / peer['per_qp']:.2f}" if peer else "–"
+            print(
+                f"| {r['name']} | {1e3 * r['per_qp']:.2f} | {r['viol']:.1e} | {r['gap']:.1e} "
+                f"| {r['solved']}/{len(batch)} | {ratio} |"
+            )
+        for r in rows:
+            if r["name"] == "ipm":
+                ex = r["extras"]
+                print(
+                    f"ipm: linear solver {ex.get('linear_solver')}, half-bandwidth "
+                    f"{ex.get('bandwidth')}, max iterations {r['iterations']}, "
+                    f"compile {r['compile']:.1f} s"
+                )
+    print(f"\nsettings: { {n: SETTINGS.get(n, 'defaults') for n in names} }")
+    print(f"load average at end: {os.getloadavg()[0]:.1f}")
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
