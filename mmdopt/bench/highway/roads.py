@@ -218,10 +218,9 @@ def straight_along_x(network, lanes) -> bool:
 
 
 def _make_road(path, offsets, limits: dict) -> mmdopt.Road:
-    kw = dict(limits)
-    if "lane_centres" in {f.name for f in dataclasses.fields(mmdopt.Road)}:
-        kw["lane_centres"] = tuple(offsets)
-    return mmdopt.Road(path=path, y_lb=min(offsets), y_ub=max(offsets), **kw)
+    return mmdopt.Road(
+        path=path, y_lb=min(offsets), y_ub=max(offsets), lane_centres=tuple(offsets), **limits
+    )
 
 
 def build_road(
