@@ -37,10 +37,14 @@ class SimulatorPredictor:
     For each of ``n`` rollouts the nearby traffic (cars within ``radius`` m of the ego) is cloned
     and every IDM/MOBIL car gets randomised driver parameters: desired speed
     ± ``speed_spread`` (Gaussian), time gap U[1, 2] s, comfortable acceleration U[2, 4] m/s²,
-    comfortable deceleration U[4, 6] m/s², IDM exponent U[3.5, 4.5], MOBIL politeness U[0, 0.5],
-    gain threshold U[0, 0.4] m/s², lane-change timer phase; with probability
-    ``lane_change_prob`` a car is also sent to a random neighbouring lane at a random time in the
-    first half of the horizon (the modes).  The ego keeps following its current plan.
+    comfortable deceleration U[4, 6] m/s², IDM exponent U[3.5, 4.5], gain threshold
+    U[0, 0.4] m/s², lane-change timer phase; the MOBIL politeness stays each car's own
+    (highway-env's ``IDMVehicle.POLITENESS`` = 0): a polite car in a rollout makes way for a fast
+    ego behind it (MOBIL's politeness term counts the braking the ego would need), which
+    highway-env's cars never do, so the predictions would promise a gap that does not open.
+    With probability ``lane_change_prob`` a car is also sent to a random neighbouring lane at a
+    random time in the first half of the horizon (the modes).  The ego keeps following its
+    current plan.
 
     ``mode="auto"`` (default) picks ``"vectorised"`` on roads made only of straight lanes along
     +x (highway-v0) and ``"clone"`` otherwise (merge-v0's ramp).  ``mode="vectorised"`` steps
@@ -132,7 +136,6 @@ class SimulatorPredictor:
             p["COMFORT_ACC_MAX"] = 2.0 + 2.0 * r((n, N))
             p["COMFORT_ACC_MIN"] = -6.0 + 2.0 * r((n, N))
             p["DELTA"] = 3.5 + r((n, N))
-            p["POLITENESS"] = 0.5 * r((n, N))
             p["LANE_CHANGE_MIN_ACC_GAIN"] = 0.4 * r((n, N))
             p["timer"] = r((n, N))
             is_target = np.zeros(N, bool)

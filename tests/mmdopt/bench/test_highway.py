@@ -180,6 +180,30 @@ def test_random_lane_changes_make_the_predictions_multimodal():
         src.close()
 
 
+@pytest.mark.parametrize("mode", ["vectorised", "clone"])
+def test_a_slower_car_ahead_is_not_predicted_to_make_way_for_a_fast_ego(mode):
+    # highway-env's drivers have MOBIL politeness 0: a slower car does not leave its lane because
+    # the ego closes in from behind, so no rollout may show it doing so (a rollout that did
+    # promised the ego a gap that never opened, and the ego ran into the car)
+    from highway_env.vehicle.behavior import IDMVehicle
+
+    src = _source(seed=11)
+    try:
+        road, ego = src.env.road, src.ego
+        lane = road.network.get_lane(ego.lane_index)
+        y = float(lane.position(0.0, 0.0)[1])
+        ego.position, ego.heading, ego.speed = np.array([100.0, y]), 0.0, 28.0
+        lead = IDMVehicle(road, np.array([115.0, y]), 0.0, 18.0, target_speed=18.0)
+        road.vehicles[:] = [ego, lead]
+        t = np.linspace(0.0, 5.0, 51)
+        ego.set_plan(t, 100.0 + 28.0 * t, np.full_like(t, y), 0 * t, np.full_like(t, 28.0))
+        pred = hw.SimulatorPredictor(lane_change_prob=0.0, mode=mode)
+        s = pred(road, ego, [lead], src.t_grid, 20, np.random.default_rng(0))
+        assert np.all(np.abs(s[0, :, :, 1] - y) < 1.0)  # every sample stays in its lane
+    finally:
+        src.close()
+
+
 def test_constant_velocity_predictor_extrapolates():
     src = _scene()
     try:
