@@ -26,11 +26,12 @@ episode, the resumable sweep, videos) and ``cli``.
 * Frequencies are explicit: ``simulation_frequency`` (default 10 Hz) and ``policy_frequency`` =
   1/δ (default 2 Hz: replan every δ = 0.5 s, five simulator steps per plan).
 * Predictors (each returns ``(O, n, K, 2)`` Cartesian samples on the planner's grid and is timed
-  per call): :class:`SimulatorPredictor` clones the simulator (the nearby vehicles, with a fresh
-  road sharing the lane network) and rolls out highway-env's own IDM/MOBIL models with
-  randomised driver parameters and random forced lane changes — multi-modal by construction;
-  :class:`ConstantVelocityPredictor` extrapolates each car's velocity with Gaussian velocity
-  noise.
+  per call): :class:`SimulatorPredictor`, the simulator oracle (``--predictor sim``), clones the
+  simulator (the nearby vehicles, with a fresh road sharing the lane network) and rolls out
+  highway-env's own IDM/MOBIL models with randomised driver parameters and random forced lane
+  changes — multi-modal by construction; :class:`ConstantVelocityPredictor` extrapolates each
+  car's velocity with Gaussian velocity noise; :class:`LearnedPredictor` samples the
+  mixture-density network trained on highway-env rollouts of other seeds (``training``).
 * Methods: ``mmd`` (MMD-Opt), ``degroot`` (the scenario baseline), ``cv`` (Algorithm 1 with the
   scenario cost against the single noise-free constant-velocity prediction of each car: a planner
   that ignores uncertainty) and ``idm`` (highway-env's own IDM/MOBIL driver as the ego: the
@@ -52,6 +53,7 @@ from .adapter import (
 from .cli import add_highway_parser, cmd_highway, main
 from .predictors import (
     ConstantVelocityPredictor,
+    LearnedPredictor,
     SimulatorPredictor,
     _straight_parallel,
     make_predictor,
@@ -82,6 +84,7 @@ __all__ = [
     "plan_curvature",
     "SimulatorPredictor",
     "ConstantVelocityPredictor",
+    "LearnedPredictor",
     "make_predictor",
     "vehicle_to_frenet",
     "frenet_to_pose",

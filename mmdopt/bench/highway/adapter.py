@@ -437,6 +437,7 @@ class HighwaySource:
         for _ in range(self.settings.frames_per_step):
             env.road.act()
             env.road.step(1.0 / self.settings.simulation_frequency)
+            self.predictor.record(env.road, 1.0 / self.settings.simulation_frequency)
             env.steps += 1
             self.speeds.append(float(self.ego.speed))
             if self._between_lanes():

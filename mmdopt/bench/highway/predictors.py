@@ -1,13 +1,18 @@
-"""Predictors of the highway benchmark: simulator rollouts (vectorised replica of highway-env's
-IDM/MOBIL, or exact clones) and constant velocity.  Each returns ``(O, n, K, 2)`` samples on the
-planner's grid and records its wall time per call in ``last_time_s``."""
+"""Predictors of the highway benchmark: the simulator oracle (rollouts of highway-env's own
+IDM/MOBIL driver models: a vectorised replica or exact clones), constant velocity, and a learned
+mixture-density network trained on highway-env rollouts of other seeds (no access to the
+simulator's models).  Each returns ``(O, n, K, 2)`` samples on the planner's grid and records its
+wall time per call in ``last_time_s``; ``record(road, dt)`` is called after every simulator frame
+(the learned predictor keeps the positions as histories, the others ignore it)."""
 
 from __future__ import annotations
 
 import copy
 import math
 import time
-from dataclasses import dataclass
+from collections import deque
+from dataclasses import dataclass, field
+from pathlib import Path
 
 import numpy as np
 
@@ -32,7 +37,8 @@ def _clone_road(road, vehicles, seed: int):
 
 @dataclass
 class SimulatorPredictor:
-    """Samples of each car's future from the simulator's own driver models.
+    """The simulator oracle: samples of each car's future from the simulator's own driver models
+    (the very models that drive the traffic, so an upper bound on what a predictor can know).
 
     For each of ``n`` rollouts the nearby traffic (cars within ``radius`` m of the ego) is cloned
     and every IDM/MOBIL car gets randomised driver parameters: desired speed
@@ -70,6 +76,9 @@ class SimulatorPredictor:
     def __post_init__(self) -> None:
         if self.mode not in ("auto", "vectorised", "clone"):
             raise ValueError(f"mode must be 'auto', 'vectorised' or 'clone', got {self.mode!r}")
+
+    def record(self, road, dt: float) -> None:
+        """Nothing: the rollouts start from the current state."""
 
     def __call__(self, road, ego_vehicle, targets, t_grid: np.ndarray, n: int, rng) -> np.ndarray:
         t0 = time.perf_counter()
@@ -406,6 +415,150 @@ def _ego_motion(ego):
     return f
 
 
+#: the shipped weights of the learned highway predictor (``.eqx`` + ``.json``; trained with
+#: ``mmdopt predictor train --source highway``, docs/experiments/highway.md)
+HIGHWAY_WEIGHTS = Path(__file__).resolve().parents[2] / "predict" / "weights" / "mdn_highway"
+
+
+@dataclass
+class LearnedPredictor:
+    """The mixture-density network of :class:`mmdopt.predict.Learned` with the weights trained on
+    highway-env rollouts of the training seeds (:mod:`.training`; ``weights`` overrides the
+    path), sampled in each car's lane frame.
+
+    Histories: :meth:`record` keeps every car's positions after each simulator frame (the
+    source calls it); a call interpolates the model's ``history_len`` rows at its
+    ``dt_history`` spacing back from now, and where a car has been seen for less than that
+    (the first replans) continues its oldest position backwards at its current velocity.  The
+    context (lane centre line, lane width, side lanes, neighbour gaps) comes from the road's
+    lane network (:func:`.training.scene_context`).  ``spread`` scales the mixture's standard
+    deviations when sampling.  On roads whose lanes all run along +x (highway-v0, merge-v0)
+    every sample stays on the road: its lateral position is clipped to the road's extent at its
+    x (:func:`_road_extent`; highway-env's cars never leave the lanes), which the mixture's wide
+    components for cars in mid lane change would otherwise overshoot by up to ~10 m.  The
+    default ``spread`` 1.5 was chosen on validation rollouts (seeds 100–102, merge-v0 100–111:
+    neither training nor held-out seeds) among 1, 1.5 and 2: the lowest or within 0.1 m of the
+    lowest minFDE@20 on all three traffic settings, and the lowest KDE NLL on two of them."""
+
+    weights: str | Path | None = None
+    spread: float = 1.5
+    name: str = "learned"
+    last_time_s: float = 0.0
+    _model: object = field(default=None, init=False, repr=False)
+    _tracks: dict = field(default_factory=dict, init=False, repr=False)
+    _clock: float = field(default=0.0, init=False, repr=False)
+    _keep: int = field(default=0, init=False, repr=False)
+
+    def __post_init__(self) -> None:
+        from mmdopt.predict.learned import Learned
+
+        self._model = Learned(
+            HIGHWAY_WEIGHTS if self.weights is None else self.weights, self.spread
+        )
+        cfg = self._model.config
+        self._keep = int(math.ceil(cfg.history_len * cfg.dt_history / 0.02)) + 2
+
+    def record(self, road, dt: float) -> None:
+        """Advance the predictor's clock by ``dt`` (s) and store every car's position."""
+        if not (isinstance(dt, int | float) and dt >= 0):
+            raise ValueError(f"dt must be a time step >= 0 s, got {dt!r}")
+        self._clock += float(dt)
+        for v in road.vehicles:
+            entry = self._tracks.get(id(v))
+            if entry is None or entry[0] is not v:  # a new car (or a reused id)
+                entry = (v, deque(maxlen=self._keep))
+                self._tracks[id(v)] = entry
+            hist = entry[1]
+            if hist and self._clock - hist[-1][0] < 1e-9:
+                hist.pop()
+            hist.append((self._clock, np.array(v.position, dtype=float)))
+
+    def _history(self, v) -> np.ndarray:
+        """(H, 2) positions of ``v`` at ``now − (H−1)·dt_history, …, now``."""
+        cfg = self._model.config
+        t = self._clock - cfg.dt_history * np.arange(cfg.history_len - 1, -1, -1)
+        ts = np.array([r[0] for r in self._tracks[id(v)][1]])
+        ps = np.array([r[1] for r in self._tracks[id(v)][1]])
+        out = np.stack([np.interp(t, ts, ps[:, 0]), np.interp(t, ts, ps[:, 1])], axis=-1)
+        early = t < ts[0] - 1e-9  # not seen yet: constant velocity backwards
+        vel = np.asarray(v.velocity, dtype=float)
+        out[early] = ps[0] + (t[early] - ts[0])[:, None] * vel
+        return out
+
+    def __call__(self, road, ego_vehicle, targets, t_grid: np.ndarray, n: int, rng) -> np.ndarray:
+        import jax
+
+        from .training import scene_context
+
+        t0 = time.perf_counter()
+        t_grid = np.asarray(t_grid, dtype=np.float64)
+        if isinstance(n, bool) or not isinstance(n, int | np.integer) or n < 1:
+            raise ValueError(f"n must be a positive int, got {n!r}")
+        O, K = len(targets), t_grid.shape[0]
+        if O == 0:
+            self.last_time_s = time.perf_counter() - t0
+            return np.zeros((0, n, K, 2))
+        self.record(road, 0.0)  # now (a no-op when the source recorded this frame)
+        cars = list(road.vehicles)
+        idx = []
+        for v in targets:
+            i = next((i for i, u in enumerate(cars) if u is v), None)
+            if i is None:
+                cars.append(v)
+                i = len(cars) - 1
+            idx.append(i)
+        for v in cars[len(road.vehicles) :]:  # targets not on the road's list
+            self._tracks.setdefault(id(v), (v, deque([(self._clock, np.array(v.position))])))
+        history = np.stack([self._history(v) for v in targets])
+        ctx = scene_context(
+            road.network,
+            [v.lane_index for v in cars],
+            np.array([v.position for v in cars], float),
+            np.array([v.speed for v in cars], float),
+            idx,
+            t_grid,
+            self._model.config.dt_history,
+        )
+        key = jax.random.PRNGKey(int(rng.integers(2**31 - 1)))
+        out = self._model.sample(history, ctx, int(n), key)
+        extent = _road_extent(road.network, out[..., 0].min(), out[..., 0].max())
+        if extent is not None:
+            xs, lo, hi = extent
+            half = 0.5 * float(getattr(targets[0], "WIDTH", 2.0))
+            y_lo, y_hi = (
+                np.interp(out[..., 0], xs, lo) + half,
+                np.interp(out[..., 0], xs, hi) - half,
+            )
+            out[..., 1] = np.clip(out[..., 1], y_lo, np.maximum(y_hi, y_lo))
+        self.last_time_s = time.perf_counter() - t0
+        return out
+
+
+def _road_extent(network, x_min: float, x_max: float, step: float = 2.0):
+    """``(xs, y_lo, y_hi)``: the road's lateral extent (outer lane edges) on a grid ``xs`` of
+    ``[x_min, x_max]`` when every lane runs along +x (heading within 60° of +x), else ``None``;
+    beyond the lanes' ends the extent at the nearest covered ``x``."""
+    xs = np.arange(float(x_min) - step, float(x_max) + 2 * step, step)
+    lo, hi = np.full(xs.shape, np.inf), np.full(xs.shape, -np.inf)
+    for lane in network.lanes_list():
+        s = np.linspace(0.0, float(lane.length), max(2, int(lane.length // step) + 2))
+        if s[-1] > 5000.0:  # highway-v0's 10 km lanes: only the stretch around [x_min, x_max]
+            x0 = float(lane.local_coordinates(np.array([x_min, 0.0]))[0])
+            s = np.clip(np.arange(x0 - 2 * step, x0 + (x_max - x_min) + 3 * step, step), 0, s[-1])
+        pts = np.array([lane.position(si, 0.0) for si in s])
+        if np.any(np.cos([lane.heading_at(si) for si in s]) < 0.5):
+            return None
+        w = 0.5 * float(lane.width_at(0.0))
+        inside = (xs >= pts[0, 0]) & (xs <= pts[-1, 0])
+        y = np.interp(xs[inside], pts[:, 0], pts[:, 1])
+        lo[inside] = np.minimum(lo[inside], y - w)
+        hi[inside] = np.maximum(hi[inside], y + w)
+    ok = np.isfinite(lo)
+    if not ok.any():
+        return None
+    return xs[ok], lo[ok], hi[ok]
+
+
 @dataclass
 class ConstantVelocityPredictor:
     """Each car keeps its current velocity; sample ``j > 0`` adds Gaussian velocity noise
@@ -419,6 +572,9 @@ class ConstantVelocityPredictor:
     sigma_lat: float = 0.3
     name: str = "cv"
     last_time_s: float = 0.0
+
+    def record(self, road, dt: float) -> None:
+        """Nothing: the current velocity is all it uses."""
 
     def __call__(self, road, ego_vehicle, targets, t_grid: np.ndarray, n: int, rng) -> np.ndarray:
         t0 = time.perf_counter()
@@ -449,9 +605,13 @@ class ConstantVelocityPredictor:
         return out
 
 
-def make_predictor(name: str):
+def make_predictor(name: str, weights: str | Path | None = None):
+    """The predictor ``name`` (:data:`~.settings.PREDICTORS`): ``"sim"`` (the simulator oracle),
+    ``"cv"`` or ``"learned"`` (``weights``: a path other than the shipped highway weights)."""
     if name == "sim":
         return SimulatorPredictor()
     if name == "cv":
         return ConstantVelocityPredictor()
+    if name == "learned":
+        return LearnedPredictor(weights=weights)
     raise ValueError(f"predictor must be one of {PREDICTORS}, got {name!r}")

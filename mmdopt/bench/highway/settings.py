@@ -11,7 +11,10 @@ import mmdopt
 from mmdopt.safety import RSSConfig
 
 METHODS = ("mmd", "degroot", "cv", "idm")
-PREDICTORS = ("sim", "cv")
+#: "sim": the simulator oracle (rollouts of highway-env's own driver models); "cv": constant
+#: velocity; "learned": the MDN trained on highway-env rollouts of seeds >= 100000 (the
+#: benchmark's episodes use seeds below 100000)
+PREDICTORS = ("sim", "cv", "learned")
 #: planner settings for highway driving (overridable with ``--config``): a 5 s horizon on a 0.1 s
 #: grid (51 points), sizes cut to fit the 0.5 s replan budget on a 2-core CPU, the speed limit as
 #: the desired speed, and the lateral collision semi-axis of highway-env's 2 m wide cars (2 m
@@ -131,7 +134,7 @@ class HighwaySettings:
     max_obstacles : obstacles given to the planner (nearest first, padded with phantoms)
     ahead, behind : perception range along the road (m) for the obstacles given to the planner
     budget_s : per-step plan-time budget (s)
-    predictor : "sim" | "cv"
+    predictor : "sim" (the simulator oracle) | "cv" | "learned" (:data:`PREDICTORS`)
     v_max, ax_max, ay_max, vy_max : the planner's kinematic limits (:class:`mmdopt.Road`)
     env_config : extra highway-env configuration keys
     ego_model : how the ego executes plans: "bicycle" (highway-env's kinematic bicycle with a

@@ -6,7 +6,12 @@
                        [--predictor learned|lane|cv] [--config FILE.json]
                        [--executor local|ray] [--jobs J] [--max-tasks N] [--export DIR]
     mmdopt predictor train [--data DIR] [--out PATH] [--steps N] [--seed S] [--no-eval]
-    mmdopt predictor eval  [--data DIR] [--weights PATH] [--out FILE.json]
+    mmdopt predictor train --source highway [--episodes N] [--duration T] [--out PATH] ...
+    mmdopt predictor eval  [--source ngsim|highway] [--data DIR] [--weights PATH] [--out FILE.json]
+
+``--source highway`` trains on highway-env rollouts instead of the US-101 scenes
+(:mod:`mmdopt.bench.highway.training`; seeds 100000 + i, the benchmark's episodes use seeds
+below 100000) and evaluates on the held-out seeds 0 … 9.
 
 ``add_ngsim_parser(bench_subparsers)`` / ``cmd_ngsim(args)`` and ``add_train_parser(subparsers)``
 / ``cmd_train(args)`` / ``cmd_eval(args)`` plug into :mod:`mmdopt.bench.cli`; :func:`main` runs
@@ -23,7 +28,7 @@ import time
 from collections.abc import Sequence
 from pathlib import Path
 
-from ..argtypes import add_executor, existing_path, method_list, positive_int
+from ..argtypes import add_executor, existing_path, method_list, positive_float, positive_int
 
 __all__ = [
     "add_ngsim_parser",
@@ -190,11 +195,37 @@ def add_train_parser(subparsers) -> argparse.ArgumentParser:
     t.add_argument("--steps", type=positive_int, default=2000)
     t.add_argument("--seed", type=int, default=0)
     t.add_argument("--no-eval", action="store_true", help="skip the held-out evaluation")
+    _add_source(t)
+    t.add_argument(
+        "--duration",
+        type=positive_float,
+        default=30.0,
+        help="--source highway: simulated seconds per training rollout (default 30)",
+    )
     e = ps.add_parser("eval", help="minADE/minFDE@20 and NLL of all predictors, held-out split")
     e.add_argument("--data", type=existing_path, default=None)
     e.add_argument("--weights", default=None, help="learned weights (default: shipped)")
     e.add_argument("--out", default=None, help="write the table as JSON here")
+    _add_source(e, eval_=True)
     return p
+
+
+def _add_source(q: argparse.ArgumentParser, eval_: bool = False) -> None:
+    q.add_argument(
+        "--source",
+        choices=("ngsim", "highway"),
+        default="ngsim",
+        help="ngsim: the US-101 scenes of --data (default); highway: highway-env rollouts "
+        "(highway-v0 default and dense, merge-v0)",
+    )
+    q.add_argument(
+        "--episodes",
+        type=positive_int,
+        default=10 if eval_ else 8,
+        help="--source highway: rollouts per environment (merge-v0: 4x), seeds "
+        + ("0, 1, ... (held out)" if eval_ else "100000, 100001, ...")
+        + f" (default {10 if eval_ else 8})",
+    )
 
 
 def evaluate_heldout(
@@ -311,9 +342,45 @@ def cmd_eval(args, parser=None) -> int:
 
 
 def cmd_predictor(args, parser=None) -> int:
+    if getattr(args, "source", "ngsim") == "highway":
+        return _cmd_highway(args, parser)
     if args.predictor_command == "train":
         return cmd_train(args, parser)
     return cmd_eval(args, parser)
+
+
+def _cmd_highway(args, parser=None) -> int:
+    """``predictor train|eval --source highway`` (:mod:`mmdopt.bench.highway.training`)."""
+    from ..highway.settings import highway_available
+
+    if args.data is not None:
+        return _refuse(parser, "--data", "applies to --source ngsim only")
+    if not highway_available():
+        return _refuse(parser, "--source", 'highway needs highway-env: pip install -e ".[highway]"')
+    from ..highway import training
+
+    if args.predictor_command == "eval":
+        rows = training.evaluate_heldout(args.weights, episodes=args.episodes)
+        for r in rows:
+            print(json.dumps(r))
+        if args.out:
+            Path(args.out).parent.mkdir(parents=True, exist_ok=True)
+            Path(args.out).write_text(json.dumps(rows, indent=1))
+        return 0
+    from ..highway.predictors import HIGHWAY_WEIGHTS
+
+    base, info = training.train_highway(
+        HIGHWAY_WEIGHTS if args.out is None else args.out,
+        episodes=args.episodes,
+        duration=args.duration,
+        steps=args.steps,
+        seed=args.seed,
+        evaluate=not args.no_eval,
+    )
+    print(f"wrote {base}.eqx / .json (final train NLL {info['final_nll']:.3f})")
+    for r in info.get("heldout", []):
+        print(json.dumps(r))
+    return 0
 
 
 def main(argv: Sequence[str] | None = None) -> int:

@@ -1,0 +1,457 @@
+"""Training and evaluation data of the learned highway predictor: highway-env rollouts.
+
+Each rollout resets a highway-env environment (the benchmark's environment settings:
+``simulation_frequency`` 10 Hz, so a simulator frame is 0.1 s, the MDN's history spacing) and
+replaces the ego by highway-env's own IDM/MOBIL driver (:class:`~highway_env.vehicle.behavior
+.IDMVehicle`, desired speed its initial speed), then steps the road frame by frame and records every
+vehicle's position, speed and lane.  Every ``stride`` frames, the vehicles recorded over the
+whole history (``history`` rows) and the horizon (the planner's 5 s, 51 points at 0.1 s) make a
+:class:`~mmdopt.predict.train.Window`, with a :class:`~mmdopt.predict.PredictionContext` built
+from the lane network (:func:`scene_context`: each vehicle's lane centre line, followed along the
+network while it continues the lane, is its centerline).
+
+Seeds.  Training rollouts use seeds ``TRAIN_SEED0 + i`` (100000, 100001, ...); the benchmark's
+episodes (``mmdopt bench highway --seed S --episodes N``) and the held-out evaluation use seeds
+below 100000 (the evaluation: 0 … 9), so no training episode is an evaluation episode.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+
+from mmdopt.predict.base import GAP_NONE, PredictionContext, cartesian_to_lane
+from mmdopt.predict.train import Window
+
+from .settings import _require_highway
+
+__all__ = [
+    "TRAIN_SEED0",
+    "TRAINING_ENVS",
+    "Rollout",
+    "coverage",
+    "evaluate_heldout",
+    "evaluate_live",
+    "highway_windows",
+    "lane_centerline",
+    "rollout",
+    "rollout_windows",
+    "scene_context",
+]
+
+#: the first training seed; the benchmark's episodes and the evaluation use seeds below it
+TRAIN_SEED0 = 100_000
+#: (highway-env id, extra configuration, episodes per requested episode) of the training and
+#: evaluation traffic: highway-v0 at its default density and at ``vehicles_density`` 2 (50 cars
+#: each), and merge-v0 (5 cars, so four times as many episodes)
+TRAINING_ENVS: tuple[tuple[str, dict, int], ...] = (
+    ("highway-v0", {}, 1),
+    ("highway-v0", {"vehicles_density": 2}, 1),
+    ("merge-v0", {}, 4),
+)
+#: centre-line extent (m) behind / ahead of the vehicle and point spacing
+CENTERLINE_BACK, CENTERLINE_AHEAD, CENTERLINE_SPACING = 50.0, 200.0, 2.5
+
+
+# ------------------------------------------------------------------------------ lane geometry
+def lane_centerline(network, lane_index, position) -> np.ndarray:
+    """(P, 2) centre line of the lane ``lane_index`` from ``CENTERLINE_BACK`` m behind the
+    longitudinal position of ``position`` to ``CENTERLINE_AHEAD`` m ahead, every
+    ``CENTERLINE_SPACING`` m (P fixed).  Past the lane's end it continues on the network's next
+    lane (highway-env's ``next_lane``) while that one starts where this one ends; otherwise
+    (a merging lane that ends, no successor) it goes straight on along the last heading."""
+    if lane_index is None:
+        raise ValueError("lane_index must be a highway-env lane index, got None")
+    lane = network.get_lane(lane_index)
+    s0 = float(lane.local_coordinates(np.asarray(position, float))[0])
+    P = int(round((CENTERLINE_BACK + CENTERLINE_AHEAD) / CENTERLINE_SPACING)) + 1
+    s_all = s0 - CENTERLINE_BACK + CENTERLINE_SPACING * np.arange(P)
+    out = np.empty((P, 2))
+    rng = np.random.RandomState(0)  # next_lane's choice among branches (none in these maps)
+    offset, index, straight = 0.0, lane_index, None  # s on `lane` = s_all - offset
+    for p, s in enumerate(s_all):
+        if straight is None and s - offset < 0.0:  # behind the lane's start: straight back
+            h = lane.heading_at(0.0)
+            out[p] = lane.position(0.0, 0.0) + (s - offset) * np.array([math.cos(h), math.sin(h)])
+            continue
+        while straight is None and s - offset > lane.length:
+            nxt_index = network.next_lane(
+                index, position=lane.position(lane.length, 0.0), np_random=rng
+            )
+            nxt = network.get_lane(nxt_index)
+            end = lane.position(lane.length, 0.0)
+            if nxt_index == index or np.linalg.norm(nxt.position(0.0, 0.0) - end) > 0.5:
+                h = lane.heading_at(lane.length)
+                straight = (end, np.array([math.cos(h), math.sin(h)]), offset + lane.length)
+                break
+            offset += lane.length
+            lane, index = nxt, nxt_index
+        if straight is not None:
+            end, u, s_end = straight
+            out[p] = end + (s - s_end) * u
+        else:
+            out[p] = lane.position(s - offset, 0.0)
+    return out
+
+
+def _side_flags(network, lane_index, position) -> tuple[bool, bool, float]:
+    """(a lane to the left, a lane to the right, the lane's width) — "left" is the positive
+    lateral side of the driving direction, the lane frame of :mod:`mmdopt.predict.base`."""
+    lane = network.get_lane(lane_index)
+    s = float(lane.local_coordinates(np.asarray(position, float))[0])
+    left = right = False
+    for side in network.side_lanes(lane_index):
+        other = network.get_lane(side)
+        if getattr(other, "forbidden", False):  # a lane one may not change into
+            continue
+        lat = float(lane.local_coordinates(other.position(max(s, 0.0), 0.0))[1])
+        left |= lat > 0.5
+        right |= lat < -0.5
+    return left, right, float(lane.width_at(s))
+
+
+def scene_context(
+    network, lane_indices, positions, speeds, idx, times, dt_history: float
+) -> PredictionContext:
+    """The :class:`~mmdopt.predict.PredictionContext` of the vehicles ``idx`` in a scene of
+    ``N`` vehicles at ``positions`` (N, 2), ``speeds`` (N,), on lanes ``lane_indices`` (N
+    highway-env lane indices).
+
+    Neighbours: every other vehicle of the scene, classified by its offset ``d`` in the
+    vehicle's lane frame (own lane ``|d| < w/2``, left ``w/2 ≤ d < 1.5w``, right
+    ``−1.5w < d ≤ −w/2``; the convention of the NGSIM scenes); the gap is the difference of arc
+    lengths (centre to centre), the relative speed the difference of speeds."""
+    positions = np.asarray(positions, np.float64)
+    speeds = np.asarray(speeds, np.float64)
+    idx = np.asarray(idx, dtype=np.int64)
+    if positions.ndim != 2 or positions.shape[1] != 2:
+        raise ValueError(f"positions must have shape (N, 2), got {positions.shape}")
+    N, O = positions.shape[0], len(idx)
+    if speeds.shape != (N,) or len(lane_indices) != N:
+        raise ValueError("speeds and lane_indices must have one entry per position")
+    cl, w = [], np.empty(O)
+    hl, hr = np.zeros(O, bool), np.zeros(O, bool)
+    gaps, rel = np.full((O, 6), GAP_NONE), np.zeros((O, 6))
+    for j, v in enumerate(idx):
+        cl.append(lane_centerline(network, lane_indices[v], positions[v]))
+        hl[j], hr[j], w[j] = _side_flags(network, lane_indices[v], positions[v])
+        others = np.flatnonzero(np.arange(N) != v)
+        if len(others) == 0:
+            continue
+        s, d = cartesian_to_lane(cl[j], positions[others])
+        s0, _ = cartesian_to_lane(cl[j], positions[v][None])
+        ds, dv = s - s0[0], speeds[others] - speeds[v]
+        half = 0.5 * w[j]
+        slots = (np.abs(d) < half, (d >= half) & (d < 3 * half), (d <= -half) & (d > -3 * half))
+        for slot, m in enumerate(slots):
+            for side, sel in ((0, m & (ds > 0)), (1, m & (ds <= 0))):
+                if np.any(sel):
+                    c = np.flatnonzero(sel)[np.argmin(np.abs(ds[sel]))]
+                    if abs(ds[c]) < GAP_NONE:
+                        gaps[j, 2 * slot + side] = abs(ds[c])
+                        rel[j, 2 * slot + side] = dv[c]
+    return PredictionContext(
+        times=np.asarray(times, np.float64),
+        dt_history=dt_history,
+        centerline=np.stack(cl) if cl else np.zeros((0, 2, 2)),
+        lane_width=w,
+        has_left=hl,
+        has_right=hr,
+        gaps=gaps,
+        rel_speed=rel,
+    )
+
+
+# ------------------------------------------------------------------------------ rollouts
+@dataclass(frozen=True, eq=False)
+class Rollout:
+    """One recorded highway-env episode: ``xy`` (N, T, 2) positions, ``speed`` (N, T), ``lane``
+    (T lists of N lane indices) at the frames ``t = k·dt``; ``ego`` the ego's row; ``network``
+    the road's lanes."""
+
+    env: str
+    seed: int
+    ego: int
+    dt: float
+    xy: np.ndarray
+    speed: np.ndarray
+    lane: list
+    network: object
+
+
+def rollout(
+    env: str,
+    seed: int,
+    duration: float = 30.0,
+    env_config: dict | None = None,
+    simulation_frequency: int = 10,
+    on_frame=None,
+) -> Rollout:
+    """Reset ``env`` with ``seed`` (the benchmark's configuration plus ``env_config``), make
+    the ego an IDM/MOBIL driver and record ``duration`` s of traffic at every simulator frame;
+    ``on_frame(k, road, ego, cars)``, if given, is called after frame ``k`` is recorded
+    (``cars``: the vehicles in the order of the recorded rows)."""
+    if not (isinstance(duration, int | float) and duration > 0):
+        raise ValueError(f"duration must be > 0 s, got {duration!r}")
+    if isinstance(simulation_frequency, bool) or not isinstance(simulation_frequency, int):
+        raise ValueError(f"simulation_frequency must be an int (Hz), got {simulation_frequency!r}")
+    gym = _require_highway()
+    from highway_env.vehicle.behavior import IDMVehicle
+
+    e = gym.make(env).unwrapped
+    cfg = {"simulation_frequency": simulation_frequency, "policy_frequency": 2}
+    cfg["duration"] = float(duration)
+    cfg.update(env_config or {})
+    e.configure(cfg)
+    e.reset(seed=int(seed))
+    road, old = e.road, e.vehicle
+    ego = IDMVehicle(road, old.position.copy(), old.heading, old.speed)
+    road.vehicles[road.vehicles.index(old)] = ego
+    cars = list(road.vehicles)
+    dt = 1.0 / simulation_frequency
+    T = int(round(duration / dt)) + 1
+    xy, speed, lanes = np.empty((len(cars), T, 2)), np.empty((len(cars), T)), []
+    for k in range(T):
+        if k:
+            road.act()
+            road.step(dt)
+        xy[:, k] = [c.position for c in cars]
+        speed[:, k] = [c.speed for c in cars]
+        lanes.append([c.lane_index for c in cars])
+        if on_frame is not None:
+            on_frame(k, road, ego, cars)
+    e.close()
+    return Rollout(env, int(seed), cars.index(ego), dt, xy, speed, lanes, road.network)
+
+
+def rollout_windows(
+    rec: Rollout, times, *, history: int = 10, stride: int = 5, max_obstacles: int | None = None
+) -> list[Window]:
+    """Windows every ``stride`` frames of ``rec``: the vehicles (all, the ego included, or the
+    ``max_obstacles`` nearest to the ego, the ego excluded) with ``history`` rows before and the
+    recorded future at ``times`` (s, on the frame grid)."""
+    times = np.asarray(times, np.float64)
+    K = int(round(times[-1] / rec.dt))
+    frames = np.rint(times / rec.dt).astype(int)
+    if np.any(np.abs(frames * rec.dt - times) > 1e-6):
+        raise ValueError("times must lie on the rollout's frame grid")
+    N, T = rec.xy.shape[:2]
+    out = []
+    for k in range(history - 1, T - K, stride):
+        idx = np.arange(N)
+        if max_obstacles is not None:
+            dist = np.linalg.norm(rec.xy[:, k] - rec.xy[rec.ego, k], axis=-1)
+            dist[rec.ego] = np.inf
+            idx = np.argsort(dist)[:max_obstacles]
+            idx = idx[np.isfinite(dist[idx])]
+        ctx = scene_context(
+            rec.network, rec.lane[k], rec.xy[:, k], rec.speed[:, k], idx, times, rec.dt
+        )
+        out.append(
+            Window(
+                history=rec.xy[idx, k - history + 1 : k + 1],
+                context=ctx,
+                future=rec.xy[idx][:, k + frames],
+                scene=f"{rec.env}/{rec.seed}",
+                t0=k * rec.dt,
+            )
+        )
+    return out
+
+
+def highway_windows(
+    episodes: int,
+    times,
+    *,
+    envs=TRAINING_ENVS,
+    duration: float = 30.0,
+    history: int = 10,
+    stride: int = 5,
+    max_obstacles: int | None = None,
+    seed0: int = TRAIN_SEED0,
+) -> list[Window]:
+    """:func:`rollout_windows` of ``episodes`` × (the environment's factor) rollouts of every
+    environment of ``envs``, seeds ``seed0, seed0 + 1, ...`` (the training seeds by default)."""
+    if isinstance(episodes, bool) or not isinstance(episodes, int) or episodes < 1:
+        raise ValueError(f"episodes must be an int >= 1, got {episodes!r}")
+    out: list[Window] = []
+    for env, extra, factor in envs:
+        for seed in range(seed0, seed0 + episodes * factor):
+            rec = rollout(env, seed, duration, extra)
+            out += rollout_windows(
+                rec, times, history=history, stride=stride, max_obstacles=max_obstacles
+            )
+    return out
+
+
+# ------------------------------------------------------------------------------ evaluation
+def coverage(samples, future, radius: float = 2.0) -> np.ndarray:
+    """Per-vehicle coverage (O,): the fraction of future steps ``t > 0`` at which some sample
+    lies within ``radius`` m of the recorded position."""
+    s, f = np.asarray(samples, np.float64), np.asarray(future, np.float64)
+    if s.ndim != 4 or f.shape != (s.shape[0], s.shape[2], 2):
+        raise ValueError(
+            f"samples (O, n, K, 2) and future (O, K, 2) expected, got {s.shape}, {f.shape}"
+        )
+    if not radius > 0:
+        raise ValueError(f"radius must be > 0 m, got {radius}")
+    err = np.linalg.norm(s[:, :, 1:] - f[:, None, 1:], axis=-1)  # (O, n, K-1)
+    return (err.min(axis=1) <= radius).mean(axis=-1)
+
+
+# ------------------------------------------------------------------------------ train / evaluate
+#: held-out evaluation: seeds 0 … N−1 (merge-v0: its factor times more), the six cars nearest to
+#: the ego (the benchmark's ``max_obstacles``) every second, 20 samples, coverage within 2 m
+EVAL_MAX_OBSTACLES, EVAL_STRIDE, EVAL_SAMPLES = 6, 10, 20
+
+
+def _planner_times() -> np.ndarray:
+    import mmdopt
+
+    tr = mmdopt.MMDOptConfig.highway().trajectory
+    return np.linspace(0.0, tr.horizon, tr.num_steps)
+
+
+def _scores(samples, future, k: int, radius: float) -> np.ndarray:
+    """(O, 4) minADE@k, minFDE@k, coverage (first ``k`` samples) and KDE NLL (all samples)."""
+    from mmdopt.predict.metrics import kde_nll, min_ade_fde
+
+    a, f = min_ade_fde(samples[:, :k], future)
+    c = coverage(samples[:, :k], future, radius)
+    return np.stack([a, f, c, kde_nll(samples, future)], axis=-1)
+
+
+def evaluate_live(
+    predictors: dict,
+    env: str,
+    seeds,
+    *,
+    env_config: dict | None = None,
+    duration: float = 20.0,
+    k: int = EVAL_SAMPLES,
+    n_nll: int = 200,
+    radius: float = 2.0,
+) -> dict:
+    """The benchmark's predictors in live highway-env rollouts (the ego an IDM/MOBIL driver):
+    ``predictors`` maps a name to a factory of a fresh predictor per rollout, fed every frame
+    through ``record`` and called every ``EVAL_STRIDE`` frames (from the first with a full
+    1 s history) on the ``EVAL_MAX_OBSTACLES`` cars nearest to the ego, with ``n_nll``
+    samples on the planner's grid; scored against the recorded futures: minADE/minFDE@``k``
+    (m), coverage within ``radius`` m (:func:`coverage`) of the first ``k`` samples, and the
+    KDE NLL (:func:`mmdopt.predict.metrics.kde_nll`, nats per step) of all of them.  Returns
+    ``{name: {n_vehicles, min_ade, min_fde, coverage, kde_nll}}``."""
+    times = _planner_times()
+    K = int(round(times[-1] * 10))
+    scores: dict = {name: [] for name in predictors}
+    for seed in seeds:
+        live = {name: make() for name, make in predictors.items()}
+        asked = []  # (k, rows, {name: samples})
+
+        def on_frame(f, road, ego, cars, live=live, asked=asked, seed=seed):
+            for p in live.values():
+                p.record(road, 0.1 if f else 0.0)  # rollout's frames: 10 Hz
+            if f < 9 or (f - 9) % EVAL_STRIDE or f + K > int(round(duration * 10)):
+                return
+            d = np.array([np.linalg.norm(c.position - ego.position) for c in cars])
+            d[cars.index(ego)] = np.inf
+            rows = [r for r in np.argsort(d)[:EVAL_MAX_OBSTACLES] if np.isfinite(d[r])]
+            rng = np.random.default_rng([seed, f])
+            out = {
+                n: p(road, ego, [cars[r] for r in rows], times, n_nll, rng) for n, p in live.items()
+            }
+            asked.append((f, rows, out))
+
+        rec = rollout(env, int(seed), duration, env_config, on_frame=on_frame)
+        for f, rows, out in asked:
+            future = rec.xy[rows][:, f + np.rint(times / rec.dt).astype(int)]
+            for name, samples in out.items():
+                scores[name].append(_scores(samples, future, k, radius))
+    result = {}
+    for name, sc in scores.items():
+        a = np.concatenate(sc) if sc else np.zeros((0, 4))
+        result[name] = dict(
+            n_vehicles=int(a.shape[0]),
+            **{
+                m: float(a[:, i].mean())
+                for i, m in enumerate(("min_ade", "min_fde", "coverage", "kde_nll"))
+            },
+        )
+    return result
+
+
+def evaluate_heldout(weights=None, *, episodes: int = 10, duration: float = 20.0) -> list[dict]:
+    """:func:`evaluate_live` of the benchmark's ``cv`` predictor and the learned one
+    (``weights``, default: the shipped highway weights) on the held-out seeds ``0 …
+    episodes−1`` of every environment of :data:`TRAINING_ENVS` (its factor times more for
+    merge-v0), one row per environment and predictor."""
+    from .predictors import ConstantVelocityPredictor, LearnedPredictor
+
+    preds = {"cv": ConstantVelocityPredictor, "learned": lambda: LearnedPredictor(weights=weights)}
+    rows = []
+    for env, extra, factor in TRAINING_ENVS:
+        n_seeds = episodes * factor
+        res = evaluate_live(preds, env, range(n_seeds), env_config=extra, duration=duration)
+        label = env + "".join(f" {k}={v}" for k, v in extra.items())
+        for name, r in res.items():
+            rows.append(
+                dict(env=label, predictor=name, seeds=f"0-{n_seeds - 1}", k=EVAL_SAMPLES, **r)
+            )
+            if name == "learned":
+                rows[-1]["spread"] = LearnedPredictor.spread
+    return rows
+
+
+def train_highway(
+    out,
+    *,
+    episodes: int = 8,
+    duration: float = 30.0,
+    steps: int = 2000,
+    seed: int = 0,
+    evaluate: bool = True,
+    eval_episodes: int = 10,
+    verbose: bool = True,
+):
+    """Collect the training windows (:func:`highway_windows`, training seeds), fit the MDN
+    (:func:`mmdopt.predict.train.fit_mdn`), write ``out.eqx`` / ``out.json`` with the command,
+    the seeds and (``evaluate``) the held-out table in the json's ``info``; returns the base
+    path and the info."""
+    import time
+
+    from mmdopt.predict.learned import MDNConfig, save_weights
+    from mmdopt.predict.train import fit_mdn
+
+    from ..ngsim.cli import TRAIN_WEIGHT_DECAY
+
+    t0 = time.perf_counter()
+    W = highway_windows(episodes, _planner_times(), duration=duration)
+    if verbose:
+        print(
+            f"{len(W)} windows, {sum(len(w.future) for w in W)} vehicle futures from "
+            f"{sum(episodes * e[2] for e in TRAINING_ENVS)} rollouts "
+            f"({time.perf_counter() - t0:.0f} s)",
+            flush=True,
+        )
+    pred, info = fit_mdn(
+        W, MDNConfig(), steps=steps, seed=seed, weight_decay=TRAIN_WEIGHT_DECAY, verbose=verbose
+    )
+    info.update(
+        source="highway-env rollouts, the ego an IDM/MOBIL driver, every car a sample",
+        envs=[
+            dict(env=e, config=c, seeds=f"{TRAIN_SEED0}-{TRAIN_SEED0 + episodes * f - 1}")
+            for e, c, f in TRAINING_ENVS
+        ],
+        duration_s=duration,
+        command=(
+            f"mmdopt predictor train --source highway --episodes {episodes} "
+            f"--duration {duration:g} --steps {steps} --seed {seed}"
+        ),
+    )
+    info["collect_and_train_s"] = time.perf_counter() - t0
+    base = save_weights(out, pred.model, pred.config, pred.norm, info)
+    if evaluate:
+        info["heldout"] = evaluate_heldout(base, episodes=eval_episodes)
+        base = save_weights(out, pred.model, pred.config, pred.norm, info)
+    return base, info

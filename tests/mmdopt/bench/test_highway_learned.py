@@ -1,0 +1,95 @@
+"""The learned highway predictor (mmdopt.bench.highway: LearnedPredictor, training): samples on a
+real highway-env scene with histories recorded by the scene source, the training command end to
+end, the lane context of merge-v0's ramp.
+
+Skipped when highway-env is not installed (``pip install -e ".[highway]"``).
+"""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pytest
+
+from mmdopt.bench import highway as hw
+
+pytestmark = pytest.mark.skipif(
+    not hw.highway_available(),
+    reason='highway-env/gymnasium not installed (pip install ".[highway]")',
+)
+
+
+def test_learned_predictor_samples_futures_from_the_recorded_histories():
+    settings = hw.HighwaySettings(duration=1.0, dt=0.5, n_samples=8, predictor="learned")
+    src = hw.HighwaySource(settings, 0, hw.highway_config(), method="idm")
+    try:
+        src.run_idm()  # 1 s of traffic: ten frames recorded by the predictor
+        targets = src._targets()
+        obs = src.observe()
+        O, n, K = len(targets), 8, len(src.t_grid)
+        assert O > 0 and obs.obstacles.shape == (O, n, K, 2)
+        assert np.all(np.isfinite(obs.obstacles))
+        now = np.array([v.position for v in targets])
+        assert np.allclose(obs.obstacles[:, :, 0], now[:, None], atol=1e-6)
+        # the history is what the cars did over the last 0.9 s, not an extrapolation
+        h = src.predictor._history(targets[0])
+        assert h.shape == (10, 2) and np.allclose(h[-1], now[0])
+        travelled = np.linalg.norm(h[-1] - h[0])
+        assert travelled == pytest.approx(0.9 * targets[0].speed, rel=0.2)
+        # cars drive forward along their lanes: 5 s ahead, the samples are near where the
+        # current speed takes them, and on the road (highway-v0's four lanes run along +x with
+        # centres y = 0 … 12 m, 4 m wide; a car is 2 m wide)
+        speed = np.array([v.speed for v in targets])
+        ahead = obs.obstacles[:, :, -1, 0] - now[:, 0:1]
+        assert np.all(np.abs(np.median(ahead, 1) - 5.0 * speed) < 0.25 * 5.0 * speed + 5.0)
+        y = obs.obstacles[..., 1]
+        assert y.min() >= -1.0 - 1e-9 and y.max() <= 13.0 + 1e-9
+        assert obs.info["predict_s"] > 0
+    finally:
+        src.close()
+
+
+def test_cars_seen_for_less_than_the_history_are_extrapolated_backwards():
+    p = hw.make_predictor("learned")
+    src = hw.HighwaySource(hw.HighwaySettings(duration=1.0), 1, hw.highway_config(), method="idm")
+    try:
+        road = src.env.road
+        targets = src._targets()[:2]
+        out = p(road, src.ego, targets, src.t_grid, 8, np.random.default_rng(0))
+        assert out.shape == (2, 8, len(src.t_grid), 2) and np.all(np.isfinite(out))
+        v = targets[0]
+        h = p._history(v)  # nothing recorded before now: constant velocity backwards
+        assert np.allclose(h[0], v.position - 0.9 * np.asarray(v.velocity), atol=1e-9)
+    finally:
+        src.close()
+
+
+def test_merge_ramp_centerline_follows_the_ramp_then_goes_straight():
+    from mmdopt.bench.highway.training import lane_centerline, rollout
+
+    rec = rollout("merge-v0", 7, duration=1.0)
+    ramp = next(i for i, li in enumerate(rec.lane[-1]) if li[0] == "j")
+    cl = lane_centerline(rec.network, rec.lane[-1][ramp], rec.xy[ramp, -1])
+    assert np.all(np.linalg.norm(np.diff(cl, axis=0), axis=-1) > 1.0)  # no repeated points
+    # on the ramp (y = 14.5), then up the sine lane onto the merging lane (y = 8), which ends
+    # at x = 310: the centre line goes on straight instead of jumping to another lane
+    assert cl[0, 1] == pytest.approx(14.5) and cl[-1, 1] == pytest.approx(8.0)
+    assert cl[-1, 0] > 310.0
+
+
+def test_predictor_train_highway_end_to_end(tmp_path, capsys):
+    from mmdopt.bench.cli import main
+
+    out = tmp_path / "w"
+    argv = ["predictor", "train", "--source", "highway", "--episodes", "1", "--duration", "7"]
+    rc = main(argv + ["--steps", "20", "--no-eval", "--out", str(out)])
+    assert rc == 0 and "wrote" in capsys.readouterr().out
+    info = json.loads(out.with_suffix(".json").read_text())["info"]
+    assert "--source highway" in info["command"]
+    assert all(int(e["seeds"].split("-")[0]) >= 100_000 for e in info["envs"])
+    p = hw.LearnedPredictor(weights=out)
+    assert p._model.config.horizon == pytest.approx(5.0)
+    with pytest.raises(SystemExit):  # --data belongs to the NGSIM source
+        main(argv + ["--data", str(tmp_path), "--out", str(out)])
+    assert "--data" in capsys.readouterr().err
