@@ -34,8 +34,9 @@ states are exact and the ego executes its plans to within ``margin``.  Then no r
 with those obstacles happens: a plan runs only if the check passed, so at the next replan the
 braking fallback (the continuation the check assumed) passes again, by induction.  Not covered:
 an obstacle that cuts into the corridor closer than the safe distance (RSS assigns that to the
-car cutting in), obstacles behind or beside the ego, obstacles braking harder than ``b_max``
-(a crashed car), and lateral safety (RSS's lateral distance is not checked).
+car cutting in), obstacles behind or beside the ego (including a faster car behind in a lane the
+ego changes into, which RSS would make the ego responsible for), obstacles braking harder than
+``b_max`` (a crashed car), and lateral safety (RSS's lateral distance is not checked).
 """
 
 from __future__ import annotations
