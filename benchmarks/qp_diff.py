@@ -4,14 +4,16 @@ host-side :func:`solvers.vjp` against OSQP's own adjoint.
 Part 1: a batch of random strictly convex QPs (``n`` variables, ``m`` two-sided inequality rows,
 some active at each bound), built from their solution.  Timed, after one compile each: the
 jitted, vmapped forward solve, and the jitted, vmapped ``value_and_grad`` of ``Σ g·x*`` with
-respect to every argument (forward + backward), for ``method="ipm"``, ``method="admm"`` and, when
-it is installed, qpax (``pip install qpax``: ``qpax.solve_qp_primal`` on the same QPs as
-``Gx ≤ h`` with ``G = [A; −A]``, ``h = [u; −l]``; its gradient smooths complementarity, so its
-numbers differ: run at its defaults, ``solver_tol=1e-5, target_kappa=1e-3``, and tight,
-``1e-9, 1e-9``).  Printed per QP, with the ratio to ``ipm`` and the largest difference of all the
-gradients from ``ipm``'s, relative to the largest entry of each (``A`` apart: qpax's gradient
-in ``G`` disagrees with finite differences of its own solution on these QPs, while ``ipm``'s and
-``admm``'s agree with them and with OSQP's adjoint; tests/solvers/test_diff.py).
+respect to every argument (forward + backward; their difference, the backward pass, and its
+ratio to the forward are printed too; the calls alternate), for ``method="ipm"``,
+``method="admm"`` and, when it is installed, qpax (``pip install qpax``:
+``qpax.solve_qp_primal`` on the same QPs as ``Gx ≤ h`` with ``G = [A; −A]``, ``h = [u; −l]``;
+its gradient smooths complementarity, so its numbers differ: run at its defaults,
+``solver_tol=1e-5, target_kappa=1e-3``, and tight, ``1e-9, 1e-9``).  Printed per QP, with the
+ratio to ``ipm`` and the largest difference of all the gradients from ``ipm``'s, relative to
+the largest entry of each (``A`` apart: qpax's gradient in ``G`` disagrees with finite
+differences of its own solution on these QPs, while ``ipm``'s and ``admm``'s agree with them
+and with OSQP's adjoint; tests/solvers/test_diff.py).
 
 Part 2: one QP of the same family solved by OSQP (``osqp`` ≥ 1.0, polished); the adjoint
 derivative of ``g·x*`` from ``adjoint_derivative_compute`` + ``get_mat`` + ``get_vec`` against
@@ -63,14 +65,17 @@ def random_qps(B: int, n: int, m: int, seed: int = 0):
     return tuple(np.stack(out[k]) for k in "PqAlu")
 
 
-def _time(fn, args, repeat: int) -> float:
-    """Best wall time of ``repeat`` calls (results blocked on), after one warm-up call."""
-    jax.block_until_ready(fn(*args))
-    best = np.inf
-    for _ in range(repeat):
-        t0 = time.perf_counter()
+def _time(fns, args, repeat: int) -> list[float]:
+    """Best wall time of ``repeat`` calls of each of ``fns`` (results blocked on), after one
+    warm-up call each; the calls alternate, so a change in the machine's load hits all alike."""
+    for fn in fns:
         jax.block_until_ready(fn(*args))
-        best = min(best, time.perf_counter() - t0)
+    best = [np.inf] * len(fns)
+    for _ in range(repeat):
+        for i, fn in enumerate(fns):
+            t0 = time.perf_counter()
+            jax.block_until_ready(fn(*args))
+            best[i] = min(best[i], time.perf_counter() - t0)
     return best
 
 
@@ -127,8 +132,7 @@ def part1(B: int, n: int, m: int, repeat: int) -> None:
             print("qpax not installed (pip install qpax): its row is left out")
         for name, make in runs:
             fwd, both = make()
-            t_f = _time(fwd, args, repeat)
-            t_b = _time(both, args, repeat)
+            t_f, t_b = _time((fwd, both), args, repeat)
             grads = [np.asarray(v) for v in both(*args)[1]]
             if ref is None:
                 ref = grads
@@ -139,13 +143,15 @@ def part1(B: int, n: int, m: int, repeat: int) -> None:
             rows.append((name, t_f / B, t_b / B, max(diff[:2] + diff[3:]), diff[2]))
     print(f"\nForward and forward+backward per QP, batch of {B} QPs, n = {n}, m = {m} (float64)")
     print(
-        f"{'solver':22s} {'forward':>12s} {'fwd+bwd':>12s} {'fwd ratio':>10s} {'f+b ratio':>10s} "
-        f"{'∂P,q,l,u vs ipm':>16s} {'∂A vs ipm':>10s}"
+        f"{'solver':22s} {'forward':>12s} {'fwd+bwd':>12s} {'backward':>12s} {'bwd/fwd':>8s} "
+        f"{'fwd ratio':>10s} {'f+b ratio':>10s} {'∂P,q,l,u vs ipm':>16s} {'∂A vs ipm':>10s}"
     )
     for name, tf, tb, d, dA in rows:
+        # backward: value_and_grad minus the forward solve (the JVP rule solves once)
         print(
-            f"{name:22s} {tf * 1e6:10.1f}µs {tb * 1e6:10.1f}µs {tf / rows[0][1]:10.2f} "
-            f"{tb / rows[0][2]:10.2f} {d:16.1e} {dA:10.1e}"
+            f"{name:22s} {tf * 1e6:10.1f}µs {tb * 1e6:10.1f}µs {(tb - tf) * 1e6:10.1f}µs "
+            f"{(tb - tf) / tf:8.2f} {tf / rows[0][1]:10.2f} {tb / rows[0][2]:10.2f} {d:16.1e} "
+            f"{dA:10.1e}"
         )
 
 

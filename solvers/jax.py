@@ -43,8 +43,11 @@ tangent of ``(x, y)`` at the returned solution solves the linearised KKT system 
 ``S`` the diagonal 0/1 mask of active rows, ``W_l, W_u`` which bound each active row is at.  The
 tangent map is linear in ``(dP, dq, dA, dl, du)`` and built from transposable primitives, so JAX
 transposes it for reverse mode: ``jax.grad``, ``jax.vjp``, ``jax.jacrev`` as well as ``jax.jvp``
-and ``jax.jacfwd`` all work, and compose with ``jit`` and ``vmap``.  One dense LU of the
-``(n + m)`` system per QP and differentiation.
+and ``jax.jacfwd`` all work, and compose with ``jit`` and ``vmap``.  The system is condensed
+onto the variables: one ``n × n`` Cholesky of ``P + σI + AᵀSA/δ`` per QP and differentiation,
+and three steps of iterative refinement against the unregularised system remove ``σ``, ``δ``
+(:func:`_kkt_solver`); a backward pass costs a fraction of the forward solve
+(``benchmarks/qp_diff.py``).
 
 Conventions (stated, because the solution map is only piecewise smooth):
 
@@ -72,9 +75,8 @@ Conventions (stated, because the solution map is only piecewise smooth):
   NaN derivatives — every entry of the tangent, and every gradient entry that depends on them —
   together with their status; check ``status`` before using a gradient.
 * **Linearly dependent active rows** (the same constraint twice, more active rows than
-  variables): the reduced KKT system is singular.  It is solved with a proximal term ``−ε`` on
-  the active rows' diagonal (``ε = 1e-12·max(1, ‖K‖max)``) and one refinement step: ``dx`` is
-  the derivative, ``dy`` one of the (non-unique) multiplier derivatives.
+  variables): the reduced KKT system is singular.  The regularised, refined solve above still
+  gives ``dx``, the derivative, and one of the (non-unique) multiplier derivatives ``dy``.
 
 The host-side counterpart for a :class:`solvers.QP` solved by any backend is
 :func:`solvers.vjp`.
@@ -172,21 +174,45 @@ def _active_set(y, l, u, active_tol: float, A=None, x=None, slack_tol=0.0) -> _A
     return _Active(a, wl, wu)
 
 
-def _kkt_solve(K, act: _Active, rhs, n: int):
-    """Solve ``K d = rhs`` for the reduced KKT matrix of :func:`_kkt_matrix`, robustly.
+def _kkt_solver(P, A, act: _Active, refine: int = 3):
+    """``(r1, r2) ↦ (dx, dy)`` solving the reduced KKT system of :func:`_kkt_matrix`,
+    ``[[P, AᵀS], [SA, −(I − S)]] (dx, dy) = (r1, r2)`` (``r2 = 0`` off the active rows), by one
+    ``n × n`` Cholesky.
 
-    One LU of ``K`` with ``−ε`` added on the active rows' diagonal (``ε = 1e-12·max(1, ‖K‖max)``,
-    a proximal term that keeps the matrix nonsingular when active rows are linearly dependent),
-    then one step of iterative refinement against ``K`` itself.  For a nonsingular ``K`` the
-    result is its solution to about ``(ε·‖K⁻¹‖)²``; with dependent active rows and a consistent
-    right-hand side, ``dx`` is the solution and ``dy`` one of the solutions.
+    The regularised system (``P + σI``, ``−δ`` on the active rows' diagonal) condenses onto
+    ``M = P + σI + AᵀSA / δ``; ``refine`` steps of iterative refinement against the
+    unregularised system remove ``σ`` and ``δ`` (each step shrinks the error by about
+    ``δ / (δ + λ)``, ``λ`` the smallest eigenvalue of ``S A P⁻¹ AᵀS`` on the active rows).  With
+    linearly dependent active rows (``λ = 0``) ``dx`` converges and the component of ``dy``
+    along the dependency stays as the regularised solve left it (one of the solutions).
+    ``δ = √ε_mach · ‖A‖²max / ‖P‖max``, ``σ = 1e-2 · √ε_mach · ‖P‖max``.
     """
-    dt = K.dtype
-    eps = 1e-12 * jnp.maximum(1.0, jnp.max(jnp.abs(K)))
-    reg = jnp.concatenate([jnp.zeros(n, dt), act.a * eps])
-    lu = jax.scipy.linalg.lu_factor(K - jnp.diag(reg))
-    d = jax.scipy.linalg.lu_solve(lu, rhs)
-    return d + jax.scipy.linalg.lu_solve(lu, rhs - K @ d)
+    dt = P.dtype
+    n = P.shape[0]
+    c = float(np.sqrt(np.finfo(dt).eps))
+    sP = jnp.maximum(jnp.max(jnp.abs(P)), 1e-300)
+    sA = jnp.maximum(jnp.max(jnp.abs(A), initial=0.0), 1e-300)
+    delta = c * sA * sA / sP
+    sigma = 1e-2 * c * sP
+    a = act.a
+    M = P + sigma * jnp.eye(n, dtype=dt) + (A.T * (a / delta)[None, :]) @ A
+    L = jax.scipy.linalg.cho_factor(M, lower=True)
+
+    def regularised(r1, r2):
+        dx = jax.scipy.linalg.cho_solve(L, r1 + A.T @ (a * r2) / delta)
+        Adx = A @ dx
+        return dx, a * (Adx - r2) / delta - (1.0 - a) * r2, Adx
+
+    def solve(r1, r2):
+        dx, dy, Adx = regularised(r1, r2)
+        for _ in range(refine):
+            e1 = r1 - P @ dx - A.T @ (a * dy)
+            e2 = r2 - a * Adx + (1.0 - a) * dy
+            cx, cy, Acx = regularised(e1, e2)
+            dx, dy, Adx = dx + cx, dy + cy, Adx + Acx
+        return dx, dy
+
+    return solve
 
 
 def _kkt_matrix(P, A, act: _Active):
@@ -311,18 +337,18 @@ def _solver(method: str, settings: Any, polish: bool, active_tol: float):
         # active: multiplier above τ and the row at its bound to the solver's accuracy
         slack_tol = 10.0 * (eps_abs + eps_rel * jnp.max(jnp.abs(A @ x), initial=0.0))
         act = _active_set(y, l, u, active_tol, A, x, slack_tol)
-        K = _kkt_matrix(0.5 * (P + P.T), A, act)
+        kkt = _kkt_solver(0.5 * (P + P.T), A, act)
         dPs = 0.5 * (dP + dP.T)
         r1 = -(dPs @ x + dq + dA.T @ y)
         # infinite bounds carry no tangent (their weights are 0; keep inf·0 out of the product)
         dlf = jnp.where(jnp.isfinite(l), dl, 0.0)
         duf = jnp.where(jnp.isfinite(u), du, 0.0)
         r2 = act.wl * dlf + act.wu * duf - act.a * (dA @ x)
-        d = _kkt_solve(K, act, jnp.concatenate([r1, r2]), x.shape[0])
-        # NaN derivatives for a QP that is not solved (a product, so reverse mode inherits it)
+        # NaN derivatives for a QP that is not solved (products on both sides of the solve, so
+        # reverse mode inherits it in every entry)
         bad = jnp.where(status == _SOLVED, 1.0, jnp.nan).astype(dt)
-        n = x.shape[0]
-        dx, dy = bad * d[:n], bad * d[n:]
+        dx, dy = kkt(bad * r1, bad * r2)
+        dx, dy = bad * dx, bad * dy
         dstatus = np.zeros(np.shape(status), dtype=jax.dtypes.float0)
         return (x, y, status), (dx, dy, dstatus)
 

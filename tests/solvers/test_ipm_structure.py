@@ -92,15 +92,20 @@ def test_slot_and_gather_assemblies_factor_the_same_matrix():
 
 
 def test_rows_free_in_every_qp_leave_the_iteration():
-    """Rows free in every QP of the batch: the same ``x`` as the QP without them, ``y = 0``."""
+    """Rows free in every QP of the batch: the same ``x`` as the QP without them, ``y = 0``; a
+    dense row among them does not make the condensed matrix dense."""
     batch = _banded_batch(3)
     free = np.zeros(M, bool)
     free[::5] = True
+    A = batch.A.toarray()
+    A[0] = 1.0  # a dense row (free in every QP): kept, it would couple every variable
+    batch = QPBatch(batch.P, sp.csc_matrix(A), batch.q, batch.l, batch.u)
     lo, hi = batch.l.copy(), batch.u.copy()
     lo[:, free], hi[:, free] = -np.inf, np.inf
     with_free = QPBatch(batch.P, batch.A, batch.q, lo, hi)
     without = QPBatch(batch.P, batch.A[~free], batch.q, lo[:, ~free], hi[:, ~free])
     sol = solve_batch(with_free, "ipm")
+    assert sol.extras["linear_solver"] == "banded"
     ref = solve_batch(without, "clarabel", **REFERENCE_SETTINGS)
     _assert_matches(with_free, sol, ref)
     assert np.all(sol.y[:, free] == 0.0)
