@@ -1102,12 +1102,15 @@ def _final_check(ctx: _Ctx, passes, problem, key, backend, backend_settings):
     """The risk dial's final check ("samples" margin mode): every pass's best plan is scored
     against **all** n planning samples and its :func:`mmdopt.risk.risk_bound` computed; while no
     candidate's bound is ≤ ε (and the method selects a reduced set), up to :data:`TAIL_PASSES`
-    more passes add the samples the best-bounded candidate meets (deepest conflict first, at
-    most ``reduced_set_size`` per obstacle) to the reduced set and plan again, warm-started.
-    Returns the state of the pass whose best is the chosen plan: among candidates with bound
-    ≤ ε the one of least task cost (speed tracking and comfort, the terms every pass shares),
+    more passes (:func:`_tail_pass`) add the samples the best-bounded candidate meets to the
+    reduced set and plan again, warm-started.
+    (ε here is at least the floor of the n samples, :func:`mmdopt.risk.risk_floor`.)  Returns the
+    state of the pass whose best is the chosen plan: among candidates with bound ≤ ε the one of
+    least task cost (speed tracking and comfort, the terms every pass shares),
     else the one of least bound (its status then says "risk exceeded")."""
-    eps = float(ctx.config.safety.risk)
+    n = ctx.obs_fr.shape[1]
+    # below the floor of n samples no bound reaches ε: the aim is then a plan clear of them all
+    eps = max(float(ctx.config.safety.risk), risk_floor([n] * ctx.obs_fr.shape[0]) * (1 + 1e-9))
     states = list(passes)
     bound, task, hits = _bounds_of(ctx, [p.best for p in states])
     tails = 0
@@ -1133,33 +1136,32 @@ def _final_check(ctx: _Ctx, passes, problem, key, backend, backend_settings):
 
 
 def _tail_pass(ctx: _Ctx, state, hits, problem, key, backend, backend_settings):
-    """One more pass of Algorithm 1 with the planning samples ``hits`` (O, n) that ``state``'s
-    best plan meets added to the points of the last pass (weight 1/n each, deepest conflict
-    first, at most ``reduced_set_size`` per obstacle), warm-started from ``state``; ``None``
-    when there is nothing to add."""
+    """One more pass of Algorithm 1, warm-started from ``state``, on the reduced set plus r
+    extra points (r = the re-selection pass's size, m/2 where that is off: one compiled program
+    for every such pass): first the planning samples ``hits`` (O, n) that ``state``'s best plan
+    meets, then the extra points of the previous pass (re-selected or tail), weight 1/n each;
+    ``None`` when it meets no sample outside the reduced set."""
     config, obs_fr = ctx.config, ctx.obs_fr
     O, n = obs_fr.shape[:2]
-    idx0 = np.asarray(ctx.diag.get("tail_indices", ctx.rs.indices))
-    w0 = np.asarray(ctx.diag.get("tail_weights", ctx.rs.weights), np.float64)
-    if "tail_indices" not in ctx.diag and "reselected" in ctx.diag:
-        extra = np.asarray(ctx.diag["reselected"])
-        r = extra.shape[1]
-        idx0 = np.concatenate([idx0, extra], 1)
-        w0 = np.concatenate([w0 * (1.0 - r / n), np.full((O, r), 1.0 / n)], 1)
+    m = config.selection.reduced_set_size
+    r = config.reselect_for(ctx.method) or max(1, m // 2)
+    idx0 = np.asarray(ctx.rs.indices)
+    prev = ctx.diag.get("tail_extra", ctx.diag.get("reselected"))
     h = np.asarray(hits, bool).copy()
     np.put_along_axis(h, idx0, False, axis=1)
     if not h.any():
         return None
-    # a fixed number of points per pass (one compiled program per pass): the hit samples first
-    # (in order of index: all of them are met), padded with repeats of the first hit sample of
-    # any obstacle (weight 0; of the obstacle's first point where it has none)
-    r = config.selection.reduced_set_size
-    order = np.argsort(~h, axis=1, kind="stable")[:, :r]
-    valid = np.take_along_axis(h, order, 1)
-    pad = np.where(valid[:, :1], order[:, :1], idx0[:, :1])
-    extra = np.where(valid, order, pad).astype(idx0.dtype)
+    extra = np.empty((O, r), idx0.dtype)
+    for o in range(O):  # a handful of obstacles
+        cand = list(np.flatnonzero(h[o]))
+        if prev is not None:
+            cand += [int(i) for i in np.asarray(prev)[o] if not h[o, i]]
+        cand = list(dict.fromkeys(cand)) or [int(idx0[o, 0])]
+        extra[o] = (cand * r)[:r]  # repeats pad an obstacle with fewer (weight split below)
     idx = np.concatenate([idx0, extra], 1)
-    w = np.concatenate([w0 * (1.0 - valid.sum(1, keepdims=True) / n), valid / n], 1)
+    w = np.concatenate(
+        [np.asarray(ctx.rs.weights, np.float64) * (1.0 - r / n), np.full((O, r), 1.0 / n)], 1
+    )
     sel = np.take_along_axis(obs_fr, idx[:, :, None, None], axis=1)
     cen = circle_centres(jnp.asarray(sel), OBSTACLE_FOOTPRINT)
     from .risk import coverage_margins
@@ -1174,7 +1176,7 @@ def _tail_pass(ctx: _Ctx, state, hits, problem, key, backend, backend_settings):
     )
     obstacles = alg.ObstacleSet.create(config, cen, w, COLLISION_TERM[ctx.method], margins=margins)
     ctx.obstacles = obstacles
-    ctx.diag.update(tail_indices=idx, tail_weights=w)
+    ctx.diag["tail_extra"] = extra
     out = alg.run(
         ctx.prob, config, problem, obstacles, key, backend,
         warm_start=alg.shift(config, state, 0.0), **backend_settings,

@@ -68,7 +68,7 @@ def test_frontier_cli_contract_and_resume(tmp_path, capsys):
     )
     out = tmp_path / "f"
     argv = ["bench", "frontier", "--scenes", "1", "--seed", "3", "--out", str(out),
-            "--methods", "mmd", "--risks", "mmd=0.002,0.1", "--jobs", "1",
+            "--methods", "mmd", "--risks", "mmd=0.002,0.1", "--jobs", "1", "--n-samples", "40",
             "--scene-params", str(small), "--config", str(tiny), "--no-progress"]  # fmt: skip
     assert cli.main(argv) == 0
     text = capsys.readouterr().out
