@@ -177,7 +177,8 @@ class StepRecord:
     """One replan: simulation time, plan time and outcome (JSON-friendly scalars); ``info`` is
     the observation's, ``timings`` the plan's own (``reduced_set_s``, ``cem_s``, ...);
     ``intervened``: the safety shield replaced the plan by its braking fallback, ``shield`` why
-    (empty without a shield or when the plan passed).  ``cost``, ``feasible``, ``fallback`` and
+    and how hard it brakes, and whether even that braking fails the check (empty without a shield
+    or when the plan passed).  ``cost``, ``feasible``, ``fallback`` and
     ``status`` are the planner's, before the shield."""
 
     time: float
@@ -382,7 +383,7 @@ def run_receding(
                     if k.endswith("_s") and isinstance(v, int | float)
                 },
                 intervened=bool(shield_rec is not None and shield_rec.intervened),
-                shield="" if shield_rec is None else shield_rec.reason,
+                shield=p.message if shield_rec is not None and shield_rec.intervened else "",
             )
         )
         if callback is not None:
