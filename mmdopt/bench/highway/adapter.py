@@ -230,6 +230,23 @@ def PlanFollower(road, position, heading=0.0, speed=0.0, model: str = "exact"):
 _PLAN_FOLLOWER = None
 
 
+#: how far a measured state may lie outside the planner's bounds and still be moved onto them
+#: (m, m/s): tracking noise of the bicycle ego (e.g. 10.05 m/s at a 10 m/s limit, or a lateral
+#: offset a few cm past the outer lane centre), which would otherwise make every candidate
+#: infeasible from its first point and the plan a braking fallback.  A larger excess is kept, so
+#: the planner reports it (a braking fallback) instead of a silently moved start.
+MEASURED_SLACK = {"d": 0.3, "vs": 0.5, "vd": 0.3}
+
+
+def _settle(v: float, lo: float, hi: float, slack: float) -> float:
+    """``v`` moved onto ``[lo, hi]`` when it lies outside by at most ``slack``, else ``v``."""
+    if lo - slack <= v < lo:
+        return float(lo)
+    if hi < v <= hi + slack:
+        return float(hi)
+    return float(v)
+
+
 # ------------------------------------------------------------------------------ the scene source
 class HighwaySource:
     """A highway-env episode as a :class:`mmdopt.receding.SceneSource`.
@@ -372,11 +389,12 @@ class HighwaySource:
         x, y = (float(v) for v in ego.position)
         st = self.path.ego_state(x, y, max(float(ego.speed), 0.0), float(ego.heading) + beta)
         ax, ay = self.road.ax_max, self.road.ay_max
+        r = self.road
         return frenet.EgoState(
             s=st.s,
-            d=st.d,
-            vs=st.vs,
-            vd=st.vd,
+            d=_settle(st.d, r.y_lb, r.y_ub, MEASURED_SLACK["d"]),
+            vs=_settle(st.vs, r.v_min, r.v_max, MEASURED_SLACK["vs"]),
+            vd=_settle(st.vd, -r.vy_max, r.vy_max, MEASURED_SLACK["vd"]),
             as_=float(np.clip(fr["as_"], -ax, ax)),
             ad=float(np.clip(fr["ad"], -ay, ay)),
         )

@@ -368,3 +368,16 @@ def test_video_of_one_episode(tmp_path):
     # the first frame plus one per simulator step (10 Hz for 1 s)
     assert len(frames) == 11 and frames[0].ndim == 3
     assert path.suffix in (".gif", ".mp4")
+
+
+def test_a_measured_state_just_past_the_bounds_is_moved_onto_them_and_a_far_one_is_kept():
+    """Tracking noise (10.05 m/s at a 10 m/s limit, a lateral offset 0.1 m past the outer lane
+    centre) is moved onto the planner's bounds; a real excess is kept, so the planner reports
+    it (a braking fallback) instead of starting from a silently moved state."""
+    from mmdopt.bench.highway.adapter import MEASURED_SLACK, _settle
+
+    assert _settle(10.05, 0.0, 10.0, MEASURED_SLACK["vs"]) == 10.0
+    assert _settle(-0.1, 0.0, 12.0, MEASURED_SLACK["d"]) == 0.0
+    assert _settle(12.1, 0.0, 12.0, MEASURED_SLACK["d"]) == 12.0
+    assert _settle(5.0, 0.0, 12.0, MEASURED_SLACK["d"]) == 5.0
+    assert _settle(13.0, 0.0, 10.0, MEASURED_SLACK["vs"]) == 13.0
