@@ -542,11 +542,13 @@ def lane_inputs(cfg: MMDOptConfig, d, lanes):
 
 
 def lane_cost(dd, lanes):
-    """Lane discipline (not in the paper): the mean over the grid of the squared distance of the
-    lateral offsets ``dd`` (R, K) to the nearest lane centre of ``lanes`` (L,), (R,) in m².  A
-    plan that changes lanes pays only while it is between them; one that holds an offset between
-    two lanes pays all the way."""
-    dev = jnp.min(jnp.abs(dd[..., None] - lanes), axis=-1)
+    """Lane discipline (not in the paper): the mean over the second half of the horizon of the
+    squared distance of the lateral offsets ``dd`` (R, K) to the nearest lane centre of
+    ``lanes`` (L,), (R,) in m².  A plan must have settled at a lane centre by mid-horizon: a lane
+    change inside the first half is free (so lane changes are not discouraged), one that holds
+    an offset between two lanes pays."""
+    K = dd.shape[-1]
+    dev = jnp.min(jnp.abs(dd[..., K // 2 :, None] - lanes), axis=-1)
     return jnp.mean(dev * dev, axis=-1)
 
 

@@ -247,7 +247,8 @@ class CostConfig(_Section):
     w_cover : weight of the coverage term in the "samples" margin mode (:mod:`mmdopt.risk`);
     bandwidth : the Gaussian kernel σ of the MMD on f̄;  f_scale : f̄ is scaled by it first;
     w_lane : lane discipline (not in the paper; 0 = off): weight of the mean squared distance of
-    the lateral trajectory to the nearest lane centre of the road (``Road.lane_centres``), m².
+    the lateral trajectory's second half to the nearest lane centre of the road
+    (``Road.lane_centres``), m² (:func:`mmdopt.algorithm.lane_cost`).
     """
 
     v_des: float = 10.0
@@ -621,8 +622,9 @@ class MMDOptConfig:
     def highway(cls, **overrides: Any) -> MMDOptConfig:
         """The closed-loop highway-env planner: 5 s on 51 points (re-planned every step), a
         lateral semi-axis of 2.6 m, time-linear margins 2.5 + 1.0·t m and 0.4 m, a desired
-        speed of 30 m/s and sizes for a real-time budget (400 samples, n_cem 100, n_e 30,
-        12 iterations, m = 10)."""
+        speed of 30 m/s, sizes for a real-time budget (400 samples, n_cem 100, n_e 30,
+        12 iterations, m = 10) and lane discipline (lateral set-points at lane centres,
+        ``w_lane`` = 6)."""
         base = cls().replace(
             horizon=5.0,
             num_steps=51,
@@ -638,6 +640,8 @@ class MMDOptConfig:
             margin_rate=1.0,
             margin_mode="linear",
             reselect=0,
+            lane_setpoints=True,
+            w_lane=6.0,
         )
         return base.replace(**overrides)
 

@@ -12,8 +12,16 @@ import frenet
 import mmdopt
 from mmdopt import algorithm as alg
 
+# the highway preset (which keeps to lanes) with lane discipline off, at small sizes
 CFG = mmdopt.MMDOptConfig.highway().replace(
-    n_samples=120, n_cem=40, n_elite=12, iterations=6, n_brake=5, reduced_set_size=5
+    n_samples=120,
+    n_cem=40,
+    n_elite=12,
+    iterations=6,
+    n_brake=5,
+    reduced_set_size=5,
+    lane_setpoints=False,
+    w_lane=0.0,
 )
 LANES = (0.0, 4.0, 8.0, 12.0)
 PATH = frenet.ReferencePath.straight(2000.0, start=(-100.0, 0.0))
@@ -65,11 +73,12 @@ def test_lane_inputs_move_lateral_setpoints_to_the_nearest_centre():
     assert alg.lane_inputs(CFG, d, jnp.asarray(LANES)) is d
 
 
-def test_lane_cost_is_zero_at_centres_and_grows_between_them():
-    dd = jnp.array([[4.0, 4.0, 8.0], [2.0, 2.0, 2.0]])
+def test_lane_cost_is_zero_at_centres_free_early_and_grows_between_them():
+    # settled at lane centres / changing lanes in the first half / held between two lanes
+    dd = jnp.array([[4.0, 4.0, 8.0, 8.0], [0.0, 2.0, 4.0, 4.0], [2.0, 2.0, 2.0, 2.0]])
     c = np.asarray(alg.lane_cost(dd, jnp.asarray(LANES)))
-    assert c[0] == 0.0
-    np.testing.assert_allclose(c[1], 4.0)
+    assert c[0] == 0.0 and c[1] == 0.0
+    np.testing.assert_allclose(c[2], 4.0)
 
 
 def test_a_plan_with_lane_setpoints_drives_to_lane_centres():

@@ -50,10 +50,10 @@ def add_highway_parser(bench_subparsers):
     h.add_argument(
         "--predictor",
         choices=PREDICTORS,
-        default="sim",
+        default="learned",
         help="sim: the simulator oracle (rollouts of highway-env's own driver models); cv: "
         "constant velocity; learned: the MDN trained on highway-env rollouts of seeds >= 100000 "
-        "(default sim)",
+        "(default learned)",
     )
     h.add_argument(
         "--config",

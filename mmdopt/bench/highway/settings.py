@@ -153,7 +153,7 @@ class HighwaySettings:
     ahead: float = 80.0
     behind: float = 30.0
     budget_s: float = 0.5
-    predictor: str = "sim"
+    predictor: str = "learned"
     v_max: float = 30.0
     ax_max: float = 5.0
     ay_max: float = 3.0

@@ -237,7 +237,7 @@ def test_short_episode_writes_every_csv_column_and_resumes(tmp_path):
     ).split(",")
     assert all(c in table[0] for c in need)
     mmd = next(r for r in table if r["method"] == "mmd")
-    assert mmd["env"] == "highway-v0" and mmd["predictor"] == "sim" and mmd["seed"] == "3"
+    assert mmd["env"] == "highway-v0" and mmd["predictor"] == "learned" and mmd["seed"] == "3"
     assert float(mmd["duration_s"]) == pytest.approx(1.0) or mmd["crashed"] == "True"
     assert float(mmd["mean_speed"]) > 0 and float(mmd["distance_m"]) > 0
     assert 0 < float(mmd["mean_plan_s"]) <= float(mmd["max_plan_s"])
