@@ -758,12 +758,13 @@ class ProjectionProblem:
         gradient.  No input is validated inside the trace except shapes.
 
         ``method="ipm"`` (default) needs JAX's x64 mode (``with jax.enable_x64(True):`` around
-        the trace and the calls); for derivatives solve it tightly (e.g. ``eps_abs=eps_rel=1e-11``):
-        at the default tolerance the interior-point multipliers of rows that are merely close to
-        their bound (a trajectory riding along the lane edge) can exceed the active threshold,
-        and a set of nearly dependent active rows makes the reduced KKT system singular (NaN
-        derivatives although ``status`` is ``SOLVED``).  ``"admm"`` runs in float32 or float64
-        with an active-set polish (give it enough ``max_iter`` to be ``SOLVED``).
+        the trace and the calls).  A row counts as active for the derivative only when its
+        multiplier is above the threshold and it is at its bound, and dependent active rows are
+        regularised, so the default tolerance gives finite derivatives; a tighter solve
+        (e.g. ``eps_abs=eps_rel=1e-11``) makes them match finite differences more closely where
+        rows only approach their bound (a trajectory riding along the lane edge).  ``"admm"`` runs
+        in float32 or float64 with an active-set polish (give it enough ``max_iter`` to be
+        ``SOLVED``).
         :meth:`jax_projector` (the planner's fixed-budget ADMM projector) is separate and
         unchanged by this.  Per-sample user rows are refused (``ValueError``).
         """
