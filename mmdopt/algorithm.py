@@ -140,7 +140,10 @@ class Workspace:
         grid = frenet.TimeGrid(cfg.trajectory.horizon, cfg.trajectory.num_steps)
         self.basis = frenet.BernsteinBasis(grid, degree=cfg.trajectory.degree)
         self.planner = frenet.BehaviouralPlanner(
-            self.basis, frenet.PlannerConfig(num_segments=cfg.trajectory.num_segments)
+            self.basis,
+            frenet.PlannerConfig(
+                num_segments=cfg.trajectory.num_segments, k_p=cfg.trajectory.lateral_gain
+            ),
         )
         self.bounds = bounds
         self.bounds_key = bounds_key(bounds)

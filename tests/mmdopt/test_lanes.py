@@ -94,3 +94,22 @@ def test_a_plan_with_lane_setpoints_drives_to_lane_centres():
         sp = p.diagnostics["behavioural_input"][S:]
         assert set(sp.tolist()) <= set(LANES), sp
         assert abs(p.d[-1] - sp[-1]) < 1.0, (p.d[-1], sp)
+
+
+def test_a_larger_lateral_gain_changes_lanes_sooner():
+    """The Frenet planner's lateral gain k_p: from lane 0 to set-point 4 m, the time spent more
+    than 1 m from both lane centres is shorter with k_p = 4 than with the reference's 2."""
+    road = _road()
+    ego = frenet.EgoState(s=0.0, d=0.0, vs=22.0)
+    d = np.array([[22.0] * 4 + [4.0] * 4])
+
+    def band_time(gain):
+        ws = alg.Workspace(CFG.replace(lateral_gain=gain), road.bounds())
+        _, cy = ws.planner.closed_form(d, ego)
+        dd = np.asarray(cy) @ ws.P.T
+        assert abs(dd[0, -1] - 4.0) < 0.1  # both arrive
+        return np.sum((dd[0] > 1.0) & (dd[0] < 3.0)) * (ws.t()[1] - ws.t()[0])
+
+    assert band_time(4.0) < band_time(2.0) - 0.2
+    with pytest.raises(ValueError, match="lateral_gain"):
+        CFG.replace(lateral_gain=0.0)
