@@ -523,6 +523,8 @@ class LearnedPredictor:
         out = self._model.sample(history, ctx, int(n), key)
         extent = _road_extent(road.network, out[..., 0].min(), out[..., 0].max())
         if extent is not None:
+            for o, v in enumerate(targets):
+                _merge_before_lane_end(road.network, v.lane_index, out[o], rng)
             xs, lo, hi = extent
             half = 0.5 * float(getattr(targets[0], "WIDTH", 2.0))
             y_lo, y_hi = (
@@ -532,6 +534,60 @@ class LearnedPredictor:
             out[..., 1] = np.clip(out[..., 1], y_lo, np.maximum(y_hi, y_lo))
         self.last_time_s = time.perf_counter() - t0
         return out
+
+
+#: the distance over which a car's sample moves into the neighbouring lane when its own lane
+#: ends (m; about 1.5 s at merge-v0's 20 m/s, highway-env's lane-change time)
+MERGE_ZONE_M = 30.0
+
+
+def _ending_lane(network, lane_index, hops: int = 2):
+    """The first lane without a continuation (the road goes on after its end node, but with no
+    lane of its index) on the
+    car's way from ``lane_index`` through at most ``hops`` geometric successors (highway-env's
+    ``next_lane`` at the lane's end: merge-v0's ramp leads into the acceleration lane), else
+    ``None``."""
+    for _ in range(hops + 1):
+        _, to, i = lane_index
+        following = network.graph.get(to, {})
+        if not following:  # the end of the road, not of a lane
+            return None
+        if not any(len(lanes) > i for lanes in following.values()):
+            return lane_index
+        lane = network.get_lane(lane_index)
+        nxt = tuple(network.next_lane(lane_index, position=lane.position(lane.length, 0.0)))
+        if nxt == tuple(lane_index):
+            return None
+        lane_index = nxt
+    return None
+
+
+def _merge_before_lane_end(network, lane_index, samples: np.ndarray, rng) -> None:
+    """Map knowledge the network does not learn: a car on a lane that ends (no lane of its index
+    continues it: ``merge-v0``'s acceleration lane, also ahead on the car's way,
+    :func:`_ending_lane`) must leave it before the lane's end, and may
+    do so anywhere before.  Each of its samples (n, K, 2), on a road along +x, moves laterally
+    into the neighbouring lane over :data:`MERGE_ZONE_M` metres from a start drawn uniformly
+    between the car's position and the last point that still completes the move by the end
+    (``rng``: a NumPy generator), in place.  A car on a lane that continues is left as
+    predicted."""
+    lane_index = _ending_lane(network, lane_index)
+    if lane_index is None:
+        return
+    _, to, i = lane_index
+    lane = network.get_lane(lane_index)
+    frm = lane_index[0]
+    sides = [j for j in (i - 1, i + 1) if 0 <= j < len(network.graph[frm][to])]
+    if not sides:
+        return
+    end = lane.position(lane.length, 0.0)
+    centres = [float(network.get_lane((frm, to, j)).position(lane.length, 0.0)[1]) for j in sides]
+    y_to = min(centres, key=lambda c: abs(c - float(end[1])))
+    x_now = float(samples[:, 0, 0].mean())
+    last = max(float(end[0]) - MERGE_ZONE_M, x_now)
+    start = rng.uniform(x_now, last, size=(samples.shape[0], 1))
+    w = np.clip((samples[..., 0] - start) / MERGE_ZONE_M, 0.0, 1.0)
+    samples[..., 1] = (1.0 - w) * samples[..., 1] + w * y_to
 
 
 def _road_extent(network, x_min: float, x_max: float, step: float = 2.0):

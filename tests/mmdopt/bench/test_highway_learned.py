@@ -93,3 +93,31 @@ def test_predictor_train_highway_end_to_end(tmp_path, capsys):
     with pytest.raises(SystemExit):  # --data belongs to the NGSIM source
         main(argv + ["--data", str(tmp_path), "--out", str(out)])
     assert "--data" in capsys.readouterr().err
+
+
+def test_a_car_whose_lane_ends_is_predicted_to_leave_it_before_the_end():
+    """merge-v0: a car on the ramp (whose way leads into the acceleration lane, x 230-310 m)
+    has every sample in the neighbouring main lane by the lane's end, merging at starts spread
+    over the way there; a car on a main lane is left as predicted."""
+    import gymnasium as gym
+
+    from mmdopt.bench.highway.predictors import _merge_before_lane_end
+
+    env = gym.make("merge-v0").unwrapped
+    env.reset(seed=0)
+    net = env.road.network
+    rng = np.random.default_rng(0)
+    x = np.linspace(200.0, 330.0, 27)
+    ramp = np.zeros((50, x.size, 2))
+    ramp[..., 0], ramp[..., 1] = x, 8.0
+    _merge_before_lane_end(net, ("k", "b", 0), ramp, rng)
+    at_end = ramp[:, x >= 310.0, 1]
+    np.testing.assert_allclose(at_end, 4.0)  # the main lane next to the acceleration lane
+    half_way = ramp[:, np.argmin(abs(x - 260.0)), 1]
+    assert (half_way < 7.9).any() and (half_way > 7.9).any()  # some have merged, some not
+    main = np.zeros((5, x.size, 2))
+    main[..., 0], main[..., 1] = x, 4.0
+    before = main.copy()
+    _merge_before_lane_end(net, ("a", "b", 1), main, rng)
+    np.testing.assert_array_equal(main, before)
+    env.close()
