@@ -381,3 +381,21 @@ def test_a_measured_state_just_past_the_bounds_is_moved_onto_them_and_a_far_one_
     assert _settle(12.1, 0.0, 12.0, MEASURED_SLACK["d"]) == 12.0
     assert _settle(5.0, 0.0, 12.0, MEASURED_SLACK["d"]) == 5.0
     assert _settle(13.0, 0.0, 10.0, MEASURED_SLACK["vs"]) == 13.0
+
+
+def test_driving_on_past_the_end_of_the_road_is_not_a_departure():
+    """merge-v0's road ends 460 m from the start: in line with its last lanes past that end the
+    ego is still on the road; beside the lanes, or past the end of the acceleration lane (which
+    ends before the road does), it is not."""
+    import gymnasium as gym
+
+    from mmdopt.bench.highway.roads import on_road
+
+    env = gym.make("merge-v0").unwrapped
+    env.reset(seed=1)
+    net = env.road.network
+    assert on_road(net, [100.0, 0.0]) and on_road(net, [300.0, 8.0])
+    assert on_road(net, [700.0, 4.0])
+    assert not on_road(net, [100.0, 9.0]) and not on_road(net, [330.0, 8.0])
+    assert not on_road(net, [700.0, 9.0])
+    env.close()
