@@ -1076,6 +1076,84 @@ def _selection_pool(method: str, config: MMDOptConfig, n: int, key) -> np.ndarra
 TAIL_PASSES = 3
 
 
+#: MMD-Opt's margin ladder in the final check: besides the passes whose coverage margins are
+#: at ε, one pass per rung (coverage margins at level rung·ε, capped at :data:`_LEVEL_CAP`;
+#: ``math.inf``: the cap), each warm-started from the one before on the same reduced set, then
+#: one refining tail pass (:func:`_refine`).  Their plans are candidates like any other: one is
+#: returned only if its bound against all n planning samples is ≤ ε and its task cost the
+#: least, so the plan at ε stays the answer whenever the samples allow no closer one
+MARGIN_LADDER: tuple[float, ...] = (4.0, 16.0)
+#: the loosest coverage level of a rung (z = Φ⁻¹(0.55) ≈ 0.13 standard deviations)
+_LEVEL_CAP = 0.45
+
+
+def _rung_level(eps: float, factor: float) -> float:
+    return min(factor * eps, _LEVEL_CAP)
+
+
+def _ladder_passes(ctx: _Ctx, state, problem, key, backend, backend_settings) -> list:
+    """The passes of :data:`MARGIN_LADDER` (MMD-Opt in the "samples" margin mode only; ``[]``
+    otherwise): Algorithm 1 on the last pass's reduced set and weights, margins at each rung's
+    level, each warm-started from the previous pass."""
+    config = ctx.config
+    if ctx.method != "mmd" or not MARGIN_LADDER or ctx.obstacles is None:
+        return []
+    idx = np.asarray(ctx.rs.indices)
+    if "reselected" in ctx.diag:
+        idx = np.concatenate([idx, np.asarray(ctx.diag["reselected"])], 1)
+    base = ctx.obstacles
+    if idx.shape != tuple(base.weights.shape) or base.margins is None:
+        return []
+    from .risk import coverage_margins
+
+    eps = float(config.safety.risk)
+    out = []
+    for i, factor in enumerate(MARGIN_LADDER):
+        margins = coverage_margins(
+            ctx.obs_fr,
+            idx,
+            _rung_level(eps, factor),
+            lateral_scale=float(config.selection.rs_lateral_scale),
+            prior=float(config.safety.margins.coverage_prior),
+            bandwidth=float(config.safety.margins.coverage_bandwidth),
+        )
+        obstacles = alg.ObstacleSet.create(
+            config, base.centres, base.weights, base.mode, mask=base.mask, margins=margins
+        )
+        state = alg.run(
+            ctx.prob, config, problem, obstacles, jax.random.fold_in(key, 0x1AD + i), backend,
+            warm_start=alg.shift(config, state, 0.0), **backend_settings,
+        )  # fmt: skip
+        out.append(jax.block_until_ready(state))
+    return out
+
+
+def _refine(ctx, states, bound, task, hits, eps, problem, key, backend, backend_settings):
+    """One tail pass (:func:`_tail_pass`) from the cheapest ladder candidate that meets planning
+    samples (bound > ε) while costing less than every candidate whose bound is ≤ ε: the samples
+    it meets join the reduced set, the margins at its rung's level, so the plan may keep close
+    to the samples but clear of them; appended to ``states``, the arrays returned extended."""
+    first = len(states) - len(MARGIN_LADDER)
+    good = bound <= eps
+    best_good = np.min(task[good]) if good.any() else np.inf
+    cand = [
+        i
+        for i in range(first, len(states))
+        if np.isfinite(bound[i]) and not good[i] and task[i] < best_good and hits[i].any()
+    ]
+    if not cand:
+        return bound, task, hits
+    j = min(cand, key=lambda i: task[i])
+    level = _rung_level(float(ctx.config.safety.risk), MARGIN_LADDER[j - first])
+    nxt = _tail_pass(ctx, states[j], hits[j], problem, jax.random.fold_in(key, 0x2EF), backend,
+                     backend_settings, level=level)  # fmt: skip
+    if nxt is None:
+        return bound, task, hits
+    states.append(nxt)
+    b, t, h = _bounds_of(ctx, [nxt.best])
+    return np.concatenate([bound, b]), np.concatenate([task, t]), np.concatenate([hits, h])
+
+
 def _bounds_of(ctx: _Ctx, bests) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """The 95 % risk bound (C,), task cost (C,) and planning samples met (C, O, n) of candidate
     plans ``bests`` against every planning sample (as :func:`collision_free_count` counts a
@@ -1100,7 +1178,8 @@ def _bounds_of(ctx: _Ctx, bests) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
 
 def _final_check(ctx: _Ctx, passes, problem, key, backend, backend_settings):
     """The risk dial's final check ("samples" margin mode): every pass's best plan is scored
-    against **all** n planning samples and its :func:`mmdopt.risk.risk_bound` computed; while no
+    against **all** n planning samples and its :func:`mmdopt.risk.risk_bound` computed (for
+    MMD-Opt also the plans of :data:`MARGIN_LADDER`'s looser margins); while no
     candidate's bound is ≤ ε (and the method selects a reduced set), up to :data:`TAIL_PASSES`
     more passes (:func:`_tail_pass`) add the samples the best-bounded candidate meets to the
     reduced set and plan again, warm-started.
@@ -1111,8 +1190,12 @@ def _final_check(ctx: _Ctx, passes, problem, key, backend, backend_settings):
     n = ctx.obs_fr.shape[1]
     # below the floor of n samples no bound reaches ε: the aim is then a plan clear of them all
     eps = max(float(ctx.config.safety.risk), risk_floor([n] * ctx.obs_fr.shape[0]) * (1 + 1e-9))
-    states = list(passes)
+    ladder = _ladder_passes(ctx, passes[-1], problem, key, backend, backend_settings)
+    states = list(passes) + ladder
     bound, task, hits = _bounds_of(ctx, [p.best for p in states])
+    if ladder:
+        bound, task, hits = _refine(ctx, states, bound, task, hits, eps, problem, key, backend,
+                                    backend_settings)  # fmt: skip
     tails = 0
     while not np.any(bound <= eps) and SELECTOR[ctx.method] is not None and tails < TAIL_PASSES:
         j = int(np.argmin(bound))
@@ -1131,16 +1214,19 @@ def _final_check(ctx: _Ctx, passes, problem, key, backend, backend_settings):
     j = int(good[np.argmin(task[good])]) if good.size else int(np.argmin(bound))
     if not np.isfinite(bound[j]):
         j = len(passes) - 1
-    ctx.diag.update(final_check_bounds=bound, final_check_choice=j, tail_passes=tails)
+    ctx.diag.update(
+        final_check_bounds=bound, final_check_task=task, final_check_choice=j, tail_passes=tails
+    )
     return states[j]
 
 
-def _tail_pass(ctx: _Ctx, state, hits, problem, key, backend, backend_settings):
+def _tail_pass(ctx: _Ctx, state, hits, problem, key, backend, backend_settings, level=None):
     """One more pass of Algorithm 1, warm-started from ``state``, on the reduced set plus r
     extra points (r = the re-selection pass's size, m/2 where that is off: one compiled program
     for every such pass): first the planning samples ``hits`` (O, n) that ``state``'s best plan
     meets, then the extra points of the previous pass (re-selected or tail), weight 1/n each;
-    ``None`` when it meets no sample outside the reduced set."""
+    coverage margins at ε, or at ``level``; ``None`` when it meets no sample outside the
+    reduced set."""
     config, obs_fr = ctx.config, ctx.obs_fr
     O, n = obs_fr.shape[:2]
     m = config.selection.reduced_set_size
@@ -1169,7 +1255,7 @@ def _tail_pass(ctx: _Ctx, state, hits, problem, key, backend, backend_settings):
     margins = coverage_margins(
         obs_fr,
         idx,
-        float(config.safety.risk),
+        float(config.safety.risk) if level is None else level,
         lateral_scale=float(config.selection.rs_lateral_scale),
         prior=float(config.safety.margins.coverage_prior),
         bandwidth=float(config.safety.margins.coverage_bandwidth),
