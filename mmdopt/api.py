@@ -1091,28 +1091,33 @@ def _rung_level(eps: float, factor: float) -> float:
     return min(factor * eps, _LEVEL_CAP)
 
 
-def _ladder_passes(ctx: _Ctx, state, problem, key, backend, backend_settings) -> list:
-    """The passes of :data:`MARGIN_LADDER` (MMD-Opt in the "samples" margin mode only; ``[]``
-    otherwise): Algorithm 1 on the last pass's reduced set and weights, margins at each rung's
-    level, each warm-started from the previous pass."""
+def _ladder_passes(ctx: _Ctx, state, problem, key, backend, backend_settings):
+    """The passes of :data:`MARGIN_LADDER` and their levels (MMD-Opt in the "samples" margin
+    mode only; none otherwise): Algorithm 1 on the last pass's reduced set and weights, margins
+    at each rung's level (a rung no looser than the one before is skipped), each warm-started
+    from the previous pass."""
     config = ctx.config
     if ctx.method != "mmd" or not MARGIN_LADDER or ctx.obstacles is None:
-        return []
+        return [], []
     idx = np.asarray(ctx.rs.indices)
     if "reselected" in ctx.diag:
         idx = np.concatenate([idx, np.asarray(ctx.diag["reselected"])], 1)
     base = ctx.obstacles
     if idx.shape != tuple(base.weights.shape) or base.margins is None:
-        return []
+        return [], []
     from .risk import coverage_margins
 
     eps = float(config.safety.risk)
-    out = []
+    out, levels = [], [eps]
     for i, factor in enumerate(MARGIN_LADDER):
+        level = _rung_level(eps, factor)
+        if level <= levels[-1]:
+            continue
+        levels.append(level)
         margins = coverage_margins(
             ctx.obs_fr,
             idx,
-            _rung_level(eps, factor),
+            level,
             lateral_scale=float(config.selection.rs_lateral_scale),
             prior=float(config.safety.margins.coverage_prior),
             bandwidth=float(config.safety.margins.coverage_bandwidth),
@@ -1125,15 +1130,15 @@ def _ladder_passes(ctx: _Ctx, state, problem, key, backend, backend_settings) ->
             warm_start=alg.shift(config, state, 0.0), **backend_settings,
         )  # fmt: skip
         out.append(jax.block_until_ready(state))
-    return out
+    return out, levels[1:]
 
 
-def _refine(ctx, states, bound, task, hits, eps, problem, key, backend, backend_settings):
+def _refine(ctx, states, levels, bound, task, hits, eps, problem, key, backend, backend_settings):
     """One tail pass (:func:`_tail_pass`) from the cheapest ladder candidate that meets planning
     samples (bound > ε) while costing less than every candidate whose bound is ≤ ε: the samples
     it meets join the reduced set, the margins at its rung's level, so the plan may keep close
     to the samples but clear of them; appended to ``states``, the arrays returned extended."""
-    first = len(states) - len(MARGIN_LADDER)
+    first = len(states) - len(levels)
     good = bound <= eps
     best_good = np.min(task[good]) if good.any() else np.inf
     cand = [
@@ -1144,9 +1149,8 @@ def _refine(ctx, states, bound, task, hits, eps, problem, key, backend, backend_
     if not cand:
         return bound, task, hits
     j = min(cand, key=lambda i: task[i])
-    level = _rung_level(float(ctx.config.safety.risk), MARGIN_LADDER[j - first])
     nxt = _tail_pass(ctx, states[j], hits[j], problem, jax.random.fold_in(key, 0x2EF), backend,
-                     backend_settings, level=level)  # fmt: skip
+                     backend_settings, level=levels[j - first])  # fmt: skip
     if nxt is None:
         return bound, task, hits
     states.append(nxt)
@@ -1190,12 +1194,12 @@ def _final_check(ctx: _Ctx, passes, problem, key, backend, backend_settings):
     n = ctx.obs_fr.shape[1]
     # below the floor of n samples no bound reaches ε: the aim is then a plan clear of them all
     eps = max(float(ctx.config.safety.risk), risk_floor([n] * ctx.obs_fr.shape[0]) * (1 + 1e-9))
-    ladder = _ladder_passes(ctx, passes[-1], problem, key, backend, backend_settings)
+    ladder, levels = _ladder_passes(ctx, passes[-1], problem, key, backend, backend_settings)
     states = list(passes) + ladder
     bound, task, hits = _bounds_of(ctx, [p.best for p in states])
     if ladder:
-        bound, task, hits = _refine(ctx, states, bound, task, hits, eps, problem, key, backend,
-                                    backend_settings)  # fmt: skip
+        bound, task, hits = _refine(ctx, states, levels, bound, task, hits, eps, problem, key,
+                                    backend, backend_settings)  # fmt: skip
     tails = 0
     while not np.any(bound <= eps) and SELECTOR[ctx.method] is not None and tails < TAIL_PASSES:
         j = int(np.argmin(bound))
