@@ -1081,8 +1081,11 @@ TAIL_PASSES = 3
 #: ``math.inf``: the cap), each warm-started from the one before on the same reduced set, then
 #: one refining tail pass (:func:`_refine`).  Their plans are candidates like any other: one is
 #: returned only if its bound against all n planning samples is ≤ ε and its task cost the
-#: least, so the plan at ε stays the answer whenever the samples allow no closer one
-MARGIN_LADDER: tuple[float, ...] = (4.0, 16.0)
+#: least, so the plan at ε stays the answer whenever the samples allow no closer one.  Off by
+#: default (``()``): with ``(4.0, 16.0)`` each MMD-Opt point moved 1–3 m beyond its frontier, but
+#: the read-outs at 995 / 999 gained on one scene family and lost on another, for up to three
+#: more passes per plan (docs/experiments/frontier.md, "What we tried")
+MARGIN_LADDER: tuple[float, ...] = ()
 #: the loosest coverage level of a rung (z = Φ⁻¹(0.55) ≈ 0.13 standard deviations)
 _LEVEL_CAP = 0.45
 

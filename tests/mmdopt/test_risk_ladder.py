@@ -35,9 +35,10 @@ def _plan(obs, **kw):
 
 def test_the_ladder_only_adds_candidates_and_keeps_the_promise(monkeypatch):
     obs = _slow_car_ahead(samples_for_risk(EPS, 1))
-    with_ladder = _plan(obs)
-    monkeypatch.setattr(api, "MARGIN_LADDER", ())
+    assert api.MARGIN_LADDER == ()  # off by default
     without = _plan(obs)
+    monkeypatch.setattr(api, "MARGIN_LADDER", (4.0, 16.0))
+    with_ladder = _plan(obs)
     b1, b0 = (p.diagnostics["final_check_bounds"] for p in (with_ladder, without))
     # the same passes at ε, then one candidate per rung of the ladder
     assert len(b1) >= len(b0) + len(api.MARGIN_LADDER) - without.diagnostics["tail_passes"]
