@@ -29,6 +29,7 @@ from .._checks import check_key
 
 __all__ = [
     "GAP_NONE",
+    "neighbour_gaps",
     "Forecast",
     "PredictionContext",
     "Predictor",
@@ -40,6 +41,27 @@ __all__ = [
 
 #: Gap (m) reported when there is no neighbour in that slot (or it is farther than this).
 GAP_NONE = 100.0
+
+
+def neighbour_gaps(ds, d, dv, lane_width: float) -> tuple[np.ndarray, np.ndarray]:
+    """The six neighbour slots of :class:`PredictionContext` for one obstacle: ``(gaps (6,),
+    rel_speed (6,))`` from the other vehicles' positions in its lane frame, ``ds`` (M,) along
+    (m, ahead > 0) and ``d`` (M,) across (m, left > 0), and their speeds minus its own ``dv``
+    (M,).  Slots: its lane (|d| < w/2), the left lane (w/2 ≤ d < 3w/2), the right lane; ahead and
+    behind in each; the nearest vehicle per slot, :data:`GAP_NONE` and 0 where there is none
+    within :data:`GAP_NONE`."""
+    ds, d, dv = (np.asarray(a, dtype=np.float64) for a in (ds, d, dv))
+    gaps, rel = np.full(6, GAP_NONE), np.zeros(6)
+    half = 0.5 * float(lane_width)
+    slots = (np.abs(d) < half, (d >= half) & (d < 3 * half), (d <= -half) & (d > -3 * half))
+    for slot, m in enumerate(slots):
+        for side, sel in ((0, m & (ds > 0)), (1, m & (ds <= 0))):
+            if np.any(sel):
+                c = np.flatnonzero(sel)[np.argmin(np.abs(ds[sel]))]
+                if abs(ds[c]) < GAP_NONE:
+                    gaps[2 * slot + side] = abs(ds[c])
+                    rel[2 * slot + side] = dv[c]
+    return gaps, rel
 
 
 @dataclass(frozen=True, eq=False)

@@ -22,7 +22,12 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from mmdopt.predict.base import GAP_NONE, PredictionContext, cartesian_to_lane
+from mmdopt.predict.base import (
+    GAP_NONE,
+    PredictionContext,
+    cartesian_to_lane,
+    neighbour_gaps,
+)
 from mmdopt.predict.train import Window
 
 from .settings import _require_highway
@@ -142,16 +147,7 @@ def scene_context(
             continue
         s, d = cartesian_to_lane(cl[j], positions[others])
         s0, _ = cartesian_to_lane(cl[j], positions[v][None])
-        ds, dv = s - s0[0], speeds[others] - speeds[v]
-        half = 0.5 * w[j]
-        slots = (np.abs(d) < half, (d >= half) & (d < 3 * half), (d <= -half) & (d > -3 * half))
-        for slot, m in enumerate(slots):
-            for side, sel in ((0, m & (ds > 0)), (1, m & (ds <= 0))):
-                if np.any(sel):
-                    c = np.flatnonzero(sel)[np.argmin(np.abs(ds[sel]))]
-                    if abs(ds[c]) < GAP_NONE:
-                        gaps[j, 2 * slot + side] = abs(ds[c])
-                        rel[j, 2 * slot + side] = dv[c]
+        gaps[j], rel[j] = neighbour_gaps(s - s0[0], d, speeds[others] - speeds[v], w[j])
     return PredictionContext(
         times=np.asarray(times, np.float64),
         dt_history=dt_history,

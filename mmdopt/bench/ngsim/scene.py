@@ -19,7 +19,7 @@ from pathlib import Path
 import numpy as np
 
 import frenet
-from mmdopt.predict.base import GAP_NONE, PredictionContext, cartesian_to_lane
+from mmdopt.predict.base import GAP_NONE, PredictionContext, cartesian_to_lane, neighbour_gaps
 
 from .inputs import ScenarioError, check_scenario_file
 
@@ -361,19 +361,9 @@ def context_at(
             continue
         s, d = cartesian_to_lane(cl[j], scene.xy[others, k])
         s0, _ = cartesian_to_lane(cl[j], scene.xy[v, k][None])
-        ds = s - s0[0]
         dv = scene.speed[others, k] - scene.speed[v, k]
         dv = np.where(np.isfinite(dv), dv, 0.0)
-        half = 0.5 * w[j]
-        for slot, m in enumerate(
-            (np.abs(d) < half, (d >= half) & (d < 3 * half), (d <= -half) & (d > -3 * half))
-        ):
-            for side, sel in ((0, m & (ds > 0)), (1, m & (ds <= 0))):
-                if np.any(sel):
-                    c = np.flatnonzero(sel)[np.argmin(np.abs(ds[sel]))]
-                    if abs(ds[c]) < GAP_NONE:
-                        gaps[j, 2 * slot + side] = abs(ds[c])
-                        rel[j, 2 * slot + side] = dv[c]
+        gaps[j], rel[j] = neighbour_gaps(s - s0[0], d, dv, w[j])
     return PredictionContext(
         times=np.asarray(times, np.float64),
         dt_history=scene.dt if dt_history is None else dt_history,

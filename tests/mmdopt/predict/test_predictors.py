@@ -200,3 +200,15 @@ def test_predict_does_not_import_the_benchmarks_or_commonroad():
         "assert not bad, bad"
     )
     subprocess.run([sys.executable, "-c", code], check=True)
+
+
+def test_neighbour_gaps_fill_the_six_slots_with_the_nearest_vehicle():
+    from mmdopt.predict.base import GAP_NONE, neighbour_gaps
+
+    # ahead in lane at 20 and 35 m, behind left at 8 m, one far ahead right (beyond GAP_NONE)
+    ds = np.array([20.0, 35.0, -8.0, 150.0])
+    d = np.array([0.3, -0.2, 3.6, -3.7])
+    dv = np.array([1.0, 2.0, -3.0, 4.0])
+    gaps, rel = neighbour_gaps(ds, d, dv, lane_width=3.7)
+    np.testing.assert_array_equal(gaps, [20.0, GAP_NONE, GAP_NONE, 8.0, GAP_NONE, GAP_NONE])
+    np.testing.assert_array_equal(rel, [1.0, 0.0, 0.0, -3.0, 0.0, 0.0])
