@@ -2,11 +2,11 @@
 
 from __future__ import annotations
 
-import json
 from collections.abc import Sequence
 from pathlib import Path
 
 from ..argtypes import add_executor, method_list, nonneg_int, positive_float, positive_int
+from ..inputs import read_json
 from .runner import run_highway, summarize, write_video
 from .settings import (
     EGO_MODELS,
@@ -91,16 +91,21 @@ def add_highway_parser(bench_subparsers):
     return h
 
 
+def _json_file(path, option: str):
+    """The JSON value of the file given to ``option`` (:func:`~..inputs.read_json`);
+    ``ValueError`` naming the option when it does not exist or is not JSON."""
+    if not Path(path).is_file():
+        raise ValueError(f"argument {option}: file {str(path)!r} does not exist")
+    try:
+        return read_json(path)
+    except ValueError as e:
+        raise ValueError(f"argument {option}: {e}") from None
+
+
 def _load_overrides(path) -> dict:
     if path is None:
         return {}
-    p = Path(path)
-    if not p.is_file():
-        raise ValueError(f"argument --config: file {str(path)!r} does not exist")
-    try:
-        raw = json.loads(p.read_text())
-    except json.JSONDecodeError as e:
-        raise ValueError(f"argument --config: {path} is not valid JSON: {e}") from None
+    raw = _json_file(path, "--config")
     if not isinstance(raw, dict):
         raise ValueError(
             "argument --config: the config must be a JSON object of MMDOptConfig fields"
@@ -116,13 +121,7 @@ def _load_env_config(path, env: str) -> dict:
     """The ``--env-config`` file's JSON object, checked against ``env``'s own config keys."""
     if path is None:
         return {}
-    p = Path(path)
-    if not p.is_file():
-        raise ValueError(f"argument --env-config: file {str(path)!r} does not exist")
-    try:
-        raw = json.loads(p.read_text())
-    except json.JSONDecodeError as e:
-        raise ValueError(f"argument --env-config: {path} is not valid JSON: {e}") from None
+    raw = _json_file(path, "--env-config")
     try:
         check_env_config(env, raw)
     except ValueError as e:

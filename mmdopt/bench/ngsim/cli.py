@@ -332,13 +332,17 @@ TRAIN_WEIGHT_DECAY = 1e-3
 
 def cmd_eval(args, parser=None) -> int:
     _checked_split(default_data_dir() if args.data is None else args.data, parser, "held-out")
-    rows = evaluate_heldout(args.data, args.weights)
+    _report_rows(evaluate_heldout(args.data, args.weights), args.out)
+    return 0
+
+
+def _report_rows(rows: list[dict], out) -> None:
+    """``predictor eval``'s output: one JSON line per row, and the list to ``out`` if given."""
     for r in rows:
         print(json.dumps(r))
-    if args.out:
-        Path(args.out).parent.mkdir(parents=True, exist_ok=True)
-        Path(args.out).write_text(json.dumps(rows, indent=1))
-    return 0
+    if out:
+        Path(out).parent.mkdir(parents=True, exist_ok=True)
+        Path(out).write_text(json.dumps(rows, indent=1))
 
 
 def cmd_predictor(args, parser=None) -> int:
@@ -360,12 +364,7 @@ def _cmd_highway(args, parser=None) -> int:
     from ..highway import training
 
     if args.predictor_command == "eval":
-        rows = training.evaluate_heldout(args.weights, episodes=args.episodes)
-        for r in rows:
-            print(json.dumps(r))
-        if args.out:
-            Path(args.out).parent.mkdir(parents=True, exist_ok=True)
-            Path(args.out).write_text(json.dumps(rows, indent=1))
+        _report_rows(training.evaluate_heldout(args.weights, episodes=args.episodes), args.out)
         return 0
     from ..highway.predictors import HIGHWAY_WEIGHTS
 
