@@ -264,13 +264,13 @@ def check_plan(
         tc <= ex, np.interp(tc, tp, s), _braking(s_ex, v_ex, c.b_min, np.maximum(tc - ex, 0.0))
     )
     need = c.contact + c.margin
-    best = (math.inf, -1, 0.0)
-    for o in idx:
-        gap = _braking(ob[o, 0], ob[o, 2], c.b_max, tc) - ego - need
-        k = int(np.argmin(gap))
-        if gap[k] < best[0]:
-            best = (float(gap[k]), int(o), float(tc[k]))
-    return PlanCheck(best[0] >= 0.0, best[0], best[1], best[2], int(idx.size))
+    # every corridor obstacle braking at b_max from now, (len(idx), T), all at once
+    v0 = np.maximum(ob[idx, 2], 0.0)[:, None]
+    tt = np.minimum(tc[None, :], v0 / c.b_max)
+    gap = ob[idx, 0][:, None] + v0 * tt - 0.5 * c.b_max * tt**2 - ego[None, :] - need
+    i, k = np.unravel_index(int(np.argmin(gap)), gap.shape)
+    least = float(gap[i, k])
+    return PlanCheck(least >= 0.0, least, int(idx[i]), float(tc[k]), int(idx.size))
 
 
 # -------------------------------------------------------------------------------- the fallback
@@ -339,9 +339,13 @@ def shield(
     )
     decels = np.unique(np.linspace(c.b_min, c.b_emergency, 5))
     ok, b = False, float(decels[-1])
-    for b_try in decels:
-        cand = braking_plan(plan, path, float(b_try))
-        if check_plan(cand.t, cand.s, cand.d, cand.vs, obstacles, c, executed=0.0).safe:
+    tp = np.asarray(plan.t, dtype=np.float64) - float(plan.t[0])
+    s0, v0 = float(plan.s[0]), max(float(plan.vs[0]), 0.0)
+    d0 = np.full_like(tp, float(plan.d[0]))
+    for b_try in decels:  # the profiles of braking_plan, checked before one plan is built
+        vs = np.maximum(v0 - b_try * tp, 0.0)
+        prof = _braking(s0, v0, float(b_try), tp)
+        if check_plan(tp, prof, d0, vs, obstacles, c, executed=0.0).safe:
             ok, b = True, float(b_try)
             break
     fb = braking_plan(plan, path, b, reason=f"shield: {why}; braking at {b:g} m/s²")
