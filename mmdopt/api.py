@@ -907,23 +907,13 @@ def _plan_impl(
     centres = circle_centres(jnp.asarray(sel), OBSTACLE_FOOTPRINT)  # (O, J, C, K, 2)
     margins = None
     if config.safety.margins.margin_mode == "samples":
-        from .risk import coverage_margins
-
         t3 = time.perf_counter()
         knn = 0
         if SELECTOR[method] is None:
             knn = config.safety.margins.coverage_knn
             if knn is None:  # automatic: the samples a reduced-set point stands for
                 knn = max(2, n // config.selection.reduced_set_size)
-        margins = coverage_margins(
-            obs_fr,
-            np.asarray(rs.indices),
-            float(config.safety.risk),
-            lateral_scale=float(config.selection.rs_lateral_scale),
-            prior=float(config.safety.margins.coverage_prior),
-            knn=knn,
-            bandwidth=float(config.safety.margins.coverage_bandwidth),
-        )
+        margins = _coverage(config, obs_fr, np.asarray(rs.indices), knn=knn)
         diag["margins_s"] = time.perf_counter() - t3
     obstacles = alg.ObstacleSet.create(
         config, centres, np.asarray(rs.weights, np.float64), COLLISION_TERM[method], margins=margins
@@ -982,6 +972,23 @@ def _plan_impl(
     )
 
 
+def _coverage(config: MMDOptConfig, obs_fr, idx, level=None, knn: int = 0) -> np.ndarray:
+    """:func:`mmdopt.risk.coverage_margins` of the points ``idx`` among ``obs_fr`` at ``level``
+    (default: the risk level ε) with ``config``'s coverage settings (every pass plans with
+    these)."""
+    from .risk import coverage_margins
+
+    return coverage_margins(
+        obs_fr,
+        idx,
+        float(config.safety.risk) if level is None else float(level),
+        lateral_scale=float(config.selection.rs_lateral_scale),
+        prior=float(config.safety.margins.coverage_prior),
+        knn=knn,
+        bandwidth=float(config.safety.margins.coverage_bandwidth),
+    )
+
+
 def _reselect_pass(ctx: _Ctx, state, problem, key, backend, backend_settings):
     """Second pass of Algorithm 1 (``config.safety.reselect`` > 0): the reduced set plus the
     ``reselect`` samples in deepest conflict with the first pass's plan (weight 1/n each) after
@@ -1031,16 +1038,7 @@ def _reselect_pass(ctx: _Ctx, state, problem, key, backend, backend_settings):
     cen = circle_centres(jnp.asarray(sel), OBSTACLE_FOOTPRINT)
     margins = None
     if config.safety.margins.margin_mode == "samples":
-        from .risk import coverage_margins
-
-        margins = coverage_margins(
-            obs_fr,
-            idx,
-            float(config.safety.risk),
-            lateral_scale=float(config.selection.rs_lateral_scale),
-            prior=float(config.safety.margins.coverage_prior),
-            bandwidth=float(config.safety.margins.coverage_bandwidth),
-        )
+        margins = _coverage(config, obs_fr, idx)
     obstacles = alg.ObstacleSet.create(config, cen, w, COLLISION_TERM[ctx.method], margins=margins)
     ctx.obstacles = obstacles
     ctx.diag["reselected"] = extra
@@ -1108,8 +1106,6 @@ def _ladder_passes(ctx: _Ctx, state, problem, key, backend, backend_settings):
     base = ctx.obstacles
     if idx.shape != tuple(base.weights.shape) or base.margins is None:
         return [], []
-    from .risk import coverage_margins
-
     eps = float(config.safety.risk)
     out, levels = [], [eps]
     for i, factor in enumerate(MARGIN_LADDER):
@@ -1117,14 +1113,7 @@ def _ladder_passes(ctx: _Ctx, state, problem, key, backend, backend_settings):
         if level <= levels[-1]:
             continue
         levels.append(level)
-        margins = coverage_margins(
-            ctx.obs_fr,
-            idx,
-            level,
-            lateral_scale=float(config.selection.rs_lateral_scale),
-            prior=float(config.safety.margins.coverage_prior),
-            bandwidth=float(config.safety.margins.coverage_bandwidth),
-        )
+        margins = _coverage(config, ctx.obs_fr, idx, level)
         obstacles = alg.ObstacleSet.create(
             config, base.centres, base.weights, base.mode, mask=base.mask, margins=margins
         )
@@ -1257,16 +1246,7 @@ def _tail_pass(ctx: _Ctx, state, hits, problem, key, backend, backend_settings, 
     )
     sel = np.take_along_axis(obs_fr, idx[:, :, None, None], axis=1)
     cen = circle_centres(jnp.asarray(sel), OBSTACLE_FOOTPRINT)
-    from .risk import coverage_margins
-
-    margins = coverage_margins(
-        obs_fr,
-        idx,
-        float(config.safety.risk) if level is None else level,
-        lateral_scale=float(config.selection.rs_lateral_scale),
-        prior=float(config.safety.margins.coverage_prior),
-        bandwidth=float(config.safety.margins.coverage_bandwidth),
-    )
+    margins = _coverage(config, obs_fr, idx, level)
     obstacles = alg.ObstacleSet.create(config, cen, w, COLLISION_TERM[ctx.method], margins=margins)
     ctx.obstacles = obstacles
     ctx.diag["tail_extra"] = extra
