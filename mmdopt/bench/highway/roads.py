@@ -305,24 +305,17 @@ def on_road(network, position) -> bool:
     in line with a lane that ends there (``merge-v0``'s road ends 460 m from the start: driving
     on past it is the episode outlasting the road, not a departure from it)."""
     p = np.asarray(position, dtype=float)
-    lanes = network.lanes_list()
-    if any(lane.on_lane(p) for lane in lanes):
+    if any(lane.on_lane(p) for lane in network.lanes_list()):
         return True
-    for lane in lanes:
-        s, d = (float(c) for c in lane.local_coordinates(p))
-        ends_road = not network.graph.get(_end_node(network, lane), {})
-        if ends_road and s > float(lane.length) and abs(d) <= 0.5 * float(lane.width_at(s)):
-            return True
-    return False
-
-
-def _end_node(network, lane) -> str | None:
-    """The node at which ``lane`` ends in ``network``'s graph."""
     for tos in network.graph.values():
-        for to, ls in tos.items():
-            if any(x is lane for x in ls):
-                return to
-    return None
+        for to, lanes in tos.items():
+            if network.graph.get(to):  # the road goes on after these lanes
+                continue
+            for lane in lanes:
+                s, d = (float(c) for c in lane.local_coordinates(p))
+                if s > float(lane.length) and abs(d) <= 0.5 * float(lane.width_at(s)):
+                    return True
+    return False
 
 
 def follow_lanes(network, vehicles, t, v_long, v_lat) -> np.ndarray:
