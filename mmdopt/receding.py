@@ -77,6 +77,9 @@ class Observation:
         the safety shield (:mod:`mmdopt.safety`); may list more cars than ``obstacles`` (all
         that the sensors see).  ``None``: the shield derives them from the samples at the first
         two grid times
+    frame_changed : the road's Frenet frame is not the previous observation's (a new reference
+        line, e.g. the centre line of the lane the ego has moved into): the previous plan's warm
+        start is in the old frame, so the loop plans this step cold
     """
 
     ego: frenet.EgoState
@@ -85,6 +88,7 @@ class Observation:
     time: float = 0.0
     info: dict = field(default_factory=dict)
     obstacle_states: np.ndarray | None = None
+    frame_changed: bool = False
 
 
 @dataclass(frozen=True)
@@ -353,6 +357,8 @@ def run_receding(
         obs = source.observe()
         if not isinstance(obs, Observation):
             raise ValueError(f"source.observe() must return an Observation, got {type(obs)!r}")
+        if obs.frame_changed:
+            warm = None
         t0 = time.perf_counter()
         p, warm_used = _plan_once(obs, rc, config, jax.random.fold_in(key, i), warm, t_grid)
         plan_s = time.perf_counter() - t0

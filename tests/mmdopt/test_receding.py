@@ -7,6 +7,7 @@ One small planner configuration is shared so the jitted planner compiles once.
 
 from __future__ import annotations
 
+import dataclasses
 import subprocess
 import sys
 
@@ -108,6 +109,20 @@ def test_every_replan_after_the_first_is_warm_started(run):
     assert [r.warm_started for r in res.steps] == [False] + [True] * 5
     cold = run_receding(TwoLaneScene(duration=1.0), RecedingConfig(warm_start=False), config=CFG)
     assert not any(r.warm_started for r in cold.steps)
+
+
+class NewFrameAtStep2(TwoLaneScene):
+    """Reports a new Frenet frame at the third observation (as a source that rebuilt its path)."""
+
+    def observe(self) -> Observation:
+        obs = super().observe()
+        return dataclasses.replace(obs, frame_changed=self.steps == 2)
+
+
+def test_a_new_frame_is_planned_cold():
+    res = run_receding(NewFrameAtStep2(duration=2.0), RecedingConfig(), config=CFG)
+    # the previous plan's warm start is in the old frame: the loop does not use it
+    assert [r.warm_started for r in res.steps] == [False, True, False, True]
 
 
 def test_plan_times_and_budget_are_reported(run):

@@ -111,9 +111,10 @@ def _follower_class():
         highway-env's kinematic bicycle.  The steering is a curvature command: the plan's
         curvature (feed-forward) plus state feedback on the lateral and heading errors with
         speed-scheduled gains (closed-loop lateral error ``ë + 2ζω ė + ω² e = 0``, ω = 1.5 rad/s,
-        ζ = 0.8, for the linearised bicycle), turned into a steering angle and clipped at
-        highway-env's ±60°; the acceleration is the plan's plus a speed and along-track position
-        loop (``k_v = 2/s, k_s = 1/s²``), clipped to ``[−8, 6]`` m/s² and never reversing.
+        ζ = 0.8, for the linearised bicycle; gains held at their 5 m/s values below 5 m/s),
+        turned into a steering angle and clipped at highway-env's ±60°; the acceleration is the
+        plan's plus a speed and along-track position loop (``k_v = 2/s, k_s = 1/s²``), clipped
+        to ``[−8, 6]`` m/s² and never reversing.
         ``model="exact"``: the pose and speed are set by linear interpolation of the plan (no
         vehicle model; constant speed along the last heading past the plan's end).  After a
         crash it brakes like any highway-env vehicle.  ``tracking_errors``: the lateral distance
@@ -123,6 +124,10 @@ def _follower_class():
         MAX_STEERING_ANGLE = ControlledVehicle.MAX_STEERING_ANGLE
         ACC_MIN, ACC_MAX = -8.0, 6.0
         OMEGA, ZETA, K_V, K_S = 1.5, 0.8, 2.0, 1.0
+        #: the speed (m/s) below which the lateral gains stop growing: the feedback curvature
+        #: scales as 1/v², and below a walking pace a few decimetres of error would saturate the
+        #: steering and make it chatter (the velocity's slip angle then swings with it)
+        V_FLOOR = 5.0
 
         def __init__(self, road, position, heading=0.0, speed=0.0, model="exact"):
             super().__init__(road, position, heading, speed)
@@ -173,7 +178,7 @@ def _follower_class():
                 return
             ref = self.reference(self.plan_clock)
             lat, lon, eh = self._errors(ref)
-            v = max(float(self.speed), 2.0)
+            v = max(float(self.speed), self.V_FLOOR)
             w, z = self.OMEGA, self.ZETA
             kappa = ref[5] - (w * w / (v * v)) * lat - (2.0 * z * w / v) * eh
             sin_beta = float(np.clip(kappa * self.LENGTH / 2.0, -0.99, 0.99))
@@ -283,21 +288,8 @@ class HighwaySource:
         road = self.env.road
         old = self.env.vehicle
         # the Frenet path and lane bounds from the lane network at the ego (roads.build_road)
-        self.road_model = build_road(
-            road.network,
-            old.lane_index,
-            old.position,
-            limits=dict(
-                v_min=0.0,
-                v_max=settings.v_max,
-                vy_max=settings.vy_max,
-                ax_max=settings.ax_max,
-                ay_max=settings.ay_max,
-            ),
-            back=settings.behind + 10.0,
-            ahead=settings.ahead,
-            horizon=config.trajectory.horizon,
-        )
+        self.road_model = self._build_road(old.lane_index, old.position)
+        self._frame_changed = False  # the path was rebuilt on another lane since the last plan
         self._s_shift = 0.0  # path arc length moved by the last re-anchoring of a loop's window
         self._s_travelled = 0.0  # arc length of the windows left behind (m)
         self.off_road = False
@@ -337,6 +329,20 @@ class HighwaySource:
         self.frame_views.append((np.array(surf.origin, dtype=float), float(surf.scaling)))
 
     # -- the road
+    def _build_road(self, lane_index, position):
+        st = self.settings
+        return build_road(
+            self.env.road.network,
+            lane_index,
+            position,
+            limits=dict(
+                v_min=0.0, v_max=st.v_max, vy_max=st.vy_max, ax_max=st.ax_max, ay_max=st.ay_max
+            ),
+            back=st.behind + 10.0,
+            ahead=st.ahead,
+            horizon=self.config.trajectory.horizon,
+        )
+
     @property
     def path(self) -> frenet.ReferencePath:
         """The Frenet reference path (:func:`~.roads.build_road`; on a loop it moves with the
@@ -375,7 +381,7 @@ class HighwaySource:
         fr = self.ego.frenet_now() if hasattr(self.ego, "frenet_now") else None
         if fr is not None and not self.ego.crashed and self.ego.model == "bicycle":
             return self._measured_state(fr)
-        if fr is not None and not self.ego.crashed:
+        if fr is not None and not self.ego.crashed and not self._frame_changed:
             # a plan made before the loop's window moved: its arc lengths shift with it
             return frenet.EgoState(**dict(fr, s=fr["s"] - self._s_shift))
         return vehicle_to_frenet(self.path, self.ego)
@@ -426,8 +432,33 @@ class HighwaySource:
         self._s_shift = shift
         self._s_travelled += shift
 
+    def _rebase(self) -> None:
+        """On a curved road, once the ego has moved into another lane (its centre within 1 m of
+        that lane's centre line and more than 1.5 m from the path), rebuild the path on the
+        centre line of that lane (:func:`~.roads.build_road`).  In a bend, a path one lane away
+        makes arc length and distance driven differ by the factor 1 − κ·d (up to ±35 % on
+        ``racetrack-v0``), and a plan at a steady Frenet speed would ask for a jump in speed
+        where the curvature changes sign.  The distance driven is kept across paths; the
+        observation says the frame changed, so the next plan starts cold."""
+        self._frame_changed = False
+        if self.road_model.chain is None or self.ego.crashed:
+            return
+        net, pos = self.env.road.network, self.ego.position
+        s_old, d_old = (float(v) for v in self.path.to_frenet(*pos))
+        lane_index = net.get_closest_lane_index(pos, self.ego.heading)
+        lat = float(net.get_lane(lane_index).local_coordinates(pos)[1])
+        if abs(d_old) <= 1.5 or abs(lat) >= 1.0:
+            return
+        self.road_model = self._build_road(lane_index, pos)
+        s_new = float(self.path.to_frenet(*pos)[0])
+        self._s_travelled += s_old - s_new
+        self._s_shift = 0.0
+        self._frame_changed = True
+
     def observe(self) -> Observation:
-        self._reanchor()
+        self._rebase()
+        if not self._frame_changed:
+            self._reanchor()
         self._note_off_road()
         targets = self._targets()
         rng = np.random.default_rng([self.seed, self.step_index])
@@ -447,6 +478,7 @@ class HighwaySource:
             time=float(self.env.time),
             info={"predict_s": pred_s, "n_targets": len(targets)},
             obstacle_states=self._obstacle_states(),
+            frame_changed=self._frame_changed,
         )
 
     # -- execution

@@ -217,9 +217,20 @@ def straight_along_x(network, lanes) -> bool:
     return True
 
 
-def _make_road(path, offsets, limits: dict) -> mmdopt.Road:
+#: on a curved road, the clearance (m) kept between the car's side and the road's edge when the
+#: lateral bounds reach past the outermost lane centres (see :func:`build_road`)
+EDGE_CLEARANCE = 0.5
+#: half the car's width (m) for that clearance (highway-env's cars are 2 m wide)
+HALF_WIDTH = 1.0
+
+
+def _make_road(path, offsets, limits: dict, edge: float = 0.0) -> mmdopt.Road:
     return mmdopt.Road(
-        path=path, y_lb=min(offsets), y_ub=max(offsets), lane_centres=tuple(offsets), **limits
+        path=path,
+        y_lb=min(offsets) - edge,
+        y_ub=max(offsets) + edge,
+        lane_centres=tuple(offsets),
+        **limits,
     )
 
 
@@ -238,10 +249,16 @@ def build_road(
 
     ``limits``: the :class:`mmdopt.Road` fields other than the path and lane bounds (``v_max``,
     ``ax_max``, ...); on a curved road ``v_max`` is also capped at the lane's speed limit (the
-    Frenet bounds do not limit the centripetal acceleration).  ``back``: metres of path behind the
-    vehicle; ``ahead``: the perception range (m) and ``horizon`` the planning horizon (s): the
-    path keeps ``ahead + v_max·horizon + 10`` m ahead of the vehicle (on a loop by
-    :func:`reanchor`).
+    Frenet bounds do not limit the centripetal acceleration), and the lateral bounds reach past the
+    outermost lane centres to :data:`HALF_WIDTH` + :data:`EDGE_CLEARANCE` inside the road's edge
+    (a tracked car drifts outward in a bend; the lane-centring cost keeps plans at the centres).
+    On a straight road along +x they are the outermost lane centres.  ``back``: metres of path
+    behind the vehicle; ``ahead``: the perception range (m) and ``horizon`` the planning horizon
+    (s): the path keeps ``ahead + v_max·horizon + 10`` m ahead of the vehicle (on a loop by
+    :func:`reanchor`).  On a curved road the path is the centre line of the vehicle's own lane;
+    the benchmark rebuilds it when the ego has moved into another lane
+    (:meth:`~.adapter.HighwaySource.observe`), so the ego plans near ``d = 0`` where arc length
+    and distance driven agree.
     """
     for name, v in (("back", back), ("ahead", ahead), ("horizon", horizon)):
         if not (isinstance(v, int | float) and math.isfinite(v) and v > 0):
@@ -280,7 +297,9 @@ def build_road(
         p = other.position(float(other.local_coordinates(position)[0]), 0.0)
         offsets.append(float(path.to_frenet(p[0], p[1])[1]))
     offsets = sorted(offsets)
-    return RoadModel(_make_road(path, offsets, limits), tuple(offsets), chain, start, reach)
+    edge = max(0.0, 0.5 * float(lane.width_at(s_lane)) - HALF_WIDTH - EDGE_CLEARANCE)
+    road = _make_road(path, offsets, limits, edge)
+    return RoadModel(road, tuple(offsets), chain, start, reach)
 
 
 def reanchor(model: RoadModel, s: float, *, back: float = 40.0) -> tuple[RoadModel, float]:

@@ -63,10 +63,11 @@ def test_racetrack_path_is_the_centre_line_of_the_ego_lane():
         # Frenet -> Cartesian at d = 0 is the env's lane centre, to the centimetre
         assert np.max(np.hypot(x - pts[inside, 0], y - pts[inside, 1])) < 0.01
         assert np.max(np.abs(d[inside])) < 0.01
-        # the bounds and lane centres are the two lanes' centres (5 m wide lanes)
+        # the lane centres are the two lanes' centres (5 m wide lanes); the bounds reach 1 m
+        # past them (half the car's width and 0.5 m inside the road's edge)
         assert sorted(np.round(model.lane_centres, 3)) in ([-5.0, 0.0], [0.0, 5.0])
         assert (src.road.y_lb, src.road.y_ub) == pytest.approx(
-            (min(model.lane_centres), max(model.lane_centres))
+            (min(model.lane_centres) - 1.0, max(model.lane_centres) + 1.0)
         )
         assert src.road.v_max == 10.0  # racetrack-v0's speed limit caps the planner's
         # moving the window round the loop keeps the geometry: arc lengths shift by `shift`
@@ -79,6 +80,37 @@ def test_racetrack_path_is_the_centre_line_of_the_ego_lane():
         assert d2 == pytest.approx([2.0, 2.0], abs=0.01)
         # and the new window runs on past the old one's end, round the loop
         assert moved.path.length == pytest.approx(path.length, abs=0.5)
+    finally:
+        src.close()
+
+
+def test_racetrack_path_moves_to_the_lane_the_ego_drives_in():
+    src = _racetrack()
+    try:
+        net, model = src.env.road.network, src.road_model
+        other = min(model.lane_centres, key=lambda c: -abs(c))  # the other lane's offset
+        assert abs(other) == pytest.approx(5.0, abs=1e-3)
+        first = src.observe()
+        assert not first.frame_changed and abs(first.ego.d) < 0.1
+        # put the ego on the other lane's centre, 0.3 m off it, as after a lane change
+        s0 = float(src.path.to_frenet(*src.ego.position)[0]) + 3.0
+        src.ego.position = np.array(src.path.to_cartesian(s0, other + 0.3), dtype=float)
+        src.ego.heading = float(src.path.heading(np.array([s0]))[0])
+        before = src.distance()
+        obs = src.observe()
+        # the path is now that lane's centre line: the ego plans near d = 0, the old lane is
+        # 5 m beside it, and the distance driven carries over
+        assert obs.frame_changed and src.road_model is not model
+        assert abs(obs.ego.d) < 0.5
+        assert sorted(abs(c) for c in src.road_model.lane_centres) == pytest.approx(
+            [0, 5], abs=1e-2
+        )
+        assert src.distance() == pytest.approx(before, abs=1e-6)
+        x, y = src.path.to_cartesian(np.array([20.0, 60.0]), np.zeros(2))
+        lane = net.get_closest_lane_index(np.array([x[0], y[0]]))
+        lat = net.get_lane(lane).local_coordinates(np.array([x[0], y[0]]))[1]
+        assert abs(lat) < 0.05
+        assert not src.observe().frame_changed  # once
     finally:
         src.close()
 
