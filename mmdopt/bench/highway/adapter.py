@@ -129,11 +129,19 @@ def _follower_class():
         #: steering and make it chatter (the velocity's slip angle then swings with it)
         V_FLOOR = 5.0
 
-        def __init__(self, road, position, heading=0.0, speed=0.0, model="exact"):
+        def __init__(
+            self, road, position, heading=0.0, speed=0.0, model="exact", target_speed=30.0
+        ):
             super().__init__(road, position, heading, speed)
             if model not in EGO_MODELS:
                 raise ValueError(f"model must be one of {EGO_MODELS}, got {model!r}")
             self.model = model
+            # highway-env's drivers judge a lane change by the IDM acceleration it would impose
+            # on the car behind (MOBIL), reading that car's ``target_speed`` (0 when absent: any
+            # moving car without one looks as if it would brake without limit, so no driver
+            # would ever merge in front of the ego).  The ego's is the planner's desired speed,
+            # as highway-env's own controlled vehicles have one.
+            self.target_speed = float(target_speed)
             self.plan_clock = 0.0
             self._plan = None
             self._plan_ff = None
@@ -221,7 +229,9 @@ def _follower_class():
     return PlanFollower
 
 
-def PlanFollower(road, position, heading=0.0, speed=0.0, model: str = "exact"):
+def PlanFollower(
+    road, position, heading=0.0, speed=0.0, model: str = "exact", target_speed: float = 30.0
+):
     """A plan-executing highway-env vehicle, ``model`` of :data:`EGO_MODELS` (the class is built
     on first use: highway-env is an optional dependency)."""
     global _PLAN_FOLLOWER
@@ -229,7 +239,7 @@ def PlanFollower(road, position, heading=0.0, speed=0.0, model: str = "exact"):
         raise ValueError(f"model must be one of {EGO_MODELS}, got {model!r}")
     if _PLAN_FOLLOWER is None:
         _PLAN_FOLLOWER = _follower_class()
-    return _PLAN_FOLLOWER(road, position, heading, speed, model)
+    return _PLAN_FOLLOWER(road, position, heading, speed, model, target_speed)
 
 
 _PLAN_FOLLOWER = None
@@ -301,7 +311,12 @@ class HighwaySource:
             )
         else:
             ego = PlanFollower(
-                road, old.position.copy(), old.heading, old.speed, model=settings.ego_model
+                road,
+                old.position.copy(),
+                old.heading,
+                old.speed,
+                model=settings.ego_model,
+                target_speed=config.cost.v_des,
             )
         ego.color = (50, 200, 0)  # highway-env's ego green in videos
         road.vehicles[road.vehicles.index(old)] = ego

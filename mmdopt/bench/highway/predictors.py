@@ -523,8 +523,14 @@ class LearnedPredictor:
         out = self._model.sample(history, ctx, int(n), key)
         extent = _road_extent(road.network, out[..., 0].min(), out[..., 0].max())
         if extent is not None:
+            through = np.array(
+                [(*u.position, u.velocity[0]) for u in road.vehicles], float
+            ).reshape(-1, 3)
             for o, v in enumerate(targets):
-                _merge_before_lane_end(road.network, v.lane_index, out[o], rng)
+                others = through[[u is not v for u in road.vehicles]]
+                _merge_before_lane_end(
+                    road.network, v.lane_index, out[o], rng, t_grid=t_grid, through=others
+                )
             xs, lo, hi = extent
             half = 0.5 * float(getattr(targets[0], "WIDTH", 2.0))
             y_lo, y_hi = (
@@ -562,7 +568,17 @@ def _ending_lane(network, lane_index, hops: int = 2):
     return None
 
 
-def _merge_before_lane_end(network, lane_index, samples: np.ndarray, rng) -> None:
+#: a car entering from a lane that ends yields to the traffic in the lane it enters (the rule of
+#: the road): it enters only where every car of that lane keeps, from the car ahead of it, a
+#: distance of MERGE_SPACING_M (two 5 m car lengths, centre to centre) plus MERGE_TIME_GAP_S
+#: seconds at its own speed
+MERGE_SPACING_M = 10.0
+MERGE_TIME_GAP_S = 1.0
+
+
+def _merge_before_lane_end(
+    network, lane_index, samples: np.ndarray, rng, t_grid=None, through=None
+) -> None:
     """Map knowledge the network does not learn: a car on a lane that ends (no lane of its index
     continues it: ``merge-v0``'s acceleration lane, also ahead on the car's way,
     :func:`_ending_lane`) must leave it before the lane's end, and may
@@ -570,7 +586,15 @@ def _merge_before_lane_end(network, lane_index, samples: np.ndarray, rng) -> Non
     into the neighbouring lane over :data:`MERGE_ZONE_M` metres from a start drawn uniformly
     between the car's position and the last point that still completes the move by the end
     (``rng``: a NumPy generator), in place.  A car on a lane that continues is left as
-    predicted."""
+    predicted.
+
+    It yields to the lane it enters: with ``t_grid`` (K,) and ``through`` ((C, 3): ``x, y, vx``
+    of the cars now in the road's other lanes, the ego among them), a sample's move starts at
+    the first grid time from its drawn start at which the cars of the lane it enters, at
+    constant speed, leave the gap of :data:`MERGE_SPACING_M` and :data:`MERGE_TIME_GAP_S`
+    around it; a sample that finds no such gap before the lane's end stays in its lane and
+    stops at the end.  A car already moving across (more than 1 m off its lane's centre) is not
+    held."""
     lane_index = _ending_lane(network, lane_index)
     if lane_index is None:
         return
@@ -586,8 +610,35 @@ def _merge_before_lane_end(network, lane_index, samples: np.ndarray, rng) -> Non
     x_now = float(samples[:, 0, 0].mean())
     last = max(float(end[0]) - MERGE_ZONE_M, x_now)
     start = rng.uniform(x_now, last, size=(samples.shape[0], 1))
+    y_lane = float(lane.position(lane.length, 0.0)[1])
+    if t_grid is not None and through is not None and len(through):
+        if abs(float(samples[:, 0, 1].mean()) - y_lane) <= 1.0:
+            start = _yielding_start(samples, start, np.asarray(t_grid, float), through, y_to, end)
     w = np.clip((samples[..., 0] - start) / MERGE_ZONE_M, 0.0, 1.0)
     samples[..., 1] = (1.0 - w) * samples[..., 1] + w * y_to
+
+
+def _yielding_start(samples, start, t, through, y_to, end) -> np.ndarray:
+    """The merge starts (n, 1) of :func:`_merge_before_lane_end` once the merging car yields to
+    the cars of the lane it enters; samples that find no gap are held at the lane's end (in
+    place) and get an infinite start."""
+    through = np.asarray(through, float).reshape(-1, 3)
+    lane_cars = through[np.abs(through[:, 1] - y_to) < 2.0]
+    x = samples[..., 0]  # (n, K)
+    if not len(lane_cars):
+        return start
+    cx = lane_cars[:, 0, None] + lane_cars[:, 2, None] * t[None, :]  # (C, K)
+    vx = np.gradient(x, t, axis=1) if t.shape[0] > 1 else np.zeros_like(x)
+    gap = x[None] - cx[:, None]  # (C, n, K): the merging car ahead of the lane's car by gap
+    ahead_ok = gap >= MERGE_SPACING_M + MERGE_TIME_GAP_S * lane_cars[:, 2, None, None]
+    behind_ok = -gap >= MERGE_SPACING_M + MERGE_TIME_GAP_S * np.maximum(vx, 0.0)[None]
+    ok = np.where(gap >= 0.0, ahead_ok, behind_ok).all(0)
+    cand = (x >= start) & ok & (x <= float(end[0]) - 0.5 * MERGE_ZONE_M)
+    found = cand.any(1)
+    first = np.argmax(cand, axis=1)
+    new = np.where(found, x[np.arange(x.shape[0]), first], np.inf)[:, None]
+    samples[~found, :, 0] = np.minimum(samples[~found, :, 0], float(end[0]))
+    return new
 
 
 def _road_extent(network, x_min: float, x_max: float, step: float = 2.0):

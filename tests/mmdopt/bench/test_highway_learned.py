@@ -121,3 +121,39 @@ def test_a_car_whose_lane_ends_is_predicted_to_leave_it_before_the_end():
     _merge_before_lane_end(net, ("a", "b", 1), main, rng)
     np.testing.assert_array_equal(main, before)
     env.close()
+
+
+def test_a_merging_car_yields_to_the_lane_it_enters():
+    """merge-v0: a car slowing to 5 m/s on the acceleration lane, the ego beside it in the lane
+    it enters.  Ego 8 m behind at a stop: no sample merges in front of it unless 10 m + 1 s
+    ahead, so samples wait at the lane's end; ego far ahead: the merge is unhindered."""
+    import gymnasium as gym
+
+    from mmdopt.bench.highway.predictors import MERGE_SPACING_M, _merge_before_lane_end
+
+    env = gym.make("merge-v0").unwrapped
+    env.reset(seed=0)
+    net = env.road.network
+    t = np.linspace(0.0, 5.0, 26)
+    x = 290.0 + 5.0 * t
+    car = np.zeros((40, t.size, 2))
+    car[..., 0], car[..., 1] = x, 8.0
+    free = car.copy()
+    blocked = car.copy()
+    _merge_before_lane_end(
+        net, ("b", "c", 2), blocked, np.random.default_rng(1), t_grid=t,
+        through=np.array([[282.0, 4.0, 0.0]]),
+    )  # fmt: skip
+    # wherever a sample is in the ego's lane (within 2 m of y = 4), it is far enough ahead
+    in_lane = np.abs(blocked[..., 1] - 4.0) < 2.0
+    assert (blocked[..., 0][in_lane] - 282.0 >= MERGE_SPACING_M).all()
+    _merge_before_lane_end(
+        net, ("b", "c", 2), free, np.random.default_rng(1), t_grid=t,
+        through=np.array([[400.0, 4.0, 20.0]]),
+    )  # fmt: skip
+    unhindered = car.copy()
+    _merge_before_lane_end(net, ("b", "c", 2), unhindered, np.random.default_rng(1))
+    np.testing.assert_allclose(free, unhindered)
+    # the ego close behind holds every sample back for longer than the free road does
+    assert blocked[..., 1].mean() > free[..., 1].mean()
+    env.close()

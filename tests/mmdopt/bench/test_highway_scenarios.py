@@ -174,3 +174,26 @@ def test_short_racetrack_episode_stays_on_the_road_and_its_video_shows_the_plan(
     assert orange.sum() > 20 and not np.any(
         np.all(np.abs(first - np.array(video.REDUCED_COLOUR)) < 40, axis=-1)
     )
+
+
+def test_other_drivers_judge_the_ego_as_a_car_with_a_desired_speed():
+    """highway-env's MOBIL asks what IDM acceleration a lane change would impose on the car
+    behind, from that car's ``target_speed``: the ego has the planner's desired speed, so a
+    moving ego is not taken for a car that would brake without limit (which kept every driver
+    from ever merging in front of it)."""
+    from highway_env.vehicle.behavior import IDMVehicle
+
+    src = hw.HighwaySource(
+        hw.HighwaySettings(env="merge-v0", duration=1.0, predictor="cv"),
+        0,
+        hw.highway_config(TINY),
+        method="mmd",
+    )
+    try:
+        assert src.ego.target_speed == hw.highway_config(TINY).cost.v_des
+        # free road: IDM's acceleration of the ego at 20 m/s is its comfortable one, not -inf
+        src.ego.speed = 20.0
+        acc = IDMVehicle.acceleration(src.env.road.vehicles[1], ego_vehicle=src.ego)
+        assert -1.0 < acc <= IDMVehicle.COMFORT_ACC_MAX
+    finally:
+        src.close()
