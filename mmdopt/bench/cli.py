@@ -691,6 +691,14 @@ def cmd_frontier(args, parser) -> int:
     ]
     print("interpolated mean progress (m) at mean collision-free level (of 1000); nan: not reached")
     print(_table(rows, ["method", *[f"progress_m@{k}" for k in lv]]))
+    rows = [
+        {"method": m, **{f"progress_m@{k}": v[k] for k in lv}} for m, v in res["at_level"].items()
+    ]
+    print(
+        "most mean progress (m) of a risk level whose mean collision-free count reaches the level "
+        "(measured points only); nan: not reached"
+    )
+    print(_table(rows, ["method", *[f"progress_m@{k}" for k in lv]]))
     out = Path(args.out)
     print(
         f"{res['computed']} plans computed, {res['reused']} reused, {res['wall_s']:.1f} s; wrote "

@@ -41,6 +41,7 @@ __all__ = [
     "run_frontier",
     "frontier_points",
     "interpolate_progress",
+    "progress_at_level",
     "clopper_pearson_interval",
     "frontier_axes",
     "frontier_figure",
@@ -185,7 +186,8 @@ def run_frontier(
     process with one XLA thread, so the rows do not depend on ``jobs`` or the executor; the
     manifest records where results were computed and a folder refuses a mix.
 
-    Returns ``{"rows", "points", "interpolated", "computed", "reused", "wall_s"}``.
+    Returns ``{"rows", "points", "interpolated", "at_level", "computed", "reused", "wall_s"}``
+    (``at_level``: :func:`progress_at_level`, the measured points only).
     """
     params = SceneParams() if params is None else params
     n = num_scenes(params, scenes)
@@ -248,15 +250,24 @@ def run_frontier(
     write_results(rows, out / "frontier.csv", FRONTIER_COLUMNS)
     points = frontier_points(rows)
     interp = {m: interpolate_progress(points, m, levels) for m in methods}
+    reached = {m: progress_at_level(points, m, levels) for m in methods}
     write_json(
         out / "frontier_summary.json",
-        dict(points=points, interpolated=interp, scenes=n, seed=seed, params=params.to_dict()),
+        dict(
+            points=points,
+            interpolated=interp,
+            at_level=reached,
+            scenes=n,
+            seed=seed,
+            params=params.to_dict(),
+        ),
     )
     frontier_figure(points, out / "frontier.png", title=f"{n} scenes, seed {seed}")
     return dict(
         rows=rows,
         points=points,
         interpolated=interp,
+        at_level=reached,
         computed=int(sum(done)),
         reused=reused,
         wall_s=wall,
@@ -365,6 +376,20 @@ def interpolate_progress(
             if c0 < lv <= c1 and c1 > c0:
                 best = max(best, p0 + (p1 - p0) * (lv - c0) / (c1 - c0))
         res[f"{lv:g}"] = best if math.isfinite(best) else float("nan")
+    return res
+
+
+def progress_at_level(
+    points: Sequence[Mapping[str, Any]], method: str, levels: Sequence[float] = TARGET_LEVELS
+) -> dict[str, float]:
+    """``method``'s progress (m) at each target mean collision-free level, measured points only:
+    the most mean progress among its risk levels whose mean collision-free count reaches the
+    level (no interpolation between risk levels); NaN where none reaches it."""
+    pts = [(p["mean"], p["progress_m"]) for p in points if p["method"] == method]
+    res = {}
+    for lv in levels:
+        reached = [prog for c, prog in pts if c >= lv]
+        res[f"{lv:g}"] = max(reached) if reached else float("nan")
     return res
 
 

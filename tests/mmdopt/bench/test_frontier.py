@@ -16,6 +16,7 @@ from mmdopt.bench.frontier import (
     frontier_points,
     interpolate_progress,
     parse_risks,
+    progress_at_level,
 )
 
 CONTRACT = ("method", "risk", "scene", "collision_free", "n_validation", "progress_m",
@@ -55,6 +56,10 @@ def test_interpolated_progress_on_the_frontier():
     assert got["995"] == pytest.approx(60.0 + 20.0 * 4.0 / 7.0)  # between 992 and 999
     assert got["999"] == pytest.approx(60.0)
     assert math.isnan(got["999.5"])  # not reached by any risk level
+    # the measured points only: the most progress of a risk level that reaches the level
+    at = progress_at_level(pts, "a", (990.0, 995.0, 999.0, 999.5))
+    assert at["990"] == 80.0 and at["995"] == 60.0 and at["999"] == 60.0
+    assert math.isnan(at["999.5"])
 
 
 def test_frontier_cli_contract_and_resume(tmp_path, capsys):
