@@ -39,7 +39,7 @@ import numpy as np
 
 import mmdopt
 from mmdopt.algorithm import PLANNER_BACKEND
-from mmdopt.predict import PREDICTORS, make_predictor
+from mmdopt.predict import PREDICTORS, Forecast, PredictionContext, make_predictor
 
 from .metric import (
     BRAKE_THRESHOLD,
@@ -106,6 +106,7 @@ RESULT_COLUMNS = (
     "cr_road_compliant",
     "cr_feasible",
     "risk_bound",
+    "n_planning",
 )
 
 
@@ -121,6 +122,11 @@ class NgsimParams:
         vehicles within ``range_m``, ties by id
     range_m, max_obstacles : vehicles planned against (Euclidean distance at t0)
     n_samples, n_validation : predictor samples per obstacle for planning / for the metric
+    forecast : plan through the predictor (an :class:`mmdopt.predict.Forecast`): ``plan`` draws
+        n(ε) futures per obstacle for the risk level of a "samples"-margin config, at least
+        ``n_samples`` (exactly ``n_samples`` with the time-linear margins of the NGSIM preset)
+        and at most :data:`MAX_FORECAST_SAMPLES`; ``False``: ``n_samples`` drawn here, a fixed
+        array
     lane_keep_margin : lateral freedom (m) on a side without a same-direction lane
     v_des : desired speed (m/s) of the cost (None: the config's)
     v_des_flow : if set (m/s), the desired speed respects the traffic: ``min(v_des, v_flow +
@@ -159,6 +165,7 @@ class NgsimParams:
     obstacle_bucket: int | None = None
     brake_threshold: float = BRAKE_THRESHOLD
     seed: int = 0
+    forecast: bool = True
 
     def __post_init__(self) -> None:
         for name in ("v_des", "v_des_flow"):
@@ -171,6 +178,8 @@ class NgsimParams:
             raise ValueError(
                 f"NgsimParams.min_change_speed must be finite and >= 0, got {self.min_change_speed}"
             )
+        if not isinstance(self.forecast, bool):
+            raise ValueError(f"NgsimParams.forecast must be a bool, got {self.forecast!r}")
         if self.v_des_flow is not None and self.v_des is None:
             raise ValueError("NgsimParams.v_des_flow needs v_des (the cap without traffic)")
         for name in ("history", "egos_per_time", "max_obstacles", "n_samples", "n_validation"):
@@ -446,6 +455,59 @@ class PlanInputs(NamedTuple):
     key_plan: Any  # PRNG key of the plan
     predict_s: float  # wall time of the planning draws
     recorded_progress_m: float  # the human's arc length over the horizon
+    forecast: Any = None  # the Forecast plan() draws from (NgsimParams.forecast), else None
+
+    @property
+    def obstacles(self):
+        """What :func:`mmdopt.plan` is given: the forecast, else the fixed samples."""
+        return self.planned if self.forecast is None else self.forecast
+
+
+#: the most futures per obstacle a forecast draws (beyond it the status says ``risk floor``)
+MAX_FORECAST_SAMPLES = 5000
+
+
+@dataclass(frozen=True)
+class GhostPadded:
+    """``inner``'s draws for the first ``real`` obstacles, then ghost obstacles 500 m behind the
+    ego on its path (:func:`_pad_ghosts`) for the rest: the predictor of a
+    :class:`mmdopt.predict.Forecast` whose history and context are padded to the bucket, so
+    Algorithm 1 compiles once per bucket, as with the fixed samples."""
+
+    inner: Any
+    real: int
+    road: Any
+    ego: Any
+
+    def sample(self, history, context, n, key) -> np.ndarray:
+        ctx = _context_rows(context, slice(0, self.real))
+        out = np.asarray(self.inner.sample(history[: self.real], ctx, n, key), np.float64)
+        return _pad_ghosts(out, self.road, self.ego, history.shape[0], history.shape[0])
+
+
+def _context_rows(ctx: PredictionContext, rows) -> PredictionContext:
+    """``ctx`` with its per-obstacle arrays indexed by ``rows`` (a slice or an index array)."""
+    per = ("centerline", "lane_width", "has_left", "has_right", "gaps", "rel_speed")
+    return dataclasses.replace(ctx, **{k: np.asarray(getattr(ctx, k))[rows] for k in per})
+
+
+def _forecast(b: dict, pred, params: NgsimParams, config) -> Forecast:
+    """The task's obstacles as a :class:`mmdopt.predict.Forecast` of ``pred``; with the
+    time-linear margins (one n for every plan) padded with ghosts like the fixed samples, in the
+    "samples" mode not (ghosts would count as obstacles in n(ε, O) and the risk bound)."""
+    hist, ctx = np.asarray(b["hist"], np.float64), b["ctx"]
+    O = hist.shape[0]
+    kw = dict(min_samples=params.n_samples, max_samples=max(params.n_samples, MAX_FORECAST_SAMPLES))
+    if config.safety.margins.margin_mode == "samples":
+        return Forecast(pred, hist, ctx, **kw)
+    bucket = params.max_obstacles if params.obstacle_bucket is None else params.obstacle_bucket
+    target = min(-(-O // bucket) * bucket, max(params.max_obstacles, O))
+    if target <= O:
+        return Forecast(pred, hist, ctx, **kw)
+    rows = np.concatenate([np.arange(O), np.full(target - O, O - 1)])
+    return Forecast(
+        GhostPadded(pred, O, b["road"], b["ego"]), hist[rows], _context_rows(ctx, rows), **kw
+    )
 
 
 def plan_inputs(task: dict, params: NgsimParams, config, predictor: Any = "learned") -> PlanInputs:
@@ -464,10 +526,11 @@ def plan_inputs(task: dict, params: NgsimParams, config, predictor: Any = "learn
     )
     rec = future_at(b["scene"], [b["v"]], b["k"], b["times"])[0]
     s_rec, _ = b["road"].path.to_frenet(rec[:, 0], rec[:, 1])
+    cfg = task_config(b, params, config)
+    fc = _forecast(b, pred, params, cfg) if params.forecast else None
     return PlanInputs(
-        b, task_config(b, params, config), planned, pred, k_val, k_plan, predict_s,
-        float(s_rec[-1] - s_rec[0]),
-    )  # fmt: skip
+        b, cfg, planned, pred, k_val, k_plan, predict_s, float(s_rec[-1] - s_rec[0]), fc
+    )
 
 
 def run_task(
@@ -489,13 +552,14 @@ def run_task(
     if export is not None and not check:
         raise ValueError(f"export needs CommonRoad's checkers: {crcheck.available()}")
     inp = plan_inputs(task, params, config, predictor)
-    b, cfg, planned, k_plan = inp.task, inp.config, inp.planned, inp.key_plan
+    b, cfg, k_plan = inp.task, inp.config, inp.key_plan
     val = inp.predictor.sample(b["hist"], b["ctx"], params.n_validation, inp.key_validation)
     rows = []
     for m in methods:
         plan = mmdopt.plan(
-            b["ego"], b["road"], planned, method=m, config=cfg, projector=backend, key=k_plan
-        )
+            b["ego"], b["road"], inp.obstacles, method=m, config=cfg, projector=backend,
+            key=k_plan,
+        )  # fmt: skip
         score = _score_recorded(b, plan, params)
         # the paper's metric (§IV-A): validation draws clear of every obstacle
         cf = int(
@@ -522,7 +586,8 @@ def run_task(
                 status=plan.status_text,
                 risk_bound=float(plan.risk_bound),
                 cem_s=float(plan.diagnostics.get("cem_s", np.nan)),
-                predict_s=inp.predict_s,
+                predict_s=float(plan.diagnostics.get("forecast_s", inp.predict_s)),
+                n_planning=int(plan.diagnostics.get("forecast_samples", params.n_samples)),
                 v0=float(b["ego"].vs),
                 y_lb=b["road"].y_lb,
                 y_ub=b["road"].y_ub,

@@ -345,3 +345,41 @@ def test_crawling_ego_does_not_slide_sideways_at_rest(ngsim_dir):
     sc = _score_recorded(inp.task, plan, p)
     assert not sc["any_collision"], sc
     assert plan.progress >= 0.8 * inp.recorded_progress_m
+
+
+@pytest.mark.slow  # one JIT compile of Algorithm 1
+def test_tasks_plan_through_the_predictor(ngsim_dir):
+    """``bench ngsim`` gives ``plan`` a Forecast: the predictor's draws for the real cars, ghost
+    cars 500 m behind for the rest of the bucket (one compiled shape, as with fixed samples);
+    with "samples" margins no ghosts (they would count in n(ε, O)), and plan draws n(ε, O)."""
+    import jax
+
+    import mmdopt
+    from mmdopt.bench.ngsim.runner import NgsimParams, ngsim_config, plan_inputs
+    from mmdopt.risk import samples_for_risk
+
+    f = ngsim_dir / "USA_US101-4_1_T-1.xml"
+    if not f.is_file():
+        pytest.skip(f"{f} not found")
+    p = NgsimParams(egos_per_time=1, n_samples=20, max_obstacles=30, range_m=8.0)
+    task = dict(scenario=str(f), ego_id=442, k=50, t0=5.0)
+    inp = plan_inputs(task, p, ngsim_config(), "cv")
+    fc, O = inp.forecast, len(inp.task["obs"])
+    assert inp.obstacles is fc and 0 < O < 30 and fc.num_obstacles == 30
+    key = jax.random.PRNGKey(4)
+    drawn = fc.predictor.sample(fc.history, fc.context, 20, key)
+    real = inp.predictor.sample(inp.task["hist"], inp.task["ctx"], 20, key)
+    np.testing.assert_array_equal(drawn[:O], real)
+    ego = inp.task["ego"]
+    s_ghost, _ = inp.task["road"].path.to_frenet(
+        drawn[O:, :, 0, 0].ravel(), drawn[O:, :, 0, 1].ravel()
+    )
+    assert np.all(s_ghost < ego.s - 400.0)
+    # the "samples" margins: the real cars only, n(eps, O) futures each (capped)
+    cfg = mmdopt.risk.config_for_risk("mmd", 0.1, ngsim_config())
+    inp2 = plan_inputs(task, p, cfg, "cv")
+    assert inp2.forecast.num_obstacles == O
+    tiny = inp2.config.replace(n_samples=40, n_cem=20, n_elite=8, iterations=2, reduced_set_size=5)
+    plan = mmdopt.plan(ego, inp2.task["road"], inp2.obstacles, method="mmd", config=tiny, key=key)
+    assert plan.diagnostics["forecast_samples"] == min(max(samples_for_risk(0.1, O), 20), 5000)
+    assert np.isfinite(plan.risk_bound)
