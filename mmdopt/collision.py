@@ -83,8 +83,19 @@ __all__ = [
 #: nominal collision ellipse semi-axes (m): longitudinal a, lateral b (reference values)
 
 
+#: a waypoint step shorter than this (m) has no direction of its own (a car at rest, or the
+#: noise of a predicted standstill): :func:`headings` carries the nearest defined heading
+MIN_HEADING_STEP = 0.05
+
+
 def headings(xy: ArrayLike) -> jax.Array:
     """Heading of each waypoint by forward differences, last value repeated.
+
+    A step shorter than :data:`MIN_HEADING_STEP` takes the heading of the last longer step
+    before it (before the first longer step: that step's), and a trajectory with no longer step
+    has heading 0 (along the path, in the planner's Frenet frame): the direction of millimetre
+    displacements of a car at rest is noise, and a sideways heading would turn its footprint
+    circles across the lane beside it.
 
     Parameters
     ----------
@@ -99,6 +110,12 @@ def headings(xy: ArrayLike) -> jax.Array:
         return jnp.zeros(xy.shape[:-1], dtype=xy.dtype)
     d = jnp.diff(xy, axis=-2)
     psi = jnp.arctan2(d[..., 1], d[..., 0])
+    moving = jnp.hypot(d[..., 0], d[..., 1]) >= MIN_HEADING_STEP
+    idx = jnp.arange(psi.shape[-1])
+    last = lax.cummax(jnp.where(moving, idx, -1), axis=psi.ndim - 1)  # last moving step so far
+    first = jnp.argmax(moving, axis=-1)[..., None]
+    src = jnp.where(last >= 0, last, first)
+    psi = jnp.where(moving.any(-1, keepdims=True), jnp.take_along_axis(psi, src, axis=-1), 0.0)
     return jnp.concatenate([psi, psi[..., -1:]], axis=-1)
 
 

@@ -376,3 +376,22 @@ def test_a_follower_that_runs_through_the_ego_stays_exempt_but_a_cut_in_does_not
     assert f[1, 3] > 0
     f0 = np.asarray(ev(s, d, centres, a, b, rear_exempt_width=0.0))[0, 0, :, 0]
     np.testing.assert_array_equal(f0, plain)
+
+
+def test_a_car_at_rest_keeps_a_heading_instead_of_taking_one_from_noise():
+    """The direction of millimetre steps is noise: a car that stops keeps the heading it drove
+    with, one at rest over the whole horizon is aligned with the path, and its footprint
+    circles do not turn across the next lane."""
+    from mmdopt.collision import MIN_HEADING_STEP, headings
+
+    rng = np.random.default_rng(0)
+    t = np.linspace(0.0, 5.0, 51)
+    x = np.minimum(t, 2.0) * 3.0  # drives along +x at 3 m/s, stops at t = 2 s
+    drive = np.stack([x, 0.5 * x], -1) + 1e-3 * rng.standard_normal((51, 2))
+    h = np.asarray(headings(drive))
+    np.testing.assert_allclose(h, np.arctan2(0.5, 1.0), atol=0.01)
+    rest = np.array([10.0, 4.0]) + 1e-3 * rng.standard_normal((51, 2))
+    np.testing.assert_array_equal(np.asarray(headings(rest)), 0.0)
+    centres = np.asarray(mmdopt.circle_centres(rest[None], mmdopt.OBSTACLE_FOOTPRINT))
+    assert np.abs(centres[..., 1] - 4.0).max() < 0.01  # all three circles on the car's line
+    assert MIN_HEADING_STEP <= 0.1  # a car at 1 m/s on a 0.1 s grid still has a heading
