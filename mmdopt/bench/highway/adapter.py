@@ -98,6 +98,20 @@ def _tracking_errors(vehicle, ref) -> tuple[float, float, float]:
     return lat, lon, eh
 
 
+def _tracking_command(v, ref) -> dict:
+    """The tracking controller of :class:`PlanFollower` ``v`` at the plan's reference ``ref``
+    (its docstring): highway-env's ``{"steering", "acceleration"}``."""
+    lat, lon, eh = _tracking_errors(v, ref)
+    speed = max(float(v.speed), v.V_FLOOR)
+    w, z = v.OMEGA, v.ZETA
+    kappa = ref[5] - (w * w / (speed * speed)) * lat - (2.0 * z * w / speed) * eh
+    sin_beta = float(np.clip(kappa * v.LENGTH / 2.0, -0.99, 0.99))
+    steer = math.atan(2.0 * math.tan(math.asin(sin_beta)))
+    steer = float(np.clip(steer, -v.MAX_STEERING_ANGLE, v.MAX_STEERING_ANGLE))
+    acc = ref[4] + v.K_V * (ref[3] - v.speed) - v.K_S * lon
+    return {"steering": steer, "acceleration": float(np.clip(acc, v.ACC_MIN, v.ACC_MAX))}
+
+
 def _follower_class():
     from highway_env.vehicle.controller import ControlledVehicle
     from highway_env.vehicle.kinematics import Vehicle
@@ -184,24 +198,11 @@ def _follower_class():
         def act(self, action=None):
             if self.model != "bicycle" or self._plan is None or self.crashed:
                 return
-            ref = self.reference(self.plan_clock)
-            lat, lon, eh = self._errors(ref)
-            v = max(float(self.speed), self.V_FLOOR)
-            w, z = self.OMEGA, self.ZETA
-            kappa = ref[5] - (w * w / (v * v)) * lat - (2.0 * z * w / v) * eh
-            sin_beta = float(np.clip(kappa * self.LENGTH / 2.0, -0.99, 0.99))
-            steer = math.atan(2.0 * math.tan(math.asin(sin_beta)))
-            steer = float(np.clip(steer, -self.MAX_STEERING_ANGLE, self.MAX_STEERING_ANGLE))
-            acc = ref[4] + self.K_V * (ref[3] - self.speed) - self.K_S * lon
-            acc = float(np.clip(acc, self.ACC_MIN, self.ACC_MAX))
-            self.action = {"steering": steer, "acceleration": acc}
+            self.action = _tracking_command(self, self.reference(self.plan_clock))
 
         def step(self, dt):
             if self.crashed or self._plan is None:
-                self.action = {
-                    "steering": 0.0,
-                    "acceleration": -self.speed if self.crashed else 0.0,
-                }
+                self.action = {"steering": 0.0, "acceleration": -self.speed * self.crashed}
                 Vehicle.step(self, dt)
                 return
             self.plan_clock += dt

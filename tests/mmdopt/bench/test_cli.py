@@ -127,12 +127,27 @@ def test_module_entry_point_exit_status():
 # ------------------------------------------------------------------ with Algorithm 1
 
 
-def test_demo_writes_png_and_prints_table(tmp_path, capsys):
-    """Both axes of the trade-off per (method, ε), compile time apart from plan time."""
+def test_demo_writes_png_and_prints_table(tmp_path, capsys, monkeypatch):
+    """Both axes of the trade-off per (method, ε), compile time apart from plan time; the PNG is
+    a readable figure (labels with units, legends: ``test_figures.assert_readable``)."""
+    from matplotlib.figure import Figure
+
+    from tests.mmdopt.bench.test_figures import assert_readable
+
+    saved = {}
+    orig = Figure.savefig
+
+    def record(self, fname, *a, **k):
+        saved[str(fname)] = self
+        return orig(self, fname, *a, **k)
+
+    monkeypatch.setattr(Figure, "savefig", record)
     rc, out = _run(["demo", "--out", str(tmp_path)], capsys)
     assert rc == 0
     png = tmp_path / "demo.png"
     assert png.is_file() and png.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+    assert str(png) in saved, "demo.png was not written through Figure.savefig"
+    assert_readable(saved[str(png)], "demo.png")
     for word in (
         "method", "risk ε", "collision-free of 1000", "progress (m)", "plan_s (s)",
         "compile_s (s)", "mmd", "degroot", "How to read it", "matched safety",
