@@ -202,7 +202,8 @@ def _follower_class():
 
         def step(self, dt):
             if self.crashed or self._plan is None:
-                self.action = {"steering": 0.0, "acceleration": -self.speed * self.crashed}
+                brake = -float(self.speed) if self.crashed else 0.0
+                self.action = {"steering": 0.0, "acceleration": brake}
                 Vehicle.step(self, dt)
                 return
             self.plan_clock += dt
