@@ -466,7 +466,10 @@ class HighwaySource:
         lat = float(net.get_lane(lane_index).local_coordinates(pos)[1])
         if abs(d_old) <= 1.5 or abs(lat) >= 1.0:
             return
-        self.road_model = self._build_road(lane_index, pos)
+        try:
+            self.road_model = self._build_road(lane_index, pos)
+        except ValueError:  # that lane gives no usable path (too short a loop): keep this one
+            return
         s_new = float(self.path.to_frenet(*pos)[0])
         self._s_travelled += s_old - s_new
         self._s_shift = 0.0
