@@ -206,9 +206,10 @@ def obstacle_states_from_cartesian(path: frenet.ReferencePath, states) -> np.nda
 
 
 # ----------------------------------------------------------------------------------- the check
-def _braking(s0: float, v0: float, b: float, t: np.ndarray) -> np.ndarray:
-    """Position along the path of a car braking at ``b`` from ``(s0, v0)`` until it stops."""
-    v0 = max(v0, 0.0)
+def _braking(s0, v0, b: float, t: np.ndarray) -> np.ndarray:
+    """Position along the path of a car braking at ``b`` from ``(s0, v0)`` until it stops
+    (``s0``, ``v0`` and ``t`` broadcast against each other)."""
+    v0 = np.maximum(v0, 0.0)
     tt = np.minimum(t, v0 / b)
     return s0 + v0 * tt - 0.5 * b * tt**2
 
@@ -265,9 +266,8 @@ def check_plan(
     )
     need = c.contact + c.margin
     # every corridor obstacle braking at b_max from now, (len(idx), T), all at once
-    v0 = np.maximum(ob[idx, 2], 0.0)[:, None]
-    tt = np.minimum(tc[None, :], v0 / c.b_max)
-    gap = ob[idx, 0][:, None] + v0 * tt - 0.5 * c.b_max * tt**2 - ego[None, :] - need
+    gap = _braking(ob[idx, 0][:, None], ob[idx, 2][:, None], c.b_max, tc[None, :])
+    gap = gap - ego[None, :] - need
     i, k = np.unravel_index(int(np.argmin(gap)), gap.shape)
     least = float(gap[i, k])
     return PlanCheck(least >= 0.0, least, int(idx[i]), float(tc[k]), int(idx.size))

@@ -611,9 +611,8 @@ def _merge_before_lane_end(
     x_now = float(samples[:, 0, 0].mean())
     last = max(float(end[0]) - MERGE_ZONE_M, x_now)
     start = rng.uniform(x_now, last, size=(samples.shape[0], 1))
-    y_lane = float(lane.position(lane.length, 0.0)[1])
     if t_grid is not None and through is not None and len(through):
-        if abs(float(samples[:, 0, 1].mean()) - y_lane) <= 1.0:
+        if abs(float(samples[:, 0, 1].mean()) - float(end[1])) <= 1.0:
             start = _yielding_start(samples, start, np.asarray(t_grid, float), through, y_to, end)
     w = np.clip((samples[..., 0] - start) / MERGE_ZONE_M, 0.0, 1.0)
     samples[..., 1] = (1.0 - w) * samples[..., 1] + w * y_to

@@ -39,7 +39,7 @@ import numpy as np
 
 import mmdopt
 from mmdopt.algorithm import PLANNER_BACKEND
-from mmdopt.predict import PREDICTORS, Forecast, PredictionContext, make_predictor
+from mmdopt.predict import PREDICTORS, Forecast, make_predictor
 
 from .metric import (
     BRAKE_THRESHOLD,
@@ -480,15 +480,10 @@ class GhostPadded:
     ego: Any
 
     def sample(self, history, context, n, key) -> np.ndarray:
-        ctx = _context_rows(context, slice(0, self.real))
-        out = np.asarray(self.inner.sample(history[: self.real], ctx, n, key), np.float64)
+        real = np.arange(self.real)
+        out = self.inner.sample(history[: self.real], context.subset(real), n, key)
+        out = np.asarray(out, np.float64)
         return _pad_ghosts(out, self.road, self.ego, history.shape[0], history.shape[0])
-
-
-def _context_rows(ctx: PredictionContext, rows) -> PredictionContext:
-    """``ctx`` with its per-obstacle arrays indexed by ``rows`` (a slice or an index array)."""
-    per = ("centerline", "lane_width", "has_left", "has_right", "gaps", "rel_speed")
-    return dataclasses.replace(ctx, **{k: np.asarray(getattr(ctx, k))[rows] for k in per})
 
 
 def _forecast(b: dict, pred, params: NgsimParams, config) -> Forecast:
@@ -500,14 +495,11 @@ def _forecast(b: dict, pred, params: NgsimParams, config) -> Forecast:
     kw = dict(min_samples=params.n_samples, max_samples=max(params.n_samples, MAX_FORECAST_SAMPLES))
     if config.safety.margins.margin_mode == "samples":
         return Forecast(pred, hist, ctx, **kw)
-    bucket = params.max_obstacles if params.obstacle_bucket is None else params.obstacle_bucket
-    target = min(-(-O // bucket) * bucket, max(params.max_obstacles, O))
+    target = _padded_count(O, params.max_obstacles, params.obstacle_bucket)
     if target <= O:
         return Forecast(pred, hist, ctx, **kw)
     rows = np.concatenate([np.arange(O), np.full(target - O, O - 1)])
-    return Forecast(
-        GhostPadded(pred, O, b["road"], b["ego"]), hist[rows], _context_rows(ctx, rows), **kw
-    )
+    return Forecast(GhostPadded(pred, O, b["road"], b["ego"]), hist[rows], ctx.subset(rows), **kw)
 
 
 def plan_inputs(task: dict, params: NgsimParams, config, predictor: Any = "learned") -> PlanInputs:
@@ -621,14 +613,20 @@ def _predictor(name: str):
     return _PRED_CACHE[name]
 
 
+def _padded_count(O: int, max_obstacles: int, bucket: int | None = None) -> int:
+    """How many obstacles ``O`` real ones are padded to: the next multiple of ``bucket``
+    (default ``max_obstacles``), at most ``max(max_obstacles, O)``."""
+    bucket = max_obstacles if bucket is None else bucket
+    return min(-(-O // bucket) * bucket, max(max_obstacles, O))
+
+
 def _pad_ghosts(samples: np.ndarray, road, ego, max_obstacles: int, bucket: int | None = None):
     """Pad (O, n, K, 2) with *ghost* obstacles 500 m behind the ego on its path (their collision
     term is exactly zero) up to a multiple of ``bucket`` (default ``max_obstacles``), so
     Algorithm 1 compiles once per bucket instead of once per obstacle count.  The metric uses
     the real obstacles only."""
     O, n, K, _ = samples.shape
-    bucket = max_obstacles if bucket is None else bucket
-    target = min(-(-O // bucket) * bucket, max(max_obstacles, O))
+    target = _padded_count(O, max_obstacles, bucket)
     if target <= O:
         return samples
     s = ego.s - 500.0 - 0.1 * np.arange(n)  # spread: the kernel bandwidth stays positive
