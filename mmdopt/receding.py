@@ -29,6 +29,7 @@ format or :mod:`mmdopt.bench`.
 
 from __future__ import annotations
 
+import dataclasses
 import math
 import time
 from dataclasses import dataclass, field
@@ -41,8 +42,9 @@ import frenet
 
 from . import algorithm
 from .algorithm import PLANNER_PROJECTOR, MMDOptConfig
-from .api import Plan, Road, plan
+from .api import Plan, Road, _apply_risk, _draw_forecast, plan
 from .baselines import PLAN_METHODS
+from .predict.base import Forecast
 from .safety import RSSConfig, obstacle_states_from_cartesian, obstacle_states_from_samples
 from .safety import shield as rss_shield
 
@@ -69,7 +71,10 @@ class Observation:
         (``K = config.trajectory.num_steps`` over ``config.trajectory.horizon``; ``t = 0`` is
         now); O may be 0 (an
         empty road: the loop then plans against one phantom obstacle far behind, see
-        :func:`pad_obstacles`)
+        :func:`pad_obstacles`).  Or a :class:`mmdopt.predict.Forecast`: the loop draws from it
+        as :func:`mmdopt.plan` would (n(ε) futures per obstacle in the "samples" margin mode,
+        ``min_samples`` with the time-linear margins; the plan's key), then pads, plans and
+        shields on the drawn futures, and hands the callback the observation with them
     time : simulation time (s)
     info : anything the source wants recorded with the step (e.g. ``predict_s``, the predictor's
         wall time)
@@ -266,14 +271,32 @@ def pad_obstacles(
     return np.concatenate([arr, pad], axis=0)
 
 
+def _drawn(obs: Observation, rc: RecedingConfig, config: MMDOptConfig, key):
+    """``obs`` with its obstacles as an array: a :class:`~mmdopt.predict.Forecast` is drawn
+    from exactly as :func:`mmdopt.plan` draws it with ``key`` (the real obstacles only: the
+    phantoms of :func:`pad_obstacles` come after, and in the "samples" margin mode would count in
+    n(ε, O)); returns the observation and the draw's diagnostics (none for an array)."""
+    if not isinstance(obs.obstacles, Forecast):
+        return obs, {}
+    arr, diag = _draw_forecast(obs.obstacles, _apply_risk(rc.method, None, config), rc.method, key)
+    info = dict(obs.info, predict_s=diag["forecast_s"])
+    return dataclasses.replace(obs, obstacles=arr, info=info), diag
+
+
 def _plan_once(obs: Observation, rc: RecedingConfig, config: MMDOptConfig, key, warm, t_grid):
+    """One plan of the loop: ``(plan, warm start used, obs with its obstacles drawn)``; the
+    plan time covers :func:`mmdopt.plan` only (a forecast's draw is the observation's
+    ``info["predict_s"]``)."""
+    obs, drawn = _drawn(obs, rc, config, key)
     obstacles = pad_obstacles(obs.obstacles, rc.max_obstacles, obs.ego, obs.road, t_grid)
     kw: dict[str, Any] = dict(method=rc.method, config=config, projector=rc.projector, key=key)
     warm_used = rc.warm_start and warm is not None
     if warm_used:
         kw["warm_start"] = warm
+    t0 = time.perf_counter()
     p = plan(obs.ego, obs.road, obstacles, **kw)
-    return p, warm_used
+    p.diagnostics.update(drawn, plan_wall_s=time.perf_counter() - t0)
+    return p, warm_used, obs
 
 
 def _shifted(p: Plan, dt: float):
@@ -302,7 +325,7 @@ def warm_up(obs: Observation, receding: RecedingConfig, config: MMDOptConfig, ke
     key = jax.random.PRNGKey(0) if key is None else key
     t_grid = frenet.TimeGrid(config.trajectory.horizon, config.trajectory.num_steps).t
     t0 = time.perf_counter()
-    p, _ = _plan_once(obs, receding, config, key, None, t_grid)
+    p, _, _ = _plan_once(obs, receding, config, key, None, t_grid)
     if receding.warm_start:
         warm = _shifted(p, receding.dt)
         if warm is not None:
@@ -359,9 +382,8 @@ def run_receding(
             raise ValueError(f"source.observe() must return an Observation, got {type(obs)!r}")
         if obs.frame_changed:
             warm = None
-        t0 = time.perf_counter()
-        p, warm_used = _plan_once(obs, rc, config, jax.random.fold_in(key, i), warm, t_grid)
-        plan_s = time.perf_counter() - t0
+        p, warm_used, obs = _plan_once(obs, rc, config, jax.random.fold_in(key, i), warm, t_grid)
+        plan_s = p.diagnostics["plan_wall_s"]
         planned, shield_rec = p, None
         if rc.shield is not None:
             t1 = time.perf_counter()

@@ -255,3 +255,70 @@ def test_receding_does_not_import_the_benchmarks():
     )
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)
     assert out.stdout.strip() == "False"
+
+
+class ForecastScene(TwoLaneScene):
+    """The same scene with the car given as a forecast of a constant-velocity predictor."""
+
+    def __init__(self, min_samples=12, **kw):
+        super().__init__(**kw)
+        self.min_samples = min_samples
+
+    def observe(self) -> Observation:
+        from mmdopt.predict import GAP_NONE, ConstantVelocity, Forecast, PredictionContext
+
+        past = np.array([-0.1, 0.0])
+        history = np.stack([self.obs_x + self.obs_v * past, 0.0 * past], axis=-1)[None]
+        lane = np.stack([np.linspace(-100.0, 400.0, 51), np.zeros(51)], axis=-1)[None]
+        context = PredictionContext(
+            times=T, dt_history=0.1, centerline=lane, lane_width=np.array([3.5]),
+            has_left=np.array([True]), has_right=np.array([False]),
+            gaps=np.full((1, 6), GAP_NONE), rel_speed=np.zeros((1, 6)),
+        )  # fmt: skip
+        fc = Forecast(ConstantVelocity(), history, context, min_samples=self.min_samples)
+        return Observation(ego=self.ego, road=self.road, obstacles=fc, time=self.t)
+
+
+def test_a_forecast_is_drawn_as_plan_draws_it_and_the_callback_sees_the_futures():
+    seen = []
+    key = jax.random.PRNGKey(5)
+    cfg = CFG.replace(margin_mode="linear")
+    res = run_receding(
+        ForecastScene(duration=1.0), RecedingConfig(dt=0.5, max_obstacles=2), config=cfg,
+        key=key, callback=lambda i, obs, p, out: seen.append((obs, p)),
+    )  # fmt: skip
+    assert len(res.steps) == 2 and all(r.n_obstacles == 1 for r in res.steps)
+    obs, p = seen[0]
+    # the time-linear margins draw min_samples futures of the real car (phantoms are padded on)
+    assert np.asarray(obs.obstacles).shape == (1, 12, T.shape[0], 2)
+    assert p.diagnostics["forecast_samples"] == 12 and "predict_s" in obs.info
+    # the loop's first plan is plan() on the forecast with the loop's key for that step (one
+    # car: no phantom to pad with)
+    fc = ForecastScene(duration=1.0).observe().obstacles
+    alone = run_receding(
+        ForecastScene(duration=0.5), RecedingConfig(dt=0.5), config=cfg, key=key,
+        callback=lambda i, obs, p, out: seen.append((obs, p)),
+    )  # fmt: skip
+    p = seen[-1][1]
+    direct = mmdopt.plan(
+        obs.ego, obs.road, fc, config=cfg, key=jax.random.fold_in(key, 0),
+        method=RecedingConfig().method,
+    )  # fmt: skip
+    assert alone.steps[0].n_obstacles == 1 and direct.diagnostics["forecast_samples"] == 12
+    np.testing.assert_allclose(p.s, direct.s, atol=1e-6)
+    np.testing.assert_allclose(p.d, direct.d, atol=1e-6)
+
+
+def test_a_forecast_in_the_samples_mode_draws_what_the_risk_level_needs():
+    from mmdopt.risk import samples_for_risk
+
+    cfg = CFG.replace(margin_mode="samples", risk=0.05)
+    seen = []
+    run_receding(
+        ForecastScene(duration=0.5), RecedingConfig(dt=0.5), config=cfg,
+        key=jax.random.PRNGKey(1), callback=lambda i, obs, p, out: seen.append((obs, p)),
+    )  # fmt: skip
+    obs, p = seen[0]
+    n = samples_for_risk(0.05, 1)
+    assert np.asarray(obs.obstacles).shape[:2] == (1, n) and p.diagnostics["forecast_samples"] == n
+    assert p.risk_bound <= 0.05 or p.status != "ok", p.status_text

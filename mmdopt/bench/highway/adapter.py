@@ -4,6 +4,8 @@ scene source :class:`HighwaySource` of :func:`mmdopt.receding.run_receding`."""
 from __future__ import annotations
 
 import math
+from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
 
@@ -265,6 +267,40 @@ def _settle(v: float, lo: float, hi: float, slack: float) -> float:
 
 
 # ------------------------------------------------------------------------------ the scene source
+#: the most futures per obstacle a forecast gives the planner (n(ε) beyond it: ``risk floor``)
+MAX_FORECAST_SAMPLES = 5000
+
+
+@dataclass(frozen=True, eq=False)
+class HighwayDraw:
+    """One replan's highway predictor as an :mod:`mmdopt.predict` predictor: ``sample`` calls
+    ``predictor(road, ego, targets, t_grid, n, rng)`` on the scene as observed, ``rng`` the
+    episode's random stream of this replan (``np.random.default_rng(seed)``, ``seed`` =
+    (episode seed, replan index), fresh at every call), so the planner draws the futures the
+    array path drew and a run is the same through either path; the key of the protocol is not
+    used (the stream is already the replan's own).  Each call's prediction time is appended to
+    ``times``.  ``history`` and ``context`` are checked against the targets, not read: the
+    benchmark's predictors read the simulator's scene."""
+
+    predictor: Any
+    road: Any
+    ego: Any
+    targets: tuple
+    t_grid: np.ndarray
+    seed: tuple
+    times: list
+
+    def sample(self, history, context, n, key) -> np.ndarray:
+        if np.shape(history)[0] != len(self.targets):
+            raise ValueError(
+                f"history has {np.shape(history)[0]} obstacles, the scene {len(self.targets)}"
+            )
+        rng = np.random.default_rng(list(self.seed))
+        out = self.predictor(self.road, self.ego, list(self.targets), self.t_grid, int(n), rng)
+        self.times.append(float(self.predictor.last_time_s))
+        return out
+
+
 class HighwaySource:
     """A highway-env episode as a :class:`mmdopt.receding.SceneSource`.
 
@@ -482,23 +518,59 @@ class HighwaySource:
         self._note_off_road()
         targets = self._targets()
         rng = np.random.default_rng([self.seed, self.step_index])
+        info: dict = {"n_targets": len(targets)}
         if self.method == "cv":
             obstacles = self.cv_mean(self.env.road, self.ego, targets, self.t_grid, 1, rng)
             pred_s = self.cv_mean.last_time_s
+        elif self.settings.forecast and targets:
+            obstacles, pred_s = self._forecast(targets), None
         else:
             obstacles = self.predictor(
                 self.env.road, self.ego, targets, self.t_grid, self.settings.n_samples, rng
             )
             pred_s = self.predictor.last_time_s
-        self.predict_times.append(pred_s)
+        if pred_s is not None:  # a forecast's draw records its own time
+            self.predict_times.append(pred_s)
+            info["predict_s"] = pred_s
         return Observation(
             ego=self.ego_state(),
             road=self.road,
             obstacles=obstacles,
             time=float(self.env.time),
-            info={"predict_s": pred_s, "n_targets": len(targets)},
+            info=info,
             obstacle_states=self._obstacle_states(),
             frame_changed=self._frame_changed,
+        )
+
+    def _forecast(self, targets) -> mmdopt.predict.Forecast:
+        """The targets as a :class:`mmdopt.predict.Forecast` of this replan's
+        :class:`HighwayDraw`: histories of two rows (0.1 s ago at the current velocity, now),
+        the lane context of :func:`~.training.scene_context`, ``n_samples`` futures with the
+        time-linear margins (n(ε) in the "samples" mode, at most :data:`MAX_FORECAST_SAMPLES`)."""
+        from .training import scene_context
+
+        road = self.env.road
+        cars = list(road.vehicles)
+        idx = [next(i for i, u in enumerate(cars) if u is v) for v in targets]
+        pos = np.array([v.position for v in cars], float)
+        vel = np.array([v.velocity for v in targets], float)
+        history = np.stack([pos[idx] - 0.1 * vel, pos[idx]], axis=1)
+        ctx = scene_context(
+            road.network,
+            [v.lane_index for v in cars],
+            pos,
+            np.array([v.speed for v in cars], float),
+            idx,
+            self.t_grid,
+            0.1,
+        )
+        draw = HighwayDraw(
+            self.predictor, road, self.ego, tuple(targets), self.t_grid,
+            (self.seed, self.step_index), self.predict_times,
+        )  # fmt: skip
+        n = self.settings.n_samples
+        return mmdopt.predict.Forecast(
+            draw, history, ctx, min_samples=n, max_samples=max(n, MAX_FORECAST_SAMPLES)
         )
 
     # -- execution

@@ -77,6 +77,13 @@ def add_highway_parser(bench_subparsers):
         action="store_true",
         help="run plans unchecked (default: the RSS safe-distance shield of mmdopt.safety)",
     )
+    h.add_argument(
+        "--no-forecast",
+        action="store_true",
+        help="give the planner each replan's drawn futures (default: a forecast of the "
+        "predictor, mmdopt.predict.Forecast, that the loop draws from: n_samples futures with "
+        "the time-linear margins, n(ε) in the 'samples' margin mode)",
+    )
     add_executor(h)
     h.add_argument("--jobs", type=positive_int, default=1, help="parallel episodes (default 1)")
     h.add_argument(
@@ -173,6 +180,7 @@ def cmd_highway(args, parser=None) -> int:
             n_samples=int(args.samples),
             ego_model=getattr(args, "ego_model", "bicycle"),
             shield=not getattr(args, "no_shield", False),
+            forecast=not getattr(args, "no_forecast", False),
             predictor=args.predictor,
         )
     except ValueError as e:

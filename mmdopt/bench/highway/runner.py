@@ -96,9 +96,9 @@ def run_episode(
         )
         # compile once on the first scene (shapes are fixed by max_obstacles), untimed by the loop
         obs0 = src.observe()
+        first_plan = warm_up(obs0, rc, config, jax.random.PRNGKey(seed))
         src.predict_times.clear()
         src.step_index = 0
-        first_plan = warm_up(obs0, rc, config, jax.random.PRNGKey(seed))
         res = run_receding(src, rc, config=config, key=jax.random.PRNGKey(seed), callback=callback)
         crashed = res.crashed
         plan_times = [float(x) for x in res.plan_times]

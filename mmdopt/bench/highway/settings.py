@@ -142,6 +142,10 @@ class HighwaySettings:
         plan)
     shield : check every plan against RSS's longitudinal safe distance and brake when it fails
         (:mod:`mmdopt.safety`, :data:`SHIELD`)
+    forecast : give the planner each replan's obstacles as an :class:`mmdopt.predict.Forecast`
+        of the predictor (:class:`~.adapter.HighwayDraw`; the loop draws ``n_samples`` with the
+        time-linear margins, n(ε) in the "samples" mode) instead of a drawn array; the same
+        futures either way with the time-linear margins
     """
 
     env: str = "highway-v0"
@@ -161,6 +165,7 @@ class HighwaySettings:
     env_config: dict = field(default_factory=dict)
     ego_model: str = "bicycle"
     shield: bool = True
+    forecast: bool = True
 
     def __post_init__(self) -> None:
         if not (math.isfinite(self.duration) and self.duration > 0):
@@ -179,8 +184,9 @@ class HighwaySettings:
             )
         if self.ego_model not in EGO_MODELS:
             raise ValueError(f"ego_model must be one of {EGO_MODELS}, got {self.ego_model!r}")
-        if not isinstance(self.shield, bool):
-            raise ValueError(f"shield must be a bool, got {self.shield!r}")
+        for name in ("shield", "forecast"):
+            if not isinstance(getattr(self, name), bool):
+                raise ValueError(f"{name} must be a bool, got {getattr(self, name)!r}")
         if self.predictor not in PREDICTORS:
             raise ValueError(f"predictor must be one of {PREDICTORS}, got {self.predictor!r}")
         for name in ("n_samples", "max_obstacles"):

@@ -31,7 +31,8 @@ TINY = {
     "num_steps": 26,
     "reduced_set_size": 5,
 }
-SETTINGS = hw.HighwaySettings(duration=1.0, dt=0.5, n_samples=6, max_obstacles=3)
+# the drawn arrays (not a forecast) in each observation: the tests read the predictions
+SETTINGS = hw.HighwaySettings(duration=1.0, dt=0.5, n_samples=6, max_obstacles=3, forecast=False)
 
 
 def _source(seed=5, method="mmd", settings=SETTINGS):
@@ -286,6 +287,12 @@ def test_same_seed_same_episode():
     a = hw.run_episode(0, 21, "mmd", SETTINGS, cfg)
     b = hw.run_episode(0, 21, "mmd", SETTINGS, cfg)
     assert _strip_timings(a) == _strip_timings(b)
+    # the planner draws from each replan's forecast (the default) exactly the futures the array
+    # path gives it: the same episode
+    assert hw.HighwaySettings().forecast
+    e = hw.run_episode(0, 21, "mmd", dataclasses.replace(SETTINGS, forecast=True), cfg)
+    assert _strip_timings(a) == _strip_timings(e)
+    assert len(a["predict_times"]) == len(e["predict_times"]) == a["steps"]
     c = hw.run_episode(0, 21, "idm", SETTINGS, cfg)
     d = hw.run_episode(0, 21, "idm", SETTINGS, cfg)
     assert _strip_timings(c) == _strip_timings(d)
@@ -299,6 +306,7 @@ def test_same_seed_same_episode():
         ({"dt": 0.33}, "simulation_frequency"),
         ({"predictor": "oracle"}, "predictor"),
         ({"n_samples": 0}, "n_samples"),
+        ({"forecast": 1}, "forecast"),
         ({"ahead": -1.0}, "ahead"),
     ],
 )
@@ -347,7 +355,9 @@ def test_wired_into_the_package_cli(tmp_path):
 
 
 def test_merge_env_uses_its_main_road_and_the_exact_clone_rollouts():
-    st = hw.HighwaySettings(env="merge-v0", duration=1.0, n_samples=4, max_obstacles=3)
+    st = hw.HighwaySettings(
+        env="merge-v0", duration=1.0, n_samples=4, max_obstacles=3, forecast=False
+    )
     src = hw.HighwaySource(st, 1, hw.highway_config(TINY), method="mmd")
     try:
         assert (src.road.y_lb, src.road.y_ub) == (0.0, 4.0)  # the two main-road lanes

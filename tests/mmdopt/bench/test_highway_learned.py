@@ -21,7 +21,9 @@ pytestmark = pytest.mark.skipif(
 
 
 def test_learned_predictor_samples_futures_from_the_recorded_histories():
-    settings = hw.HighwaySettings(duration=1.0, dt=0.5, n_samples=8, predictor="learned")
+    settings = hw.HighwaySettings(
+        duration=1.0, dt=0.5, n_samples=8, predictor="learned", forecast=False
+    )
     src = hw.HighwaySource(settings, 0, hw.highway_config(), method="idm")
     try:
         src.run_idm()  # 1 s of traffic: ten frames recorded by the predictor
