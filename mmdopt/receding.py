@@ -272,13 +272,18 @@ def pad_obstacles(
 
 
 def _drawn(obs: Observation, rc: RecedingConfig, config: MMDOptConfig, key):
-    """``obs`` with its obstacles as an array: a :class:`~mmdopt.predict.Forecast` is drawn
-    from exactly as :func:`mmdopt.plan` draws it with ``key`` (the real obstacles only: the
-    phantoms of :func:`pad_obstacles` come after, and in the "samples" margin mode would count in
-    n(ε, O)); returns the observation and the draw's diagnostics (none for an array)."""
-    if not isinstance(obs.obstacles, Forecast):
+    """``obs`` with its obstacles as an array: a :class:`~mmdopt.predict.Forecast` (its first
+    ``rc.max_obstacles``) is drawn from exactly as :func:`mmdopt.plan` draws it with ``key``;
+    returns the observation and the draw's diagnostics (none for an array)."""
+    fc = obs.obstacles
+    if not isinstance(fc, Forecast):
         return obs, {}
-    arr, diag = _draw_forecast(obs.obstacles, _apply_risk(rc.method, None, config), rc.method, key)
+    if rc.max_obstacles is not None and fc.num_obstacles > rc.max_obstacles:
+        keep = np.arange(rc.max_obstacles)
+        fc = dataclasses.replace(
+            fc, history=fc.history[keep], context=fc.context.subset(keep)
+        )  # fmt: skip
+    arr, diag = _draw_forecast(fc, _apply_risk(rc.method, None, config), rc.method, key)
     info = dict(obs.info, predict_s=diag["forecast_s"])
     return dataclasses.replace(obs, obstacles=arr, info=info), diag
 
@@ -286,9 +291,14 @@ def _drawn(obs: Observation, rc: RecedingConfig, config: MMDOptConfig, key):
 def _plan_once(obs: Observation, rc: RecedingConfig, config: MMDOptConfig, key, warm, t_grid):
     """One plan of the loop: ``(plan, warm start used, obs with its obstacles drawn)``; the
     plan time covers :func:`mmdopt.plan` only (a forecast's draw is the observation's
-    ``info["predict_s"]``)."""
+    ``info["predict_s"]``).  A forecast drawn for the risk dial (the "samples" margin mode) is
+    not padded with phantoms: they would count as obstacles in the plan's risk bound, and n(ε, O)
+    changes the shapes with O anyway."""
     obs, drawn = _drawn(obs, rc, config, key)
-    obstacles = pad_obstacles(obs.obstacles, rc.max_obstacles, obs.ego, obs.road, t_grid)
+    num = rc.max_obstacles
+    if drawn and drawn.get("forecast_samples_needed") is not None:
+        num = None  # the real obstacles only (at least one)
+    obstacles = pad_obstacles(obs.obstacles, num, obs.ego, obs.road, t_grid)
     kw: dict[str, Any] = dict(method=rc.method, config=config, projector=rc.projector, key=key)
     warm_used = rc.warm_start and warm is not None
     if warm_used:

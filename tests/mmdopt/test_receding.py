@@ -314,11 +314,14 @@ def test_a_forecast_in_the_samples_mode_draws_what_the_risk_level_needs():
 
     cfg = CFG.replace(margin_mode="samples", risk=0.05)
     seen = []
-    run_receding(
-        ForecastScene(duration=0.5), RecedingConfig(dt=0.5), config=cfg,
+    res = run_receding(
+        ForecastScene(duration=0.5), RecedingConfig(dt=0.5, max_obstacles=3), config=cfg,
         key=jax.random.PRNGKey(1), callback=lambda i, obs, p, out: seen.append((obs, p)),
     )  # fmt: skip
     obs, p = seen[0]
     n = samples_for_risk(0.05, 1)
     assert np.asarray(obs.obstacles).shape[:2] == (1, n) and p.diagnostics["forecast_samples"] == n
+    # no phantoms under the risk dial: the plan's bound is over the one real car's n futures
+    assert res.steps[0].n_obstacles == 1 and p.diagnostics["n_planning_samples"] == n
     assert p.risk_bound <= 0.05 or p.status != "ok", p.status_text
+    assert np.asarray(p.reduced_set.indices).shape[0] == 1  # planned against one obstacle
