@@ -159,8 +159,19 @@ def _episode_path(out: Path, episode: int, method: str) -> Path:
 
 
 def _manifest(settings: HighwaySettings, config_overrides: dict, seed: int) -> dict:
+    """What a folder's episodes were made with: the settings, the overrides, the seed and the
+    planner they resolve to (:meth:`mmdopt.MMDOptConfig.highway` with the overrides, in full),
+    so that a folder made under another version's preset refuses to be resumed."""
+    planner = highway_config(config_overrides).to_dict()
     return json.loads(
-        json.dumps({"settings": asdict(settings), "config": config_overrides, "seed": int(seed)})
+        json.dumps(
+            {
+                "settings": asdict(settings),
+                "config": config_overrides,
+                "seed": int(seed),
+                "planner": planner,
+            }
+        )
     )
 
 
@@ -253,8 +264,8 @@ def run_highway(
     out = Path(out)
     (out / "episodes").mkdir(parents=True, exist_ok=True)
     man = dict(_manifest(settings, overrides, seed), workers=worker_layout(jobs, executor, isolate))
-    # folders written before the manifest recorded where episodes ran
-    check_manifest(out, man, aliases={"workers": [MISSING]})
+    # folders written before the manifest recorded where episodes ran, or the planner
+    check_manifest(out, man, aliases={"workers": [MISSING], "planner": [MISSING]})
     todo = [
         (i, seed + i, m, asdict(settings), overrides, str(out), progress)
         for i in range(episodes)

@@ -270,6 +270,16 @@ def test_short_episode_writes_every_csv_column_and_resumes(tmp_path):
     # other settings in the same folder are refused
     with pytest.raises(ValueError, match="different settings"):
         hw.run_highway(tmp_path, episodes=1, seed=4, settings=SETTINGS, config_overrides=TINY)
+    # and so is a folder whose planner preset was another (a folder of another version)
+    man = json.loads((tmp_path / "run.json").read_text())
+    assert man["planner"] == hw.highway_config(TINY).to_dict()
+    man["planner"]["cost"]["v_des"] += 1.0
+    (tmp_path / "run.json").write_text(json.dumps(man))
+    with pytest.raises(ValueError, match="different settings.*planner"):
+        hw.run_highway(
+            tmp_path, episodes=1, seed=3, methods=["mmd", "idm"], settings=SETTINGS,
+            config_overrides=TINY, progress=False,
+        )  # fmt: skip
 
 
 def _strip_timings(rec):
