@@ -49,10 +49,11 @@ def test_plan_draws_the_futures_the_risk_level_needs_and_confirms_it():
 
 
 def test_a_cap_below_the_need_is_said_in_the_status():
-    fc = _forecast(max_samples=200)
+    # a cap of 100 (the shape the test above compiled), above min_samples
+    fc = _forecast(min_samples=10, max_samples=100)
     p = mmdopt.plan(EGO, mmdopt.Road(), fc, config=CFG, key=jax.random.PRNGKey(1), risk=1e-3)
-    assert p.diagnostics["forecast_samples"] == 200
-    assert p.diagnostics["forecast_samples_needed"] == samples_for_risk(1e-3, 1) > 200
+    assert p.diagnostics["forecast_samples"] == 100
+    assert p.diagnostics["forecast_samples_needed"] == samples_for_risk(1e-3, 1) > 100
     assert p.status == "risk floor" and f"{samples_for_risk(1e-3, 1)} samples" in p.message
 
 

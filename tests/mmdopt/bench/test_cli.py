@@ -166,7 +166,21 @@ def test_demo_writes_png_and_prints_table(tmp_path, capsys, monkeypatch):
         assert max(r["plan_s"] for r in rr) < rr[0]["compile_s"]
 
 
-def test_synthetic_two_scenes_contract_and_resume(tmp_path, capsys):
+def test_synthetic_two_scenes_contract_and_resume(tmp_path, capsys, monkeypatch):
+    """The result contract, the figure (``collision_free.png`` a readable figure:
+    ``test_figures.assert_readable``), resuming, and a folder refusing other settings."""
+    from matplotlib.figure import Figure
+
+    from tests.mmdopt.bench.test_figures import assert_readable
+
+    saved = {}
+    orig = Figure.savefig
+
+    def record(self, fname, *a, **k):
+        saved[str(fname)] = self
+        return orig(self, fname, *a, **k)
+
+    monkeypatch.setattr(Figure, "savefig", record)
     small = tmp_path / "small.json"
     small.write_text(json.dumps({"n_validation": 300}))
     argv = [
@@ -193,7 +207,9 @@ def test_synthetic_two_scenes_contract_and_resume(tmp_path, capsys):
         rows = list(reader)
     assert set(CONTRACT) <= set(reader.fieldnames)
     assert len(rows) == 4 and {r["n_validation"] for r in rows} == {"300"}
-    assert (tmp_path / "r" / "collision_free.png").is_file()
+    png = tmp_path / "r" / "collision_free.png"
+    assert png.is_file() and str(png) in saved, "collision_free.png was not written by savefig"
+    assert_readable(saved[str(png)], "collision_free.png")
     files = sorted((tmp_path / "r" / "scenes").glob("*.json"))
     mtimes = [f.stat().st_mtime_ns for f in files]
     rc, out = _run(argv, capsys)

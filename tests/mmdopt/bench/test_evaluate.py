@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 
 import mmdopt
-from mmdopt.bench import metric, synthetic, timing
+from mmdopt.bench import metric, synthetic
 from mmdopt.bench.metric import collision_free, kinematic_violation
 from mmdopt.bench.results import check_bars, summarize
 from mmdopt.bench.scenes import SceneParams
@@ -226,31 +226,5 @@ def test_sweep_refuses_to_mix_settings(tmp_path, fake_planner):
         )
 
 
-def test_timing_table_has_the_contract_columns_and_algorithm1_inside_plan(tmp_path):
-    """``run_timing`` (``mmdopt bench timing``) writes the contract columns; Algorithm 1 (the CEM
-    alone) takes no longer than the whole ``plan()`` call that contains it."""
-    cfg = mmdopt.MMDOptConfig().replace(
-        n_samples=200, n_cem=40, n_elite=15, iterations=3, n_brake=5
-    )
-    rows = timing.run_timing(tmp_path, sizes=[5], samples=[], repeats=2, config=cfg, progress=False)
-    with open(tmp_path / "timing.csv") as f:
-        got = list(csv.DictReader(f))
-    assert len(got) == len(rows) == 1
-    assert set(timing.TIMING_COLUMNS) <= set(got[0])
-    r = rows[0]
-    assert r["reduced_set_size"] == 5 and r["n_samples"] == 100 and r["backend"] == "admm-fixed"
-    assert 0 < r["algorithm1_s"] <= r["plan_s"] and r["reduced_set_s"] > 0
-    assert r["compile_s"] >= 0 and (tmp_path / "timing.png").exists()
-
-
-def test_obstacle_timing_table_has_its_columns(tmp_path):
-    """``bench timing --obstacles``: one row per obstacle count; far traffic is cheap."""
-    cfg = mmdopt.MMDOptConfig().replace(
-        n_samples=200, n_cem=40, n_elite=15, iterations=3, n_brake=5
-    )
-    rows = timing.run_obstacle_timing(tmp_path, counts=[3], repeats=1, config=cfg, progress=False)
-    assert [r["obstacles"] for r in rows] == [3]
-    with open(tmp_path / "timing_obstacles.csv") as f:
-        got = list(csv.DictReader(f))
-    assert set(timing.OBSTACLE_TIMING_COLUMNS) <= set(got[0])
-    assert all(r["algorithm1_s"] > 0 and r["interacting"] >= 1 for r in rows)
+# ``run_timing`` and ``run_obstacle_timing`` (their contract columns, Algorithm 1 inside plan(),
+# one row per obstacle count, the figure) run through ``mmdopt bench timing`` in test_timing.py

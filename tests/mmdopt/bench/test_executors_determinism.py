@@ -12,12 +12,12 @@ import pytest
 
 from mmdopt.bench import cli
 
-#: tiny planner (one Algorithm 1 program per worker: no re-selection pass)
-TINY = {
-    "cem": {"n_samples": 60, "n_cem": 30, "n_elite": 10, "iterations": 3, "n_brake": 2},
-    "selection": {"reduced_set_size": 5},
-    "safety": {"reselect": 0},
-}
+from . import test_frontier
+
+#: the tiny planner, on 40 fixed planning samples, of test_frontier's CLI tests: the workers'
+#: programs are compiled once per run for the three tests (the persistent compilation cache of
+#: tests/conftest.py)
+TINY = test_frontier.TINY
 #: columns that measure time, not results
 TIMING = {"plan_time_s", "wall_s"}
 
@@ -33,8 +33,9 @@ def test_frontier_rows_are_bit_identical_across_jobs_and_executors(tmp_path, cap
     cfg.write_text(json.dumps(TINY))
     scene = tmp_path / "scene.json"
     scene.write_text(json.dumps({"n_samples": 40, "n_validation": 200}))
-    base = ["bench", "frontier", "--scenes", "2", "--methods", "mmd", "--risks", "0.02",
-            "--config", str(cfg), "--scene-params", str(scene), "--no-progress"]  # fmt: skip
+    base = ["bench", "frontier", "--scenes", "2", "--methods", "mmd", "--risks", "0.05",
+            "--n-samples", "40", "--config", str(cfg), "--scene-params", str(scene),
+            "--no-progress"]  # fmt: skip
     # Ray's rows equal the local executor's: test_executors_ray (a sweep on both)
     runs = {"jobs1": ["--jobs", "1"], "jobs2": ["--jobs", "2"]}
     rows = {}

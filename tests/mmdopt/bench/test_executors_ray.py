@@ -15,8 +15,20 @@ from mmdopt.bench.synthetic import run_synthetic
 ray = pytest.importorskip("ray", reason="the Ray executor needs Ray (pip install 'mmdopt[ray]')")
 
 #: tiny planner and scenes: the test checks the executor, not the planner (one Algorithm 1
-#: pass: no re-selection, which would compile a second program in every worker)
-TINY = {"n_samples": 60, "n_cem": 20, "n_elite": 8, "iterations": 3, "n_brake": 4, "reselect": 0}
+#: pass: no re-selection, which would compile a second program in every worker); the same as
+#: tests/reliability/test_kill_resume.py's, so that the workers' programs compile once per run
+#: (the persistent compilation cache of tests/conftest.py)
+TINY = {
+    "n_samples": 60,
+    "n_cem": 20,
+    "n_elite": 10,
+    "iterations": 2,
+    "n_brake": 5,
+    "reduced_set_size": 5,
+    "reduced_set": {"population": 20, "n_elite": 5, "iterations": 5},
+    "reselect": 0,
+}
+SCENE_PARAMS = {"n_samples": 20, "n_validation": 50}
 #: columns that measure time, not results
 TIMING = {"plan_time_s", "wall_s"}
 
@@ -43,11 +55,14 @@ def test_ray_unknown_executor_and_plain_tasks():
 @pytest.mark.slow
 def test_ray_sweep_equals_local_sweep(tmp_path):
     """A 4-scene sweep on a local Ray instance (2 CPUs) writes the same rows as the local process
-    pool (same one-XLA-thread workers), row by row; and a Ray folder resumes locally."""
+    pool (same one-XLA-thread workers), row by row; and a Ray folder resumes locally.  The local
+    pool has one worker (``isolate``): it compiles once, and the Ray workers that start after it
+    load its programs from the compilation cache instead of compiling them side by side."""
     cfg = load_planner_config_from_dict(TINY)
-    params = SceneParams(n_samples=40, n_validation=200)
+    params = SceneParams(**SCENE_PARAMS)
     kw = dict(scenes=4, seed=5, params=params, methods=("mmd",), config=cfg, jobs=2)
-    run_synthetic(tmp_path / "local", executor="local", progress=False, **kw)
+    local = dict(kw, jobs=1, isolate=True)
+    run_synthetic(tmp_path / "local", executor="local", progress=False, **local)
     run_synthetic(tmp_path / "ray", executor="ray", progress=False, **kw)
     a, b = _rows(tmp_path / "local" / "results.csv"), _rows(tmp_path / "ray" / "results.csv")
     assert len(a) == len(b) == 4

@@ -19,6 +19,9 @@ from mmdopt.bench.frontier import (
     progress_at_level,
 )
 
+#: the tiny planner of the CLI tests (nested sections of ``MMDOptConfig``)
+TINY = {"cem": {"n_samples": 60, "n_cem": 30, "n_elite": 10, "iterations": 3, "n_brake": 2},
+        "selection": {"reduced_set_size": 5}}  # fmt: skip
 CONTRACT = ("method", "risk", "scene", "collision_free", "n_validation", "progress_m",
             "plan_time_s", "feasible")  # fmt: skip
 
@@ -66,11 +69,8 @@ def test_frontier_cli_contract_and_resume(tmp_path, capsys):
     small = tmp_path / "scene.json"
     small.write_text(json.dumps({"n_validation": 200, "n_samples": 40}))
     tiny = tmp_path / "cfg.json"
-    tiny.write_text(
-        json.dumps(
-            {"cem": {"n_samples": 60, "n_cem": 20, "n_elite": 8, "iterations": 3, "n_brake": 4}}
-        )
-    )
+    # the option test's tiny planner: its worker programs are compiled once for both tests
+    tiny.write_text(json.dumps(TINY))
     out = tmp_path / "f"
     argv = ["bench", "frontier", "--scenes", "1", "--seed", "3", "--out", str(out),
             "--methods", "mmd", "--risks", "mmd=0.002,0.1", "--jobs", "1", "--n-samples", "40",
@@ -115,11 +115,6 @@ def test_load_results_reads_an_older_frontier_csv_with_knob_as_risk(tmp_path):
     (tmp_path / "frontier.csv").write_text("method,knob,scene\nmmd,0.005,0\n")
     df = load_results(tmp_path)
     assert list(df.columns) == ["method", "risk", "scene"] and df["risk"][0] == 0.005
-
-
-#: the tiny planner of the option tests (nested sections of ``MMDOptConfig``)
-TINY = {"cem": {"n_samples": 60, "n_cem": 30, "n_elite": 10, "iterations": 3, "n_brake": 2},
-        "selection": {"reduced_set_size": 5}}  # fmt: skip
 
 
 def test_clopper_pearson_interval_and_pooled_rate():
