@@ -127,12 +127,9 @@ def test_module_entry_point_exit_status():
 # ------------------------------------------------------------------ with Algorithm 1
 
 
-def test_demo_writes_png_and_prints_table(tmp_path, capsys, monkeypatch):
-    """Both axes of the trade-off per (method, ε), compile time apart from plan time; the PNG is
-    a readable figure (labels with units, legends: ``test_figures.assert_readable``)."""
+def _record_figures(monkeypatch) -> dict:
+    """Every figure saved through ``Figure.savefig`` from now on, by file name."""
     from matplotlib.figure import Figure
-
-    from tests.mmdopt.bench.test_figures import assert_readable
 
     saved = {}
     orig = Figure.savefig
@@ -142,6 +139,15 @@ def test_demo_writes_png_and_prints_table(tmp_path, capsys, monkeypatch):
         return orig(self, fname, *a, **k)
 
     monkeypatch.setattr(Figure, "savefig", record)
+    return saved
+
+
+def test_demo_writes_png_and_prints_table(tmp_path, capsys, monkeypatch):
+    """Both axes of the trade-off per (method, ε), compile time apart from plan time; the PNG is
+    a readable figure (labels with units, legends: ``test_figures.assert_readable``)."""
+    from tests.mmdopt.bench.test_figures import assert_readable
+
+    saved = _record_figures(monkeypatch)
     rc, out = _run(["demo", "--out", str(tmp_path)], capsys)
     assert rc == 0
     png = tmp_path / "demo.png"
@@ -169,18 +175,9 @@ def test_demo_writes_png_and_prints_table(tmp_path, capsys, monkeypatch):
 def test_synthetic_two_scenes_contract_and_resume(tmp_path, capsys, monkeypatch):
     """The result contract, the figure (``collision_free.png`` a readable figure:
     ``test_figures.assert_readable``), resuming, and a folder refusing other settings."""
-    from matplotlib.figure import Figure
-
     from tests.mmdopt.bench.test_figures import assert_readable
 
-    saved = {}
-    orig = Figure.savefig
-
-    def record(self, fname, *a, **k):
-        saved[str(fname)] = self
-        return orig(self, fname, *a, **k)
-
-    monkeypatch.setattr(Figure, "savefig", record)
+    saved = _record_figures(monkeypatch)
     small = tmp_path / "small.json"
     small.write_text(json.dumps({"n_validation": 300}))
     argv = [

@@ -18,16 +18,8 @@ ray = pytest.importorskip("ray", reason="the Ray executor needs Ray (pip install
 #: pass: no re-selection, which would compile a second program in every worker); the same as
 #: tests/reliability/test_kill_resume.py's, so that the workers' programs compile once per run
 #: (the persistent compilation cache of tests/conftest.py)
-TINY = {
-    "n_samples": 60,
-    "n_cem": 20,
-    "n_elite": 10,
-    "iterations": 2,
-    "n_brake": 5,
-    "reduced_set_size": 5,
-    "reduced_set": {"population": 20, "n_elite": 5, "iterations": 5},
-    "reselect": 0,
-}
+from tests.reliability.test_kill_resume import CONFIG as TINY  # noqa: E402
+
 SCENE_PARAMS = {"n_samples": 20, "n_validation": 50}
 #: columns that measure time, not results
 TIMING = {"plan_time_s", "wall_s"}
