@@ -625,9 +625,7 @@ class MMDOptConfig:
     @classmethod
     def highway(cls, **overrides: Any) -> MMDOptConfig:
         """The closed-loop highway-env planner: 5 s on 51 points (re-planned every step), a
-        4.5 × 2.2 m ellipse, yaw-aware (2.5 m), with time-linear margins 2.5 + 1.0·t m and
-        0.2 m (with a car's three circles the 7.0 × 2.4 m planning ellipse covers every
-        position in which two 5 × 2 m cars touch, 0.4 m to spare beside the car), a desired
+        lateral semi-axis of 2.6 m, time-linear margins 2.5 + 1.0·t m and 0.4 m, a desired
         speed of 30 m/s, sizes for a real-time budget (400 samples, n_cem 100, n_e 30,
         12 iterations, m = 10), lane discipline (lateral set-points at lane centres,
         ``w_lane`` = 6, lateral gain 4) and a following distance of 6 m + 1.0 s·ṡ behind every
@@ -641,9 +639,8 @@ class MMDOptConfig:
             iterations=12,
             reduced_set_size=10,
             v_des=30.0,
-            b=2.2,
-            yaw_extent=2.5,
-            margin_lat=0.2,
+            b=2.6,
+            margin_lat=0.4,
             margin_long=2.5,
             margin_rate=1.0,
             margin_mode="linear",

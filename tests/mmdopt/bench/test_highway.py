@@ -55,12 +55,10 @@ def test_state_round_trip_sim_frenet_sim():
         src.close()
 
 
-def test_planning_ellipse_covers_two_cars_touching_and_leaves_the_next_lane_free():
+def test_planning_ellipse_covers_two_cars_touching():
     """The highway preset's planning ellipse (semi-axes plus the time-linear margins at t = 0),
     about a car's three circles, holds every ego position at which two highway-env cars touch
-    (centres within a length along and a width across), and it stays clear of a car one lane
-    over by more than a metre, so the planner can pass beside a car whose futures drift."""
-    from highway_env.road.lane import StraightLane
+    (centres within a length along and a width across)."""
     from highway_env.vehicle.kinematics import Vehicle
 
     from mmdopt import OBSTACLE_FOOTPRINT
@@ -73,8 +71,6 @@ def test_planning_ellipse_covers_two_cars_touching_and_leaves_the_next_lane_free
     offsets = np.asarray(OBSTACLE_FOOTPRINT.offsets)[:, None, None]
     inside = ((s - offsets) ** 2 / a**2 + d**2 / b**2 < 1.0).any(axis=0)
     assert inside.all(), "a position in which the cars touch lies outside the planning ellipse"
-    lane = float(StraightLane.DEFAULT_WIDTH)
-    assert lane - b > 1.0, f"the ellipse reaches within {lane - b:.2f} m of the next lane's centre"
 
 
 def test_road_bounds_cover_every_lane_and_frequencies_are_explicit():
