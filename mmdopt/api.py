@@ -40,6 +40,7 @@ from .collision import (
     circle_centres,
     collision_free_count,
     ellipse_values,
+    headings,
     mmd_cost,
 )
 from .predict.base import Forecast
@@ -613,6 +614,7 @@ class Planner:
         reduced_set: ReducedSet | None = None,
         warm_start: alg.CEMState | None = None,
         risk: float | None = None,
+        obstacle_headings: ArrayLike | None = None,
         backend: str | None = None,
         **projector_settings: Any,
     ) -> Plan:
@@ -620,6 +622,7 @@ class Planner:
         return self._plan(
             self.config, ego, road, obstacles, method, _projector(projector, backend), key,
             reduced_set, warm_start, risk, projector_settings, frenet_frame=False,
+            obstacle_headings=obstacle_headings,
         )  # fmt: skip
 
     @x64
@@ -635,6 +638,7 @@ class Planner:
         reduced_set: ReducedSet | None = None,
         warm_start: alg.CEMState | None = None,
         risk: float | None = None,
+        obstacle_headings: ArrayLike | None = None,
         backend: str | None = None,
         **projector_settings: Any,
     ) -> Plan:
@@ -642,11 +646,12 @@ class Planner:
         return self._plan(
             self.config, ego, road, obstacles_frenet, method, _projector(projector, backend), key,
             reduced_set, warm_start, risk, projector_settings, frenet_frame=True,
+            obstacle_headings=obstacle_headings,
         )  # fmt: skip
 
     def _plan(
         self, config, ego, road, obstacles, method, backend, key, reduced_set, warm_start, risk,
-        backend_settings, frenet_frame: bool,
+        backend_settings, frenet_frame: bool, obstacle_headings=None,
     ) -> Plan:  # fmt: skip
         t0 = time.perf_counter()
         key = jax.random.PRNGKey(0) if key is None else key
@@ -670,9 +675,14 @@ class Planner:
                 )
             diag = {"frenet_conversion_s": time.perf_counter() - t1}
         diag.update(forecast_diag)
+        h0 = None
+        if obstacle_headings is not None:
+            h0 = _check_obstacle_headings(obstacle_headings, obs_fr.shape[0])
+            if not frenet_frame:  # relative to the path's tangent where each obstacle starts
+                h0 = h0 - np.asarray(road.path.heading(obs_fr[:, 0, 0, 0]), np.float64)
         return _plan_impl(
             self, ego, road, obs_fr, method, config, backend, key, backend_settings, t0, diag,
-            reduced_set, warm_start,
+            reduced_set, warm_start, h0,
         )  # fmt: skip
 
 
@@ -727,6 +737,7 @@ def plan(
     reduced_set: ReducedSet | None = None,
     warm_start: alg.CEMState | None = None,
     risk: float | None = None,
+    obstacle_headings: ArrayLike | None = None,
     backend: str | None = None,
     **projector_settings: Any,
 ) -> Plan:
@@ -762,6 +773,11 @@ def plan(
         method's margins and chance level follow from it (:func:`mmdopt.risk.config_for_risk`,
         applied to ``config``); ``None``: ``config`` as given (whose default is the knob at
         0.005: ``plan(..., method=m)`` plans as ``plan(..., method=m, risk=0.005)``)
+    obstacle_headings : optional (O,) body heading of each obstacle when observed (rad,
+        Cartesian): its footprint circles follow it until a sample's own motion gives a heading
+        (:func:`mmdopt.collision.headings`), so a car at rest turned across its lane is planned
+        against along its real axis, with certainty, in every sample.  ``None``: headings from
+        the samples' motion only (along the path for a sample at rest)
 
     Returns
     -------
@@ -779,6 +795,7 @@ def plan(
     return planner._plan(
         config, ego, road, obstacles, method, _projector(projector, backend), key, reduced_set,
         warm_start, risk, projector_settings, frenet_frame=False,
+        obstacle_headings=obstacle_headings,
     )  # fmt: skip
 
 
@@ -795,16 +812,19 @@ def plan_frenet(
     reduced_set: ReducedSet | None = None,
     warm_start: alg.CEMState | None = None,
     risk: float | None = None,
+    obstacle_headings: ArrayLike | None = None,
     backend: str | None = None,
     **projector_settings: Any,
 ) -> Plan:
     """:func:`plan` with obstacle samples already in the Frenet frame of ``road.path``:
-    ``obstacles_frenet`` (O, n, K, 2) as ``(s, d)``.  On a straight path starting at the origin
+    ``obstacles_frenet`` (O, n, K, 2) as ``(s, d)`` (and ``obstacle_headings``, if given,
+    relative to the path's tangent).  On a straight path starting at the origin
     along +x (the default :class:`Road`) this is the same as Cartesian."""
     config, planner = _cached_planner(config)
     return planner._plan(
         config, ego, road, obstacles_frenet, method, _projector(projector, backend), key,
         reduced_set, warm_start, risk, projector_settings, frenet_frame=True,
+        obstacle_headings=obstacle_headings,
     )  # fmt: skip
 
 
@@ -858,11 +878,45 @@ class _Ctx:
     diag: dict
     obs_fr: np.ndarray
     obstacles: alg.ObstacleSet | None = None
+    #: (O, n, K) Frenet headings of the samples' bodies when the caller gave obstacle headings
+    obs_h: np.ndarray | None = None
+
+    def centres(self, idx: np.ndarray | None = None) -> jax.Array:
+        """Footprint circle centres (O, J, C, K, 2) of the samples ``idx`` (O, J) (all: None)."""
+        return _obstacle_centres(self.obs_fr, self.obs_h, idx)
+
+
+def _check_obstacle_headings(h: Any, O: int) -> np.ndarray:
+    """``obstacle_headings`` as (O,) finite float64 radians, else ``ValueError`` naming it."""
+    try:
+        arr = np.asarray(h, dtype=np.float64)
+    except (TypeError, ValueError):
+        raise ValueError(f"obstacle_headings must be {O} numbers (rad), got {h!r}") from None
+    if arr.shape != (O,):
+        raise ValueError(
+            f"obstacle_headings must have shape ({O},) (one body heading per obstacle), got "
+            f"{arr.shape}"
+        )
+    if not np.all(np.isfinite(arr)):
+        raise ValueError("obstacle_headings contains NaN or inf")
+    return arr
+
+
+def _obstacle_centres(obs_fr, obs_h, idx=None) -> jax.Array:
+    """Footprint circle centres (O, J, C, K, 2) of the samples ``idx`` (O, J) of ``obs_fr``
+    (all when None), along ``obs_h`` (O, n, K) where given, else along each sample's motion."""
+    sel, h = obs_fr, obs_h
+    if idx is not None:
+        idx = np.asarray(idx)
+        sel = np.take_along_axis(obs_fr, idx[:, :, None, None], axis=1)
+        h = None if obs_h is None else np.take_along_axis(obs_h, idx[:, :, None], axis=1)
+    hj = None if h is None else jnp.asarray(h)
+    return circle_centres(jnp.asarray(sel), OBSTACLE_FOOTPRINT, hj)
 
 
 def _plan_impl(
     planner, ego, road, obs_fr, method, config, backend, key, backend_settings, t0, diag, rs,
-    warm_start,
+    warm_start, h0=None,
 ):  # fmt: skip
     # plan in arc length relative to the ego (float32 keeps ~1e-6 relative precision: absolute
     # arc lengths of kilometres would cost millimetres); shifted back in _assemble
@@ -872,6 +926,8 @@ def _plan_impl(
     obs_fr[..., 0] -= s_off
     O, n, K, _ = obs_fr.shape
     diag["s_offset"] = s_off
+    # a body heading given for each obstacle holds before (and without) motion of its own
+    obs_h = None if h0 is None else np.asarray(headings(obs_fr, h0[:, None]), np.float64)
     if warm_start is not None:
         _check_warm_start(warm_start, config)
     prob = planner.workspace(road.bounds(), config)
@@ -903,8 +959,7 @@ def _plan_impl(
                 rs, indices=jnp.asarray(pool[np.asarray(rs.indices)]), alpha=jnp.asarray(alpha)
             )
     diag["reduced_set_s"] = time.perf_counter() - t1
-    sel = np.take_along_axis(obs_fr, np.asarray(rs.indices)[:, :, None, None], axis=1)
-    centres = circle_centres(jnp.asarray(sel), OBSTACLE_FOOTPRINT)  # (O, J, C, K, 2)
+    centres = _obstacle_centres(obs_fr, obs_h, rs.indices)  # (O, J, C, K, 2)
     margins = None
     if config.safety.margins.margin_mode == "samples":
         t3 = time.perf_counter()
@@ -918,7 +973,7 @@ def _plan_impl(
     obstacles = alg.ObstacleSet.create(
         config, centres, np.asarray(rs.weights, np.float64), COLLISION_TERM[method], margins=margins
     )
-    ctx = _Ctx(ego, road, config, prob, method, backend, rs, t0, diag, obs_fr, obstacles)
+    ctx = _Ctx(ego, road, config, prob, method, backend, rs, t0, diag, obs_fr, obstacles, obs_h)
 
     # --- infeasible initial state: braking profile, flagged
     try:
@@ -1009,7 +1064,7 @@ def _reselect_pass(ctx: _Ctx, state, problem, key, backend, backend_settings):
         vs1, vd1 = (Bs.Pdot @ cx1)[None], (Bs.Pdot @ cy1)[None]
         b = b + alg.yaw_widening(config, jnp.asarray(vs1), jnp.asarray(vd1))  # (1, K)
     rear = float(config.safety.rules.rear_exempt_width) if config.safety.rules.asymmetric else None
-    centres = circle_centres(jnp.asarray(obs_fr), OBSTACLE_FOOTPRINT)  # (O, n, C, K, 2)
+    centres = ctx.centres()  # (O, n, C, K, 2)
     f = ellipse_values(
         jnp.asarray(s1),
         jnp.asarray(d1),
@@ -1034,8 +1089,7 @@ def _reselect_pass(ctx: _Ctx, state, problem, key, backend, backend_settings):
     w = np.concatenate(
         [np.asarray(ctx.rs.weights, np.float64) * (1.0 - r / n), np.full((O, r), 1.0 / n)], 1
     )
-    sel = np.take_along_axis(obs_fr, idx[:, :, None, None], axis=1)
-    cen = circle_centres(jnp.asarray(sel), OBSTACLE_FOOTPRINT)
+    cen = ctx.centres(idx)
     margins = None
     if config.safety.margins.margin_mode == "samples":
         margins = _coverage(config, obs_fr, idx)
@@ -1159,7 +1213,11 @@ def _bounds_of(ctx: _Ctx, bests) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     cy = np.stack([np.asarray(b.cy, np.float64) for b in bests])
     s, d = cx @ B.P.T, cy @ B.P.T
     cnt = collision_free_count(
-        np.stack([s, d], -1), ctx.obs_fr, a=config.safety.footprint.a, b=config.safety.footprint.b
+        np.stack([s, d], -1),
+        ctx.obs_fr,
+        a=config.safety.footprint.a,
+        b=config.safety.footprint.b,
+        obstacle_heading=ctx.obs_h,
     )
     hits = np.asarray(cnt.colliding)  # (C, O, n)
     O, n = ctx.obs_fr.shape[:2]
@@ -1244,8 +1302,7 @@ def _tail_pass(ctx: _Ctx, state, hits, problem, key, backend, backend_settings, 
     w = np.concatenate(
         [np.asarray(ctx.rs.weights, np.float64) * (1.0 - r / n), np.full((O, r), 1.0 / n)], 1
     )
-    sel = np.take_along_axis(obs_fr, idx[:, :, None, None], axis=1)
-    cen = circle_centres(jnp.asarray(sel), OBSTACLE_FOOTPRINT)
+    cen = ctx.centres(idx)
     margins = _coverage(config, obs_fr, idx, level)
     obstacles = alg.ObstacleSet.create(config, cen, w, COLLISION_TERM[ctx.method], margins=margins)
     ctx.obstacles = obstacles
@@ -1330,7 +1387,11 @@ def _assemble(ctx: _Ctx, cx, cy, dvec, cost, best_iter, fallback, status, state)
         )
     mmd_val = _plan_mmd(ctx, s, d, vs, vd)
     cnt = collision_free_count(
-        np.stack([s, d], -1), ctx.obs_fr, a=config.safety.footprint.a, b=config.safety.footprint.b
+        np.stack([s, d], -1),
+        ctx.obs_fr,
+        a=config.safety.footprint.a,
+        b=config.safety.footprint.b,
+        obstacle_heading=ctx.obs_h,
     )
     cf_plan = np.asarray(cnt.per_obstacle)
     if not fallback and np.any(cf_plan == 0):

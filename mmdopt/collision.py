@@ -88,34 +88,44 @@ __all__ = [
 MIN_HEADING_STEP = 0.05
 
 
-def headings(xy: ArrayLike) -> jax.Array:
+def headings(xy: ArrayLike, initial: ArrayLike | None = None) -> jax.Array:
     """Heading of each waypoint by forward differences, last value repeated.
 
     A step shorter than :data:`MIN_HEADING_STEP` takes the heading of the last longer step
-    before it (before the first longer step: that step's), and a trajectory with no longer step
-    has heading 0 (along the path, in the planner's Frenet frame): the direction of millimetre
-    displacements of a car at rest is noise, and a sideways heading would turn its footprint
-    circles across the lane beside it.
+    before it.  Before the first longer step, and along a trajectory with no longer step, the
+    heading is ``initial`` where given (the body's heading when it was observed, e.g. a car at
+    rest turned across its lane), else that first longer step's, else 0 (along the path, in the
+    planner's Frenet frame): the direction of millimetre displacements of a car at rest is
+    noise, and a sideways heading would turn its footprint circles across the lane beside it.
 
     Parameters
     ----------
     xy : (..., K, 2) waypoints (m)
+    initial : optional heading (rad) broadcastable to ``xy.shape[:-2]``
 
     Returns
     -------
-    (..., K) heading (rad); zeros when K = 1.
+    (..., K) heading (rad); ``initial`` (or zeros) when K = 1.
     """
     xy = jnp.asarray(xy)
+    init = None
+    if initial is not None:
+        init = jnp.broadcast_to(jnp.asarray(initial, xy.dtype), xy.shape[:-2])[..., None]
     if xy.shape[-2] < 2:
-        return jnp.zeros(xy.shape[:-1], dtype=xy.dtype)
+        out = jnp.zeros(xy.shape[:-1], dtype=xy.dtype)
+        return out if init is None else out + init
     d = jnp.diff(xy, axis=-2)
     psi = jnp.arctan2(d[..., 1], d[..., 0])
     moving = jnp.hypot(d[..., 0], d[..., 1]) >= MIN_HEADING_STEP
     idx = jnp.arange(psi.shape[-1])
     last = lax.cummax(jnp.where(moving, idx, -1), axis=psi.ndim - 1)  # last moving step so far
-    first = jnp.argmax(moving, axis=-1)[..., None]
-    src = jnp.where(last >= 0, last, first)
-    psi = jnp.where(moving.any(-1, keepdims=True), jnp.take_along_axis(psi, src, axis=-1), 0.0)
+    if init is None:
+        first = jnp.argmax(moving, axis=-1)[..., None]
+        src = jnp.where(last >= 0, last, first)
+        psi = jnp.where(moving.any(-1, keepdims=True), jnp.take_along_axis(psi, src, axis=-1), 0.0)
+    else:
+        carried = jnp.take_along_axis(psi, jnp.maximum(last, 0), axis=-1)
+        psi = jnp.where(last >= 0, carried, init)
     return jnp.concatenate([psi, psi[..., -1:]], axis=-1)
 
 
@@ -579,8 +589,8 @@ class CollisionCounts:
 
 
 @jax.jit
-def _count(ego_xy, samples, obstacle_footprint, ego_footprint, a, b, ego_heading):
-    obs_c = circle_centres(samples, obstacle_footprint)  # (O, N, C, K, 2)
+def _count(ego_xy, samples, obstacle_footprint, ego_footprint, a, b, ego_heading, obs_heading):
+    obs_c = circle_centres(samples, obstacle_footprint, obs_heading)  # (O, N, C, K, 2)
 
     def one(ego, h):
         ego_c = circle_centres(ego, ego_footprint, h)  # (E, K, 2)
@@ -602,6 +612,7 @@ def collision_free_count(
     a: float = ELLIPSE_A,
     b: float = ELLIPSE_B,
     ego_heading: ArrayLike | None = None,
+    obstacle_heading: ArrayLike | None = None,
 ) -> CollisionCounts:
     """Count validation samples the ego plan(s) avoid (any f̄ > 0 at any circle and any step: a
     sample
@@ -614,6 +625,8 @@ def collision_free_count(
     obstacle_footprint, ego_footprint : circle footprints
     a, b : ellipse semi-axes (m)
     ego_heading : (K,) or (B, K), optional
+    obstacle_heading : (O, N, K), optional headings of the obstacle samples (default
+        :func:`headings` of each sample)
 
     Returns
     -------
@@ -643,7 +656,18 @@ def collision_free_count(
         h = headings(ego)
     else:
         h = jnp.asarray(ego_heading).reshape(ego.shape[:2])
-    out = _count(ego, val, obstacle_footprint, ego_footprint, a, b, h)
+    if obstacle_heading is None:
+        oh = None
+    else:
+        oh = jnp.asarray(obstacle_heading)
+        if oh.shape != val.shape[:-1]:
+            raise ValueError(
+                f"obstacle_heading must have shape {tuple(val.shape[:-1])} (O, N, K), got "
+                f"{tuple(oh.shape)}"
+            )
+        if _concrete(oh) and not bool(jnp.all(jnp.isfinite(oh))):
+            raise ValueError("obstacle_heading contains NaN or inf")
+    out = _count(ego, val, obstacle_footprint, ego_footprint, a, b, h, oh)
     if single:
         out = jax.tree_util.tree_map(lambda x: x[0], out)
     return out

@@ -85,6 +85,10 @@ class Observation:
     frame_changed : the road's Frenet frame is not the previous observation's (a new reference
         line, e.g. the centre line of the lane the ego has moved into): the previous plan's warm
         start is in the old frame, so the loop plans this step cold
+    obstacle_headings : optional (O,) Cartesian body heading of each obstacle now (rad), in the
+        order of ``obstacles``: passed to :func:`mmdopt.plan` (``obstacle_headings``), so a car
+        at rest is planned against along its real axis (phantoms added by the loop get the
+        path's direction)
     """
 
     ego: frenet.EgoState
@@ -94,6 +98,7 @@ class Observation:
     info: dict = field(default_factory=dict)
     obstacle_states: np.ndarray | None = None
     frame_changed: bool = False
+    obstacle_headings: np.ndarray | None = None
 
 
 @dataclass(frozen=True)
@@ -288,18 +293,44 @@ def _drawn(obs: Observation, rc: RecedingConfig, config: MMDOptConfig, key):
     return dataclasses.replace(obs, obstacles=arr, info=info), diag
 
 
+def _observed_headings(obs: Observation) -> np.ndarray | None:
+    """``obs.obstacle_headings`` as (O,) finite floats, one per observed obstacle, else
+    ``ValueError`` naming it; ``None`` when not given."""
+    if obs.obstacle_headings is None:
+        return None
+    fc = obs.obstacles
+    O = fc.num_obstacles if isinstance(fc, Forecast) else int(np.shape(fc)[0])
+    try:
+        h = np.asarray(obs.obstacle_headings, dtype=np.float64)
+    except (TypeError, ValueError):
+        raise ValueError("Observation.obstacle_headings must be numbers (rad)") from None
+    if h.shape != (O,) or not np.all(np.isfinite(h)):
+        raise ValueError(
+            f"Observation.obstacle_headings must be {O} finite headings (rad), one per obstacle, "
+            f"got shape {h.shape}"
+        )
+    return h
+
+
 def _plan_once(obs: Observation, rc: RecedingConfig, config: MMDOptConfig, key, warm, t_grid):
     """One plan of the loop: ``(plan, warm start used, obs with its obstacles drawn)``; the
     plan time covers :func:`mmdopt.plan` only (a forecast's draw is the observation's
     ``info["predict_s"]``).  A forecast drawn for the risk dial (the "samples" margin mode) is
     not padded with phantoms: they would count as obstacles in the plan's risk bound, and n(ε, O)
     changes the shapes with O anyway."""
+    heads = _observed_headings(obs)
     obs, drawn = _drawn(obs, rc, config, key)
     num = rc.max_obstacles
     if drawn and drawn.get("forecast_samples_needed") is not None:
         num = None  # the real obstacles only (at least one)
     obstacles = pad_obstacles(obs.obstacles, num, obs.ego, obs.road, t_grid)
     kw: dict[str, Any] = dict(method=rc.method, config=config, projector=rc.projector, key=key)
+    if heads is not None:  # cut as the obstacles were; phantoms along the path at the ego
+        O = obstacles.shape[0]
+        pad = float(np.asarray(obs.road.path.heading(np.asarray([obs.ego.s])))[0])
+        kw["obstacle_headings"] = np.concatenate(
+            [heads[:O], np.full(max(O - heads.shape[0], 0), pad)]
+        )
     warm_used = rc.warm_start and warm is not None
     if warm_used:
         kw["warm_start"] = warm

@@ -325,3 +325,46 @@ def test_a_forecast_in_the_samples_mode_draws_what_the_risk_level_needs():
     assert res.steps[0].n_obstacles == 1 and p.diagnostics["n_planning_samples"] == n
     assert p.risk_bound <= 0.05 or p.status != "ok", p.status_text
     assert np.asarray(p.reduced_set.indices).shape[0] == 1  # planned against one obstacle
+
+
+class TurnedCarAtRest(TwoLaneScene):
+    """A car at rest 40 m ahead in the lane to the right, turned 45° towards the ego's lane:
+    its nose reaches within 2.4 m of the ego's path, its centre is 4.2 m away."""
+
+    def __init__(self, headings=True, **kw):
+        super().__init__(**kw)
+        self.headings = headings
+
+    def observe(self) -> Observation:
+        obs = np.broadcast_to(np.array([40.0, -4.2]), (1, 10, len(T), 2)).copy()
+        heads = np.array([np.pi / 4]) if self.headings is True else self.headings
+        return Observation(
+            ego=self.ego, road=self.road, obstacles=obs, time=self.t, obstacle_headings=heads
+        )
+
+
+def test_the_loop_plans_against_the_observed_body_headings():
+    body = np.full((1, 10, len(T)), np.pi / 4)
+    a, b = CFG.safety.footprint.a, CFG.safety.footprint.b
+
+    def meets(headings):
+        met = []
+
+        def record(i, obs, plan, outcome):
+            cnt = mmdopt.collision.collision_free_count(
+                np.stack([plan.s, plan.d], -1), obs.obstacles, a=a, b=b, obstacle_heading=body
+            )
+            met.append(int(np.asarray(cnt.colliding).sum()))
+
+        run_receding(
+            TurnedCarAtRest(headings=headings, duration=1.0),
+            config=CFG,
+            key=jax.random.PRNGKey(0),
+            callback=record,
+        )
+        return met
+
+    assert meets(True) == [0, 0]  # clear of the turned body in every sample, every replan
+    assert max(meets(None)) == 10  # along the path (no heading of its own) it looks clear
+    with pytest.raises(ValueError, match="obstacle_headings"):
+        run_receding(TurnedCarAtRest(headings=np.zeros(2), duration=0.5), config=CFG)

@@ -540,6 +540,7 @@ class HighwaySource:
             info=info,
             obstacle_states=self._obstacle_states(),
             frame_changed=self._frame_changed,
+            obstacle_headings=np.array([float(v.heading) for v in targets], float),
         )
 
     def _forecast(self, targets) -> mmdopt.predict.Forecast:

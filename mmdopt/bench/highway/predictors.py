@@ -538,7 +538,6 @@ class LearnedPredictor:
                 np.interp(out[..., 0], xs, hi) - half,
             )
             out[..., 1] = np.clip(out[..., 1], y_lo, np.maximum(y_hi, y_lo))
-        _spread_over_body(out, targets)
         self.last_time_s = time.perf_counter() - t0
         return out
 
@@ -668,22 +667,6 @@ def _road_extent(network, x_min: float, x_max: float, step: float = 2.0):
 
 #: speed (m/s) from which the constant-velocity predictor's lateral noise is at full strength
 LATERAL_FULL_SPEED = 10.0
-#: below this speed (m/s) a car is at rest for :func:`_spread_over_body`
-AT_REST_SPEED = 0.5
-
-
-def _spread_over_body(out: np.ndarray, targets) -> None:
-    """A car at rest (speed below :data:`AT_REST_SPEED`, e.g. after a crash, possibly turned
-    across its lane): its samples (n, K, 2) are spread evenly over its body along its heading
-    (±half its length), in place.  The planner gets positions only and takes a heading from
-    their motion (:func:`mmdopt.collision.headings`: along the path when there is none), so a
-    car at rest would otherwise be a car aligned with the road whatever its orientation."""
-    for o, v in enumerate(targets):
-        if float(v.speed) >= AT_REST_SPEED or out.shape[1] < 2:
-            continue
-        half = 0.5 * float(getattr(v, "LENGTH", 5.0))
-        u = np.linspace(-half, half, out.shape[1])[:, None, None]
-        out[o] += u * np.array([math.cos(v.heading), math.sin(v.heading)])[None, None, :]
 
 
 @dataclass
@@ -692,12 +675,12 @@ class ConstantVelocityPredictor:
     (``sigma_long`` m/s along the road, ``sigma_lat`` m/s across), sample 0 is the noise-free
     extrapolation.  Unimodal.  A car does not reverse (the speed along the road is clipped at
     0) and moves sideways only as it moves on: below :data:`LATERAL_FULL_SPEED` the lateral
-    noise shrinks in proportion to the car's speed; a car at rest has its samples over its body
-    (:func:`_spread_over_body`).  On a road with curved lanes the velocity is kept in each car's
-    lane
-    frame (speed along the lane's centre line, through its successors, and across it:
-    :func:`~.roads.follow_lanes`), so the futures follow the curves instead of leaving the road
-    in a straight line."""
+    noise shrinks in proportion to the car's speed (a car at rest stays where it is, or drives
+    off along the road; its body's heading reaches the planner with the observation,
+    :attr:`mmdopt.receding.Observation.obstacle_headings`).  On a road with curved lanes the
+    velocity is kept in each car's lane frame (speed along the lane's centre line, through its
+    successors, and across it: :func:`~.roads.follow_lanes`), so the futures follow the curves
+    instead of leaving the road in a straight line."""
 
     sigma_long: float = 1.0
     sigma_lat: float = 0.3
@@ -734,7 +717,6 @@ class ConstantVelocityPredictor:
             v = vel[:, None, :] + noise  # (O, n, 2) — highway-v0 lanes run along +x
             v[..., 0] = np.maximum(v[..., 0], 0.0)
             out = pos[:, None, None, :] + v[:, :, None, :] * t_grid[None, None, :, None]
-        _spread_over_body(out, targets)
         self.last_time_s = time.perf_counter() - t0
         return out
 

@@ -199,12 +199,13 @@ def test_other_drivers_judge_the_ego_as_a_car_with_a_desired_speed():
         src.close()
 
 
-def test_a_car_at_rest_is_predicted_over_its_body_along_its_heading():
-    """A car at rest turned across its lane (as after a crash): constant velocity puts its
-    samples on its body along its heading (the planner reads headings from motion only), and
-    they do not drift sideways; a moving car's samples start at its centre."""
+def test_a_car_at_rest_reaches_the_planner_with_its_heading():
+    """A car at rest turned across its lane (as after a crash): constant velocity keeps its
+    samples at its centre (it may drive off along the road, never backwards or sideways), and
+    the observation gives the planner its body heading, so every sample's footprint lies along
+    its real axis; a moving car's samples start at its centre."""
     src = hw.HighwaySource(
-        hw.HighwaySettings(env="highway-v0", duration=1.0, predictor="cv"),
+        hw.HighwaySettings(env="highway-v0", duration=1.0, predictor="cv", forecast=False),
         3,
         hw.highway_config(TINY),
         method="mmd",
@@ -215,14 +216,13 @@ def test_a_car_at_rest_is_predicted_over_its_body_along_its_heading():
         still.speed, still.heading = 0.0, 1.0
         pred = hw.ConstantVelocityPredictor()
         out = pred(src.env.road, src.ego, targets, src.t_grid, 11, np.random.default_rng(0))
-        rel = out[0, :, 0] - still.position  # (n, 2) now
-        along = rel @ np.array([np.cos(1.0), np.sin(1.0)])
-        across = rel @ np.array([-np.sin(1.0), np.cos(1.0)])
-        np.testing.assert_allclose(along, np.linspace(-2.5, 2.5, 11), atol=1e-9)
-        assert np.abs(across).max() < 1e-9
-        # it may drive off along the road (speed noise, never backwards), not sideways
+        np.testing.assert_allclose(out[0, :, 0], np.broadcast_to(still.position, (11, 2)))
         assert np.ptp(out[0, :, :, 1], axis=1).max() < 1e-9
         assert (np.diff(out[0, :, :, 0], axis=1) >= 0).all()
         np.testing.assert_allclose(out[1, :, 0], np.broadcast_to(moving.position, (11, 2)))
+        obs = src.observe()
+        heads = {id(v): h for v, h in zip(src._targets(), obs.obstacle_headings, strict=True)}
+        assert heads[id(still)] == pytest.approx(1.0)
+        assert obs.obstacle_headings.shape == (np.shape(obs.obstacles)[0],)
     finally:
         src.close()
