@@ -119,13 +119,11 @@ def headings(xy: ArrayLike, initial: ArrayLike | None = None) -> jax.Array:
     moving = jnp.hypot(d[..., 0], d[..., 1]) >= MIN_HEADING_STEP
     idx = jnp.arange(psi.shape[-1])
     last = lax.cummax(jnp.where(moving, idx, -1), axis=psi.ndim - 1)  # last moving step so far
-    if init is None:
-        first = jnp.argmax(moving, axis=-1)[..., None]
-        src = jnp.where(last >= 0, last, first)
-        psi = jnp.where(moving.any(-1, keepdims=True), jnp.take_along_axis(psi, src, axis=-1), 0.0)
-    else:
-        carried = jnp.take_along_axis(psi, jnp.maximum(last, 0), axis=-1)
-        psi = jnp.where(last >= 0, carried, init)
+    if init is None:  # the first longer step's heading, 0 when there is none
+        first = jnp.take_along_axis(psi, jnp.argmax(moving, axis=-1)[..., None], axis=-1)
+        init = jnp.where(moving.any(-1, keepdims=True), first, 0.0)
+    carried = jnp.take_along_axis(psi, jnp.maximum(last, 0), axis=-1)
+    psi = jnp.where(last >= 0, carried, init)
     return jnp.concatenate([psi, psi[..., -1:]], axis=-1)
 
 

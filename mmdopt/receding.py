@@ -42,7 +42,7 @@ import frenet
 
 from . import algorithm
 from .algorithm import PLANNER_PROJECTOR, MMDOptConfig
-from .api import Plan, Road, _apply_risk, _draw_forecast, plan
+from .api import Plan, Road, _apply_risk, _check_obstacle_headings, _draw_forecast, plan
 from .baselines import PLAN_METHODS
 from .predict.base import Forecast
 from .safety import RSSConfig, obstacle_states_from_cartesian, obstacle_states_from_samples
@@ -294,22 +294,13 @@ def _drawn(obs: Observation, rc: RecedingConfig, config: MMDOptConfig, key):
 
 
 def _observed_headings(obs: Observation) -> np.ndarray | None:
-    """``obs.obstacle_headings`` as (O,) finite floats, one per observed obstacle, else
-    ``ValueError`` naming it; ``None`` when not given."""
+    """``obs.obstacle_headings`` checked against the observed obstacles (before the loop cuts or
+    pads them); ``None`` when not given."""
     if obs.obstacle_headings is None:
         return None
     fc = obs.obstacles
     O = fc.num_obstacles if isinstance(fc, Forecast) else int(np.shape(fc)[0])
-    try:
-        h = np.asarray(obs.obstacle_headings, dtype=np.float64)
-    except (TypeError, ValueError):
-        raise ValueError("Observation.obstacle_headings must be numbers (rad)") from None
-    if h.shape != (O,) or not np.all(np.isfinite(h)):
-        raise ValueError(
-            f"Observation.obstacle_headings must be {O} finite headings (rad), one per obstacle, "
-            f"got shape {h.shape}"
-        )
-    return h
+    return _check_obstacle_headings(obs.obstacle_headings, O)
 
 
 def _plan_once(obs: Observation, rc: RecedingConfig, config: MMDOptConfig, key, warm, t_grid):
