@@ -532,16 +532,24 @@ def cost_chunk_size(cfg: MMDOptConfig) -> int:
     return max(cfg.cem.n_cem - cfg.cem.n_elite - cfg.cem.n_brake, -(-cfg.cem.n_cem // 4))
 
 
-def lane_inputs(cfg: MMDOptConfig, d, lanes):
+def lane_inputs(cfg: MMDOptConfig, d, lanes, state=None):
     """The behavioural inputs the Frenet planner follows: ``d`` (B, D) itself, or with
     ``cfg.trajectory.lane_setpoints`` and lane centres ``lanes`` (L,) each lateral set-point
-    moved to the nearest lane centre (lane discipline, not in the paper)."""
+    moved to the nearest lane centre (lane discipline, not in the paper).  With
+    ``cfg.trajectory.lane_commit > 0`` and the ego ``state`` (6,) more than that far from every
+    lane centre (between lanes), every lateral set-point is the first one: each candidate
+    finishes the lane change or gives it up at once."""
     if lanes is None or not cfg.trajectory.lane_setpoints:
         return d
     S = cfg.trajectory.num_segments
     lat = d[:, S:]
     near = jnp.argmin(jnp.abs(lat[..., None] - lanes), axis=-1)
-    return jnp.concatenate([d[:, :S], lanes[near].astype(d.dtype)], axis=1)
+    centres = lanes[near].astype(d.dtype)
+    commit = float(cfg.trajectory.lane_commit)
+    if state is not None and commit > 0.0:
+        between = jnp.min(jnp.abs(state[1] - lanes)) > commit
+        centres = jnp.where(between, jnp.broadcast_to(centres[:, :1], centres.shape), centres)
+    return jnp.concatenate([d[:, :S], centres], axis=1)
 
 
 def lane_cost(dd, lanes):
@@ -929,7 +937,7 @@ def _step(
     problem = _cast(problem, dt)
     k = state.keys[state.iteration]
     d = _sample(cfg, k, state.mu, state.cov, state.elites, problem, z)
-    d_plan = lane_inputs(cfg, d, problem.lanes)
+    d_plan = lane_inputs(cfg, d, problem.lanes, problem.state)
     cx, cy, res, n_proj, end = _project_rows(cfg, prob, d_plan, problem.state, dt, cache)
     return _evaluate(cfg, state, prob, obstacles, d, cx, cy, res, n_proj, cache, end, problem.lanes)
 
@@ -1045,7 +1053,9 @@ def _sample_plan(prob: Workspace, cfg: MMDOptConfig, problem: Problem, state: CE
     dt = jnp.dtype(cfg.cem.dtype)
     problem = _cast(problem, dt)
     d = _sample(cfg, state.keys[state.iteration], state.mu, state.cov, state.elites, problem)
-    cx_bar, cy_bar = planner_output(prob, lane_inputs(cfg, d, problem.lanes), problem.state, dt)
+    cx_bar, cy_bar = planner_output(
+        prob, lane_inputs(cfg, d, problem.lanes, problem.state), problem.state, dt
+    )
     return d, cx_bar, cy_bar
 
 

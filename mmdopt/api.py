@@ -1018,7 +1018,7 @@ def _plan_impl(
         np.asarray(chosen.cx, np.float64),
         np.asarray(chosen.cy, np.float64),
         # the set-points the Frenet planner followed (lane centres with lane_setpoints)
-        np.asarray(alg.lane_inputs(config, chosen.d[None], problem.lanes)[0]),
+        np.asarray(alg.lane_inputs(config, chosen.d[None], problem.lanes, problem.state)[0]),
         float(chosen.cost),
         int(chosen.iteration),
         fallback,

@@ -181,6 +181,12 @@ class TrajectoryConfig(_Section):
     lateral_gain : k_p, the Frenet planner's lateral-offset tracking gain (1/s²; the reference
         code's 2): a larger gain reaches a new lateral set-point sooner (4: a 4 m lane change
         spends 1.0 s instead of 1.4 s more than 1 m from both lane centres)
+    lane_commit : with ``lane_setpoints``, a lane change once begun is finished or given up at
+        once (m; 0 = off, the default): when the ego is more than ``lane_commit`` from every lane
+        centre, each candidate holds its first lateral set-point over the whole horizon, so no
+        candidate postpones the rest of the change.  Without it, a receding-horizon planner can
+        creep between two lanes for seconds: each plan finishes the change a little later than
+        the one before, and only its first tenth of a second is driven.
     """
 
     num_segments: int = _static(4)
@@ -189,9 +195,11 @@ class TrajectoryConfig(_Section):
     degree: int = _static(10)
     lane_setpoints: bool = _static(False)
     lateral_gain: float = _static(2.0)
+    lane_commit: float = _static(0.0)
 
     _ints = ("num_segments", "num_steps", "degree")
     _positive = ("horizon", "lateral_gain")
+    _nonneg = ("lane_commit",)
 
     def __post_init__(self) -> None:
         self._check()
@@ -647,6 +655,7 @@ class MMDOptConfig:
             reselect=0,
             lane_setpoints=True,
             lateral_gain=4.0,
+            lane_commit=0.5,
             w_lane=6.0,
             headway_time=1.0,
             headway_gap=6.0,

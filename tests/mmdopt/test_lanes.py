@@ -73,6 +73,45 @@ def test_lane_inputs_move_lateral_setpoints_to_the_nearest_centre():
     assert alg.lane_inputs(CFG, d, jnp.asarray(LANES)) is d
 
 
+def test_lane_commit_holds_the_first_setpoint_only_between_lanes():
+    cfg = CFG.replace(lane_setpoints=True, lane_commit=0.5)
+    S = cfg.trajectory.num_segments
+    d = jnp.array([[20.0] * S + [3.8, 0.2, 0.1, 4.2], [20.0] * S + [0.3, 0.0, 4.1, 3.9]])
+    lanes = jnp.asarray(LANES)
+
+    def at(ego_d):
+        state = jnp.array([100.0, ego_d, 25.0, 0.0, 0.0, 0.0])
+        return np.asarray(alg.lane_inputs(cfg, d, lanes, state))[:, S:]
+
+    # in a lane (within 0.5 m of its centre): set-points as sampled, a lane change may wait
+    np.testing.assert_array_equal(at(0.3), [[4.0, 0.0, 0.0, 4.0], [0.0, 0.0, 4.0, 4.0]])
+    # between lanes: each candidate finishes the change (4 m) or gives it up (0 m) at once
+    np.testing.assert_array_equal(at(1.7), [[4.0] * 4, [0.0] * 4])
+    # off (the default) or without the ego state: as sampled
+    np.testing.assert_array_equal(np.asarray(alg.lane_inputs(cfg, d, lanes))[:, S:], at(0.3))
+    off = CFG.replace(lane_setpoints=True, lane_commit=0.0)
+    state = jnp.array([100.0, 1.7, 25.0, 0.0, 0.0, 0.0])
+    np.testing.assert_array_equal(np.asarray(alg.lane_inputs(off, d, lanes, state))[:, S:], at(0.3))
+    with pytest.raises(ValueError, match="lane_commit"):
+        CFG.replace(lane_commit=-0.1)
+
+
+def test_a_plan_begun_between_lanes_reaches_a_lane_centre_within_the_horizon():
+    """With lane_commit, a plan from 1.8 m (a lane change under way, a slower car ahead in the
+    lane it left) follows one lateral set-point throughout and is at that lane centre within
+    0.3 m by the second half of its horizon."""
+    ego = frenet.EgoState(s=100.0, d=1.8, vs=25.0, vd=1.0)
+    cfg = CFG.replace(lane_setpoints=True, w_lane=6.0, lane_commit=0.5)
+    S = cfg.trajectory.num_segments
+    for k in range(3):
+        p = mmdopt.plan(ego, _road(), _slow_leader(0.0), config=cfg, key=jax.random.PRNGKey(k))
+        assert p.feasible
+        sp = p.diagnostics["behavioural_input"][S:]
+        assert len(set(sp.tolist())) == 1 and sp[0] in LANES, sp
+        K = p.d.size
+        assert np.all(np.abs(p.d[K // 2 :] - sp[0]) < 0.3), (p.d, sp)
+
+
 def test_lane_cost_is_zero_at_centres_free_early_and_grows_between_them():
     # settled at lane centres / changing lanes in the first half / held between two lanes
     dd = jnp.array([[4.0, 4.0, 8.0, 8.0], [0.0, 2.0, 4.0, 4.0], [2.0, 2.0, 2.0, 2.0]])
