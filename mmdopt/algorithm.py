@@ -552,14 +552,16 @@ def lane_inputs(cfg: MMDOptConfig, d, lanes, state=None):
     return jnp.concatenate([d[:, :S], centres], axis=1)
 
 
-def lane_cost(dd, lanes):
-    """Lane discipline (not in the paper): the mean over the second half of the horizon of the
+def lane_cost(dd, lanes, start: float = 0.5):
+    """Lane discipline (not in the paper): the mean, from ``start`` × the horizon on, of the
     squared distance of the lateral offsets ``dd`` (R, K) to the nearest lane centre of
-    ``lanes`` (L,), (R,) in m².  A plan must have settled at a lane centre by mid-horizon: a lane
-    change inside the first half is free (so lane changes are not discouraged), one that holds
-    an offset between two lanes pays."""
+    ``lanes`` (L,), (R,) in m².  With ``start`` = 0.5 a plan must have settled at a lane centre
+    by mid-horizon: a lane change inside the first half is free, one that holds an offset
+    between two lanes pays; with 0 every lane change pays for the time it spends between
+    lanes."""
     K = dd.shape[-1]
-    dev = jnp.min(jnp.abs(dd[..., K // 2 :, None] - lanes), axis=-1)
+    k0 = min(int(start * K), K - 1)
+    dev = jnp.min(jnp.abs(dd[..., k0:, None] - lanes), axis=-1)
     return jnp.mean(dev * dev, axis=-1)
 
 
@@ -576,7 +578,7 @@ def _row_costs(cfg: MMDOptConfig, prob: Workspace, obstacles: ObstacleSet, cx, c
     coll, w = _collision_term(cfg, prob, s, dd, obstacles, dt, vs=vs, vd=vd)
     cost = cfg.cost.w_speed * j_speed + cfg.cost.w_accel * j_acc + w * coll + cfg.cost.w_res * res
     if lanes is not None:
-        cost = cost + cfg.cost.w_lane * lane_cost(dd, lanes)
+        cost = cost + cfg.cost.w_lane * lane_cost(dd, lanes, cfg.cost.lane_from)
     if cfg.safety.rules.kinematic:
         # feasibility first (a hard slip limit; the collision term may reach 10⁶): a row whose
         # residual, slip included, exceeds res_tol ranks after every row within it

@@ -259,8 +259,11 @@ class CostConfig(_Section):
     w_cover : weight of the coverage term in the "samples" margin mode (:mod:`mmdopt.risk`);
     bandwidth : the Gaussian kernel σ of the MMD on f̄;  f_scale : f̄ is scaled by it first;
     w_lane : lane discipline (not in the paper; 0 = off): weight of the mean squared distance of
-    the lateral trajectory's second half to the nearest lane centre of the road
-    (``Road.lane_centres``), m² (:func:`mmdopt.algorithm.lane_cost`).
+    the lateral trajectory to the nearest lane centre of the road (``Road.lane_centres``), m²,
+    from ``lane_from`` × the horizon on (:func:`mmdopt.algorithm.lane_cost`);
+    lane_from : where the lane cost starts, a fraction of the horizon in [0, 1): 0.5 (the
+        default) makes a lane change inside the first half free, 0 charges every lane change
+        the time it spends between lanes.
     """
 
     v_des: float = 10.0
@@ -272,12 +275,15 @@ class CostConfig(_Section):
     bandwidth: float = 0.5
     f_scale: float = 1.0
     w_lane: float = 0.0
+    lane_from: float = _static(0.5)
 
     _positive = ("bandwidth",)
-    _nonneg = ("w_speed", "w_accel", "w_res", "w_mmd", "w_cover", "w_lane")
+    _nonneg = ("w_speed", "w_accel", "w_res", "w_mmd", "w_cover", "w_lane", "lane_from")
 
     def __post_init__(self) -> None:
         self._check()
+        if not self.lane_from < 1.0:
+            raise ValueError(f"CostConfig.lane_from must be in [0, 1), got {self.lane_from!r}")
 
 
 @jax.tree_util.register_dataclass

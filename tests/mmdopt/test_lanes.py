@@ -118,6 +118,13 @@ def test_lane_cost_is_zero_at_centres_free_early_and_grows_between_them():
     c = np.asarray(alg.lane_cost(dd, jnp.asarray(LANES)))
     assert c[0] == 0.0 and c[1] == 0.0
     np.testing.assert_allclose(c[2], 4.0)
+    # from the start of the horizon: the lane change pays for its step between lanes
+    c0 = np.asarray(alg.lane_cost(dd, jnp.asarray(LANES), 0.0))
+    np.testing.assert_allclose(c0, [0.0, 1.0, 4.0])
+    with pytest.raises(ValueError, match="lane_from"):
+        CFG.replace(lane_from=1.0)
+    with pytest.raises(ValueError, match="lane_from"):
+        CFG.replace(lane_from=-0.1)
 
 
 def test_a_plan_with_lane_setpoints_drives_to_lane_centres():
