@@ -346,7 +346,9 @@ def _shielded(p: Plan, obs: Observation, rc: RecedingConfig, t_grid: np.ndarray)
         states = obstacle_states_from_cartesian(path, obs.obstacle_states)
     else:
         states = obstacle_states_from_samples(path, obs.obstacles, t_grid)
-    return rss_shield(p, path, states, rc.shield, executed=rc.dt)
+    return rss_shield(
+        p, path, states, rc.shield, executed=rc.dt, lane_centres=obs.road.lane_centres
+    )
 
 
 def warm_up(obs: Observation, receding: RecedingConfig, config: MMDOptConfig, key=None) -> float:

@@ -26,7 +26,11 @@ in place of the bound ``a_max`` during ρ = ``executed``, this is RSS's conditio
 (a plan that accelerates at ``a_max`` passes exactly when the gap is at least ``d_min`` plus the
 contact distance).  **The fallback** (:func:`braking_plan`) holds the current lateral offset and
 brakes at ``b_min`` (then harder, up to ``b_emergency``) from now; it is checked with the same
-rule (``executed = 0``), and the gentlest braking that passes is used.
+rule along its own profile, and the gentlest braking that passes is used.  With
+``RSSConfig.lateral_accel > 0`` and the road's lane centres, at each braking level a fallback
+that finishes the move to a lane centre while it brakes (:func:`lane_braking_plan`) is tried
+first; it is checked against every car ahead that its lateral path comes near, so after any
+part of it the fallback that holds the offset reached, braking as hard, passes again.
 
 **What it guarantees.**  Suppose the first state passes the fallback check, every obstacle in
 the corridor brakes at most at ``b_max`` and does not change its lateral offset, the obstacle
@@ -60,6 +64,7 @@ __all__ = [
     "obstacle_states_from_cartesian",
     "check_plan",
     "braking_plan",
+    "lane_braking_plan",
     "shield",
 ]
 
@@ -78,6 +83,10 @@ class RSSConfig:
     margin : extra gap for tracking and state errors (m, ≥ 0)
     lateral_overlap : an obstacle is in the ego's corridor when its lateral offset is closer
         than this to the ego's (m; the car width plus a lateral margin)
+    lateral_accel : 0 (default): the fallback holds the lateral offset; > 0 (m/s²): given lane
+        centres, a fallback may also brake while it finishes the move to a lane centre at up to
+        this lateral acceleration (:func:`lane_braking_plan`), checked against every car ahead
+        whose offset comes within ``lateral_overlap`` of its lateral path
     """
 
     response_time: float = 0.5
@@ -88,9 +97,10 @@ class RSSConfig:
     contact: float = 5.0
     margin: float = 1.0
     lateral_overlap: float = 2.5
+    lateral_accel: float = 0.0
 
     def __post_init__(self) -> None:
-        for name in ("response_time", "a_max", "margin"):
+        for name in ("response_time", "a_max", "margin", "lateral_accel"):
             v = getattr(self, name)
             if not (isinstance(v, int | float) and math.isfinite(v) and v >= 0):
                 raise ValueError(f"RSSConfig.{name} must be a finite number >= 0, got {v!r}")
@@ -230,9 +240,10 @@ def check_plan(
     ``config.b_min`` to a stop at the lateral offset reached; each obstacle of ``obstacles``
     ``(O, 3)`` = current ``(s, d, ṡ)`` that is ahead (``s > s(0)``) and in the corridor (its
     offset closer than ``lateral_overlap`` to the plan's over ``[0, executed]``) brakes at
-    ``config.b_max`` from now.  Safe when the distance along the path stays
-    ``≥ contact + margin`` until both have stopped (the distance is concave while both brake, so
-    it is checked on a 20 ms grid plus the instants where a phase ends).
+    ``config.b_max`` from now.  A fallback is checked with ``executed`` its whole horizon: the
+    ego follows its braking (and lateral) profile throughout.  Safe when the distance along the
+    path stays ``≥ contact + margin`` until both have stopped (the distance is concave while both
+    brake, so it is checked on a 20 ms grid plus the instants where a phase ends).
     """
     c = RSSConfig() if config is None else config
     if not isinstance(c, RSSConfig):
@@ -312,6 +323,83 @@ def braking_plan(plan: Plan, path: frenet.ReferencePath, decel: float, *, reason
     )
 
 
+def _lateral_profile(d0: float, vd0: float, centre: float, vs, tp, a_lat: float):
+    """``(d, ḋ, d̈)`` on ``tp`` moving from ``(d0, vd0)`` to rest at ``centre`` along the
+    quintic of the shortest duration (0.5 … 6 s, every 0.25 s) whose lateral acceleration stays
+    within ``a_lat`` and whose lateral speed stays within 0.3 × the speed ``vs`` (a heading
+    within 17° of the path: a car moves sideways only as it moves on); ``None`` if none does."""
+    for T in np.arange(0.5, 6.0 + 1e-9, 0.25):
+        A = np.array(
+            [[T**3, T**4, T**5], [3 * T**2, 4 * T**3, 5 * T**4], [6 * T, 12 * T**2, 20 * T**3]]
+        )
+        rhs = np.array([centre - d0 - vd0 * T, -vd0, 0.0])
+        c3, c4, c5 = np.linalg.solve(A, rhs)
+        tau = np.minimum(tp, T)
+        d = d0 + vd0 * tau + c3 * tau**3 + c4 * tau**4 + c5 * tau**5
+        vd = np.where(tp < T, vd0 + 3 * c3 * tau**2 + 4 * c4 * tau**3 + 5 * c5 * tau**4, 0.0)
+        ad = np.where(tp < T, 6 * c3 * tau + 12 * c4 * tau**2 + 20 * c5 * tau**3, 0.0)
+        if np.max(np.abs(ad)) <= a_lat and np.all(np.abs(vd) <= 0.3 * vs + 1e-9):
+            return d, vd, ad
+    return None
+
+
+def lane_braking_plan(
+    plan: Plan,
+    path: frenet.ReferencePath,
+    decel: float,
+    centre: float,
+    lateral_accel: float,
+    *,
+    reason: str = "",
+) -> Plan | None:
+    """The braking fallback of ``plan`` that finishes the move to the lane centre ``centre``
+    (m) while it brakes at ``decel`` (m/s²) to a stop: the lateral offset follows a quintic from
+    the plan's first lateral state to rest at ``centre`` within ``lateral_accel`` (m/s²) and a
+    heading within 17° of the path; ``None`` when no such move ends before the car is too slow
+    to make it.  A :class:`Plan` with status FALLBACK, as :func:`braking_plan`."""
+    b = float(decel)
+    if not (math.isfinite(b) and b > 0):
+        raise ValueError(f"decel must be a finite number > 0, got {decel!r}")
+    if not (math.isfinite(float(lateral_accel)) and float(lateral_accel) > 0):
+        raise ValueError(f"lateral_accel must be a finite number > 0, got {lateral_accel!r}")
+    if not math.isfinite(float(centre)):
+        raise ValueError(f"centre must be a finite lateral offset, got {centre!r}")
+    t = np.asarray(plan.t, dtype=np.float64)
+    tp = t - t[0]
+    s0, v0 = float(plan.s[0]), max(float(plan.vs[0]), 0.0)
+    vs = np.maximum(v0 - b * tp, 0.0)
+    lat = _lateral_profile(
+        float(plan.d[0]), float(plan.vd[0]), float(centre), vs, tp, float(lateral_accel)
+    )
+    if lat is None:
+        return None
+    d, vd, ad = lat
+    s = _braking(s0, v0, b, tp)
+    as_ = np.where(vs > 0.0, -b, 0.0)
+    x, y, heading, speed = path.trajectory_to_cartesian(s, d, vs, vd)
+    diag = dict(plan.diagnostics)
+    diag["shield_decel"] = b
+    diag["shield_lane_centre"] = float(centre)
+    return dataclasses.replace(
+        plan,
+        x=x,
+        y=y,
+        heading=heading,
+        speed=speed,
+        s=s,
+        d=d,
+        vs=vs,
+        vd=vd,
+        as_=as_,
+        ad=ad,
+        cost=float("nan"),
+        status=PlanStatus.FALLBACK,
+        message=reason,
+        diagnostics=diag,
+        state=None,
+    )
+
+
 def shield(
     plan: Plan,
     path: frenet.ReferencePath,
@@ -319,12 +407,18 @@ def shield(
     config: RSSConfig | None = None,
     *,
     executed: float,
+    lane_centres=(),
 ) -> tuple[Plan, ShieldRecord]:
     """Check ``plan`` with :func:`check_plan` (``executed`` seconds of it run before the next
     check) against ``obstacles`` ``(O, 3)`` = current ``(s, d, ṡ)`` in ``path``'s frame; return
     it unchanged when it passes, else the gentlest checked braking fallback (:func:`braking_plan`
     at ``b_min``, then harder up to ``b_emergency``; the hardest when none passes), with a
-    :class:`ShieldRecord` of what was done and why."""
+    :class:`ShieldRecord` of what was done and why.  With ``config.lateral_accel > 0`` and
+    ``lane_centres`` (m), at each braking level a fallback that finishes the move to the lane
+    centre the plan was heading to, or to the nearest one (:func:`lane_braking_plan`), is tried
+    before the one that holds the offset: a plan replaced mid-lane-change does not leave the ego
+    between two lanes.  Each fallback is checked along its own profile, every car ahead that its
+    lateral path comes near included."""
     c = RSSConfig() if config is None else config
     if not isinstance(plan, Plan):
         raise ValueError(f"plan must be an mmdopt.Plan, got {type(plan).__name__}")
@@ -338,17 +432,43 @@ def shield(
         f"{ob[0] - plan.s[0]:.1f} m ahead at {ob[2]:.1f} m/s, in the RSS worst case"
     )
     decels = np.unique(np.linspace(c.b_min, c.b_emergency, 5))
-    ok, b = False, float(decels[-1])
     tp = np.asarray(plan.t, dtype=np.float64) - float(plan.t[0])
+    horizon = float(tp[-1])
     s0, v0 = float(plan.s[0]), max(float(plan.vs[0]), 0.0)
     d0 = np.full_like(tp, float(plan.d[0]))
-    for b_try in decels:  # the profiles of braking_plan, checked before one plan is built
+    centres = np.asarray(tuple(lane_centres), dtype=np.float64).reshape(-1)
+    targets: list[float] = []
+    dd0, vd0 = float(plan.d[0]), float(plan.vd[0])
+    if c.lateral_accel > 0 and centres.size and np.all(np.isfinite(centres)):
+        # only a move under way is finished: the ego off every lane centre or moving sideways;
+        # into one of the two lanes either side of it, the one the plan was heading to first
+        if np.min(np.abs(centres - dd0)) > 0.1 or abs(vd0) > 0.1:
+            below, above = centres[centres <= dd0], centres[centres >= dd0]
+            side = [float(below.max())] if below.size else []
+            side += [float(above.min())] if above.size else []
+            targets = sorted(set(side), key=lambda cen: abs(cen - float(plan.d[-1])))
+    for b_try in decels:  # each fallback checked along its own profile (executed: all of it)
+        for cen in targets:
+            fb = lane_braking_plan(
+                plan,
+                path,
+                float(b_try),
+                cen,
+                c.lateral_accel,
+                reason=f"shield: {why}; braking at {b_try:g} m/s² into the lane at {cen:g} m",
+            )
+            if (
+                fb is not None
+                and check_plan(fb.t, fb.s, fb.d, fb.vs, obstacles, c, executed=horizon).safe
+            ):
+                return fb, ShieldRecord(True, why, chk.margin, float(b_try), True, chk.n_checked)
         vs = np.maximum(v0 - b_try * tp, 0.0)
         prof = _braking(s0, v0, float(b_try), tp)
-        if check_plan(tp, prof, d0, vs, obstacles, c, executed=0.0).safe:
-            ok, b = True, float(b_try)
-            break
+        if check_plan(tp, prof, d0, vs, obstacles, c, executed=horizon).safe:
+            reason = f"shield: {why}; braking at {b_try:g} m/s²"
+            fb = braking_plan(plan, path, float(b_try), reason=reason)
+            return fb, ShieldRecord(True, why, chk.margin, float(b_try), True, chk.n_checked)
+    b = float(decels[-1])
     fb = braking_plan(plan, path, b, reason=f"shield: {why}; braking at {b:g} m/s²")
-    if not ok:
-        fb = dataclasses.replace(fb, message=fb.message + " (no braking passes the check)")
-    return fb, ShieldRecord(True, why, chk.margin, b, ok, chk.n_checked)
+    fb = dataclasses.replace(fb, message=fb.message + " (no braking passes the check)")
+    return fb, ShieldRecord(True, why, chk.margin, b, False, chk.n_checked)

@@ -4,6 +4,7 @@ fallback.  Plain NumPy on a straight road: no planner runs here."""
 
 from __future__ import annotations
 
+import dataclasses
 import math
 
 import numpy as np
@@ -16,6 +17,7 @@ from mmdopt.safety import (
     RSSConfig,
     braking_plan,
     check_plan,
+    lane_braking_plan,
     obstacle_states_from_cartesian,
     obstacle_states_from_samples,
     rss_safe_distance,
@@ -121,6 +123,80 @@ def test_when_no_braking_passes_the_hardest_is_used_and_said_so():
     assert rec.fallback_decel == c.b_emergency and "no braking passes" in out.message
     with pytest.raises(ValueError, match="decel"):
         braking_plan(_plan(25.0), PATH, 0.0)
+
+
+def test_the_gentlest_braking_that_passes_is_used():
+    """A car at rest 52 m ahead of an ego at 25 m/s: braking at 6 or 6.5 m/s² stops within
+    6 m of it, 7 m/s² (44.6 m + 6 m) is the gentlest that keeps the gap; each level is checked
+    along its own profile."""
+    c = RSSConfig()
+    out, rec = shield(_plan(25.0), PATH, np.array([[152.0, 0.0, 0.0]]), c, executed=0.5)
+    assert rec.fallback_safe and rec.fallback_decel == pytest.approx(7.0)
+    assert "no braking passes" not in out.message
+    assert check_plan(out.t, out.s, out.d, out.vs, [[152.0, 0.0, 0.0]], c, executed=5.0).safe
+
+
+def _changing_lanes(v0: float = 20.0) -> Plan:
+    """A plan halfway through a lane change from 0 to 4 m (at 2 m, moving sideways at 1.5 m/s)
+    that accelerates at 2 m/s²."""
+    p = _plan(v0, accel=2.0)
+    d = np.minimum(2.0 + 1.5 * T, 4.0)
+    vd = np.where(d < 4.0, 1.5, 0.0)
+    return dataclasses.replace(p, d=d, vd=vd)
+
+
+def test_a_plan_replaced_mid_lane_change_finishes_the_change_while_braking():
+    """A slower car 40 m ahead in the lane the ego leaves: the plan (accelerating) fails the
+    check; with lane centres the fallback brakes while it moves on to the lane centre the plan
+    was heading to, within the lateral acceleration and a 17° heading, and passes the check
+    along its own lateral path; without them it stops the ego between the two lanes."""
+    c = RSSConfig(lateral_accel=3.0)
+    lead = np.array([[140.0, 0.0, 10.0]])
+    p = _changing_lanes()
+    assert not check_plan(p.t, p.s, p.d, p.vs, lead, c, executed=0.5).safe
+    out, rec = shield(p, PATH, lead, c, executed=0.5, lane_centres=(0.0, 4.0, 8.0))
+    assert rec.intervened and rec.fallback_safe and rec.fallback_decel == c.b_min
+    assert out.status is PlanStatus.FALLBACK and out.state is None
+    assert out.d[0] == pytest.approx(2.0) and out.vd[0] == pytest.approx(1.5)
+    assert out.d[-1] == pytest.approx(4.0, abs=1e-9) and np.all(out.d <= 4.0 + 1e-9)
+    assert np.max(np.abs(out.ad)) <= 3.0 + 1e-9
+    assert np.all(np.abs(out.vd) <= 0.3 * out.vs + 1e-9)
+    assert "into the lane at 4 m" in out.message
+    assert check_plan(out.t, out.s, out.d, out.vs, lead, c, executed=5.0).safe
+    # without lane centres, or with lateral_accel 0 (the default): the offset is held
+    held, _ = shield(p, PATH, lead, c, executed=0.5)
+    assert np.allclose(held.d, 2.0)
+    held, _ = shield(p, PATH, lead, RSSConfig(), executed=0.5, lane_centres=(0.0, 4.0, 8.0))
+    assert np.allclose(held.d, 2.0)
+
+
+def test_the_lane_fallback_checks_every_car_on_its_lateral_path():
+    """A car at rest 30 m ahead in the lane the ego moves into (offset 5 m: outside the
+    corridor at 2 m, inside the one at 4 m): no braking into that lane keeps the gap, and going
+    back to 0 m would first carry the ego towards it (it moves sideways at 1.5 m/s), so the
+    fallback holds the offset, which keeps the gap."""
+    c = RSSConfig(lateral_accel=3.0)
+    blocked = np.array([[130.0, 5.0, 0.0]])
+    p = _changing_lanes()
+    out, rec = shield(p, PATH, blocked, c, executed=0.5, lane_centres=(0.0, 4.0, 8.0))
+    assert rec.intervened and rec.fallback_safe
+    assert np.allclose(out.d, 2.0)
+    assert check_plan(out.t, out.s, out.d, out.vs, blocked, c, executed=5.0).safe
+    into = lane_braking_plan(p, PATH, c.b_emergency, 4.0, 3.0)
+    assert not check_plan(into.t, into.s, into.d, into.vs, blocked, c, executed=5.0).safe
+
+
+def test_a_lane_fallback_needs_speed_to_move_sideways():
+    """At 2 m/s braking at 6 m/s², the car stops before it could cover 2 m sideways within a
+    17° heading: no lane fallback; bad arguments are refused."""
+    slow = dataclasses.replace(_changing_lanes(2.0), vd=np.zeros_like(T))
+    assert lane_braking_plan(slow, PATH, 6.0, 4.0, 3.0) is None
+    with pytest.raises(ValueError, match="lateral_accel"):
+        lane_braking_plan(slow, PATH, 6.0, 4.0, 0.0)
+    with pytest.raises(ValueError, match="centre"):
+        lane_braking_plan(slow, PATH, 6.0, float("nan"), 3.0)
+    with pytest.raises(ValueError, match="lateral_accel"):
+        RSSConfig(lateral_accel=-1.0)
 
 
 # ------------------------------------------------------------------------- obstacles' states
