@@ -422,6 +422,12 @@ def shield(
     c = RSSConfig() if config is None else config
     if not isinstance(plan, Plan):
         raise ValueError(f"plan must be an mmdopt.Plan, got {type(plan).__name__}")
+    try:
+        centres = np.asarray(tuple(lane_centres), dtype=np.float64).reshape(-1)
+    except (TypeError, ValueError):
+        centres = np.array([np.nan])
+    if not np.all(np.isfinite(centres)):
+        raise ValueError(f"lane_centres must be finite lateral offsets (m), got {lane_centres!r}")
     chk = check_plan(plan.t, plan.s, plan.d, plan.vs, obstacles, c, executed=executed)
     if chk.safe:
         return plan, ShieldRecord(False, "", chk.margin, 0.0, True, chk.n_checked)
@@ -436,10 +442,9 @@ def shield(
     horizon = float(tp[-1])
     s0, v0 = float(plan.s[0]), max(float(plan.vs[0]), 0.0)
     d0 = np.full_like(tp, float(plan.d[0]))
-    centres = np.asarray(tuple(lane_centres), dtype=np.float64).reshape(-1)
     targets: list[float] = []
     dd0, vd0 = float(plan.d[0]), float(plan.vd[0])
-    if c.lateral_accel > 0 and centres.size and np.all(np.isfinite(centres)):
+    if c.lateral_accel > 0 and centres.size:
         # only a move under way is finished: the ego off every lane centre or moving sideways;
         # into one of the two lanes either side of it, the one the plan was heading to first
         if np.min(np.abs(centres - dd0)) > 0.1 or abs(vd0) > 0.1:

@@ -197,6 +197,9 @@ def test_a_lane_fallback_needs_speed_to_move_sideways():
         lane_braking_plan(slow, PATH, 6.0, float("nan"), 3.0)
     with pytest.raises(ValueError, match="lateral_accel"):
         RSSConfig(lateral_accel=-1.0)
+    for bad in ((0.0, float("nan")), ("a",)):
+        with pytest.raises(ValueError, match="lane_centres"):
+            shield(_changing_lanes(), PATH, np.zeros((0, 3)), executed=0.5, lane_centres=bad)
 
 
 # ------------------------------------------------------------------------- obstacles' states
