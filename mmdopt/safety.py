@@ -293,16 +293,22 @@ def braking_plan(plan: Plan, path: frenet.ReferencePath, decel: float, *, reason
     if not (math.isfinite(b) and b > 0):
         raise ValueError(f"decel must be a finite number > 0, got {decel!r}")
     t = np.asarray(plan.t, dtype=np.float64)
+    zero = np.zeros_like(t)
+    return _fallback(plan, path, b, np.full_like(t, float(plan.d[0])), zero, zero.copy(), reason)
+
+
+def _fallback(plan: Plan, path, b: float, d, vd, ad, reason: str, **diag_extra) -> Plan:
+    """The FALLBACK :class:`Plan` that brakes at ``b`` from ``plan``'s first state to a stop
+    along the lateral profile ``(d, ḋ, d̈)`` on the plan's grid (no Algorithm 1 state)."""
+    t = np.asarray(plan.t, dtype=np.float64)
     tp = t - t[0]
-    s0, d0, v0 = float(plan.s[0]), float(plan.d[0]), max(float(plan.vs[0]), 0.0)
+    s0, v0 = float(plan.s[0]), max(float(plan.vs[0]), 0.0)
     s = _braking(s0, v0, b, tp)
     vs = np.maximum(v0 - b * tp, 0.0)
     as_ = np.where(vs > 0.0, -b, 0.0)
-    d = np.full_like(t, d0)
-    zero = np.zeros_like(t)
-    x, y, heading, speed = path.trajectory_to_cartesian(s, d, vs, zero)
+    x, y, heading, speed = path.trajectory_to_cartesian(s, d, vs, vd)
     diag = dict(plan.diagnostics)
-    diag["shield_decel"] = b
+    diag.update(shield_decel=b, **diag_extra)
     return dataclasses.replace(
         plan,
         x=x,
@@ -312,9 +318,9 @@ def braking_plan(plan: Plan, path: frenet.ReferencePath, decel: float, *, reason
         s=s,
         d=d,
         vs=vs,
-        vd=zero,
+        vd=vd,
         as_=as_,
-        ad=zero.copy(),
+        ad=ad,
         cost=float("nan"),
         status=PlanStatus.FALLBACK,
         message=reason,
@@ -366,7 +372,7 @@ def lane_braking_plan(
         raise ValueError(f"centre must be a finite lateral offset, got {centre!r}")
     t = np.asarray(plan.t, dtype=np.float64)
     tp = t - t[0]
-    s0, v0 = float(plan.s[0]), max(float(plan.vs[0]), 0.0)
+    v0 = max(float(plan.vs[0]), 0.0)
     vs = np.maximum(v0 - b * tp, 0.0)
     lat = _lateral_profile(
         float(plan.d[0]), float(plan.vd[0]), float(centre), vs, tp, float(lateral_accel)
@@ -374,30 +380,7 @@ def lane_braking_plan(
     if lat is None:
         return None
     d, vd, ad = lat
-    s = _braking(s0, v0, b, tp)
-    as_ = np.where(vs > 0.0, -b, 0.0)
-    x, y, heading, speed = path.trajectory_to_cartesian(s, d, vs, vd)
-    diag = dict(plan.diagnostics)
-    diag["shield_decel"] = b
-    diag["shield_lane_centre"] = float(centre)
-    return dataclasses.replace(
-        plan,
-        x=x,
-        y=y,
-        heading=heading,
-        speed=speed,
-        s=s,
-        d=d,
-        vs=vs,
-        vd=vd,
-        as_=as_,
-        ad=ad,
-        cost=float("nan"),
-        status=PlanStatus.FALLBACK,
-        message=reason,
-        diagnostics=diag,
-        state=None,
-    )
+    return _fallback(plan, path, b, d, vd, ad, reason, shield_lane_centre=float(centre))
 
 
 def shield(
