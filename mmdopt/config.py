@@ -186,7 +186,7 @@ class TrajectoryConfig(_Section):
         centre, each candidate holds its first lateral set-point over the whole horizon, so no
         candidate postpones the rest of the change.  Without it, a receding-horizon planner can
         creep between two lanes for seconds: each plan finishes the change a little later than
-        the one before, and only its first tenth of a second is driven.
+        the one before, and only its first replan period is driven.
     """
 
     num_segments: int = _static(4)

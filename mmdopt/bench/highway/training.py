@@ -290,6 +290,14 @@ def highway_windows(
 MARKING_DEVIATION = 1.0
 
 
+def _check_times(times) -> np.ndarray:
+    """``times`` as a non-empty 1-D float array of finite times > 0 s, else ``ValueError``."""
+    t = np.asarray(times, np.float64)
+    if t.ndim != 1 or t.size == 0 or not np.all(np.isfinite(t)) or t.min() <= 0:
+        raise ValueError(f"times must be a non-empty 1-D array of times > 0 s, got {times!r}")
+    return t
+
+
 def cv_lateral_errors(
     env: str = "highway-v0",
     seeds=range(TRAIN_SEED0, TRAIN_SEED0 + 8),
@@ -308,9 +316,7 @@ def cv_lateral_errors(
     errors (M, K))``, one row per car and start."""
     if times is None:
         times = np.arange(1, 11) * 0.5
-    times = np.asarray(times, np.float64)
-    if times.ndim != 1 or times.size == 0 or not np.all(np.isfinite(times)) or times.min() <= 0:
-        raise ValueError(f"times must be a non-empty 1-D array of times > 0 s, got {times!r}")
+    times = _check_times(times)
     if isinstance(max_obstacles, bool) or not isinstance(max_obstacles, int) or max_obstacles < 1:
         raise ValueError(f"max_obstacles must be an int >= 1, got {max_obstacles!r}")
     if isinstance(stride, bool) or not isinstance(stride, int) or stride < 1:
@@ -368,10 +374,8 @@ def calibrate_cv_lateral(
     from scipy.optimize import brentq
     from scipy.stats import norm
 
-    times = np.asarray(times, np.float64)
+    times = _check_times(times)
     errors = np.asarray(errors, np.float64)
-    if times.ndim != 1 or times.size == 0 or np.any(~np.isfinite(times)) or times.min() <= 0:
-        raise ValueError(f"times must be a non-empty 1-D array of times > 0 s, got {times!r}")
     if errors.ndim != 2 or errors.shape[1] != times.size or errors.shape[0] == 0:
         raise ValueError(
             f"errors must have shape (M >= 1, {times.size}) to match times, got {errors.shape}"
