@@ -494,6 +494,7 @@ def _collision_term(
         + (0.0 if wide is None else wide),
         a_behind=a_behind,
         rear_exempt_width=rear_w,
+        headway_lane=cfg.safety.rules.headway_lane,
         bandwidth=cfg.cost.bandwidth,
         f_scale=cfg.cost.f_scale,
         n_terms=obstacles.n_terms,
@@ -809,7 +810,11 @@ def margin_ellipse_values(cfg: MMDOptConfig, s, d, centres, margins, vs=None, wi
     b = cfg.safety.footprint.b + mg[2][None]
     if widen is not None:
         b = b + widen[:, None, None, None, :]
-    f = 1.0 - ds * ds * ia - dd * dd * (1.0 / (b * b))
+    lat = dd * dd * (1.0 / (b * b))
+    w_h = cfg.safety.rules.headway_lane
+    if cfg.safety.rules.asymmetric and w_h > 0:
+        lat = jnp.where((ds < 0) & (jnp.abs(dd) < w_h), 0.0, lat)  # a rule for the lane
+    f = 1.0 - ds * ds * ia - lat
     if cfg.safety.rules.asymmetric:
         f = rear_exempt(f, ds, dd, b, cfg.safety.rules.rear_exempt_width)
     return f

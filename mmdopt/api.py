@@ -1362,6 +1362,7 @@ def _plan_mmd(ctx: _Ctx, s, d, vs, vd) -> float:
             + (0.0 if wide is None else wide),
             a_behind=a_behind,
             rear_exempt_width=rear_w,
+            headway_lane=config.safety.rules.headway_lane,
         )
     return float(
         _mmd_cost_jit(

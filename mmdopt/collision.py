@@ -152,7 +152,7 @@ def circle_centres(
 
 
 # ------------------------------------------------- Algorithm 1's collision terms (Frenet, batched)
-def ellipse_values(s, d, centres, a, b, a_behind=None, rear_exempt_width=None):
+def ellipse_values(s, d, centres, a, b, a_behind=None, rear_exempt_width=None, headway_lane=0.0):
     """Collision function ``f = 1 − Δs²/a² − Δd²/b²`` of ego points against circle centres.
 
     Parameters
@@ -164,6 +164,10 @@ def ellipse_values(s, d, centres, a, b, a_behind=None, rear_exempt_width=None):
         (Δs < 0): a following distance (:func:`mmdopt.algorithm.headway_semi_axis`)
     rear_exempt_width : optional w (m): followers, points in line with the ego (|Δd| < w) since
         a step at which they were behind it, cost nothing (:func:`rear_exempt`)
+    headway_lane : w_h (m), with ``a_behind``: the following distance is a rule for the lane
+        (0: off): where the ego is behind the centre and |Δd| < w_h,
+        ``f = 1 − Δs²/a_behind²`` (the lateral term dropped), so moving part of the way out of
+        the lane earns nothing; elsewhere as above
 
     Returns
     -------
@@ -178,10 +182,13 @@ def ellipse_values(s, d, centres, a, b, a_behind=None, rear_exempt_width=None):
     b = jnp.asarray(b)
     if b.ndim == 2:  # per ego sample and step (the yaw-aware footprint)
         b = b[:, None, None, None, :]
+    lat = dd * dd * (1.0 / (b * b))
     if a_behind is not None:
         ab = jnp.asarray(a_behind)
         ia = jnp.where(ds < 0, (1.0 / (ab * ab))[:, None, None, None, :], ia)
-    f = 1.0 - ds * ds * ia - dd * dd * (1.0 / (b * b))
+        if headway_lane > 0:
+            lat = jnp.where((ds < 0) & (jnp.abs(dd) < headway_lane), 0.0, lat)
+    f = 1.0 - ds * ds * ia - lat
     if rear_exempt_width is not None:
         f = rear_exempt(f, ds, dd, b, rear_exempt_width)
     return f
@@ -702,6 +709,7 @@ def collision_cost(
     saa_temperature=0.05,
     a_behind=None,
     rear_exempt_width=None,
+    headway_lane: float = 0.0,
 ) -> jax.Array:
     """A method's collision term (eq. l_dist / scenario / SAA) summed over obstacles, (B,).
 
@@ -709,7 +717,8 @@ def collision_cost(
     (O, J); ``a`` the longitudinal semi-axis (scalar or (K,)), ``b`` the lateral one;
     ``b`` scalar or (B, K) per ego sample and step (:func:`mmdopt.algorithm.yaw_widening`);
     ``a_behind`` optional (B, K) semi-axis where the ego is behind a centre (following
-    distance, :func:`ellipse_values`); ``rear_exempt_width`` see :func:`rear_exempt`.
+    distance, :func:`ellipse_values`, with ``headway_lane`` a rule for the lane);
+    ``rear_exempt_width`` see :func:`rear_exempt`.
 
     Every term is a sum of per-obstacle terms that are exactly 0 when no ego point of the batch
     enters the obstacle's ellipses (MMD and scenario: every f̄ = 0; SAA: every sample's smoothed
@@ -725,7 +734,7 @@ def collision_cost(
     if centres.shape[0] == 1:
         return _term(
             mode,
-            ellipse_values(s, d, centres, a, b, a_behind, rear_exempt_width),
+            ellipse_values(s, d, centres, a, b, a_behind, rear_exempt_width, headway_lane),
             weights,
             mask,
             *kw,
@@ -747,7 +756,9 @@ def collision_cost(
         c, w, m = xs
 
         def exact():
-            f = ellipse_values(s, d, c[None], a, b, a_behind, rear_exempt_width)  # (B, 1, J, C, K)
+            f = ellipse_values(
+                s, d, c[None], a, b, a_behind, rear_exempt_width, headway_lane
+            )  # (B, 1, J, C, K)
             return lax.cond(
                 reaches(jnp.max(f)),
                 lambda: _term(mode, f, w[None], m[None], *kw).astype(zero.dtype),
@@ -755,18 +766,24 @@ def collision_cost(
             )
 
         # cheap bound first: O(B·K + J·C·K) instead of the O(B·J·C·K) ellipse values
-        return lax.cond(reaches(_max_f_bound(box, c, a_bound, b_bound)), exact, lambda: zero)
+        lane = headway_lane if a_behind is not None else 0.0
+        bound = _max_f_bound(box, c, a_bound, b_bound, lane)
+        return lax.cond(reaches(bound), exact, lambda: zero)
 
     return jnp.sum(lax.map(one, (centres, weights, mask)), axis=0)
 
 
-def _max_f_bound(box, c, a, b) -> jax.Array:
+def _max_f_bound(box, c, a, b, lane: float = 0.0) -> jax.Array:
     """Upper bound on ``max f`` (eq. coll_constraints) over a batch of ego points and one
     obstacle's centres ``c`` (J, C, K, 2): per step, the gaps between the intervals spanned by
     the ego positions ``box = (s_min, s_max, d_min, d_max)`` (K,) and by the centres bound every
-    |Δs| and |Δd| from below."""
+    |Δs| and |Δd| from below.  ``lane``: :func:`ellipse_values`'s ``headway_lane`` (no lateral
+    term where the lateral gap is below it)."""
     smin, smax, dmin, dmax = box
     cs, cd = c[..., 0], c[..., 1]
     gs = jnp.maximum(0.0, jnp.maximum(jnp.min(cs, (0, 1)) - smax, smin - jnp.max(cs, (0, 1))))
     gd = jnp.maximum(0.0, jnp.maximum(jnp.min(cd, (0, 1)) - dmax, dmin - jnp.max(cd, (0, 1))))
-    return jnp.max(1.0 - gs * gs / (a * a) - gd * gd / (b * b))
+    lat = gd * gd / (b * b)
+    if lane > 0:
+        lat = jnp.where(gd < lane, 0.0, lat)
+    return jnp.max(1.0 - gs * gs / (a * a) - lat)

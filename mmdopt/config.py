@@ -340,6 +340,13 @@ class RoadRules(_Section):
     slip_ratio r : kinematic slip limit ``|ḋ| ≤ r·max(ṡ, 0)`` (a heading within atan(r) of the
         path) in the projection's residual; feasibility then comes first in the cost
     slip_tol : the excess lateral speed (m/s) that alone uses up ``res_tol``
+    headway_lane w_h (m): the following distance is a rule for the lane (0 = off, the default):
+        behind a point and less than w_h to its side (a corridor, as the RSS shield's
+        ``lateral_overlap``), ``f`` measures the longitudinal gap only
+        (:func:`mmdopt.collision.ellipse_values`), so a plan part of the way into the next lane
+        still keeps the whole following distance.  Off, the following-distance ellipse gives a
+        plan credit for every metre it moves sideways, and a planner too close behind a car
+        prefers a swerve that ends between two lanes.
     """
 
     headway_time: float = _static(0.0)
@@ -348,6 +355,7 @@ class RoadRules(_Section):
     rear_exempt_width: float = _static(0.0)
     slip_ratio: float = _static(0.0)
     slip_tol: float = _static(0.01)
+    headway_lane: float = _static(0.0)
 
     _nonneg = (
         "headway_time",
@@ -355,6 +363,7 @@ class RoadRules(_Section):
         "margin_ahead_scale",
         "rear_exempt_width",
         "slip_ratio",
+        "headway_lane",
     )
     _positive = ("slip_tol",)
 
@@ -643,7 +652,9 @@ class MMDOptConfig:
         speed of 30 m/s, sizes for a real-time budget (400 samples, n_cem 100, n_e 30,
         12 iterations, m = 10), lane discipline (lateral set-points at lane centres,
         ``w_lane`` = 6, lateral gain 4) and a following distance of 6 m + 1.0 s·ṡ behind every
-        obstacle point (the RSS shield of :mod:`mmdopt.safety` then rarely has to brake)."""
+        obstacle point (the RSS shield of :mod:`mmdopt.safety` then rarely has to brake), a
+        rule for the lane: kept in full within 2.5 m to the side of the point, the shield's
+        corridor (``headway_lane``)."""
         base = cls().replace(
             horizon=5.0,
             num_steps=51,
@@ -665,6 +676,7 @@ class MMDOptConfig:
             w_lane=6.0,
             headway_time=1.0,
             headway_gap=6.0,
+            headway_lane=2.5,
         )
         return base.replace(**overrides)
 

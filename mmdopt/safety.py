@@ -24,9 +24,12 @@ current position and speed.  The plan passes when the longitudinal centre-to-cen
 stays at least ``contact + margin`` until both have stopped.  With the plan's own accelerations
 in place of the bound ``a_max`` during ρ = ``executed``, this is RSS's condition for that plan
 (a plan that accelerates at ``a_max`` passes exactly when the gap is at least ``d_min`` plus the
-contact distance).  **The fallback** (:func:`braking_plan`) holds the current lateral offset and
-brakes at ``b_min`` (then harder, up to ``b_emergency``) from now; it is checked with the same
-rule along its own profile, and the gentlest braking that passes is used.  With
+contact distance).  **The fallback** first keeps the plan's lateral path and brakes gently,
+at ``b_gentle`` and up to ``b_min`` in five steps; such a fallback is checked exactly as a plan
+is (``executed`` seconds of it, then ``b_min``), so it carries the same guarantee.  When none
+passes, :func:`braking_plan` holds the current lateral offset and brakes at ``b_min`` (then
+harder, up to ``b_emergency``) from now; it is checked with the same rule along its own
+profile.  The gentlest braking that passes is used.  With
 ``RSSConfig.lateral_accel > 0`` and the road's lane centres, at each braking level a fallback
 that finishes the move to a lane centre while it brakes (:func:`lane_braking_plan`) is tried
 first; it is checked against every car ahead that its lateral path comes near, so after any
@@ -87,6 +90,10 @@ class RSSConfig:
         centres, a fallback may also brake while it finishes the move to a lane centre at up to
         this lateral acceleration (:func:`lane_braking_plan`), checked against every car ahead
         whose offset comes within ``lateral_overlap`` of its lateral path
+    b_gentle : the gentlest braking the shield tries (m/s², in (0, ``b_min``]; 1 by default).
+        Below ``b_min`` a fallback keeps the plan's lateral profile, brakes at the level tried
+        and is checked exactly as a plan is (``executed`` seconds of it, then ``b_min``), so it
+        carries the same guarantee; ``b_gentle = b_min`` turns these levels off
     """
 
     response_time: float = 0.5
@@ -98,19 +105,24 @@ class RSSConfig:
     margin: float = 1.0
     lateral_overlap: float = 2.5
     lateral_accel: float = 0.0
+    b_gentle: float = 1.0
 
     def __post_init__(self) -> None:
         for name in ("response_time", "a_max", "margin", "lateral_accel"):
             v = getattr(self, name)
             if not (isinstance(v, int | float) and math.isfinite(v) and v >= 0):
                 raise ValueError(f"RSSConfig.{name} must be a finite number >= 0, got {v!r}")
-        for name in ("b_min", "b_max", "b_emergency", "contact", "lateral_overlap"):
+        for name in ("b_min", "b_max", "b_emergency", "contact", "lateral_overlap", "b_gentle"):
             v = getattr(self, name)
             if not (isinstance(v, int | float) and math.isfinite(v) and v > 0):
                 raise ValueError(f"RSSConfig.{name} must be a finite number > 0, got {v!r}")
         if self.b_emergency < self.b_min:
             raise ValueError(
                 f"RSSConfig.b_emergency ({self.b_emergency}) must be >= b_min ({self.b_min})"
+            )
+        if self.b_gentle > self.b_min:
+            raise ValueError(
+                f"RSSConfig.b_gentle ({self.b_gentle}) must be <= b_min ({self.b_min})"
             )
 
 
@@ -285,6 +297,10 @@ def check_plan(
 
 
 # -------------------------------------------------------------------------------- the fallback
+#: braking levels below ``b_min`` the shield tries, evenly from ``RSSConfig.b_gentle`` up
+GENTLE_LEVELS = 5
+
+
 def braking_plan(plan: Plan, path: frenet.ReferencePath, decel: float, *, reason: str = "") -> Plan:
     """The braking fallback of ``plan``: from the plan's first state, hold the lateral offset
     and brake at ``decel`` (m/s²) to a stop, on the plan's time grid; a :class:`Plan` with status
@@ -394,8 +410,10 @@ def shield(
 ) -> tuple[Plan, ShieldRecord]:
     """Check ``plan`` with :func:`check_plan` (``executed`` seconds of it run before the next
     check) against ``obstacles`` ``(O, 3)`` = current ``(s, d, ṡ)`` in ``path``'s frame; return
-    it unchanged when it passes, else the gentlest checked braking fallback (:func:`braking_plan`
-    at ``b_min``, then harder up to ``b_emergency``; the hardest when none passes), with a
+    it unchanged when it passes, else the gentlest checked braking fallback (the plan's lateral
+    path braking at ``b_gentle`` … below ``b_min``, checked as a plan is; then
+    :func:`braking_plan` at ``b_min``, harder up to ``b_emergency``; the hardest when none
+    passes), with a
     :class:`ShieldRecord` of what was done and why.  With ``config.lateral_accel > 0`` and
     ``lane_centres`` (m), at each braking level a fallback that finishes the move to the lane
     centre the plan was heading to, or to the nearest one (:func:`lane_braking_plan`), is tried
@@ -435,6 +453,19 @@ def shield(
             side = [float(below.max())] if below.size else []
             side += [float(above.min())] if above.size else []
             targets = sorted(set(side), key=lambda cen: abs(cen - float(plan.d[-1])))
+    # below b_min: the plan's lateral profile, braking gently, checked as a plan is (its first
+    # ``executed`` seconds, then b_min): the gentlest that passes keeps the same guarantee
+    gentle = []
+    if c.b_gentle < c.b_min:
+        gentle = np.linspace(c.b_gentle, c.b_min, GENTLE_LEVELS + 1)[:-1]
+    for b_try in gentle:
+        reason = f"shield: {why}; braking at {b_try:.3g} m/s² along the plan's lateral path"
+        fb = _fallback(
+            plan, path, float(b_try), np.asarray(plan.d, np.float64),
+            np.asarray(plan.vd, np.float64), np.asarray(plan.ad, np.float64), reason,
+        )  # fmt: skip
+        if check_plan(fb.t, fb.s, fb.d, fb.vs, obstacles, c, executed=executed).safe:
+            return fb, ShieldRecord(True, why, chk.margin, float(b_try), True, chk.n_checked)
     for b_try in decels:  # each fallback checked along its own profile (executed: all of it)
         for cen in targets:
             fb = lane_braking_plan(

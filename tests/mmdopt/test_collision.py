@@ -259,6 +259,11 @@ def test_reach_bound_never_misses_a_collision_and_gated_costs_equal_ungated():
         f = ellipse_values(s, d, c[None], a, 2.0, a_behind, 2.0)
         bound = float(_max_f_bound(box, jnp.asarray(c), np.maximum(a, a_behind.max(0)), 2.0))
         assert bound >= float(jnp.max(f)) - 1e-12
+        # the following distance as a rule for the lane
+        f = ellipse_values(s, d, c[None], a, 2.0, a_behind, 2.0, headway_lane=2.0)
+        ab = np.maximum(a, a_behind.max(0))
+        bound = float(_max_f_bound(box, jnp.asarray(c), ab, 2.0, lane=2.0))
+        assert bound >= float(jnp.max(f)) - 1e-12
     # two ego candidates on opposite corners; the obstacle sits on the empty corner
     K = 10
     s = jnp.asarray(np.stack([np.zeros(K), np.full(K, 40.0)]))
@@ -280,6 +285,42 @@ def test_reach_bound_never_misses_a_collision_and_gated_costs_equal_ungated():
         np.testing.assert_array_equal(np.asarray(singles[0]), 0.0)
         np.testing.assert_allclose(total, singles[0] + singles[1], rtol=1e-12)
         assert float(total[1]) > 0 and float(total[0]) == 0.0
+
+
+def test_a_following_distance_for_the_lane_gives_no_credit_for_half_a_lane_change():
+    """An ego 10 m behind a car with a 30 m following distance (lateral semi-axis 3 m): with
+    the ellipse, 2 m sideways lowers f by 4/9; as a rule for the lane f stays that of the
+    longitudinal gap until the ego is 3 m to the side, where it owes nothing.  Ahead of the car
+    and without a following distance nothing changes; the gated cost of several obstacles sees
+    a point the ellipse bound alone would skip (2.9 m sideways, 20 m behind)."""
+    from mmdopt.collision import collision_cost, ellipse_values
+
+    K = 4
+    c = jnp.asarray(np.broadcast_to(np.array([0.0, 0.0]), (1, 1, 1, K, 2)))
+    ab = np.full((1, K), 30.0)
+
+    def f(ds, dd, lane, a_behind=ab):
+        s, d = jnp.full((1, K), ds), jnp.full((1, K), dd)
+        w_h = 3.0 if lane else 0.0
+        out = ellipse_values(s, d, c, 5.0, 3.0, a_behind, None, headway_lane=w_h)
+        return float(out[0, 0, 0, 0, 0])
+
+    assert f(-10.0, 2.0, False) == pytest.approx(1.0 - 100.0 / 900.0 - 4.0 / 9.0)
+    assert f(-10.0, 2.0, True) == pytest.approx(1.0 - 100.0 / 900.0)
+    assert f(-10.0, 0.0, True) == pytest.approx(f(-10.0, 0.0, False))
+    assert f(-10.0, 3.2, True) <= 0.0 and f(-10.0, 3.2, False) <= 0.0
+    assert f(3.0, 2.0, True) == pytest.approx(f(3.0, 2.0, False))  # ahead: the ellipse
+    assert f(-3.0, 2.0, True, None) == pytest.approx(f(-3.0, 2.0, False, None))
+    # two obstacles (the gated path): the far one adds nothing, the near one its term
+    s, d = jnp.full((1, K), -20.0), jnp.full((1, K), 2.9)
+    far = jnp.asarray(np.broadcast_to(np.array([500.0, 0.0]), (1, 1, 1, K, 2)))
+    both = jnp.concatenate([c, far])
+    w, m = jnp.ones((2, 1)), jnp.ones((2, 1), bool)
+    for lane, positive in ((False, False), (True, True)):
+        got = collision_cost(
+            "scenario", s, d, both, w, m, 5.0, 3.0, a_behind=ab, headway_lane=3.0 * lane
+        )
+        assert (float(got[0]) > 0.0) is positive
 
 
 @pytest.mark.parametrize("share", [0.0, 0.03, 0.1, 0.2, 0.4, 0.9])

@@ -100,7 +100,7 @@ def test_the_check_is_the_rss_rule_when_the_plan_accelerates_at_a_max():
 
 # --------------------------------------------------------------------------------- the fallback
 def test_an_unsafe_plan_is_replaced_by_a_braking_fallback_that_passes_the_check():
-    c = RSSConfig()
+    c = RSSConfig(b_gentle=6.0)  # no levels below b_min: the fallback brakes to a stop
     p = _plan(25.0, accel=2.0, d=0.3)
     lead = np.array([[150.0, 0.0, 15.0]])
     out, rec = shield(p, PATH, lead, c, executed=0.5)
@@ -136,6 +136,40 @@ def test_the_gentlest_braking_that_passes_is_used():
     assert check_plan(out.t, out.s, out.d, out.vs, [[152.0, 0.0, 0.0]], c, executed=5.0).safe
 
 
+def test_below_b_min_the_gentlest_braking_checked_as_a_plan_is_used():
+    """A slower car 40 m ahead (the test above): the accelerating plan fails the check, but
+    braking at 1 m/s² for the step that runs, then at b_min, keeps the gap.  The fallback keeps
+    the plan's lateral path, brakes at the gentlest level that passes the check a plan passes,
+    and after the step it runs, the braking at b_min from where it leaves the ego passes along
+    its own profile with the leader at its worst (the induction of the guarantee)."""
+    c = RSSConfig()
+    lead = np.array([[150.0, 0.0, 15.0]])
+    p = dataclasses.replace(_changing_lanes(25.0), d=np.full_like(T, 0.3), vd=np.zeros_like(T))
+    out, rec = shield(p, PATH, lead, c, executed=0.5)
+    assert rec.intervened and rec.fallback_safe and c.b_gentle <= rec.fallback_decel < c.b_min
+    assert out.status is PlanStatus.FALLBACK and "along the plan's lateral path" in out.message
+    assert check_plan(out.t, out.s, out.d, out.vs, lead, c, executed=0.5).safe
+    gentler = rec.fallback_decel - 1.0  # the levels are 1 m/s² apart
+    if gentler >= c.b_gentle:
+        worse = braking_plan(p, PATH, gentler)
+        assert not check_plan(worse.t, worse.s, worse.d, worse.vs, lead, c, executed=0.5).safe
+    # the state the step leaves, and the leader braking at b_max meanwhile
+    k = int(np.searchsorted(T, 0.5))
+    then = dataclasses.replace(_plan(float(out.vs[k]), d=0.3), s=np.full_like(T, out.s[k]))
+    lead_then = np.array([[150.0 + 15.0 * 0.5 - 0.5 * c.b_max * 0.25, 0.0, 15.0 - 0.5 * c.b_max]])
+    stop = braking_plan(then, PATH, c.b_min)
+    assert check_plan(stop.t, stop.s, stop.d, stop.vs, lead_then, c, executed=5.0).safe
+    # mid lane change, the gentle fallback goes on moving sideways as the plan did
+    mid = _changing_lanes(25.0)
+    out2, rec2 = shield(mid, PATH, lead, c, executed=0.5)
+    assert rec2.fallback_decel < c.b_min
+    assert np.allclose(out2.d, mid.d) and out2.vd[0] == pytest.approx(1.5)
+    with pytest.raises(ValueError, match="b_gentle"):
+        RSSConfig(b_gentle=7.0)
+    with pytest.raises(ValueError, match="b_gentle"):
+        RSSConfig(b_gentle=0.0)
+
+
 def _changing_lanes(v0: float = 20.0) -> Plan:
     """A plan halfway through a lane change from 0 to 4 m (at 2 m, moving sideways at 1.5 m/s)
     that accelerates at 2 m/s²."""
@@ -150,7 +184,7 @@ def test_a_plan_replaced_mid_lane_change_finishes_the_change_while_braking():
     check; with lane centres the fallback brakes while it moves on to the lane centre the plan
     was heading to, within the lateral acceleration and a 17° heading, and passes the check
     along its own lateral path; without them it stops the ego between the two lanes."""
-    c = RSSConfig(lateral_accel=3.0)
+    c = RSSConfig(lateral_accel=3.0, b_gentle=6.0)
     lead = np.array([[140.0, 0.0, 10.0]])
     p = _changing_lanes()
     assert not check_plan(p.t, p.s, p.d, p.vs, lead, c, executed=0.5).safe
@@ -166,7 +200,9 @@ def test_a_plan_replaced_mid_lane_change_finishes_the_change_while_braking():
     # without lane centres, or with lateral_accel 0 (the default): the offset is held
     held, _ = shield(p, PATH, lead, c, executed=0.5)
     assert np.allclose(held.d, 2.0)
-    held, _ = shield(p, PATH, lead, RSSConfig(), executed=0.5, lane_centres=(0.0, 4.0, 8.0))
+    held, _ = shield(
+        p, PATH, lead, RSSConfig(b_gentle=6.0), executed=0.5, lane_centres=(0.0, 4.0, 8.0)
+    )
     assert np.allclose(held.d, 2.0)
 
 
