@@ -74,6 +74,7 @@ from ._x64 import x64
 from .collision import (
     collision_cost,
     compact_order,
+    lane_lateral,
     mmd_cost,
     rear_exempt,
     saa_cost,
@@ -811,9 +812,8 @@ def margin_ellipse_values(cfg: MMDOptConfig, s, d, centres, margins, vs=None, wi
     if widen is not None:
         b = b + widen[:, None, None, None, :]
     lat = dd * dd * (1.0 / (b * b))
-    w_h = cfg.safety.rules.headway_lane
-    if cfg.safety.rules.asymmetric and w_h > 0:
-        lat = jnp.where((ds < 0) & (jnp.abs(dd) < w_h), 0.0, lat)  # a rule for the lane
+    if cfg.safety.rules.asymmetric:
+        lat = lane_lateral(lat, ds, dd, cfg.safety.rules.headway_lane)
     f = 1.0 - ds * ds * ia - lat
     if cfg.safety.rules.asymmetric:
         f = rear_exempt(f, ds, dd, b, cfg.safety.rules.rear_exempt_width)

@@ -186,12 +186,20 @@ def ellipse_values(s, d, centres, a, b, a_behind=None, rear_exempt_width=None, h
     if a_behind is not None:
         ab = jnp.asarray(a_behind)
         ia = jnp.where(ds < 0, (1.0 / (ab * ab))[:, None, None, None, :], ia)
-        if headway_lane > 0:
-            lat = jnp.where((ds < 0) & (jnp.abs(dd) < headway_lane), 0.0, lat)
+        lat = lane_lateral(lat, ds, dd, headway_lane)
     f = 1.0 - ds * ds * ia - lat
     if rear_exempt_width is not None:
         f = rear_exempt(f, ds, dd, b, rear_exempt_width)
     return f
+
+
+def lane_lateral(lat, ds, dd, width: float):
+    """The following distance as a rule for the lane: the lateral term ``lat`` = Δd²/b² set to
+    0 where the ego is behind the point (Δs < 0) and less than ``width`` (m) to its side;
+    ``width`` = 0 leaves it as it is (``RoadRules.headway_lane``)."""
+    if width <= 0:
+        return lat
+    return jnp.where((ds < 0) & (jnp.abs(dd) < width), 0.0, lat)
 
 
 def rear_exempt(f, ds, dd, b, width):

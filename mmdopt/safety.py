@@ -413,13 +413,13 @@ def shield(
     it unchanged when it passes, else the gentlest checked braking fallback (the plan's lateral
     path braking at ``b_gentle`` … below ``b_min``, checked as a plan is; then
     :func:`braking_plan` at ``b_min``, harder up to ``b_emergency``; the hardest when none
-    passes), with a
-    :class:`ShieldRecord` of what was done and why.  With ``config.lateral_accel > 0`` and
-    ``lane_centres`` (m), at each braking level a fallback that finishes the move to the lane
-    centre the plan was heading to, or to the nearest one (:func:`lane_braking_plan`), is tried
-    before the one that holds the offset: a plan replaced mid-lane-change does not leave the ego
-    between two lanes.  Each fallback is checked along its own profile, every car ahead that its
-    lateral path comes near included."""
+    passes), with a :class:`ShieldRecord` of what was done and why.  With
+    ``config.lateral_accel > 0`` and ``lane_centres`` (m), at each braking level a fallback that
+    finishes the move to the lane centre the plan was heading to, or to the nearest one
+    (:func:`lane_braking_plan`), is tried before the one that holds the offset: a plan replaced
+    mid-lane-change does not leave the ego between two lanes.  Each fallback from ``b_min`` on
+    is checked along its own profile, every car ahead that its lateral path comes near
+    included."""
     c = RSSConfig() if config is None else config
     if not isinstance(plan, Plan):
         raise ValueError(f"plan must be an mmdopt.Plan, got {type(plan).__name__}")
@@ -458,13 +458,16 @@ def shield(
     gentle = []
     if c.b_gentle < c.b_min:
         gentle = np.linspace(c.b_gentle, c.b_min, GENTLE_LEVELS + 1)[:-1]
-    for b_try in gentle:
-        reason = f"shield: {why}; braking at {b_try:.3g} m/s² along the plan's lateral path"
-        fb = _fallback(
-            plan, path, float(b_try), np.asarray(plan.d, np.float64),
-            np.asarray(plan.vd, np.float64), np.asarray(plan.ad, np.float64), reason,
-        )  # fmt: skip
-        if check_plan(fb.t, fb.s, fb.d, fb.vs, obstacles, c, executed=executed).safe:
+    d_plan = np.asarray(plan.d, np.float64)
+    for b_try in gentle:  # the profiles checked before one plan is built
+        vs = np.maximum(v0 - b_try * tp, 0.0)
+        prof = _braking(s0, v0, float(b_try), tp)
+        if check_plan(tp, prof, d_plan, vs, obstacles, c, executed=executed).safe:
+            reason = f"shield: {why}; braking at {b_try:.3g} m/s² along the plan's lateral path"
+            fb = _fallback(
+                plan, path, float(b_try), d_plan, np.asarray(plan.vd, np.float64),
+                np.asarray(plan.ad, np.float64), reason,
+            )  # fmt: skip
             return fb, ShieldRecord(True, why, chk.margin, float(b_try), True, chk.n_checked)
     for b_try in decels:  # each fallback checked along its own profile (executed: all of it)
         for cen in targets:
