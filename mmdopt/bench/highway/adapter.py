@@ -581,6 +581,8 @@ class HighwaySource:
             env.road.act()
             env.road.step(1.0 / self.settings.simulation_frequency)
             self.predictor.record(env.road, 1.0 / self.settings.simulation_frequency)
+            if self.method == "cv":
+                self.cv_mean.record(env.road, 1.0 / self.settings.simulation_frequency)
             env.steps += 1
             self.speeds.append(float(self.ego.speed))
             if self._between_lanes():

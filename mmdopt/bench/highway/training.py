@@ -30,6 +30,7 @@ from mmdopt.predict.base import (
 )
 from mmdopt.predict.train import Window
 
+from .predictors import TRACK_FRAMES, tracked_velocity
 from .settings import _require_highway
 
 __all__ = [
@@ -311,8 +312,10 @@ def cv_lateral_errors(
     """Lateral errors of constant-velocity extrapolation in highway-env rollouts
     (:func:`rollout`, the ego an IDM/MOBIL driver; training seeds by default): every ``stride``
     frames, for the ``max_obstacles`` cars nearest to the ego, the recorded position at each of
-    ``times`` (s, default every 0.5 s up to the planner's 5 s) minus the position its current
-    velocity extrapolates, across its lane's direction at the start.  Returns ``(times (K,),
+    ``times`` (s, default every 0.5 s up to the planner's 5 s) minus the position its observed
+    velocity extrapolates (:func:`~.predictors.tracked_velocity` of the recorded frames, as
+    :class:`~.predictors.ConstantVelocityPredictor` observes it), across its lane's direction
+    at the start.  Returns ``(times (K,),
     errors (M, K))``, one row per car and start."""
     if times is None:
         times = np.arange(1, 11) * 0.5
@@ -351,6 +354,9 @@ def cv_lateral_errors(
         for k, idx, pos, vel, normal in starts:
             if k + steps[-1] >= rec.xy.shape[1] or not idx:
                 continue
+            if k >= 1:  # the velocity the predictor observes: the recorded motion
+                f0 = max(k - TRACK_FRAMES, 0)
+                vel = tracked_velocity(rec.dt * np.arange(f0, k + 1), rec.xy[idx][:, f0 : k + 1])
             err = rec.xy[idx][:, k + steps] - (pos[:, None] + vel[:, None] * times[None, :, None])
             rows.append(np.einsum("mkc,mc->mk", err, normal))
     errors = np.concatenate(rows) if rows else np.zeros((0, times.size))

@@ -116,3 +116,96 @@ def test_constant_velocity_samples_cross_the_marking_at_the_calibrated_rate():
         assert abs(measured - expected) < 5 * se * len(TIMES) ** 0.5
     finally:
         src.close()
+
+
+# ------------------------------------------------------------ the observed velocity (tracking)
+def _road_with_car(position, heading, speed, steering):
+    from highway_env.road.road import Road, RoadNetwork
+    from highway_env.vehicle.kinematics import Vehicle
+
+    road = Road(RoadNetwork.straight_road_network(3), np_random=np.random.RandomState(0))
+    car = Vehicle(road, np.array(position, float), heading, speed)
+    car.act({"steering": steering, "acceleration": 0.0})
+    road.vehicles.append(car)
+    return road, car
+
+
+def _drive(road, pred, frames, dt=0.1):
+    for _ in range(frames):
+        for v in road.vehicles:
+            v.step(dt)
+        pred.record(road, dt)
+
+
+@needs_highway
+def test_a_car_reversing_and_steering_hard_is_predicted_to_move_the_way_it_moves():
+    """highway-env's cars stuck behind a wreck reverse, and their steering controller turns
+    them across the road: the body's heading and speed (``Vehicle.velocity``, no slip angle)
+    say the car moves away from the lane to its left, its positions say it moves into it.  The
+    predictor extrapolates what it observes."""
+    road, car = _road_with_car([50.0, 4.0], 0.19, -1.35, -0.9)
+    pred = ConstantVelocityPredictor(sigma_long=0.0, sigma_lat=0.0)
+    _drive(road, pred, 4)
+    assert car.velocity[1] < -0.2  # what the simulator's velocity says
+    t = np.array([0.0, 0.1, 0.2])
+    out = pred(road, None, [car], t, 1, np.random.default_rng(0))
+    start, said = car.position.copy(), car.position + np.outer(t[1:], car.velocity)
+    truth = []
+    for _ in range(2):
+        car.step(0.1)
+        truth.append(car.position.copy())
+    truth = np.array(truth)
+    np.testing.assert_allclose(out[0, 0, 0], start)
+    assert truth[-1, 1] - start[1] > 0.05 and out[0, 0, 2, 1] - start[1] > 0.05  # to its left
+    err = np.abs(out[0, 0, 1:] - truth).max()
+    assert err < 0.03 and err < np.abs(said - truth).max() / 3
+
+
+@needs_highway
+def test_a_reversing_car_is_predicted_to_go_on_reversing_and_no_faster():
+    road, car = _road_with_car([50.0, 4.0], 0.0, -2.0, 0.0)
+    pred = ConstantVelocityPredictor()
+    _drive(road, pred, 3)
+    t = np.arange(6) * 0.5
+    out = pred(road, None, [car], t, 200, np.random.default_rng(1))
+    dx = out[0, :, :, 0] - car.position[0]
+    np.testing.assert_allclose(dx[0], -2.0 * t, atol=1e-9)  # sample 0: the observed velocity
+    assert np.all(dx >= -2.0 * t - 1e-9)  # the noise never reverses it faster
+    assert np.any(dx[:, -1] > -2.0 * 2.5 + 0.5)  # but may slow it
+
+
+@needs_highway
+def test_the_jump_of_a_collision_impact_is_not_taken_for_a_velocity():
+    road, car = _road_with_car([50.0, 4.0], 0.0, 20.0, 0.0)
+    pred = ConstantVelocityPredictor()
+    _drive(road, pred, 2)
+    car.impact = np.array([0.0, 0.4])  # highway-env pushes colliding cars apart in one frame
+    _drive(road, pred, 2)
+    np.testing.assert_allclose(pred.observed_velocity(car), [20.0, 0.0], atol=1e-9)
+
+
+@needs_highway
+def test_a_car_without_recorded_frames_uses_the_simulators_velocity():
+    road, car = _road_with_car([50.0, 4.0], 0.05, 20.0, 0.0)
+    pred = ConstantVelocityPredictor()
+    np.testing.assert_allclose(pred.observed_velocity(car), car.velocity)
+    _drive(road, pred, 1)
+    car.position = car.position + 1.0  # moved since its last recorded frame
+    np.testing.assert_allclose(pred.observed_velocity(car), car.velocity)
+    with pytest.raises(ValueError, match="dt must be"):
+        pred.record(road, 0.0)
+
+
+def test_tracked_velocity_is_the_median_of_the_last_frame_velocities():
+    from mmdopt.bench.highway.predictors import TRACK_FRAMES, tracked_velocity
+
+    ts = np.arange(6) * 0.1
+    ps = np.stack([20.0 * ts, np.zeros(6)], axis=-1)
+    ps[3:, 1] += 0.5  # a one-frame jump
+    np.testing.assert_allclose(tracked_velocity(ts, ps), [20.0, 0.0], atol=1e-9)
+    assert TRACK_FRAMES == 3
+    np.testing.assert_allclose(tracked_velocity(ts[:2], ps[:2]), [20.0, 0.0])
+    with pytest.raises(ValueError, match="ts must be"):
+        tracked_velocity(ts[:1], ps[:1])
+    with pytest.raises(ValueError, match="ts must increase"):
+        tracked_velocity(ts[::-1], ps)
