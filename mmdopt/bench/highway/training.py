@@ -30,7 +30,7 @@ from mmdopt.predict.base import (
 )
 from mmdopt.predict.train import Window
 
-from .predictors import tracked_velocity
+from .predictors import TRACK_FRAMES, tracked_velocity
 from .settings import _require_highway
 
 __all__ = [
@@ -354,12 +354,9 @@ def cv_lateral_errors(
         for k, idx, pos, vel, normal in starts:
             if k + steps[-1] >= rec.xy.shape[1] or not idx:
                 continue
-            if k >= 1:  # the velocity the predictor observes: the speed along the motion
-                f0 = max(k - 2, 0)
-                vel = np.array(
-                    [tracked_velocity(rec.xy[r, f0 : k + 1], rec.dt, np.hypot(*u), u)
-                     for r, u in zip(idx, vel, strict=True)]
-                )  # fmt: skip
+            if k >= 1:  # the velocity the predictor observes: the recorded motion
+                f0 = max(k - TRACK_FRAMES, 0)
+                vel = tracked_velocity(rec.dt * np.arange(f0, k + 1), rec.xy[idx][:, f0 : k + 1])
             err = rec.xy[idx][:, k + steps] - (pos[:, None] + vel[:, None] * times[None, :, None])
             rows.append(np.einsum("mkc,mc->mk", err, normal))
     errors = np.concatenate(rows) if rows else np.zeros((0, times.size))
