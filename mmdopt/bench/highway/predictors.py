@@ -702,6 +702,32 @@ def tracked_velocity(ts, ps) -> np.ndarray:
     return np.median(vel, axis=-2)
 
 
+#: a car closer than this (m) to a lane centre is at it: its next centre in the direction of
+#: its sideways motion is the one beyond (:func:`stop_at_next_centre`)
+LANE_STOP_TOL = 0.25
+
+
+def stop_at_next_centre(y0, vy, y, road) -> np.ndarray:
+    """Lateral positions ``y`` (O, n, K) of cars that started at ``y0`` (O,) moving sideways at
+    ``vy`` (O, n), stopped at the next lane centre of ``road`` (straight lanes along +x) in
+    the direction of their motion: more than :data:`LANE_STOP_TOL` beyond ``y0``; a car
+    beyond the outermost centre moving outwards stays where it is."""
+    centres = np.unique(np.round([ln.position(0.0, 0.0)[1] for ln in road.network.lanes_list()], 6))
+    y0 = np.asarray(y0, dtype=float)
+    above = np.array(
+        [centres[centres > c + LANE_STOP_TOL].min() if np.any(centres > c + LANE_STOP_TOL)
+         else max(c, centres.max()) for c in y0]
+    )  # fmt: skip
+    below = np.array(
+        [centres[centres < c - LANE_STOP_TOL].max() if np.any(centres < c - LANE_STOP_TOL)
+         else min(c, centres.min()) for c in y0]
+    )  # fmt: skip
+    target = np.where(np.asarray(vy) > 0, above[:, None], below[:, None])  # (O, n)
+    lo = np.minimum(y0[:, None], target)[..., None]
+    hi = np.maximum(y0[:, None], target)[..., None]
+    return np.clip(y, lo, hi)
+
+
 @dataclass
 class ConstantVelocityPredictor:
     """Each car keeps its current velocity; sample ``j > 0`` adds Gaussian velocity noise
@@ -722,13 +748,18 @@ class ConstantVelocityPredictor:
     is clipped at ``min(0, observed)``), and a car moves sideways only as it moves: below
     :data:`LATERAL_FULL_SPEED` the lateral noise shrinks in proportion to its observed speed (a
     car at rest stays where it is, or drives off along the road; its body's heading reaches the
-    planner with the observation, :attr:`mmdopt.receding.Observation.obstacle_headings`). On a
+    planner with the observation, :attr:`mmdopt.receding.Observation.obstacle_headings`).  On
+    roads of straight lanes, with ``lane_stop`` (default), a car's sideways motion stops at the
+    next lane centre in its direction (:func:`stop_at_next_centre`): highway traffic changes
+    one lane at a time, and a car carried on across every lane would leave the lane it enters
+    looking free. On a
     road with curved lanes the velocity is kept in each car's lane frame (speed along the lane's
     centre line, through its successors, and across it: :func:`~.roads.follow_lanes`), so the
     futures follow the curves instead of leaving the road in a straight line."""
 
     sigma_long: float = CV_SIGMA_LONG
     sigma_lat: float = CV_SIGMA_LAT
+    lane_stop: bool = True
     name: str = "cv"
     last_time_s: float = 0.0
     _clock: float = field(default=0.0, init=False, repr=False)
@@ -739,6 +770,8 @@ class ConstantVelocityPredictor:
             v = getattr(self, f)
             if isinstance(v, bool) or not isinstance(v, int | float) or not (0 <= v < math.inf):
                 raise ValueError(f"{f} must be a finite number >= 0 (m/s), got {v!r}")
+        if not isinstance(self.lane_stop, bool):
+            raise ValueError(f"lane_stop must be True or False, got {self.lane_stop!r}")
 
     def record(self, road, dt: float) -> None:
         """Advance the predictor's clock by ``dt`` (s) and store every car's position (the last
@@ -799,6 +832,8 @@ class ConstantVelocityPredictor:
             v = vel[:, None, :] + noise  # (O, n, 2) — highway-v0 lanes run along +x
             v[..., 0] = np.maximum(v[..., 0], np.minimum(vel[:, 0], 0.0)[:, None])
             out = pos[:, None, None, :] + v[:, :, None, :] * t_grid[None, None, :, None]
+            if self.lane_stop:
+                out[..., 1] = stop_at_next_centre(pos[:, 1], v[..., 1], out[..., 1], road)
         self.last_time_s = time.perf_counter() - t0
         return out
 

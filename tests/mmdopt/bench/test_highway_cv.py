@@ -209,3 +209,36 @@ def test_tracked_velocity_is_the_median_of_the_last_frame_velocities():
         tracked_velocity(ts[:1], ps[:1])
     with pytest.raises(ValueError, match="ts must increase"):
         tracked_velocity(ts[::-1], ps)
+
+
+@needs_highway
+def test_a_car_changing_lanes_is_predicted_to_stop_at_the_next_lane_centre():
+    """highway traffic changes one lane at a time: a car leaving lane 0 at 3 m/s sideways ends
+    in lane 1 (centre 4 m), not across lane 2 and off the road, where it would leave lane 1
+    looking free to a car entering it from the other side."""
+    road, car = _road_with_car([50.0, 1.0], 0.15, 20.0, 0.0)
+    t = np.arange(11) * 0.5
+    out = ConstantVelocityPredictor()(road, None, [car], t, 100, np.random.default_rng(2))
+    lat = out[0, :, :, 1]
+    assert lat.max() <= 4.0 + 1e-9 and lat[0, -1] == pytest.approx(4.0)
+    assert np.all(np.diff(lat, axis=1) >= -1e-9)  # sideways only the way it moves
+    off = ConstantVelocityPredictor(lane_stop=False)
+    free = off(road, None, [car], t, 1, np.random.default_rng(2))[0, 0, -1, 1]
+    assert free > 8.0  # carried on across every lane
+    with pytest.raises(ValueError, match="lane_stop"):
+        ConstantVelocityPredictor(lane_stop=1)
+
+
+def test_stop_at_next_centre_on_three_lanes():
+    from types import SimpleNamespace
+
+    from mmdopt.bench.highway.predictors import stop_at_next_centre
+
+    lanes = [SimpleNamespace(position=lambda s, d, y=y: np.array([s, y + d])) for y in (0, 4, 8)]
+    road = SimpleNamespace(network=SimpleNamespace(lanes_list=lambda: lanes))
+    y0 = np.array([1.0, 4.1, 8.5, 3.0])
+    vy = np.array([[3.0], [1.0], [1.0], [-2.0]])
+    y = y0[:, None, None] + vy[:, :, None] * np.array([0.0, 1.0, 5.0])
+    out = stop_at_next_centre(y0, vy, y, road)
+    np.testing.assert_allclose(out[:, 0, -1], [4.0, 8.0, 8.5, 0.0])
+    np.testing.assert_allclose(out[:, 0, 1], [4.0, 5.1, 8.5, 1.0])
