@@ -752,10 +752,10 @@ class ConstantVelocityPredictor:
     roads of straight lanes, with ``lane_stop`` (default), a car's sideways motion stops at the
     next lane centre in its direction (:func:`stop_at_next_centre`): highway traffic changes
     one lane at a time, and a car carried on across every lane would leave the lane it enters
-    looking free. On a
-    road with curved lanes the velocity is kept in each car's lane frame (speed along the lane's
-    centre line, through its successors, and across it: :func:`~.roads.follow_lanes`), so the
-    futures follow the curves instead of leaving the road in a straight line."""
+    looking free.  On a road with curved lanes the velocity is kept in each car's lane frame
+    (speed along the lane's centre line, through its successors, and across it:
+    :func:`~.roads.follow_lanes`), so the futures follow the curves instead of leaving the road
+    in a straight line."""
 
     sigma_long: float = CV_SIGMA_LONG
     sigma_lat: float = CV_SIGMA_LAT
