@@ -315,8 +315,7 @@ def cv_lateral_errors(
     ``times`` (s, default every 0.5 s up to the planner's 5 s) minus the position its observed
     velocity extrapolates (:func:`~.predictors.tracked_velocity` of the recorded frames, as
     :class:`~.predictors.ConstantVelocityPredictor` observes it), across its lane's direction
-    at the start.  Returns ``(times (K,),
-    errors (M, K))``, one row per car and start."""
+    at the start.  Returns ``(times (K,), errors (M, K))``, one row per car and start."""
     if times is None:
         times = np.arange(1, 11) * 0.5
     times = _check_times(times)
