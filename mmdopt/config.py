@@ -402,18 +402,32 @@ class SafetyConfig(_Section):
         margin mode, else 0; 0: off; :meth:`MMDOptConfig.reselect_for`)
     footprint : the collision ellipse (:class:`mmdopt.Footprint`), the one every user reads
     margins : :class:`MarginConfig`;  rules : :class:`RoadRules`
+    risk_hits : when ``plan`` draws its futures from a predictor, n(ε) is the fewest futures per
+        obstacle for which a plan meeting ``risk_hits`` of them still has a 95 % bound ≤ ε
+        (:func:`mmdopt.risk.samples_for_risk`; 0: the fewest that can confirm ε at all, so a
+        plan must clear every one)
+    polish_futures : MMD-Opt's last pass in the "samples" margin mode (the *polish*): Algorithm 1,
+        warm-started from the plan so far, against the ``polish_futures`` planning futures per
+        obstacle nearest to that plan (all of them when there are fewer), with the sample-average
+        chance term at the number of futures the plan may meet while its 95 % bound stays ≤ ε
+        (200; 0: off).  Its plan is one more candidate of the final check
     """
 
     risk: float = 0.005
     reselect: int | None = _static(None)
+    risk_hits: int = _static(0)
+    polish_futures: int = _static(200)
     footprint: Footprint = field(default_factory=Footprint)
     margins: MarginConfig = field(default_factory=MarginConfig)
     rules: RoadRules = field(default_factory=RoadRules)
 
-    _ints = ("reselect",)
+    _ints = ("reselect", "risk_hits", "polish_futures")
 
     def __post_init__(self) -> None:
         self._check()
+        for name in ("risk_hits", "polish_futures"):
+            if getattr(self, name) < 0:
+                raise ValueError(f"SafetyConfig.{name} must be >= 0, got {getattr(self, name)}")
         if _plain(self.risk) and not 0 < float(self.risk) < 0.5:
             raise ValueError(f"SafetyConfig.risk must be in (0, 0.5), got {self.risk!r}")
         if self.reselect is not None and self.reselect < 0:

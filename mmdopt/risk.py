@@ -67,6 +67,7 @@ __all__ = [
     "risk_bound",
     "risk_floor",
     "samples_for_risk",
+    "hits_for_risk",
 ]
 
 #: the default knob of every method (target collision probability ε); each reproduces a
@@ -286,12 +287,55 @@ def risk_floor(n, confidence: float = RISK_CONFIDENCE) -> float:
     return risk_bound(np.zeros_like(m), m, confidence)
 
 
-def samples_for_risk(eps: float, obstacles: int = 1, confidence: float = RISK_CONFIDENCE) -> int:
-    """n(ε): the fewest samples per obstacle whose :func:`risk_floor` is at most ``eps`` for
-    ``obstacles`` obstacles, ``⌈ln(δ/O) / ln(1 − ε/O)⌉`` with δ = 1 − confidence (about
-    3·O/ε at 95 %)."""
+def samples_for_risk(
+    eps: float, obstacles: int = 1, confidence: float = RISK_CONFIDENCE, hits: int = 0
+) -> int:
+    """n(ε): the fewest samples per obstacle for which a plan that meets ``hits`` of each
+    obstacle's samples still has :func:`risk_bound` ≤ ``eps`` with ``obstacles`` obstacles.
+
+    ``hits = 0`` gives the fewest that can confirm ε at all (:func:`risk_floor` ≤ ε),
+    ``⌈ln(δ/O) / ln(1 − ε/O)⌉`` with δ = 1 − confidence (about 3·O/ε at 95 %): a plan must then
+    clear every sample.  More hits ask for more samples (about 6.3·O/ε for 2, 9.2·O/ε for 4) and
+    let a plan come as close to its budget as the samples show it does."""
     eps = check_risk(eps, "eps")
     if isinstance(obstacles, bool) or not isinstance(obstacles, int | np.integer) or obstacles < 1:
         raise ValueError(f"obstacles must be an int >= 1, got {obstacles!r}")
+    if isinstance(hits, bool) or not isinstance(hits, int | np.integer) or hits < 0:
+        raise ValueError(f"hits must be an int >= 0, got {hits!r}")
     d = (1.0 - confidence) / obstacles
-    return int(math.ceil(math.log(d) / math.log1p(-eps / obstacles)))
+    n0 = int(math.ceil(math.log(d) / math.log1p(-eps / obstacles)))
+    if hits == 0:
+        return n0
+    c, target = 1.0 - d, eps / obstacles
+    lo, hi = max(n0, int(hits) + 1), max(n0, int(hits) + 1)
+    while clopper_pearson_upper(int(hits), hi, c) > target:  # the bound falls with n
+        lo, hi = hi, 2 * hi
+    while lo < hi:
+        mid = (lo + hi) // 2
+        if clopper_pearson_upper(int(hits), mid, c) <= target:
+            hi = mid
+        else:
+            lo = mid + 1
+    return hi
+
+
+def hits_for_risk(eps: float, n: int, obstacles: int = 1, confidence: float = RISK_CONFIDENCE) -> int:
+    """The most of its ``n`` samples per obstacle a plan may meet (the same count for each of
+    ``obstacles`` obstacles) while its :func:`risk_bound` stays ≤ ``eps``; −1 when even a plan
+    that meets none has a bound above ``eps`` (``n`` is below :func:`samples_for_risk`)."""
+    eps = check_risk(eps, "eps")
+    if isinstance(obstacles, bool) or not isinstance(obstacles, int | np.integer) or obstacles < 1:
+        raise ValueError(f"obstacles must be an int >= 1, got {obstacles!r}")
+    if isinstance(n, bool) or not isinstance(n, int | np.integer) or n < 1:
+        raise ValueError(f"n must be an int >= 1, got {n!r}")
+    c, target = 1.0 - (1.0 - confidence) / obstacles, eps / obstacles
+    if clopper_pearson_upper(0, int(n), c) > target:
+        return -1
+    lo, hi = 0, int(n)  # the bound rises with k: the largest k with bound <= target
+    while lo < hi:
+        mid = (lo + hi + 1) // 2
+        if clopper_pearson_upper(mid, int(n), c) <= target:
+            lo = mid
+        else:
+            hi = mid - 1
+    return lo

@@ -47,6 +47,16 @@ def test_floor_and_the_samples_a_request_needs():
     assert samples_for_risk(0.005) == 598
 
 
+@pytest.mark.parametrize("eps, O, hits", [(0.02, 1, 1), (0.005, 1, 3), (1e-3, 3, 2), (0.1, 2, 5)])
+def test_samples_that_leave_room_for_hits_are_the_fewest_that_do(eps, O, hits):
+    n = samples_for_risk(eps, O, hits=hits)
+    # a plan meeting `hits` samples of every obstacle keeps its bound at eps, one fewer sample
+    # would not
+    assert risk_bound([hits] * O, [n] * O) <= eps < risk_bound([hits] * O, [n - 1] * O)
+    assert n > samples_for_risk(eps, O, hits=hits - 1)
+    assert samples_for_risk(eps, O, hits=0) == samples_for_risk(eps, O)
+
+
 @pytest.mark.parametrize(
     "call, match",
     [
@@ -57,6 +67,8 @@ def test_floor_and_the_samples_a_request_needs():
         (lambda: samples_for_risk(0.7), "eps"),
         (lambda: samples_for_risk("0.1"), "eps"),
         (lambda: samples_for_risk(0.01, obstacles=0), "obstacles"),
+        (lambda: samples_for_risk(0.01, hits=-1), "hits"),
+        (lambda: samples_for_risk(0.01, hits=1.5), "hits"),
     ],
 )
 def test_bad_inputs_name_the_argument(call, match):

@@ -1,0 +1,93 @@
+"""MMD-Opt's polish in the risk dial's final check: a last pass against the planning futures
+nearest to the plan, at the chance level the plan's bound allows, whose plan competes with the
+earlier passes' and is returned only when its bound against every future still meets ε."""
+
+from __future__ import annotations
+
+import jax
+import numpy as np
+import pytest
+
+import frenet
+import mmdopt
+from mmdopt.risk import hits_for_risk, risk_bound, samples_for_risk
+
+TINY = mmdopt.MMDOptConfig().replace(
+    n_samples=60, n_cem=20, n_elite=8, iterations=3, n_brake=4, reduced_set_size=10
+)
+EPS = 0.05
+
+
+def _slow_car_ahead(n: int) -> np.ndarray:
+    """(1, n, K, 2) futures of one car 25 m ahead in the ego's lane at 6 ± 1 m/s (the ego wants
+    more): how closely a plan may follow it is what the margins and the polish decide."""
+    t = frenet.TimeGrid(TINY.trajectory.horizon, TINY.trajectory.num_steps).t
+    v = 6.0 + np.random.default_rng(1).normal(0.0, 1.0, n)
+    s = 25.0 + v[:, None] * t
+    return np.stack([s, 0.0 * s], -1)[None]
+
+
+def _plan(obs, config=TINY, method="mmd"):
+    return mmdopt.plan_frenet(frenet.EgoState(vs=10.0), mmdopt.Road(), obs, config=config,
+                              key=jax.random.PRNGKey(5), risk=EPS, method=method)  # fmt: skip
+
+
+@pytest.fixture(scope="module")
+def pair():
+    obs = _slow_car_ahead(3 * samples_for_risk(EPS, 1))  # 177 futures
+    cfg = TINY.replace(polish_futures=40)
+    return obs, _plan(obs, cfg), _plan(obs, cfg.replace(polish_futures=0))
+
+
+def test_the_polish_adds_one_candidate_and_never_a_worse_plan(pair):
+    _, polished, plain = pair
+    b1, b0 = (p.diagnostics["final_check_bounds"] for p in (polished, plain))
+    assert "polish_s" in polished.diagnostics and "polish_s" not in plain.diagnostics
+    # the same passes before it (same keys), then the polish's plan
+    np.testing.assert_allclose(b1[:2], b0[:2])
+    assert len(b1) >= 3
+    for p in (polished, plain):
+        assert p.status == "ok", p.status_text
+        assert p.risk_bound <= EPS
+    # among candidates meeting ε the least task cost wins: never worse than without the polish
+    t1 = polished.diagnostics["final_check_task"][polished.diagnostics["final_check_choice"]]
+    t0 = plain.diagnostics["final_check_task"][plain.diagnostics["final_check_choice"]]
+    assert t1 <= t0 + 1e-9
+
+
+def test_the_polish_plans_against_the_futures_nearest_the_plan_at_the_allowed_level(pair):
+    obs, polished, _ = pair
+    n = obs.shape[1]
+    idx = polished.diagnostics["polish_futures"]
+    assert idx.shape == (1, 40) and len(np.unique(idx)) == 40 and idx.max() < n
+    k = hits_for_risk(EPS, n)
+    assert k >= 1  # 177 futures leave room for a few hits at ε = 0.05
+    assert polished.diagnostics["polish_level"] == pytest.approx((k + 0.5) / 40)
+    # the chosen futures are the closest ones: none of the others is nearer the car's mean path
+    s0 = obs[0, :, -1, 0]
+    chosen = np.zeros(n, bool)
+    chosen[idx[0]] = True
+    # the ego follows behind the car, so the slowest futures come nearest
+    assert s0[chosen].max() <= np.sort(s0)[60]
+
+
+def test_other_methods_have_no_polish():
+    obs = _slow_car_ahead(samples_for_risk(EPS, 1))
+    p = _plan(obs, method="random")
+    assert "polish_s" not in p.diagnostics
+
+
+def test_hits_for_risk_is_the_most_the_bound_allows():
+    for eps, n, O in [(0.005, 598, 1), (0.005, 3000, 1), (0.02, 1000, 2), (0.1, 100, 1)]:
+        k = hits_for_risk(eps, n, O)
+        assert k >= 0
+        assert risk_bound([k] * O, [n] * O) <= eps < risk_bound([k + 1] * O, [n] * O)
+    assert hits_for_risk(0.005, 598) == 0 and hits_for_risk(0.005, 597) == -1
+    for bad, match in [((0.005, 0), "n"), ((0.7, 10), "eps"), ((0.01, 10, 0), "obstacles")]:
+        with pytest.raises(ValueError, match=match):
+            hits_for_risk(*bad)
+
+
+def test_polish_futures_is_checked():
+    with pytest.raises(ValueError, match="polish_futures"):
+        mmdopt.MMDOptConfig().replace(polish_futures=-1)
