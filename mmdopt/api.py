@@ -420,9 +420,7 @@ def _draw_forecast(fc: Forecast, config: MMDOptConfig, method: str, key) -> tupl
         lo = max(lo, config.selection.reduced_set_size)
     needed = None
     if config.safety.margins.margin_mode == "samples":
-        needed = samples_for_risk(
-            float(config.safety.risk), O, hits=int(config.safety.risk_hits)
-        )
+        needed = samples_for_risk(float(config.safety.risk), O, hits=int(config.safety.risk_hits))
     n = int(min(max(lo, needed or lo), max(fc.max_samples, lo)))
     t0 = time.perf_counter()
     k_pred = jax.random.fold_in(key, 0x5EED)
@@ -995,8 +993,8 @@ def _plan_impl(
         state = _reselect_pass(ctx, state, problem, k_cem, backend, backend_settings)
         passes.append(state)
     if config.safety.margins.margin_mode == "samples":
-        if method == "mmd" and config.safety.polish_futures > 0:
-            passes.append(_polish_pass(planner, ctx, passes[-1], problem, k_cem, backend,
+        if method == "mmd" and config.safety.nearest_futures > 0:
+            passes.append(_nearest_pass(planner, ctx, passes[-1], problem, k_cem, backend,
                                        backend_settings))  # fmt: skip
         state = _final_check(ctx, passes, problem, k_cem, backend, backend_settings)
     diag["cem_s"] = time.perf_counter() - t2
@@ -1112,21 +1110,23 @@ def _reselect_pass(ctx: _Ctx, state, problem, key, backend, backend_settings):
 
 
 # ------------------------------------------------------------------ the risk dial's final check
-def _polish_pass(planner, ctx: _Ctx, state, problem, key, backend, backend_settings):
-    """MMD-Opt's polish (``config.safety.polish_futures`` = M > 0, "samples" margin mode): one
-    more pass of Algorithm 1, warm-started from ``state``, against the M planning futures per
-    obstacle in deepest conflict with its plan (nominal ellipse, as :func:`_reselect_pass`
-    measures it; all n when n ≤ M), each weight 1/M with the k-NN coverage margins at ε that
-    the methods planning on all samples use, and the sample-average chance term of SAA
-    (:func:`mmdopt.collision.saa_cost`) at level (k + ½)/M, where k =
-    :func:`mmdopt.risk.hits_for_risk` (ε, n) is the most futures per obstacle a plan may meet
-    while its 95 % bound stays ≤ ε (0 below the floor).  The reduced set decides where the plan
-    goes; the polish lets it pass as close to the futures that matter as the bound allows."""
+def _nearest_pass(planner, ctx: _Ctx, state, problem, key, backend, backend_settings):
+    """MMD-Opt's nearest-futures pass (``config.safety.nearest_futures`` = M > 0, "samples"
+    margin mode): one more pass of Algorithm 1, warm-started from ``state``, against the M
+    planning futures per obstacle in deepest conflict with its plan (on the nominal ellipse;
+    all n when n ≤ M, padded to M), each of weight 1/M with the k-NN
+    coverage margins at ε of the methods that plan on all samples, and SAA's sample-average
+    chance term (:func:`mmdopt.collision.saa_cost`) at level (k + ½)/M, where
+    k = :func:`mmdopt.risk.hits_for_risk` (ε, n) is the most futures per obstacle a plan may
+    meet while its 95 % bound stays ≤ ε (0 below the floor).  The reduced set decides where the
+    plan goes; this pass lets it pass as close to the futures that matter as the bound allows.
+    Its plan is one more candidate of :func:`_final_check`."""
     from .risk import hits_for_risk
 
     config, prob, obs_fr = ctx.config, ctx.prob, ctx.obs_fr
     O, n = obs_fr.shape[:2]
-    M = min(n, int(config.safety.polish_futures))
+    P = int(config.safety.nearest_futures)  # one compiled program for every n: pad to P
+    M = min(n, P)
     t0 = time.perf_counter()
     if M < n:
         Bs = prob.basis
@@ -1142,12 +1142,15 @@ def _polish_pass(planner, ctx: _Ctx, state, problem, key, backend, backend_setti
         idx = np.sort(np.argsort(-depth, axis=1, kind="stable")[:, :M], axis=1)
     else:
         idx = np.tile(np.arange(n), (O, 1))
+    # padding (fewer than P futures): copies of the first, masked out of the chance term
+    pad = np.concatenate([idx, np.repeat(idx[:, :1], P - M, axis=1)], axis=1)
+    mask = np.arange(P)[None, :].repeat(O, 0) < M
     k = max(hits_for_risk(max(float(config.safety.risk), 1e-12), int(n), int(O)), 0)
     cfg = config.replace(saa_eps=(k + 0.5) / M)
     knn = max(2, n // config.selection.reduced_set_size)
     obstacles = alg.ObstacleSet.create(
-        cfg, ctx.centres(idx), np.full((O, M), 1.0 / M), "saa",
-        margins=_coverage(config, obs_fr, idx, knn=knn),
+        cfg, ctx.centres(pad), np.where(mask, 1.0 / M, 0.0), "saa", mask=mask,
+        margins=_coverage(config, obs_fr, pad, knn=knn),
     )  # fmt: skip
     out = alg.run(
         planner.workspace(ctx.road.bounds(), cfg), cfg, problem, obstacles,
@@ -1155,8 +1158,8 @@ def _polish_pass(planner, ctx: _Ctx, state, problem, key, backend, backend_setti
         **backend_settings,
     )  # fmt: skip
     out = jax.block_until_ready(out)
-    ctx.diag.update(polish_futures=idx, polish_level=(k + 0.5) / M,
-                    polish_s=time.perf_counter() - t0)  # fmt: skip
+    ctx.diag.update(nearest_futures=idx, nearest_level=(k + 0.5) / M,
+                    nearest_s=time.perf_counter() - t0)  # fmt: skip
     return out
 
 

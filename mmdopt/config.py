@@ -406,8 +406,8 @@ class SafetyConfig(_Section):
         obstacle for which a plan meeting ``risk_hits`` of them still has a 95 % bound ≤ ε
         (:func:`mmdopt.risk.samples_for_risk`; 0: the fewest that can confirm ε at all, so a
         plan must clear every one)
-    polish_futures : MMD-Opt's last pass in the "samples" margin mode (the *polish*): Algorithm 1,
-        warm-started from the plan so far, against the ``polish_futures`` planning futures per
+    nearest_futures : MMD-Opt's nearest-futures pass in the "samples" margin mode: Algorithm 1,
+        warm-started from the plan so far, against the ``nearest_futures`` planning futures per
         obstacle nearest to that plan (all of them when there are fewer), with the sample-average
         chance term at the number of futures the plan may meet while its 95 % bound stays ≤ ε
         (200; 0: off).  Its plan is one more candidate of the final check
@@ -416,16 +416,16 @@ class SafetyConfig(_Section):
     risk: float = 0.005
     reselect: int | None = _static(None)
     risk_hits: int = _static(0)
-    polish_futures: int = _static(200)
+    nearest_futures: int = _static(200)
     footprint: Footprint = field(default_factory=Footprint)
     margins: MarginConfig = field(default_factory=MarginConfig)
     rules: RoadRules = field(default_factory=RoadRules)
 
-    _ints = ("reselect", "risk_hits", "polish_futures")
+    _ints = ("reselect", "risk_hits", "nearest_futures")
 
     def __post_init__(self) -> None:
         self._check()
-        for name in ("risk_hits", "polish_futures"):
+        for name in ("risk_hits", "nearest_futures"):
             if getattr(self, name) < 0:
                 raise ValueError(f"SafetyConfig.{name} must be >= 0, got {getattr(self, name)}")
         if _plain(self.risk) and not 0 < float(self.risk) < 0.5:

@@ -24,7 +24,10 @@ method              what ε sets
                     (entering any costs, whatever ᾱ); and a second, warm-started pass
                     with the m/2 samples in deepest conflict with the first plan added
                     to the reduced set (``reselect``), after skipping the ⌊ε·n⌋ deepest
-                    (the conflicts a chance constraint at level ε may leave)
+                    (the conflicts a chance constraint at level ε may leave); then a pass
+                    against the ``nearest_futures`` = 200 futures nearest to the plan with
+                    SAA's chance term at the number of futures the 95 % bound lets the plan
+                    meet (``hits_for_risk``)
 ``"random"``        the same margins and coverage term, no second pass
 ``"degroot"``       the same margins (its scenario cost is unchanged)
 ``"scenario_all"``  the same margins, each sample's cluster being its ``n // m`` nearest
@@ -319,7 +322,9 @@ def samples_for_risk(
     return hi
 
 
-def hits_for_risk(eps: float, n: int, obstacles: int = 1, confidence: float = RISK_CONFIDENCE) -> int:
+def hits_for_risk(
+    eps: float, n: int, obstacles: int = 1, confidence: float = RISK_CONFIDENCE
+) -> int:
     """The most of its ``n`` samples per obstacle a plan may meet (the same count for each of
     ``obstacles`` obstacles) while its :func:`risk_bound` stays ≤ ``eps``; −1 when even a plan
     that meets none has a bound above ``eps`` (``n`` is below :func:`samples_for_risk`)."""

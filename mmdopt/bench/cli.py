@@ -648,7 +648,7 @@ def cmd_synthetic(args, parser) -> int:
 
 
 def cmd_frontier(args, parser) -> int:
-    from .frontier import TARGET_LEVELS, parse_risks, run_frontier
+    from .frontier import KEPT_SHARE, TARGET_LEVELS, parse_risks, run_frontier
 
     try:
         risks = parse_risks(args.risks, args.methods)
@@ -697,6 +697,15 @@ def cmd_frontier(args, parser) -> int:
     print(
         "most mean progress (m) of a risk level whose mean collision-free count reaches the level "
         "(measured points only); nan: not reached"
+    )
+    print(_table(rows, ["method", *[f"progress_m@{k}" for k in lv]]))
+    rows = [
+        {"method": m, **{f"progress_m@{k}": v[k] for k in lv}}
+        for m, v in res["at_level_kept"].items()
+    ]
+    print(
+        "the same over the risk levels whose plans kept the request (status ok in at least "
+        f"{KEPT_SHARE:.0%} of the scenes: risk_bound <= risk); nan: not reached"
     )
     print(_table(rows, ["method", *[f"progress_m@{k}" for k in lv]]))
     out = Path(args.out)

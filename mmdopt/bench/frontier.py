@@ -186,8 +186,9 @@ def run_frontier(
     process with one XLA thread, so the rows do not depend on ``jobs`` or the executor; the
     manifest records where results were computed and a folder refuses a mix.
 
-    Returns ``{"rows", "points", "interpolated", "at_level", "computed", "reused", "wall_s"}``
-    (``at_level``: :func:`progress_at_level`, the measured points only).
+    Returns ``{"rows", "points", "interpolated", "at_level", "at_level_kept", "computed",
+    "reused", "wall_s"}`` (``at_level``: :func:`progress_at_level`, the measured points only;
+    ``at_level_kept``: the same over the risk levels whose plans kept the request).
     """
     params = SceneParams() if params is None else params
     n = num_scenes(params, scenes)
@@ -251,12 +252,14 @@ def run_frontier(
     points = frontier_points(rows)
     interp = {m: interpolate_progress(points, m, levels) for m in methods}
     reached = {m: progress_at_level(points, m, levels) for m in methods}
+    kept = {m: progress_at_level(points, m, levels, KEPT_SHARE) for m in methods}
     write_json(
         out / "frontier_summary.json",
         dict(
             points=points,
             interpolated=interp,
             at_level=reached,
+            at_level_kept=kept,
             scenes=n,
             seed=seed,
             params=params.to_dict(),
@@ -268,6 +271,7 @@ def run_frontier(
         points=points,
         interpolated=interp,
         at_level=reached,
+        at_level_kept=kept,
         computed=int(sum(done)),
         reused=reused,
         wall_s=wall,
@@ -379,13 +383,30 @@ def interpolate_progress(
     return res
 
 
+#: the share of a risk level's plans whose status is ok for the level to count as kept
+KEPT_SHARE = 0.95
+
+
 def progress_at_level(
-    points: Sequence[Mapping[str, Any]], method: str, levels: Sequence[float] = TARGET_LEVELS
+    points: Sequence[Mapping[str, Any]],
+    method: str,
+    levels: Sequence[float] = TARGET_LEVELS,
+    min_ok_share: float | None = None,
 ) -> dict[str, float]:
     """``method``'s progress (m) at each target mean collision-free level, measured points only:
     the most mean progress among its risk levels whose mean collision-free count reaches the
-    level (no interpolation between risk levels); NaN where none reaches it."""
-    pts = [(p["mean"], p["progress_m"]) for p in points if p["method"] == method]
+    level (no interpolation between risk levels); NaN where none reaches it.  With
+    ``min_ok_share`` only risk levels where at least that share of the plans kept the request
+    (status ok: :attr:`mmdopt.Plan.risk_bound` ≤ ε) count (summary key ``at_level_kept``, at
+    :data:`KEPT_SHARE`)."""
+    if min_ok_share is not None and not 0.0 <= float(min_ok_share) <= 1.0:
+        raise ValueError(f"min_ok_share must be in [0, 1], got {min_ok_share!r}")
+    pts = [
+        (p["mean"], p["progress_m"])
+        for p in points
+        if p["method"] == method
+        and (min_ok_share is None or float(p.get("ok_share", math.nan)) >= float(min_ok_share))
+    ]
     res = {}
     for lv in levels:
         reached = [prog for c, prog in pts if c >= lv]

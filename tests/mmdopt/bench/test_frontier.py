@@ -65,6 +65,31 @@ def test_interpolated_progress_on_the_frontier():
     assert math.isnan(at["999.5"])
 
 
+def test_progress_at_level_over_the_levels_that_kept_their_request():
+    """A risk level counts in ``at_level_kept`` only where at least 95 % of its plans say ok:
+    a method that reaches 999 with plans breaking their own bound is not credited there."""
+    ok = "ok"
+    rows = [dict(_row("a", 0.001, s, 999, 60.0), status=ok) for s in range(20)]
+    # the looser level reaches 999 as well, with more progress, but one plan in 20 (5 %) and
+    # then two in 20 (10 %) exceed their bound
+    loose = [dict(_row("a", 0.01, s, 999, 80.0), status=ok) for s in range(20)]
+    loose[0]["status"] = "risk exceeded: asked 0.01"
+    pts = frontier_points(rows + loose)
+    assert progress_at_level(pts, "a", (999.0,), min_ok_share=0.95)["999"] == 80.0
+    loose[1]["status"] = "risk exceeded: asked 0.01"
+    pts = frontier_points(rows + loose)
+    assert progress_at_level(pts, "a", (999.0,))["999"] == 80.0
+    assert progress_at_level(pts, "a", (999.0,), min_ok_share=0.95)["999"] == 60.0
+    # rows without a status (the time-linear margins) never count as kept
+    assert math.isnan(
+        progress_at_level(
+            frontier_points([_row("a", 0.001, 0, 999, 60.0)]), "a", (999.0,), min_ok_share=0.5
+        )["999"]
+    )
+    with pytest.raises(ValueError, match="min_ok_share"):
+        progress_at_level(pts, "a", (999.0,), min_ok_share=1.5)
+
+
 def test_frontier_cli_contract_and_resume(tmp_path, capsys):
     small = tmp_path / "scene.json"
     small.write_text(json.dumps({"n_validation": 200, "n_samples": 40}))

@@ -1,6 +1,7 @@
-"""MMD-Opt's polish in the risk dial's final check: a last pass against the planning futures
-nearest to the plan, at the chance level the plan's bound allows, whose plan competes with the
-earlier passes' and is returned only when its bound against every future still meets ε."""
+"""MMD-Opt's nearest-futures pass in the risk dial's final check: a last pass against the
+planning futures nearest to the plan, at the chance level the plan's bound allows, whose plan
+competes with the earlier passes' and is returned only when its bound against every future still
+meets ε."""
 
 from __future__ import annotations
 
@@ -20,7 +21,7 @@ EPS = 0.05
 
 def _slow_car_ahead(n: int) -> np.ndarray:
     """(1, n, K, 2) futures of one car 25 m ahead in the ego's lane at 6 ± 1 m/s (the ego wants
-    more): how closely a plan may follow it is what the margins and the polish decide."""
+    more): how closely a plan may follow it is what the margins and that pass decide."""
     t = frenet.TimeGrid(TINY.trajectory.horizon, TINY.trajectory.num_steps).t
     v = 6.0 + np.random.default_rng(1).normal(0.0, 1.0, n)
     s = 25.0 + v[:, None] * t
@@ -35,34 +36,34 @@ def _plan(obs, config=TINY, method="mmd"):
 @pytest.fixture(scope="module")
 def pair():
     obs = _slow_car_ahead(3 * samples_for_risk(EPS, 1))  # 177 futures
-    cfg = TINY.replace(polish_futures=40)
-    return obs, _plan(obs, cfg), _plan(obs, cfg.replace(polish_futures=0))
+    cfg = TINY.replace(nearest_futures=40)
+    return obs, _plan(obs, cfg), _plan(obs, cfg.replace(nearest_futures=0))
 
 
-def test_the_polish_adds_one_candidate_and_never_a_worse_plan(pair):
-    _, polished, plain = pair
-    b1, b0 = (p.diagnostics["final_check_bounds"] for p in (polished, plain))
-    assert "polish_s" in polished.diagnostics and "polish_s" not in plain.diagnostics
-    # the same passes before it (same keys), then the polish's plan
+def test_the_nearest_pass_adds_one_candidate_and_never_a_worse_plan(pair):
+    _, nearer, plain = pair
+    b1, b0 = (p.diagnostics["final_check_bounds"] for p in (nearer, plain))
+    assert "nearest_s" in nearer.diagnostics and "nearest_s" not in plain.diagnostics
+    # the same passes before it (same keys), then the nearest-futures plan
     np.testing.assert_allclose(b1[:2], b0[:2])
     assert len(b1) >= 3
-    for p in (polished, plain):
+    for p in (nearer, plain):
         assert p.status == "ok", p.status_text
         assert p.risk_bound <= EPS
-    # among candidates meeting ε the least task cost wins: never worse than without the polish
-    t1 = polished.diagnostics["final_check_task"][polished.diagnostics["final_check_choice"]]
+    # among candidates meeting ε the least task cost wins: never worse than without that pass
+    t1 = nearer.diagnostics["final_check_task"][nearer.diagnostics["final_check_choice"]]
     t0 = plain.diagnostics["final_check_task"][plain.diagnostics["final_check_choice"]]
     assert t1 <= t0 + 1e-9
 
 
-def test_the_polish_plans_against_the_futures_nearest_the_plan_at_the_allowed_level(pair):
-    obs, polished, _ = pair
+def test_the_nearest_pass_plans_against_the_futures_nearest_the_plan_at_the_allowed_level(pair):
+    obs, nearer, _ = pair
     n = obs.shape[1]
-    idx = polished.diagnostics["polish_futures"]
+    idx = nearer.diagnostics["nearest_futures"]
     assert idx.shape == (1, 40) and len(np.unique(idx)) == 40 and idx.max() < n
     k = hits_for_risk(EPS, n)
     assert k >= 1  # 177 futures leave room for a few hits at ε = 0.05
-    assert polished.diagnostics["polish_level"] == pytest.approx((k + 0.5) / 40)
+    assert nearer.diagnostics["nearest_level"] == pytest.approx((k + 0.5) / 40)
     # the chosen futures are the closest ones: none of the others is nearer the car's mean path
     s0 = obs[0, :, -1, 0]
     chosen = np.zeros(n, bool)
@@ -71,10 +72,10 @@ def test_the_polish_plans_against_the_futures_nearest_the_plan_at_the_allowed_le
     assert s0[chosen].max() <= np.sort(s0)[60]
 
 
-def test_other_methods_have_no_polish():
+def test_other_methods_have_no_nearest_pass():
     obs = _slow_car_ahead(samples_for_risk(EPS, 1))
     p = _plan(obs, method="random")
-    assert "polish_s" not in p.diagnostics
+    assert "nearest_s" not in p.diagnostics
 
 
 def test_hits_for_risk_is_the_most_the_bound_allows():
@@ -88,6 +89,17 @@ def test_hits_for_risk_is_the_most_the_bound_allows():
             hits_for_risk(*bad)
 
 
-def test_polish_futures_is_checked():
-    with pytest.raises(ValueError, match="polish_futures"):
-        mmdopt.MMDOptConfig().replace(polish_futures=-1)
+def test_nearest_futures_is_checked():
+    with pytest.raises(ValueError, match="nearest_futures"):
+        mmdopt.MMDOptConfig().replace(nearest_futures=-1)
+
+
+def test_with_fewer_futures_than_the_pass_takes_it_plans_against_all_of_them():
+    """Fewer futures than ``nearest_futures``: all of them, the program padded to its size (the
+    copies masked out of the chance term), so one compiled program serves every n."""
+    n = samples_for_risk(EPS, 1)
+    p = _plan(_slow_car_ahead(n), TINY.replace(nearest_futures=100))
+    idx = p.diagnostics["nearest_futures"]
+    np.testing.assert_array_equal(idx, np.arange(n)[None])
+    assert p.diagnostics["nearest_level"] == pytest.approx(0.5 / n)  # k = 0 at n(ε)
+    assert p.status == "ok" and p.risk_bound <= EPS, p.status_text
