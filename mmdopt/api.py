@@ -993,7 +993,13 @@ def _plan_impl(
         state = _reselect_pass(ctx, state, problem, k_cem, backend, backend_settings)
         passes.append(state)
     if config.safety.margins.margin_mode == "samples":
-        if method == "mmd" and config.safety.nearest_futures > 0:
+        # below the floor of the n futures (ε < what they can confirm) there is no allowance
+        # for the pass to use: the margins alone extrapolate the tail the futures do not show
+        if (
+            method == "mmd"
+            and config.safety.nearest_futures > 0
+            and risk_floor([n] * O) <= float(config.safety.risk)
+        ):
             passes.append(_nearest_pass(planner, ctx, passes[-1], problem, k_cem, backend,
                                        backend_settings))  # fmt: skip
         state = _final_check(ctx, passes, problem, k_cem, backend, backend_settings)
@@ -1120,7 +1126,9 @@ def _nearest_pass(planner, ctx: _Ctx, state, problem, key, backend, backend_sett
     k = :func:`mmdopt.risk.hits_for_risk` (ε, n) is the most futures per obstacle a plan may
     meet while its 95 % bound stays ≤ ε (0 below the floor).  The reduced set decides where the
     plan goes; this pass lets it pass as close to the futures that matter as the bound allows.
-    Its plan is one more candidate of :func:`_final_check`."""
+    Its plan is one more candidate of :func:`_final_check`.  Not run when ε is below the floor
+    of the n futures (:func:`mmdopt.risk.risk_floor`): no plan's bound can then meet ε, and
+    threading between futures too few to show the tail would only add risk."""
     from .risk import hits_for_risk
 
     config, prob, obs_fr = ctx.config, ctx.prob, ctx.obs_fr

@@ -103,3 +103,13 @@ def test_with_fewer_futures_than_the_pass_takes_it_plans_against_all_of_them():
     np.testing.assert_array_equal(idx, np.arange(n)[None])
     assert p.diagnostics["nearest_level"] == pytest.approx(0.5 / n)  # k = 0 at n(ε)
     assert p.status == "ok" and p.risk_bound <= EPS, p.status_text
+
+
+def test_no_nearest_pass_below_the_floor_of_the_futures():
+    """ε below what the futures can confirm (60 futures support 0.049 at best, ε = 0.01): no
+    allowance for the pass to use, the margins alone keep the plan off the unseen tail."""
+    obs = _slow_car_ahead(60)
+    p = mmdopt.plan_frenet(frenet.EgoState(vs=10.0), mmdopt.Road(), obs, config=TINY,
+                           key=jax.random.PRNGKey(5), risk=0.01, method="mmd")  # fmt: skip
+    assert "nearest_s" not in p.diagnostics
+    assert p.status == "risk floor", p.status_text
