@@ -1119,16 +1119,16 @@ def _reselect_pass(ctx: _Ctx, state, problem, key, backend, backend_settings):
 def _nearest_pass(planner, ctx: _Ctx, state, problem, key, backend, backend_settings):
     """MMD-Opt's nearest-futures pass (``config.safety.nearest_futures`` = M > 0, "samples"
     margin mode): one more pass of Algorithm 1, warm-started from ``state``, against the M
-    planning futures per obstacle in deepest conflict with its plan (on the nominal ellipse;
-    all n when n ≤ M, padded to M), each of weight 1/M with the k-NN
-    coverage margins at ε of the methods that plan on all samples, and SAA's sample-average
-    chance term (:func:`mmdopt.collision.saa_cost`) at level (k + ½)/M, where
+    planning futures per obstacle in deepest conflict with its plan (on the nominal ellipse; all
+    n when n ≤ M, padded to M), each of weight 1/M with the k-NN coverage margins at ε of the
+    methods that plan on all samples, and SAA's sample-average chance term
+    (:func:`mmdopt.collision.saa_cost`) at level (k + ½)/M, where
     k = :func:`mmdopt.risk.hits_for_risk` (ε, n) is the most futures per obstacle a plan may
-    meet while its 95 % bound stays ≤ ε (0 below the floor).  The reduced set decides where the
-    plan goes; this pass lets it pass as close to the futures that matter as the bound allows.
-    Its plan is one more candidate of :func:`_final_check`.  Not run when ε is below the floor
-    of the n futures (:func:`mmdopt.risk.risk_floor`): no plan's bound can then meet ε, and
-    threading between futures too few to show the tail would only add risk."""
+    meet while its 95 % bound stays ≤ ε.  The reduced set decides where the plan goes; this pass
+    lets it pass as close to the futures that matter as the bound allows.  Its plan is one more
+    candidate of :func:`_final_check`.  Not run when ε is below the floor of the n futures
+    (:func:`mmdopt.risk.risk_floor`): no plan's bound can then meet ε, and threading between
+    futures too few to show the tail would only add risk."""
     from .risk import hits_for_risk
 
     config, prob, obs_fr = ctx.config, ctx.prob, ctx.obs_fr
@@ -1153,7 +1153,7 @@ def _nearest_pass(planner, ctx: _Ctx, state, problem, key, backend, backend_sett
     # padding (fewer than P futures): copies of the first, masked out of the chance term
     pad = np.concatenate([idx, np.repeat(idx[:, :1], P - M, axis=1)], axis=1)
     mask = np.arange(P)[None, :].repeat(O, 0) < M
-    k = max(hits_for_risk(max(float(config.safety.risk), 1e-12), int(n), int(O)), 0)
+    k = max(hits_for_risk(float(config.safety.risk), int(n), int(O)), 0)  # ≥ 0 at the floor
     cfg = config.replace(saa_eps=(k + 0.5) / M)
     knn = max(2, n // config.selection.reduced_set_size)
     obstacles = alg.ObstacleSet.create(
