@@ -1053,6 +1053,30 @@ def _coverage(config: MMDOptConfig, obs_fr, idx, level=None, knn: int = 0) -> np
     )
 
 
+def _conflict_depth(ctx: _Ctx, best) -> np.ndarray:
+    """(O, n) deepest conflict over time of the plan ``best`` with every planning sample: the
+    nominal ellipse ``a, b`` with the geometry and responsibility rules of the config (yaw
+    widening, rear exemption); > 0 where the plan enters a sample's ellipse."""
+    config, Bs = ctx.config, ctx.prob.basis
+    cx1 = np.asarray(best.cx, np.float64)
+    cy1 = np.asarray(best.cy, np.float64)
+    s1, d1 = (Bs.P @ cx1)[None], (Bs.P @ cy1)[None]
+    b = jnp.asarray(config.safety.footprint.b)
+    if config.safety.footprint.yaw_aware:
+        vs1, vd1 = (Bs.Pdot @ cx1)[None], (Bs.Pdot @ cy1)[None]
+        b = b + alg.yaw_widening(config, jnp.asarray(vs1), jnp.asarray(vd1))  # (1, K)
+    rear = float(config.safety.rules.rear_exempt_width) if config.safety.rules.asymmetric else None
+    f = ellipse_values(
+        jnp.asarray(s1),
+        jnp.asarray(d1),
+        ctx.centres(),  # (O, n, C, K, 2)
+        config.safety.footprint.a,
+        b,
+        rear_exempt_width=rear,
+    )
+    return np.asarray(jnp.max(f[0], axis=(2, 3)))
+
+
 def _reselect_pass(ctx: _Ctx, state, problem, key, backend, backend_settings):
     """Second pass of Algorithm 1 (``config.safety.reselect`` > 0): the reduced set plus the
     ``reselect`` samples in deepest conflict with the first pass's plan (weight 1/n each) after
@@ -1064,25 +1088,7 @@ def _reselect_pass(ctx: _Ctx, state, problem, key, backend, backend_settings):
     (sample-driven coverage margins recomputed, or the time-linear ones)."""
     config, prob, obs_fr = ctx.config, ctx.prob, ctx.obs_fr
     O, n = obs_fr.shape[:2]
-    Bs = prob.basis
-    cx1 = np.asarray(state.best.cx, np.float64)
-    cy1 = np.asarray(state.best.cy, np.float64)
-    s1, d1 = (Bs.P @ cx1)[None], (Bs.P @ cy1)[None]
-    b = jnp.asarray(config.safety.footprint.b)
-    if config.safety.footprint.yaw_aware:
-        vs1, vd1 = (Bs.Pdot @ cx1)[None], (Bs.Pdot @ cy1)[None]
-        b = b + alg.yaw_widening(config, jnp.asarray(vs1), jnp.asarray(vd1))  # (1, K)
-    rear = float(config.safety.rules.rear_exempt_width) if config.safety.rules.asymmetric else None
-    centres = ctx.centres()  # (O, n, C, K, 2)
-    f = ellipse_values(
-        jnp.asarray(s1),
-        jnp.asarray(d1),
-        centres,
-        config.safety.footprint.a,
-        b,
-        rear_exempt_width=rear,
-    )
-    depth = np.asarray(jnp.max(f[0], axis=(2, 3)))  # (O, n) deepest conflict over time
+    depth = _conflict_depth(ctx, state.best)  # (O, n)
     idx0 = np.asarray(ctx.rs.indices)
     # sampling and discarding (Campi & Garatti 2011): a plan that may collide with probability ε
     # may leave the ⌊ε·n⌋ deepest conflicts of the n samples unresolved; the next r are added
@@ -1119,8 +1125,8 @@ def _reselect_pass(ctx: _Ctx, state, problem, key, backend, backend_settings):
 def _nearest_pass(planner, ctx: _Ctx, state, problem, key, backend, backend_settings):
     """MMD-Opt's nearest-futures pass (``config.safety.nearest_futures`` = M > 0, "samples"
     margin mode): one more pass of Algorithm 1, warm-started from ``state``, against the M
-    planning futures per obstacle in deepest conflict with its plan (on the nominal ellipse; all
-    n when n ≤ M, padded to M), each of weight 1/M with the k-NN coverage margins at ε of the
+    planning futures per obstacle in deepest conflict with its plan (:func:`_conflict_depth`;
+    all n when n ≤ M, padded to M), each of weight 1/M with the k-NN coverage margins at ε of the
     methods that plan on all samples, and SAA's sample-average chance term
     (:func:`mmdopt.collision.saa_cost`) at level (k + ½)/M, where
     k = :func:`mmdopt.risk.hits_for_risk` (ε, n) is the most futures per obstacle a plan may
@@ -1131,22 +1137,13 @@ def _nearest_pass(planner, ctx: _Ctx, state, problem, key, backend, backend_sett
     futures too few to show the tail would only add risk."""
     from .risk import hits_for_risk
 
-    config, prob, obs_fr = ctx.config, ctx.prob, ctx.obs_fr
+    config, obs_fr = ctx.config, ctx.obs_fr
     O, n = obs_fr.shape[:2]
     P = int(config.safety.nearest_futures)  # one compiled program for every n: pad to P
     M = min(n, P)
     t0 = time.perf_counter()
     if M < n:
-        Bs = prob.basis
-        cx, cy = np.asarray(state.best.cx, np.float64), np.asarray(state.best.cy, np.float64)
-        f = ellipse_values(
-            jnp.asarray((Bs.P @ cx)[None]),
-            jnp.asarray((Bs.P @ cy)[None]),
-            ctx.centres(),
-            config.safety.footprint.a,
-            jnp.asarray(config.safety.footprint.b),
-        )
-        depth = np.asarray(jnp.max(f[0], axis=(2, 3)))  # (O, n) deepest conflict over time
+        depth = _conflict_depth(ctx, state.best)  # (O, n), as the re-selection pass
         idx = np.sort(np.argsort(-depth, axis=1, kind="stable")[:, :M], axis=1)
     else:
         idx = np.tile(np.arange(n), (O, 1))

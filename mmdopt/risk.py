@@ -290,6 +290,12 @@ def risk_floor(n, confidence: float = RISK_CONFIDENCE) -> float:
     return risk_bound(np.zeros_like(m), m, confidence)
 
 
+def _check_int(v, name: str, least: int) -> None:
+    """``ValueError`` naming ``name`` unless ``v`` is an int (not a bool) >= ``least``."""
+    if isinstance(v, bool) or not isinstance(v, int | np.integer) or v < least:
+        raise ValueError(f"{name} must be an int >= {least}, got {v!r}")
+
+
 def samples_for_risk(
     eps: float, obstacles: int = 1, confidence: float = RISK_CONFIDENCE, hits: int = 0
 ) -> int:
@@ -301,10 +307,8 @@ def samples_for_risk(
     clear every sample.  More hits ask for more samples (about 6.3·O/ε for 2, 9.2·O/ε for 4) and
     let a plan come as close to its budget as the samples show it does."""
     eps = check_risk(eps, "eps")
-    if isinstance(obstacles, bool) or not isinstance(obstacles, int | np.integer) or obstacles < 1:
-        raise ValueError(f"obstacles must be an int >= 1, got {obstacles!r}")
-    if isinstance(hits, bool) or not isinstance(hits, int | np.integer) or hits < 0:
-        raise ValueError(f"hits must be an int >= 0, got {hits!r}")
+    _check_int(obstacles, "obstacles", 1)
+    _check_int(hits, "hits", 0)
     d = (1.0 - confidence) / obstacles
     n0 = int(math.ceil(math.log(d) / math.log1p(-eps / obstacles)))
     if hits == 0:
@@ -329,10 +333,8 @@ def hits_for_risk(
     ``obstacles`` obstacles) while its :func:`risk_bound` stays ≤ ``eps``; −1 when even a plan
     that meets none has a bound above ``eps`` (``n`` is below :func:`samples_for_risk`)."""
     eps = check_risk(eps, "eps")
-    if isinstance(obstacles, bool) or not isinstance(obstacles, int | np.integer) or obstacles < 1:
-        raise ValueError(f"obstacles must be an int >= 1, got {obstacles!r}")
-    if isinstance(n, bool) or not isinstance(n, int | np.integer) or n < 1:
-        raise ValueError(f"n must be an int >= 1, got {n!r}")
+    _check_int(obstacles, "obstacles", 1)
+    _check_int(n, "n", 1)
     c, target = 1.0 - (1.0 - confidence) / obstacles, eps / obstacles
     if clopper_pearson_upper(0, int(n), c) > target:
         return -1

@@ -685,29 +685,18 @@ def cmd_frontier(args, parser) -> int:
             "ok_share", "risk_bound"]  # fmt: skip
     print(_table(res["points"], cols))
     lv = [f"{x:g}" for x in TARGET_LEVELS]
-    rows = [
-        {"method": m, **{f"progress_m@{k}": v[k] for k in lv}}
-        for m, v in res["interpolated"].items()
-    ]
-    print("interpolated mean progress (m) at mean collision-free level (of 1000); nan: not reached")
-    print(_table(rows, ["method", *[f"progress_m@{k}" for k in lv]]))
-    rows = [
-        {"method": m, **{f"progress_m@{k}": v[k] for k in lv}} for m, v in res["at_level"].items()
-    ]
-    print(
-        "most mean progress (m) of a risk level whose mean collision-free count reaches the level "
-        "(measured points only); nan: not reached"
-    )
-    print(_table(rows, ["method", *[f"progress_m@{k}" for k in lv]]))
-    rows = [
-        {"method": m, **{f"progress_m@{k}": v[k] for k in lv}}
-        for m, v in res["at_level_kept"].items()
-    ]
-    print(
-        "the same over the risk levels whose plans kept the request (status ok in at least "
-        f"{KEPT_SHARE:.0%} of the scenes: risk_bound <= risk); nan: not reached"
-    )
-    print(_table(rows, ["method", *[f"progress_m@{k}" for k in lv]]))
+    readouts = (
+        ("interpolated", "interpolated mean progress (m) at mean collision-free level (of 1000); "
+         "nan: not reached"),
+        ("at_level", "most mean progress (m) of a risk level whose mean collision-free count "
+         "reaches the level (measured points only); nan: not reached"),
+        ("at_level_kept", "the same over the risk levels whose plans kept the request (status ok "
+         f"in at least {KEPT_SHARE:.0%} of the scenes: risk_bound <= risk); nan: not reached"),
+    )  # fmt: skip
+    for key, title in readouts:
+        print(title)
+        rows = [{"method": m, **{f"progress_m@{k}": v[k] for k in lv}} for m, v in res[key].items()]
+        print(_table(rows, ["method", *[f"progress_m@{k}" for k in lv]]))
     out = Path(args.out)
     print(
         f"{res['computed']} plans computed, {res['reused']} reused, {res['wall_s']:.1f} s; wrote "
