@@ -420,7 +420,7 @@ def _draw_forecast(fc: Forecast, config: MMDOptConfig, method: str, key) -> tupl
         lo = max(lo, config.selection.reduced_set_size)
     needed = None
     if config.safety.margins.margin_mode == "samples":
-        needed = samples_for_risk(float(config.safety.risk), O, hits=int(config.safety.risk_hits))
+        needed = samples_for_risk(float(config.safety.risk), O, hits=config.risk_hits_for(method))
     n = int(min(max(lo, needed or lo), max(fc.max_samples, lo)))
     t0 = time.perf_counter()
     k_pred = jax.random.fold_in(key, 0x5EED)
@@ -1002,6 +1002,14 @@ def _plan_impl(
         ):
             passes.append(_nearest_pass(planner, ctx, passes[-1], problem, k_cem, backend,
                                        backend_settings))  # fmt: skip
+            # its plan may meet a future beyond the M it saw, or one more than the soft count
+            # allowed: again around that plan, allowing one hit fewer each time
+            for rep in range(1, NEAREST_REPEATS + 1):
+                if _bounds_of(ctx, [passes[-1].best])[0][0] <= float(config.safety.risk):
+                    break
+                passes.append(_nearest_pass(planner, ctx, passes[-1], problem,
+                                            jax.random.fold_in(k_cem, rep), backend,
+                                            backend_settings, fewer=rep))  # fmt: skip
         state = _final_check(ctx, passes, problem, k_cem, backend, backend_settings)
     diag["cem_s"] = time.perf_counter() - t2
     best, lv = state.best, state.least_violating
@@ -1122,15 +1130,24 @@ def _reselect_pass(ctx: _Ctx, state, problem, key, backend, backend_settings):
 
 
 # ------------------------------------------------------------------ the risk dial's final check
-def _nearest_pass(planner, ctx: _Ctx, state, problem, key, backend, backend_settings):
+#: the most repeats of the nearest-futures pass while its plan's bound exceeds ε, each around
+#: the last plan with one allowed hit fewer (:func:`_nearest_pass`'s ``fewer``)
+NEAREST_REPEATS = 2
+#: the nearest-futures pass's coverage margins are at level min(this · ε, 0.45): it plans
+#: against the futures that matter themselves, and the final check's bound covers the rest
+NEAREST_MARGIN_FACTOR = 10.0
+
+
+def _nearest_pass(planner, ctx: _Ctx, state, problem, key, backend, backend_settings, fewer=0):
     """MMD-Opt's nearest-futures pass (``config.safety.nearest_futures`` = M > 0, "samples"
     margin mode): one more pass of Algorithm 1, warm-started from ``state``, against the M
     planning futures per obstacle in deepest conflict with its plan (:func:`_conflict_depth`;
-    all n when n ≤ M, padded to M), each of weight 1/M with the k-NN coverage margins at ε of the
-    methods that plan on all samples, and SAA's sample-average chance term
-    (:func:`mmdopt.collision.saa_cost`) at level (k + ½)/M, where
-    k = :func:`mmdopt.risk.hits_for_risk` (ε, n) is the most futures per obstacle a plan may
-    meet while its 95 % bound stays ≤ ε.  The reduced set decides where the plan goes; this pass
+    all n when n ≤ M, padded to M), each of weight 1/M with the k-NN coverage margins of the
+    methods that plan on all samples at the loose level min(:data:`NEAREST_MARGIN_FACTOR` · ε,
+    0.45), and SAA's sample-average chance term (:func:`mmdopt.collision.saa_cost`) at level
+    (k + ½)/M, where k = :func:`mmdopt.risk.hits_for_risk` (ε, n) − ``fewer`` (≥ 0) and
+    hits_for_risk is the most futures per obstacle a plan may meet while its 95 % bound stays
+    ≤ ε.  The reduced set decides where the plan goes; this pass
     lets it pass as close to the futures that matter as the bound allows.  Its plan is one more
     candidate of :func:`_final_check`.  Not run when ε is below the floor of the n futures
     (:func:`mmdopt.risk.risk_floor`): no plan's bound can then meet ε, and threading between
@@ -1150,12 +1167,13 @@ def _nearest_pass(planner, ctx: _Ctx, state, problem, key, backend, backend_sett
     # padding (fewer than P futures): copies of the first, masked out of the chance term
     pad = np.concatenate([idx, np.repeat(idx[:, :1], P - M, axis=1)], axis=1)
     mask = np.arange(P)[None, :].repeat(O, 0) < M
-    k = max(hits_for_risk(float(config.safety.risk), int(n), int(O)), 0)  # ≥ 0 at the floor
+    k = max(hits_for_risk(float(config.safety.risk), int(n), int(O)) - int(fewer), 0)
     cfg = config.replace(saa_eps=(k + 0.5) / M)
+    level = min(NEAREST_MARGIN_FACTOR * float(config.safety.risk), _LEVEL_CAP)
     knn = max(2, n // config.selection.reduced_set_size)
     obstacles = alg.ObstacleSet.create(
         cfg, ctx.centres(pad), np.where(mask, 1.0 / M, 0.0), "saa", mask=mask,
-        margins=_coverage(config, obs_fr, pad, knn=knn),
+        margins=_coverage(config, obs_fr, pad, level=level, knn=knn),
     )  # fmt: skip
     out = alg.run(
         planner.workspace(ctx.road.bounds(), cfg), cfg, problem, obstacles,

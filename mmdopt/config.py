@@ -56,12 +56,18 @@ __all__ = [
     "MMDOptConfig",
     "SAA_EPS_LINEAR",
     "W_COVER",
+    "MMD_RISK_HITS",
 ]
 
 #: SAA's chance level in the "linear" margin mode when ``BaselineConfig.saa_eps`` is ``None``
 SAA_EPS_LINEAR = 0.02
 #: weight of the coverage term of the MMD cost in the "samples" margin mode (the default)
 W_COVER = 100.0
+#: the planning futures per obstacle an MMD-Opt plan drawn from a predictor may meet with its
+#: 95 % bound ≤ ε ("samples" margin mode, ``SafetyConfig.risk_hits = None``): it draws
+#: n(ε) ≈ 6.3/ε futures instead of ≈ 3/ε (its reduced set keeps the cost of more futures small),
+#: so that its plans may come as close to ε as the bound allows instead of clearing every future
+MMD_RISK_HITS = 2
 
 
 def _static(default):
@@ -113,7 +119,7 @@ class _Section:
 
 
 #: fields whose ``None`` means "automatic"
-_AUTO = ("reselect", "coverage_knn", "project_chunk")
+_AUTO = ("reselect", "coverage_knn", "project_chunk", "risk_hits")
 
 
 @jax.tree_util.register_dataclass
@@ -405,7 +411,8 @@ class SafetyConfig(_Section):
     risk_hits : when ``plan`` draws its futures from a predictor, n(ε) is the fewest futures per
         obstacle for which a plan meeting ``risk_hits`` of them still has a 95 % bound ≤ ε
         (:func:`mmdopt.risk.samples_for_risk`; 0: the fewest that can confirm ε at all, so a
-        plan must clear every one)
+        plan must clear every one; ``None``: automatic — :data:`MMD_RISK_HITS` for MMD-Opt in
+        the "samples" margin mode, else 0; :meth:`MMDOptConfig.risk_hits_for`)
     nearest_futures : MMD-Opt's nearest-futures pass in the "samples" margin mode: Algorithm 1,
         warm-started from the plan so far, against the ``nearest_futures`` planning futures per
         obstacle nearest to that plan (all of them when there are fewer), with the sample-average
@@ -416,7 +423,7 @@ class SafetyConfig(_Section):
 
     risk: float = 0.005
     reselect: int | None = _static(None)
-    risk_hits: int = _static(0)
+    risk_hits: int | None = _static(None)
     nearest_futures: int = _static(200)
     footprint: Footprint = field(default_factory=Footprint)
     margins: MarginConfig = field(default_factory=MarginConfig)
@@ -427,7 +434,7 @@ class SafetyConfig(_Section):
     def __post_init__(self) -> None:
         self._check()
         for name in ("risk_hits", "nearest_futures"):
-            if getattr(self, name) < 0:
+            if getattr(self, name) is not None and getattr(self, name) < 0:
                 raise ValueError(f"SafetyConfig.{name} must be >= 0, got {getattr(self, name)}")
         if _plain(self.risk) and not 0 < float(self.risk) < 0.5:
             raise ValueError(f"SafetyConfig.risk must be in (0, 0.5), got {self.risk!r}")
@@ -710,6 +717,17 @@ class MMDOptConfig:
         if self.safety.margins.margin_mode == "samples":
             return self.safety.risk
         return SAA_EPS_LINEAR
+
+    def risk_hits_for(self, method: str) -> int:
+        """The planning futures per obstacle a plan of ``method`` may meet with its 95 % bound
+        ≤ ε, which sets how many it draws from a predictor (:func:`mmdopt.risk.samples_for_risk`):
+        ``safety.risk_hits``, or when that is ``None`` (automatic) :data:`MMD_RISK_HITS` for
+        "mmd" in the "samples" margin mode and 0 otherwise."""
+        if self.safety.risk_hits is not None:
+            return self.safety.risk_hits
+        if method == "mmd" and self.safety.margins.margin_mode == "samples":
+            return MMD_RISK_HITS
+        return 0
 
     def reselect_for(self, method: str) -> int:
         """The re-selection pass size ``method`` runs with: ``safety.reselect``, or when that is
