@@ -1168,6 +1168,7 @@ def _nearest_pass(planner, ctx: _Ctx, state, problem, key, backend, backend_sett
     pad = np.concatenate([idx, np.repeat(idx[:, :1], P - M, axis=1)], axis=1)
     mask = np.arange(P)[None, :].repeat(O, 0) < M
     k = max(hits_for_risk(float(config.safety.risk), int(n), int(O)) - int(fewer), 0)
+    k = min(k, M - 1)  # a level below 1 (with as many hits as futures seen, all may be met)
     cfg = config.replace(saa_eps=(k + 0.5) / M)
     level = min(NEAREST_MARGIN_FACTOR * float(config.safety.risk), _LEVEL_CAP)
     knn = max(2, n // config.selection.reduced_set_size)
@@ -1181,8 +1182,11 @@ def _nearest_pass(planner, ctx: _Ctx, state, problem, key, backend, backend_sett
         **backend_settings,
     )  # fmt: skip
     out = jax.block_until_ready(out)
-    ctx.diag.update(nearest_futures=idx, nearest_level=(k + 0.5) / M,
-                    nearest_s=time.perf_counter() - t0)  # fmt: skip
+    d = ctx.diag
+    if not fewer:  # the first pass's futures and level; the repeats' levels and time add up
+        d.update(nearest_futures=idx, nearest_level=(k + 0.5) / M, nearest_levels=[], nearest_s=0.0)
+    d["nearest_levels"].append((k + 0.5) / M)
+    d["nearest_s"] += time.perf_counter() - t0
     return out
 
 

@@ -417,8 +417,9 @@ class SafetyConfig(_Section):
         warm-started from the plan so far, against the ``nearest_futures`` planning futures per
         obstacle nearest to that plan (all of them when there are fewer), with the sample-average
         chance term at the number of futures the plan may meet while its 95 % bound stays ≤ ε
-        (200; 0: off; skipped when ε is below what the futures can confirm).  Its plan is one
-        more candidate of the final check
+        and loose coverage margins (200; 0: off; skipped when ε is below what the futures can
+        confirm; repeated around its plan with one hit fewer, at most twice, while that plan's
+        bound exceeds ε).  Each of its plans is one more candidate of the final check
     """
 
     risk: float = 0.005

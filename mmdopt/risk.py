@@ -27,7 +27,9 @@ method              what ε sets
                     (the conflicts a chance constraint at level ε may leave); then a pass
                     against the ``nearest_futures`` = 200 futures nearest to the plan with
                     SAA's chance term at the number of futures the 95 % bound lets the plan
-                    meet (``hits_for_risk``)
+                    meet (``hits_for_risk``) and loose margins (level 10ε), repeated with one
+                    hit fewer while its plan breaks the bound; from a predictor it draws
+                    enough futures for 2 allowed hits (``risk_hits``, about 6.3/ε)
 ``"random"``        the same margins and coverage term, no second pass
 ``"degroot"``       the same margins (its scenario cost is unchanged)
 ``"scenario_all"``  the same margins, each sample's cluster being its ``n // m`` nearest

@@ -8,6 +8,7 @@ import pytest
 
 import frenet
 import mmdopt
+from mmdopt.config import MMD_RISK_HITS
 from mmdopt.predict import GAP_NONE, ConstantVelocity, Forecast, PredictionContext
 from mmdopt.risk import samples_for_risk
 
@@ -37,15 +38,20 @@ def test_plan_draws_the_futures_the_risk_level_needs_and_confirms_it():
     key = jax.random.PRNGKey(0)
     fc = _forecast(min_samples=10)
     p = mmdopt.plan(EGO, mmdopt.Road(), fc, config=CFG, key=key, risk=0.05)
-    n = samples_for_risk(0.05, 1)  # 59
+    # MMD-Opt draws enough for a plan that meets MMD_RISK_HITS of them to keep its bound
+    n = samples_for_risk(0.05, 1, hits=MMD_RISK_HITS)  # 124
+    assert n > samples_for_risk(0.05, 1)  # 59: the fewest that can confirm ε at all
     assert p.diagnostics["forecast_samples"] == n == p.diagnostics["n_planning_samples"]
     assert p.status == "ok" and p.risk_bound <= 0.05, p.status_text
     # the same key gives the same futures and the same plan
     q = mmdopt.plan(EGO, mmdopt.Road(), fc, config=CFG, key=key, risk=0.05)
     np.testing.assert_array_equal(p.x, q.x)
     # at least min_samples (default 100) are drawn even when fewer would do
-    r = mmdopt.plan(EGO, mmdopt.Road(), _forecast(), config=CFG, key=key, risk=0.05)
+    r = mmdopt.plan(EGO, mmdopt.Road(), _forecast(), config=CFG, key=key, risk=0.2)
     assert r.diagnostics["forecast_samples"] == 100
+    # the baselines (and MMD-Opt with risk_hits=0) draw the fewest that can confirm ε
+    s = mmdopt.plan(EGO, mmdopt.Road(), fc, config=CFG.replace(risk_hits=0), key=key, risk=0.05)
+    assert s.diagnostics["forecast_samples"] == samples_for_risk(0.05, 1)
 
 
 def test_a_cap_below_the_need_is_said_in_the_status():
@@ -53,7 +59,8 @@ def test_a_cap_below_the_need_is_said_in_the_status():
     fc = _forecast(min_samples=10, max_samples=100)
     p = mmdopt.plan(EGO, mmdopt.Road(), fc, config=CFG, key=jax.random.PRNGKey(1), risk=1e-3)
     assert p.diagnostics["forecast_samples"] == 100
-    assert p.diagnostics["forecast_samples_needed"] == samples_for_risk(1e-3, 1) > 100
+    need = samples_for_risk(1e-3, 1, hits=MMD_RISK_HITS)
+    assert p.diagnostics["forecast_samples_needed"] == need > 100
     assert p.status == "risk floor" and f"{samples_for_risk(1e-3, 1)} samples" in p.message
 
 

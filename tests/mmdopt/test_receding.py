@@ -319,7 +319,7 @@ def test_a_forecast_in_the_samples_mode_draws_what_the_risk_level_needs():
         key=jax.random.PRNGKey(1), callback=lambda i, obs, p, out: seen.append((obs, p)),
     )  # fmt: skip
     obs, p = seen[0]
-    n = samples_for_risk(0.05, 1)
+    n = samples_for_risk(0.05, 1, hits=cfg.risk_hits_for(RecedingConfig().method))
     assert np.asarray(obs.obstacles).shape[:2] == (1, n) and p.diagnostics["forecast_samples"] == n
     # no phantoms under the risk dial: the plan's bound is over the one real car's n futures
     assert res.steps[0].n_obstacles == 1 and p.diagnostics["n_planning_samples"] == n

@@ -19,12 +19,12 @@ TINY = mmdopt.MMDOptConfig().replace(
 EPS = 0.05
 
 
-def _slow_car_ahead(n: int) -> np.ndarray:
+def _slow_car_ahead(n: int, gap: float = 25.0) -> np.ndarray:
     """(1, n, K, 2) futures of one car 25 m ahead in the ego's lane at 6 ± 1 m/s (the ego wants
     more): how closely a plan may follow it is what the margins and that pass decide."""
     t = frenet.TimeGrid(TINY.trajectory.horizon, TINY.trajectory.num_steps).t
     v = 6.0 + np.random.default_rng(1).normal(0.0, 1.0, n)
-    s = 25.0 + v[:, None] * t
+    s = gap + v[:, None] * t
     return np.stack([s, 0.0 * s], -1)[None]
 
 
@@ -113,3 +113,40 @@ def test_no_nearest_pass_below_the_floor_of_the_futures():
                            key=jax.random.PRNGKey(5), risk=0.01, method="mmd")  # fmt: skip
     assert "nearest_s" not in p.diagnostics
     assert p.status == "risk floor", p.status_text
+
+
+
+def test_the_pass_repeats_while_its_plan_breaks_the_bound_and_the_promise_holds(monkeypatch):
+    """A nearest-futures pass that allows 20 hits more than the bound does (its count made too
+    generous), behind a slow car 12 m ahead, gives plans that meet too many futures: the pass
+    repeats around each such plan, one allowed hit fewer each time, at most NEAREST_REPEATS
+    times, and the plan's status says whether its bound meets ε."""
+    import mmdopt.risk
+    from mmdopt.api import NEAREST_REPEATS
+
+    true_hits = mmdopt.risk.hits_for_risk
+    monkeypatch.setattr(mmdopt.risk, "hits_for_risk", lambda *a, **k: true_hits(*a, **k) + 20)
+    obs = _slow_car_ahead(3 * samples_for_risk(EPS, 1), gap=12.0)  # close: clearing costs
+    p = _plan(obs, TINY.replace(nearest_futures=40))
+    d = p.diagnostics
+    k = true_hits(EPS, obs.shape[1]) + 20
+    levels, bounds = d["nearest_levels"], d["final_check_bounds"]
+    reps = len(levels) - 1
+    assert levels == pytest.approx([(k - i + 0.5) / 40 for i in range(reps + 1)])
+    nearest = bounds[2 : 3 + reps]  # after the first pass and the re-selection pass
+    assert all(b > EPS for b in nearest[:-1])  # a repeat follows only a broken bound
+    assert reps == NEAREST_REPEATS or nearest[-1] <= EPS
+    assert reps >= 1
+    # the status says whether the promise holds; with none kept, the least bound is returned
+    assert (p.status == "ok") == (p.risk_bound <= EPS), p.status_text
+    if not np.any(np.asarray(bounds) <= EPS):
+        assert p.status == "risk exceeded" and p.risk_bound == pytest.approx(min(bounds))
+
+
+def test_an_allowance_above_the_futures_seen_keeps_a_chance_level_below_one():
+    """ε = 0.05 over 177 futures allows 3 hits; a pass that sees 2 futures may meet both
+    (level 1.5/2), not an invalid level of 3.5/2."""
+    obs = _slow_car_ahead(3 * samples_for_risk(EPS, 1))
+    p = _plan(obs, TINY.replace(nearest_futures=2))
+    assert p.diagnostics["nearest_level"] == pytest.approx(1.5 / 2)
+    assert p.status == "ok" and p.risk_bound <= EPS, p.status_text
