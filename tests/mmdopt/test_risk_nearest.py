@@ -115,7 +115,6 @@ def test_no_nearest_pass_below_the_floor_of_the_futures():
     assert p.status == "risk floor", p.status_text
 
 
-
 def test_the_pass_repeats_while_its_plan_breaks_the_bound_and_the_promise_holds(monkeypatch):
     """A nearest-futures pass that allows 20 hits more than the bound does (its count made too
     generous), behind a slow car 12 m ahead, gives plans that meet too many futures: the pass
