@@ -1000,16 +1000,8 @@ def _plan_impl(
             and config.safety.nearest_futures > 0
             and risk_floor([n] * O) <= float(config.safety.risk)
         ):
-            passes.append(_nearest_pass(planner, ctx, passes[-1], problem, k_cem, backend,
-                                       backend_settings))  # fmt: skip
-            # its plan may meet a future beyond the M it saw, or one more than the soft count
-            # allowed: again around that plan, allowing one hit fewer each time
-            for rep in range(1, NEAREST_REPEATS + 1):
-                if _bounds_of(ctx, [passes[-1].best])[0][0] <= float(config.safety.risk):
-                    break
-                passes.append(_nearest_pass(planner, ctx, passes[-1], problem,
-                                            jax.random.fold_in(k_cem, rep), backend,
-                                            backend_settings, fewer=rep))  # fmt: skip
+            passes += _nearest_passes(planner, ctx, passes[-1], problem, k_cem, backend,
+                                      backend_settings)  # fmt: skip
         state = _final_check(ctx, passes, problem, k_cem, backend, backend_settings)
     diag["cem_s"] = time.perf_counter() - t2
     best, lv = state.best, state.least_violating
@@ -1136,6 +1128,20 @@ NEAREST_REPEATS = 2
 #: the nearest-futures pass's coverage margins are at level min(this · ε, 0.45): it plans
 #: against the futures that matter themselves, and the final check's bound covers the rest
 NEAREST_MARGIN_FACTOR = 10.0
+
+
+def _nearest_passes(planner, ctx: _Ctx, state, problem, key, backend, backend_settings) -> list:
+    """:func:`_nearest_pass` from ``state``, then while the last one's plan has a bound
+    against all n futures above ε (it met a future beyond the M it saw, or one more than the
+    soft count allowed) up to :data:`NEAREST_REPEATS` more around that plan, each allowing one
+    hit fewer: every pass's state, in order."""
+    out = [_nearest_pass(planner, ctx, state, problem, key, backend, backend_settings)]
+    for rep in range(1, NEAREST_REPEATS + 1):
+        if _bounds_of(ctx, [out[-1].best])[0][0] <= float(ctx.config.safety.risk):
+            break
+        out.append(_nearest_pass(planner, ctx, out[-1], problem, jax.random.fold_in(key, rep),
+                                 backend, backend_settings, fewer=rep))  # fmt: skip
+    return out
 
 
 def _nearest_pass(planner, ctx: _Ctx, state, problem, key, backend, backend_settings, fewer=0):
