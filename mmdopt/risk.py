@@ -29,7 +29,7 @@ method              what ε sets
                     SAA's chance term at the number of futures the 95 % bound lets the plan
                     meet (``hits_for_risk``) and loose margins (level 10ε), repeated with one
                     hit fewer while its plan breaks the bound; from a predictor it draws
-                    enough futures for 2 allowed hits (``risk_hits``, about 6.3/ε)
+                    enough futures for 5 allowed hits (``risk_hits``, about 10.5/ε)
 ``"random"``        the same margins and coverage term, no second pass
 ``"degroot"``       the same margins (its scenario cost is unchanged)
 ``"scenario_all"``  the same margins, each sample's cluster being its ``n // m`` nearest
@@ -306,7 +306,7 @@ def samples_for_risk(
 
     ``hits = 0`` gives the fewest that can confirm ε at all (:func:`risk_floor` ≤ ε),
     ``⌈ln(δ/O) / ln(1 − ε/O)⌉`` with δ = 1 − confidence (about 3·O/ε at 95 %): a plan must then
-    clear every sample.  More hits ask for more samples (about 6.3·O/ε for 2, 9.2·O/ε for 4) and
+    clear every sample.  More hits ask for more samples (about 6.3·O/ε for 2, 10.5·O/ε for 5) and
     let a plan come as close to its budget as the samples show it does."""
     eps = check_risk(eps, "eps")
     _check_int(obstacles, "obstacles", 1)
