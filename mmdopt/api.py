@@ -173,21 +173,48 @@ class PlanStatus(enum.StrEnum):
     FALLBACK = "fallback"
 
 
-def _risk_status(eps: float, bound: float, n: int, hits: np.ndarray) -> str:
-    """The status of a plan that is otherwise OK against the requested risk level ``eps``."""
-    O = len(hits)
-    floor = risk_floor([n] * O)
-    who = "the obstacle" if O == 1 else f"each of the {O} obstacles"
+def _risk_counts(config: MMDOptConfig, colliding) -> np.ndarray:
+    """The counts a plan's risk bound is computed from, given the (O, n) planning samples it
+    meets: (1,) the joint futures it meets with any obstacle (``safety.joint_futures``), else
+    (O,) the samples of each obstacle (:func:`mmdopt.risk.risk_bound`)."""
+    hits = np.asarray(colliding, bool)
+    if config.bound_groups(hits.shape[0]) == 1:
+        return hits.any(0).sum(keepdims=True)
+    return hits.sum(-1)
+
+
+def _plan_bound(config: MMDOptConfig, colliding) -> float:
+    """The 95 % risk bound of a plan meeting the (O, n) planning samples ``colliding``."""
+    counts = _risk_counts(config, colliding)
+    return risk_bound(counts, [np.shape(colliding)[-1]] * counts.size)
+
+
+def _risk_status(eps: float, bound: float, n: int, colliding, groups: int) -> str:
+    """The status of a plan that is otherwise OK against the requested risk level ``eps``;
+    ``colliding`` (O, n) the planning samples it meets, ``groups`` the counts its bound sums
+    over (:meth:`MMDOptConfig.bound_groups`)."""
+    hits = np.asarray(colliding, bool)
+    O = hits.shape[0]
+    floor = risk_floor([n] * groups)
+    if O == 1:
+        who = f"the {n} samples of the obstacle"
+    elif groups == 1:
+        who = f"the {n} joint futures of the {O} obstacles"
+    else:
+        who = f"the {n} samples of each of the {O} obstacles"
     if eps < floor:
         return (
-            f"risk floor: asked {eps:.3g}, the {n} samples of {who} support {floor:.2g} at best "
-            f"(95 % bound with no sample met); {samples_for_risk(eps, O)} samples per obstacle "
-            "would support it"
+            f"risk floor: asked {eps:.3g}, {who} support {floor:.2g} at best "
+            f"(95 % bound with no sample met); {samples_for_risk(eps, groups)} samples per "
+            "obstacle would support it"
         )
     if bound > eps:
+        per = hits.sum(-1)
+        met = int(hits.any(0).sum()) if groups == 1 else int(per.sum())
+        what = "joint futures" if groups == 1 and O > 1 else "planning sample(s)"
         return (
-            f"risk exceeded: asked {eps:.3g}, the plan meets {int(np.sum(hits))} planning "
-            f"sample(s) ({', '.join(str(int(h)) for h in hits)} of {n} per obstacle): its 95 % "
+            f"risk exceeded: asked {eps:.3g}, the plan meets {met} {what} "
+            f"({', '.join(str(int(h)) for h in per)} of {n} per obstacle): its 95 % "
             f"bound is {bound:.2g}"
         )
     return "ok"
@@ -220,7 +247,9 @@ class Plan:
     (empty when OK); ``status_text`` joins them (``"fallback: no sample met …"``);
     ``risk_bound``: an upper bound, at 95 % confidence, on the probability that the plan meets an
     obstacle, from the planning samples it meets (:func:`mmdopt.risk.risk_bound`: Clopper–Pearson
-    per obstacle, a union bound over obstacles; its assumptions are stated there);
+    on the joint futures it meets, sample i of every obstacle being one draw of the scene, or
+    with ``safety.joint_futures = False`` per obstacle and a union bound over obstacles; its
+    assumptions are stated there);
     ``fallback`` is ``status == FALLBACK``.  ``config``: the config the plan was made with
     (after the risk mapping), for :meth:`next`.
     """
@@ -420,7 +449,9 @@ def _draw_forecast(fc: Forecast, config: MMDOptConfig, method: str, key) -> tupl
         lo = max(lo, config.selection.reduced_set_size)
     needed = None
     if config.safety.margins.margin_mode == "samples":
-        needed = samples_for_risk(float(config.safety.risk), O, hits=config.risk_hits_for(method))
+        needed = samples_for_risk(
+            float(config.safety.risk), config.bound_groups(O), hits=config.risk_hits_for(method)
+        )
     n = int(min(max(lo, needed or lo), max(fc.max_samples, lo)))
     t0 = time.perf_counter()
     k_pred = jax.random.fold_in(key, 0x5EED)
@@ -998,7 +1029,7 @@ def _plan_impl(
         if (
             method == "mmd"
             and config.safety.nearest_futures > 0
-            and risk_floor([n] * O) <= float(config.safety.risk)
+            and risk_floor([n] * config.bound_groups(O)) <= float(config.safety.risk)
         ):
             passes += _nearest_passes(planner, ctx, passes[-1], problem, k_cem, backend,
                                       backend_settings)  # fmt: skip
@@ -1151,9 +1182,12 @@ def _nearest_pass(planner, ctx: _Ctx, state, problem, key, backend, backend_sett
     all n when n ≤ M, padded to M), each of weight 1/M with the k-NN coverage margins of the
     methods that plan on all samples at the loose level min(:data:`NEAREST_MARGIN_FACTOR` · ε,
     0.45), and SAA's sample-average chance term (:func:`mmdopt.collision.saa_cost`) at level
-    (k + ½)/M, where k = :func:`mmdopt.risk.hits_for_risk` (ε, n) − ``fewer`` (≥ 0) and
-    hits_for_risk is the most futures per obstacle a plan may meet while its 95 % bound stays
-    ≤ ε.  The reduced set decides where the plan goes; this pass
+    (k + ½)/M, where k = :func:`mmdopt.risk.hits_for_risk` (ε, n, G) − ``fewer`` (≥ 0) and
+    hits_for_risk is the most futures a plan may meet (joint futures, G = 1, by default; per
+    obstacle with ``safety.joint_futures = False``) while its 95 % bound stays ≤ ε.  With
+    several obstacles in conflict the per-obstacle chance terms may together meet more joint
+    futures than k: the repeats (:func:`_nearest_passes`) then allow fewer.  The reduced set
+    decides where the plan goes; this pass
     lets it pass as close to the futures that matter as the bound allows.  Its plan is one more
     candidate of :func:`_final_check`.  Not run when ε is below the floor of the n futures
     (:func:`mmdopt.risk.risk_floor`): no plan's bound can then meet ε, and threading between
@@ -1173,7 +1207,8 @@ def _nearest_pass(planner, ctx: _Ctx, state, problem, key, backend, backend_sett
     # padding (fewer than P futures): copies of the first, masked out of the chance term
     pad = np.concatenate([idx, np.repeat(idx[:, :1], P - M, axis=1)], axis=1)
     mask = np.arange(P)[None, :].repeat(O, 0) < M
-    k = max(hits_for_risk(float(config.safety.risk), int(n), int(O)) - int(fewer), 0)
+    G = config.bound_groups(O)
+    k = max(hits_for_risk(float(config.safety.risk), int(n), G) - int(fewer), 0)
     k = min(k, M - 1)  # a level below 1 (with as many hits as futures seen, all may be met)
     cfg = config.replace(saa_eps=(k + 0.5) / M)
     level = min(NEAREST_MARGIN_FACTOR * float(config.safety.risk), _LEVEL_CAP)
@@ -1309,8 +1344,7 @@ def _bounds_of(ctx: _Ctx, bests) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         obstacle_heading=ctx.obs_h,
     )
     hits = np.asarray(cnt.colliding)  # (C, O, n)
-    O, n = ctx.obs_fr.shape[:2]
-    bound = np.array([risk_bound(h.sum(-1), [n] * O) for h in hits])
+    bound = np.array([_plan_bound(config, h) for h in hits])
     vs, as_, ad = cx @ B.Pdot.T, cx @ B.Pddot.T, cy @ B.Pddot.T
     c = config.cost
     task = c.w_speed * np.mean((vs - c.v_des) ** 2, -1) + c.w_accel * np.mean(as_**2 + ad**2, -1)
@@ -1332,7 +1366,8 @@ def _final_check(ctx: _Ctx, passes, problem, key, backend, backend_settings):
     else the one of least bound (its status then says "risk exceeded")."""
     n = ctx.obs_fr.shape[1]
     # below the floor of n samples no bound reaches ε: the aim is then a plan clear of them all
-    eps = max(float(ctx.config.safety.risk), risk_floor([n] * ctx.obs_fr.shape[0]) * (1 + 1e-9))
+    G = ctx.config.bound_groups(ctx.obs_fr.shape[0])
+    eps = max(float(ctx.config.safety.risk), risk_floor([n] * G) * (1 + 1e-9))
     ladder, levels = _ladder_passes(ctx, passes[-1], problem, key, backend, backend_settings)
     states = list(passes) + ladder
     bound, task, hits = _bounds_of(ctx, [p.best for p in states])
@@ -1491,9 +1526,10 @@ def _assemble(ctx: _Ctx, cx, cy, dvec, cost, best_iter, fallback, status, state)
             "no collision-free plan was found"
         )
     n_plan, O = int(ctx.obs_fr.shape[1]), int(cf_plan.shape[0])
-    bound = risk_bound(n_plan - cf_plan, [n_plan] * O)
+    bound = _plan_bound(config, cnt.colliding)
     if status == "ok" and config.safety.margins.margin_mode == "samples":
-        status = _risk_status(float(config.safety.risk), bound, n_plan, n_plan - cf_plan)
+        status = _risk_status(float(config.safety.risk), bound, n_plan, cnt.colliding,
+                              config.bound_groups(O))  # fmt: skip
     kind, why = _split_status(status)
     s = s + s_off
     diag = dict(diag)

@@ -63,11 +63,12 @@ __all__ = [
 SAA_EPS_LINEAR = 0.02
 #: weight of the coverage term of the MMD cost in the "samples" margin mode (the default)
 W_COVER = 100.0
-#: the planning futures per obstacle an MMD-Opt plan drawn from a predictor may meet with its
-#: 95 % bound ≤ ε ("samples" margin mode, ``SafetyConfig.risk_hits = None``): it draws
-#: n(ε) ≈ 10.5/ε futures instead of ≈ 3/ε (its reduced set keeps the cost of more futures
-#: small), so that its plans may come as close to ε as the bound allows instead of clearing every
-#: future (measured rate ≈ 0.55 ε at ε = 0.005 on the tuning scenes, against 0.37 ε with 2 hits)
+#: the planning futures (joint draws of every obstacle, ``SafetyConfig.joint_futures``) an
+#: MMD-Opt plan drawn from a predictor may meet with its 95 % bound ≤ ε ("samples" margin mode,
+#: ``SafetyConfig.risk_hits = None``): it draws n(ε) ≈ 10.5/ε futures instead of ≈ 3/ε (its
+#: reduced set keeps the cost of more futures small), so that its plans may come as close to ε
+#: as the bound allows instead of clearing every future (measured rate ≈ 0.55 ε at ε = 0.005 on
+#: the tuning scenes, against 0.37 ε with 2 hits)
 MMD_RISK_HITS = 5
 
 
@@ -421,12 +422,20 @@ class SafetyConfig(_Section):
         and loose coverage margins (200; 0: off; skipped when ε is below what the futures can
         confirm; repeated around its plan with one hit fewer, at most twice, while that plan's
         bound exceeds ε).  Each of its plans is one more candidate of the final check
+    joint_futures : whether sample i of every obstacle is one joint draw of the scene's future
+        (True, the default: a predictor's draw, and how the benchmarks' metric counts): the
+        plan's 95 % bound is then Clopper–Pearson on the number of joint futures it meets (those
+        it meets with any obstacle), and n(ε) does not grow with the number of obstacles.
+        False: each obstacle's samples are separate draws, paired in no particular order; the
+        bound is the union over obstacles (Bonferroni), valid whatever their dependence, and
+        n(ε) grows about linearly with O (:func:`mmdopt.risk.risk_bound`)
     """
 
     risk: float = 0.005
     reselect: int | None = _static(None)
     risk_hits: int | None = _static(None)
     nearest_futures: int = _static(200)
+    joint_futures: bool = _static(True)
     footprint: Footprint = field(default_factory=Footprint)
     margins: MarginConfig = field(default_factory=MarginConfig)
     rules: RoadRules = field(default_factory=RoadRules)
@@ -438,6 +447,10 @@ class SafetyConfig(_Section):
         for name in ("risk_hits", "nearest_futures"):
             if getattr(self, name) is not None and getattr(self, name) < 0:
                 raise ValueError(f"SafetyConfig.{name} must be >= 0, got {getattr(self, name)}")
+        if not isinstance(self.joint_futures, bool | np.bool_):
+            raise ValueError(
+                f"SafetyConfig.joint_futures must be a bool, got {self.joint_futures!r}"
+            )
         if _plain(self.risk) and not 0 < float(self.risk) < 0.5:
             raise ValueError(f"SafetyConfig.risk must be in (0, 0.5), got {self.risk!r}")
         if self.reselect is not None and self.reselect < 0:
@@ -730,6 +743,12 @@ class MMDOptConfig:
         if method == "mmd" and self.safety.margins.margin_mode == "samples":
             return MMD_RISK_HITS
         return 0
+
+    def bound_groups(self, obstacles: int) -> int:
+        """How many counts the plan's risk bound sums over (:func:`mmdopt.risk.risk_bound`,
+        :func:`~mmdopt.risk.samples_for_risk`): 1 (the joint futures met) when
+        ``safety.joint_futures``, else one per obstacle."""
+        return 1 if self.safety.joint_futures else int(obstacles)
 
     def reselect_for(self, method: str) -> int:
         """The re-selection pass size ``method`` runs with: ``safety.reselect``, or when that is

@@ -307,8 +307,7 @@ def _plan_once(obs: Observation, rc: RecedingConfig, config: MMDOptConfig, key, 
     """One plan of the loop: ``(plan, warm start used, obs with its obstacles drawn)``; the
     plan time covers :func:`mmdopt.plan` only (a forecast's draw is the observation's
     ``info["predict_s"]``).  A forecast drawn for the risk dial (the "samples" margin mode) is
-    not padded with phantoms: they would count as obstacles in the plan's risk bound, and n(ε, O)
-    changes the shapes with O anyway."""
+    not padded with phantoms: they would count as obstacles in the plan's risk bound."""
     heads = _observed_headings(obs)
     obs, drawn = _drawn(obs, rc, config, key)
     num = rc.max_obstacles

@@ -268,13 +268,18 @@ def clopper_pearson_upper(k: int, n: int, confidence: float = RISK_CONFIDENCE) -
 
 
 def risk_bound(collisions, n, confidence: float = RISK_CONFIDENCE) -> float:
-    """Upper bound, at ``confidence``, on the probability that a plan meets any of O obstacles,
-    from the ``collisions[o]`` of ``n[o]`` planning samples of obstacle o that it meets.
+    """Upper bound, at ``confidence``, on the probability that a plan meets any obstacle, from
+    the ``collisions[g]`` of ``n[g]`` planning samples of each of G groups that it meets.
 
-    Each obstacle's probability is bounded by Clopper–Pearson at ``1 − (1 − confidence)/O``
-    and the bounds are summed (the union bound, with the confidence split by Bonferroni), capped
-    at 1.  Assumptions: each obstacle's samples are independent draws from the predictor's
-    distribution of its future, and the plan is judged as a fixed trajectory.  A plan optimised
+    **Joint futures** (G = 1, what :func:`mmdopt.plan` uses by default,
+    ``SafetyConfig.joint_futures``): sample i of every obstacle is one draw of the scene's
+    joint future, ``collisions = [k]`` counts the draws the plan meets with any obstacle, and
+    the bound is Clopper–Pearson on k of n.  **Separate draws** (G = O, one group per
+    obstacle): each obstacle's probability is bounded by Clopper–Pearson at
+    ``1 − (1 − confidence)/O`` and the bounds are summed (the union bound, with the confidence
+    split by Bonferroni), capped at 1; valid whatever the obstacles' dependence, and looser.
+    Assumptions: the draws are independent, from the predictor's distribution of the future,
+    and the plan is judged as a fixed trajectory.  A plan optimised
     against the same samples is not independent of them, so the bound is optimistic by the
     plan's dependence on the few samples that shape it (scenario theory's support samples);
     validation futures drawn afresh measure the rate without that caveat."""
@@ -302,12 +307,14 @@ def samples_for_risk(
     eps: float, obstacles: int = 1, confidence: float = RISK_CONFIDENCE, hits: int = 0
 ) -> int:
     """n(ε): the fewest samples per obstacle for which a plan that meets ``hits`` of each
-    obstacle's samples still has :func:`risk_bound` ≤ ``eps`` with ``obstacles`` obstacles.
+    group's samples still has :func:`risk_bound` ≤ ``eps`` with ``obstacles`` groups (1 for
+    joint futures, whatever the number of obstacles; O for separate draws).
 
     ``hits = 0`` gives the fewest that can confirm ε at all (:func:`risk_floor` ≤ ε),
-    ``⌈ln(δ/O) / ln(1 − ε/O)⌉`` with δ = 1 − confidence (about 3·O/ε at 95 %): a plan must then
-    clear every sample.  More hits ask for more samples (about 6.3·O/ε for 2, 10.5·O/ε for 5) and
-    let a plan come as close to its budget as the samples show it does."""
+    ``⌈ln(δ/G) / ln(1 − ε/G)⌉`` with δ = 1 − confidence and G = ``obstacles`` (about 3·G/ε at
+    95 %): a plan must then clear every sample.  More hits ask for more samples (about 6.3·G/ε
+    for 2, 10.5·G/ε for 5) and let a plan come as close to its budget as the samples show it
+    does."""
     eps = check_risk(eps, "eps")
     _check_int(obstacles, "obstacles", 1)
     _check_int(hits, "hits", 0)
@@ -331,9 +338,10 @@ def samples_for_risk(
 def hits_for_risk(
     eps: float, n: int, obstacles: int = 1, confidence: float = RISK_CONFIDENCE
 ) -> int:
-    """The most of its ``n`` samples per obstacle a plan may meet (the same count for each of
-    ``obstacles`` obstacles) while its :func:`risk_bound` stays ≤ ``eps``; −1 when even a plan
-    that meets none has a bound above ``eps`` (``n`` is below :func:`samples_for_risk`)."""
+    """The most of its ``n`` samples per group a plan may meet (the same count for each of
+    ``obstacles`` groups: 1 for joint futures, O for separate draws) while its
+    :func:`risk_bound` stays ≤ ``eps``; −1 when even a plan that meets none has a bound above
+    ``eps`` (``n`` is below :func:`samples_for_risk`)."""
     eps = check_risk(eps, "eps")
     _check_int(obstacles, "obstacles", 1)
     _check_int(n, "n", 1)

@@ -157,8 +157,10 @@ class Forecast:
     """Obstacles given as a predictor to sample from, instead of a fixed array of futures.
 
     :func:`mmdopt.plan` draws from ``predictor`` as many futures per obstacle as the risk level
-    ε asks for: n(ε) = :func:`mmdopt.risk.samples_for_risk` (ε, O), the fewest whose 95 % bound
-    can confirm ε (598 for ε = 0.005 and one obstacle, ≈ 3·O/ε), at least ``min_samples`` (and
+    ε asks for: n(ε) = :func:`mmdopt.risk.samples_for_risk` (ε, G), the fewest whose 95 % bound
+    can confirm ε (598 for ε = 0.005, ≈ 3/ε: sample i of every obstacle is one joint draw, so
+    G = 1 whatever the number of obstacles; ≈ 3·O/ε with ``SafetyConfig.joint_futures =
+    False``), or more for MMD-Opt's allowed hits, at least ``min_samples`` (and
     the reduced-set size) and at most ``max_samples`` — beyond that cap the plan's status says
     ``risk floor``.  Without a risk level (the time-linear margins) it draws ``min_samples``.
     The draw's key is derived from the plan's, so the same key gives the same plan.

@@ -4,6 +4,8 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
 from scipy.stats import beta
 
 from mmdopt.risk import (
@@ -37,6 +39,34 @@ def test_union_over_obstacles_splits_the_confidence():
     assert two == pytest.approx(2 * clopper_pearson_upper(0, 100, 1 - 0.05 / 2))
     assert one < two <= 1.0
     assert risk_bound([100, 0], [100, 100]) == 1.0
+
+
+@settings(max_examples=200, deadline=None)
+@given(
+    hits=st.lists(st.lists(st.booleans(), min_size=30, max_size=30), min_size=2, max_size=4),
+)
+def test_the_joint_bound_is_never_looser_than_the_union_bound(hits):
+    # a plan meeting these (O, n) futures: the joint count is between the largest obstacle's
+    # count and their sum, and Clopper–Pearson on it at full confidence never exceeds the sum
+    # of per-obstacle bounds at the Bonferroni-split confidence
+    h = np.array(hits)
+    O, n = h.shape
+    joint = risk_bound([int(h.any(0).sum())], [n])
+    union = risk_bound(h.sum(1).tolist(), [n] * O)
+    assert joint <= union + 1e-12
+
+
+def test_the_joint_bound_covers_the_probability_of_meeting_any_obstacle():
+    # two independent obstacles met with probabilities p1, p2: sample i of each is one joint
+    # draw, and the bound on the joint count covers 1 − (1 − p1)(1 − p2) at least 95 % of
+    # the time, while needing no more samples than one obstacle would
+    rng = np.random.default_rng(2)
+    p1, p2, n = 0.004, 0.002, 1000
+    p = 1 - (1 - p1) * (1 - p2)
+    met = (rng.random((3000, n)) < p1) | (rng.random((3000, n)) < p2)
+    covered = np.mean([risk_bound([int(k)], [n]) >= p for k in met.sum(1)])
+    assert covered >= RISK_CONFIDENCE - 0.01, covered
+    assert samples_for_risk(0.005, 1) < samples_for_risk(0.005, 2)
 
 
 def test_floor_and_the_samples_a_request_needs():
@@ -128,3 +158,27 @@ def test_a_plan_that_meets_more_samples_than_asked_says_so():
     )  # fmt: skip
     assert p.status == mmdopt.PlanStatus.RISK_EXCEEDED, p.status_text
     assert p.risk_bound > 0.2 and "meets 8 planning sample(s)" in p.message
+
+
+def test_several_obstacles_met_in_the_same_futures_count_once():
+    # two cars whose futures 0..7 both sit on the ego's start: every plan meets those 8 joint
+    # futures, 8 of each car's; the bound counts the 8 draws once (joint futures, the default)
+    # and both cars' 8 with the union bound when the samples are declared separate draws
+    import jax
+
+    import frenet
+    import mmdopt
+
+    cfg, one = _scene(40, on_ego=8)
+    obs = np.concatenate([one, one + np.array([15.0, 0.0])])  # the second car 15 m further
+    kw = dict(key=jax.random.PRNGKey(0), risk=0.2)
+    ego = frenet.EgoState(vs=10.0)
+    p = mmdopt.plan(ego, mmdopt.Road(), obs, config=cfg, **kw)
+    assert p.status == mmdopt.PlanStatus.RISK_EXCEEDED, p.status_text
+    assert "meets 8 joint futures (8, 8 of 40 per obstacle)" in p.message
+    assert p.risk_bound == pytest.approx(risk_bound([8], [40]))
+    sep = mmdopt.plan(ego, mmdopt.Road(), obs, config=cfg.replace(joint_futures=False), **kw)
+    assert sep.risk_bound == pytest.approx(risk_bound([8, 8], [40, 40]))
+    assert sep.risk_bound > p.risk_bound
+    with pytest.raises(ValueError, match="joint_futures"):
+        mmdopt.SafetyConfig(joint_futures=1)

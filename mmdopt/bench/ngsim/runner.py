@@ -489,7 +489,7 @@ class GhostPadded:
 def _forecast(b: dict, pred, params: NgsimParams, config) -> Forecast:
     """The task's obstacles as a :class:`mmdopt.predict.Forecast` of ``pred``; with the
     time-linear margins (one n for every plan) padded with ghosts like the fixed samples, in the
-    "samples" mode not (ghosts would count as obstacles in n(ε, O) and the risk bound)."""
+    "samples" mode not (ghosts would count as obstacles in the risk bound)."""
     hist, ctx = np.asarray(b["hist"], np.float64), b["ctx"]
     O = hist.shape[0]
     kw = dict(min_samples=params.n_samples, max_samples=max(params.n_samples, MAX_FORECAST_SAMPLES))
