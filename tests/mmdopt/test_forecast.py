@@ -39,7 +39,7 @@ def test_plan_draws_the_futures_the_risk_level_needs_and_confirms_it():
     fc = _forecast(min_samples=10)
     p = mmdopt.plan(EGO, mmdopt.Road(), fc, config=CFG, key=key, risk=0.05)
     # MMD-Opt draws enough for a plan that meets MMD_RISK_HITS of them to keep its bound
-    n = samples_for_risk(0.05, 1, hits=MMD_RISK_HITS)  # 208
+    n = samples_for_risk(0.05, 1, hits=MMD_RISK_HITS)  # 386
     assert n > samples_for_risk(0.05, 1)  # 59: the fewest that can confirm ε at all
     assert p.diagnostics["forecast_samples"] == n == p.diagnostics["n_planning_samples"]
     assert p.status == "ok" and p.risk_bound <= 0.05, p.status_text
