@@ -1187,11 +1187,10 @@ def _nearest_pass(planner, ctx: _Ctx, state, problem, key, backend, backend_sett
     obstacle with ``safety.joint_futures = False``) while its 95 % bound stays ≤ ε.  With
     several obstacles in conflict the per-obstacle chance terms may together meet more joint
     futures than k: the repeats (:func:`_nearest_passes`) then allow fewer.  The reduced set
-    decides where the plan goes; this pass
-    lets it pass as close to the futures that matter as the bound allows.  Its plan is one more
-    candidate of :func:`_final_check`.  Not run when ε is below the floor of the n futures
-    (:func:`mmdopt.risk.risk_floor`): no plan's bound can then meet ε, and threading between
-    futures too few to show the tail would only add risk."""
+    decides where the plan goes; this pass lets it pass as close to the futures that matter as
+    the bound allows.  Its plan is one more candidate of :func:`_final_check`.  Not run when ε
+    is below the floor of the n futures (:func:`mmdopt.risk.risk_floor`): no plan's bound can
+    then meet ε, and threading between futures too few to show the tail would only add risk."""
     from .risk import hits_for_risk
 
     config, obs_fr = ctx.config, ctx.obs_fr
