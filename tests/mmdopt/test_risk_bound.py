@@ -170,7 +170,9 @@ def test_several_obstacles_met_in_the_same_futures_count_once():
     import mmdopt
 
     cfg, one = _scene(40, on_ego=8)
-    obs = np.concatenate([one, one + np.array([15.0, 0.0])])  # the second car 15 m further
+    two = one.copy()
+    two[:, 8:] += np.array([15.0, 0.0])  # the second car's other futures 15 m further on
+    obs = np.concatenate([one, two])
     kw = dict(key=jax.random.PRNGKey(0), risk=0.2)
     ego = frenet.EgoState(vs=10.0)
     p = mmdopt.plan(ego, mmdopt.Road(), obs, config=cfg, **kw)
