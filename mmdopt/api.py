@@ -189,12 +189,14 @@ def _plan_bound(config: MMDOptConfig, colliding) -> float:
     return risk_bound(counts, [np.shape(colliding)[-1]] * counts.size)
 
 
-def _risk_status(eps: float, bound: float, n: int, colliding, groups: int) -> str:
-    """The status of a plan that is otherwise OK against the requested risk level ``eps``;
-    ``colliding`` (O, n) the planning samples it meets, ``groups`` the counts its bound sums
-    over (:meth:`MMDOptConfig.bound_groups`)."""
+def _risk_status(config: MMDOptConfig, bound: float, colliding) -> str:
+    """The status of a plan that is otherwise OK against the requested risk level
+    ``config.safety.risk``; ``colliding`` (O, n) the planning samples it meets, ``bound`` its
+    :func:`_plan_bound`."""
+    eps = float(config.safety.risk)
     hits = np.asarray(colliding, bool)
-    O = hits.shape[0]
+    (O, n), counts = hits.shape, _risk_counts(config, hits)
+    groups = counts.size
     floor = risk_floor([n] * groups)
     if O == 1:
         who = f"the {n} samples of the obstacle"
@@ -209,12 +211,10 @@ def _risk_status(eps: float, bound: float, n: int, colliding, groups: int) -> st
             "obstacle would support it"
         )
     if bound > eps:
-        per = hits.sum(-1)
-        met = int(hits.any(0).sum()) if groups == 1 else int(per.sum())
         what = "joint futures" if groups == 1 and O > 1 else "planning sample(s)"
         return (
-            f"risk exceeded: asked {eps:.3g}, the plan meets {met} {what} "
-            f"({', '.join(str(int(h)) for h in per)} of {n} per obstacle): its 95 % "
+            f"risk exceeded: asked {eps:.3g}, the plan meets {int(counts.sum())} {what} "
+            f"({', '.join(str(int(h)) for h in hits.sum(-1))} of {n} per obstacle): its 95 % "
             f"bound is {bound:.2g}"
         )
     return "ok"
@@ -1524,11 +1524,9 @@ def _assemble(ctx: _Ctx, cx, cy, dvec, cost, best_iter, fallback, status, state)
             f"unsafe: the plan collides with every planning sample of obstacle(s) {hit}; "
             "no collision-free plan was found"
         )
-    n_plan, O = int(ctx.obs_fr.shape[1]), int(cf_plan.shape[0])
     bound = _plan_bound(config, cnt.colliding)
     if status == "ok" and config.safety.margins.margin_mode == "samples":
-        status = _risk_status(float(config.safety.risk), bound, n_plan, cnt.colliding,
-                              config.bound_groups(O))  # fmt: skip
+        status = _risk_status(config, bound, cnt.colliding)
     kind, why = _split_status(status)
     s = s + s_off
     diag = dict(diag)
