@@ -1223,8 +1223,13 @@ def shift(config: MMDOptConfig, state: CEMState, dt: float) -> CEMState:
             f"state.mu has shape {tuple(np.shape(state.mu))}, but config needs ({cfg.d_dim},): "
             "shift a state with the config it was made with"
         )
+    return _shift(cfg, state, dt / (cfg.trajectory.horizon / cfg.trajectory.num_segments))
+
+
+@jax.jit
+def _shift(cfg: MMDOptConfig, state: CEMState, frac) -> CEMState:
+    # one compiled program per config (eagerly, each op would compile for every new shape)
     S = cfg.trajectory.num_segments
-    frac = dt / (cfg.trajectory.horizon / S)
 
     def sh(x):
         return jnp.concatenate(

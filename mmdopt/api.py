@@ -20,6 +20,7 @@ import math
 import time
 import warnings
 from dataclasses import dataclass, field
+from functools import partial
 from typing import Any
 
 import jax
@@ -1092,20 +1093,20 @@ def _conflict_depth(ctx: _Ctx, best) -> np.ndarray:
     cx1 = np.asarray(best.cx, np.float64)
     cy1 = np.asarray(best.cy, np.float64)
     s1, d1 = (Bs.P @ cx1)[None], (Bs.P @ cy1)[None]
+    vs1, vd1 = (Bs.Pdot @ cx1)[None], (Bs.Pdot @ cy1)[None]
+    # (O, n, C, K, 2) centres of every sample
+    return np.asarray(_depth_values(config, s1, d1, vs1, vd1, ctx.centres()))
+
+
+@jax.jit
+def _depth_values(config: MMDOptConfig, s1, d1, vs1, vd1, centres):
+    # one compiled program per shape for _conflict_depth (eagerly: a program per op and shape)
     b = jnp.asarray(config.safety.footprint.b)
     if config.safety.footprint.yaw_aware:
-        vs1, vd1 = (Bs.Pdot @ cx1)[None], (Bs.Pdot @ cy1)[None]
-        b = b + alg.yaw_widening(config, jnp.asarray(vs1), jnp.asarray(vd1))  # (1, K)
+        b = b + alg.yaw_widening(config, vs1, vd1)  # (1, K)
     rear = float(config.safety.rules.rear_exempt_width) if config.safety.rules.asymmetric else None
-    f = ellipse_values(
-        jnp.asarray(s1),
-        jnp.asarray(d1),
-        ctx.centres(),  # (O, n, C, K, 2)
-        config.safety.footprint.a,
-        b,
-        rear_exempt_width=rear,
-    )
-    return np.asarray(jnp.max(f[0], axis=(2, 3)))
+    f = ellipse_values(s1, d1, centres, config.safety.footprint.a, b, rear_exempt_width=rear)
+    return jnp.max(f[0], axis=(2, 3))
 
 
 def _reselect_pass(ctx: _Ctx, state, problem, key, backend, backend_settings):
@@ -1327,6 +1328,28 @@ def _refine(ctx, states, levels, bound, task, hits, eps, problem, key, backend, 
     return np.concatenate([bound, b]), np.concatenate([task, t]), np.concatenate([hits, h])
 
 
+#: plans are scored against every sample in batches padded to a multiple of this
+_COUNT_BUCKET = 4
+
+
+def _samples_met(ctx: _Ctx, s, d) -> np.ndarray:
+    """(C, O, n) the planning samples each of the C plans (s, d) (C, K) meets, counted as
+    :func:`collision_free_count` counts a collision (any circle pair, any step); the plans are
+    padded to a multiple of :data:`_COUNT_BUCKET`, so one compiled count serves 1–4 of them."""
+    config = ctx.config
+    xy = np.stack([np.asarray(s, np.float64), np.asarray(d, np.float64)], -1)
+    C = xy.shape[0]
+    pad = -(-C // _COUNT_BUCKET) * _COUNT_BUCKET - C
+    cnt = collision_free_count(
+        np.concatenate([xy, np.repeat(xy[:1], pad, axis=0)]),
+        ctx.obs_fr,
+        a=config.safety.footprint.a,
+        b=config.safety.footprint.b,
+        obstacle_heading=ctx.obs_h,
+    )
+    return np.asarray(cnt.colliding)[:C]
+
+
 def _bounds_of(ctx: _Ctx, bests) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """The 95 % risk bound (C,), task cost (C,) and planning samples met (C, O, n) of candidate
     plans ``bests`` against every planning sample (as :func:`collision_free_count` counts a
@@ -1335,14 +1358,7 @@ def _bounds_of(ctx: _Ctx, bests) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     cx = np.stack([np.asarray(b.cx, np.float64) for b in bests])
     cy = np.stack([np.asarray(b.cy, np.float64) for b in bests])
     s, d = cx @ B.P.T, cy @ B.P.T
-    cnt = collision_free_count(
-        np.stack([s, d], -1),
-        ctx.obs_fr,
-        a=config.safety.footprint.a,
-        b=config.safety.footprint.b,
-        obstacle_heading=ctx.obs_h,
-    )
-    hits = np.asarray(cnt.colliding)  # (C, O, n)
+    hits = _samples_met(ctx, s, d)  # (C, O, n)
     bound = np.array([_plan_bound(config, h) for h in hits])
     vs, as_, ad = cx @ B.Pdot.T, cx @ B.Pddot.T, cy @ B.Pddot.T
     c = config.cost
@@ -1448,37 +1464,36 @@ def _braking_fallback(ctx: _Ctx, status: str, state=None) -> Plan:
     return _assemble(ctx, cx, cy, dvec[0], float("nan"), -1, True, status, state)
 
 
-#: the plan's own MMD value for the diagnostics (jitted: eagerly, the Taylor-feature scan would be
-#: compiled again on every call)
-_mmd_cost_jit = jax.jit(mmd_cost, static_argnums=(4,))
-
-
 def _plan_mmd(ctx: _Ctx, s, d, vs, vd) -> float:
     """l_dist of the plan (s, d, ṡ, ḋ on the grid) against the method's obstacle samples, with
     the config's kernel, margins and rules (a diagnostic of the plan)."""
-    config, prob, ob = ctx.config, ctx.prob, ctx.obstacles
-    vs1 = jnp.asarray(vs[None]) if config.safety.rules.asymmetric else None
-    wide = (
-        alg.yaw_widening(config, vs[None], vd[None]) if config.safety.footprint.yaw_aware else None
-    )
-    if ob.margins is not None:
-        f = alg.margin_ellipse_values(
-            config, jnp.asarray(s[None]), jnp.asarray(d[None]), ob.centres, ob.margins, vs=vs1,
-            widen=wide,
-        )  # fmt: skip
+    config, ob = ctx.config, ctx.obstacles
+    return float(
+        _plan_mmd_value(
+            config, ctx.prob.t(), ob.centres, ob.weights, ob.margins, s[None], d[None], vs[None],
+            vd[None], n_terms=n_taylor_terms(config),
+        )[0]
+    )  # fmt: skip
+
+
+@partial(jax.jit, static_argnames=("n_terms",))
+def _plan_mmd_value(config: MMDOptConfig, t, centres, weights, margins, s, d, vs, vd, n_terms):
+    # one compiled program per shape (eagerly: a program per op and shape)
+    vs1 = vs if config.safety.rules.asymmetric else None
+    wide = alg.yaw_widening(config, vs, vd) if config.safety.footprint.yaw_aware else None
+    if margins is not None:
+        f = alg.margin_ellipse_values(config, s, d, centres, margins, vs=vs1, widen=wide)
     else:
-        a_plan = planning_semi_axis(config, prob.t())
+        a_plan = planning_semi_axis(config, t)
         a_behind = rear_w = None
         if config.safety.rules.asymmetric:
             a_behind = alg.headway_semi_axis(config, a_plan, vs1)
-            a_plan = planning_semi_axis(
-                config, prob.t(), scale=config.safety.rules.margin_ahead_scale
-            )
+            a_plan = planning_semi_axis(config, t, scale=config.safety.rules.margin_ahead_scale)
             rear_w = config.safety.rules.rear_exempt_width
         f = ellipse_values(
-            jnp.asarray(s[None]),
-            jnp.asarray(d[None]),
-            ob.centres,
+            s,
+            d,
+            centres,
             a_plan,
             config.safety.footprint.b
             + config.safety.margins.margin_lat
@@ -1487,11 +1502,7 @@ def _plan_mmd(ctx: _Ctx, s, d, vs, vd) -> float:
             rear_exempt_width=rear_w,
             headway_lane=config.safety.rules.headway_lane,
         )
-    return float(
-        _mmd_cost_jit(
-            f, ob.weights, config.cost.bandwidth, config.cost.f_scale, n_taylor_terms(config)
-        )[0]
-    )
+    return mmd_cost(f, weights, config.cost.bandwidth, config.cost.f_scale, n_terms)
 
 
 def _assemble(ctx: _Ctx, cx, cy, dvec, cost, best_iter, fallback, status, state) -> Plan:
@@ -1510,23 +1521,17 @@ def _assemble(ctx: _Ctx, cx, cy, dvec, cost, best_iter, fallback, status, state)
             f"{float(config.projection.res_tol):g}"
         )
     mmd_val = _plan_mmd(ctx, s, d, vs, vd)
-    cnt = collision_free_count(
-        np.stack([s, d], -1),
-        ctx.obs_fr,
-        a=config.safety.footprint.a,
-        b=config.safety.footprint.b,
-        obstacle_heading=ctx.obs_h,
-    )
-    cf_plan = np.asarray(cnt.per_obstacle)
+    colliding = _samples_met(ctx, s[None], d[None])[0]  # (O, n)
+    cf_plan = colliding.shape[1] - colliding.sum(axis=1)
     if not fallback and np.any(cf_plan == 0):
         hit = [int(o) for o in np.flatnonzero(cf_plan == 0)]
         status = (
             f"unsafe: the plan collides with every planning sample of obstacle(s) {hit}; "
             "no collision-free plan was found"
         )
-    bound = _plan_bound(config, cnt.colliding)
+    bound = _plan_bound(config, colliding)
     if status == "ok" and config.safety.margins.margin_mode == "samples":
-        status = _risk_status(config, bound, cnt.colliding)
+        status = _risk_status(config, bound, colliding)
     kind, why = _split_status(status)
     s = s + s_off
     diag = dict(diag)

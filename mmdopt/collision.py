@@ -108,9 +108,16 @@ def headings(xy: ArrayLike, initial: ArrayLike | None = None) -> jax.Array:
     (..., K) heading (rad); ``initial`` (or zeros) when K = 1.
     """
     xy = jnp.asarray(xy)
+    return _headings(xy, None if initial is None else jnp.asarray(initial, xy.dtype))
+
+
+@jax.jit
+def _headings(xy, initial):
+    # one compiled program per shape: called eagerly on the host (a plan's samples, its
+    # candidates), op by op it would compile a dozen small programs for every new shape
     init = None
     if initial is not None:
-        init = jnp.broadcast_to(jnp.asarray(initial, xy.dtype), xy.shape[:-2])[..., None]
+        init = jnp.broadcast_to(initial, xy.shape[:-2])[..., None]
     if xy.shape[-2] < 2:
         out = jnp.zeros(xy.shape[:-1], dtype=xy.dtype)
         return out if init is None else out + init
@@ -144,9 +151,13 @@ def circle_centres(
     """
     xy = jnp.asarray(xy)
     r = footprint.offsets_array().astype(xy.dtype)  # (C,)
+    return _circle_centres(xy, r, None if heading is None else jnp.asarray(heading))
+
+
+@jax.jit
+def _circle_centres(xy, r, heading):
     if heading is None:
-        heading = headings(xy)
-    heading = jnp.asarray(heading)
+        heading = _headings(xy, None)
     u = jnp.stack([jnp.cos(heading), jnp.sin(heading)], axis=-1)  # (..., K, 2)
     return xy[..., None, :, :] + r[:, None, None] * u[..., None, :, :]
 
@@ -657,7 +668,7 @@ def collision_free_count(
             f"got {np.shape(validation_samples)}"
         )
     for name, arr in (("ego_xy", ego), ("validation_samples", val)):
-        if _concrete(arr) and not bool(jnp.all(jnp.isfinite(arr))):
+        if _concrete(arr) and not np.all(np.isfinite(np.asarray(arr))):
             raise ValueError(f"{name} contains NaN or inf")
     for name, v in (("a", a), ("b", b)):
         if _concrete(v) and not (np.isfinite(float(v)) and float(v) > 0):
@@ -678,7 +689,7 @@ def collision_free_count(
                 f"obstacle_heading must have shape {tuple(val.shape[:-1])} (O, N, K), got "
                 f"{tuple(oh.shape)}"
             )
-        if _concrete(oh) and not bool(jnp.all(jnp.isfinite(oh))):
+        if _concrete(oh) and not np.all(np.isfinite(np.asarray(oh))):
             raise ValueError("obstacle_heading contains NaN or inf")
     out = _count(ego, val, obstacle_footprint, ego_footprint, a, b, h, oh)
     if single:
