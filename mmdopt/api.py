@@ -912,6 +912,9 @@ class _Ctx:
     obstacles: alg.ObstacleSet | None = None
     #: (O, n, K) Frenet headings of the samples' bodies when the caller gave obstacle headings
     obs_h: np.ndarray | None = None
+    #: the final check's chosen plan (cx, cy) and the (O, n) samples it meets, reused by
+    #: :func:`_assemble` when that plan is the one returned
+    met: tuple | None = None
 
     def centres(self, idx: np.ndarray | None = None) -> jax.Array:
         """Footprint circle centres (O, J, C, K, 2) of the samples ``idx`` (O, J) (all: None)."""
@@ -1410,6 +1413,8 @@ def _final_check(ctx: _Ctx, passes, problem, key, backend, backend_settings):
     ctx.diag.update(
         final_check_bounds=bound, final_check_task=task, final_check_choice=j, tail_passes=tails
     )
+    best = states[j].best
+    ctx.met = (np.asarray(best.cx, np.float64), np.asarray(best.cy, np.float64), hits[j])
     return states[j]
 
 
@@ -1521,7 +1526,10 @@ def _assemble(ctx: _Ctx, cx, cy, dvec, cost, best_iter, fallback, status, state)
             f"{float(config.projection.res_tol):g}"
         )
     mmd_val = _plan_mmd(ctx, s, d, vs, vd)
-    colliding = _samples_met(ctx, s[None], d[None])[0]  # (O, n)
+    if ctx.met is not None and np.array_equal(ctx.met[0], cx) and np.array_equal(ctx.met[1], cy):
+        colliding = ctx.met[2]  # counted by the final check
+    else:
+        colliding = _samples_met(ctx, s[None], d[None])[0]  # (O, n)
     cf_plan = colliding.shape[1] - colliding.sum(axis=1)
     if not fallback and np.any(cf_plan == 0):
         hit = [int(o) for o in np.flatnonzero(cf_plan == 0)]
