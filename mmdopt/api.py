@@ -915,10 +915,16 @@ class _Ctx:
     #: the final check's chosen plan (cx, cy) and the (O, n) samples it meets, reused by
     #: :func:`_assemble` when that plan is the one returned
     met: tuple | None = None
+    _all_centres: jax.Array | None = None
 
     def centres(self, idx: np.ndarray | None = None) -> jax.Array:
-        """Footprint circle centres (O, J, C, K, 2) of the samples ``idx`` (O, J) (all: None)."""
-        return _obstacle_centres(self.obs_fr, self.obs_h, idx)
+        """Footprint circle centres (O, J, C, K, 2) of the samples ``idx`` (O, J) (all: None,
+        computed once per plan: every conflict-depth pass measures against them)."""
+        if idx is not None:
+            return _obstacle_centres(self.obs_fr, self.obs_h, idx)
+        if self._all_centres is None:
+            self._all_centres = _obstacle_centres(self.obs_fr, self.obs_h)
+        return self._all_centres
 
 
 def _check_obstacle_headings(h: Any, O: int) -> np.ndarray:
