@@ -187,7 +187,7 @@ class Workspace:
 def statics(cfg: MMDOptConfig):
     """The static part of ``cfg`` (sizes, modes, rules): its pytree structure, hashable; two
     configs with equal statics share a :class:`Workspace` and its compiled steps."""
-    return jax.tree_util.tree_structure(cfg)
+    return jax.tree_util.tree_structure(cfg.program())
 
 
 def bounds_key(b: frenet.ProjectionBounds) -> tuple:
@@ -1128,7 +1128,7 @@ def init(
     _check_step_inputs(ws, config, problem)
     if warm_start is not None and not isinstance(warm_start, CEMState):
         raise ValueError(f"warm_start must be a CEMState, got {type(warm_start).__name__}")
-    return ws.init(config, problem, key, warm_start)
+    return ws.init(config.program(), problem, key, warm_start)
 
 
 @x64
@@ -1151,6 +1151,7 @@ def update(
         raise ValueError(
             f"state has done all config.iterations = {config.cem.iterations} iterations"
         )
+    config = config.program()  # one compiled program per statics Algorithm 1 reads
     if projector == PLANNER_PROJECTOR:
         return ws.step(config, problem, state, obstacles)
     d, cx_bar, cy_bar = ws.sample(config, problem, state)
@@ -1185,7 +1186,8 @@ def run(
     if projector == PLANNER_PROJECTOR:
         if warm_start is not None and not isinstance(warm_start, CEMState):
             raise ValueError(f"warm_start must be a CEMState, got {type(warm_start).__name__}")
-        return ws.run(config, problem, obstacles, key, _as_warm(config, warm_start))
+        cfg = config.program()  # one compiled program per statics Algorithm 1 reads
+        return ws.run(cfg, problem, obstacles, key, _as_warm(cfg, warm_start))
     state = init(ws, config, problem, key, warm_start)
     for _ in range(config.cem.iterations):
         state = update(ws, config, problem, state, obstacles, projector, **projector_settings)
@@ -1223,7 +1225,8 @@ def shift(config: MMDOptConfig, state: CEMState, dt: float) -> CEMState:
             f"state.mu has shape {tuple(np.shape(state.mu))}, but config needs ({cfg.d_dim},): "
             "shift a state with the config it was made with"
         )
-    return _shift(cfg, state, dt / (cfg.trajectory.horizon / cfg.trajectory.num_segments))
+    frac = dt / (cfg.trajectory.horizon / cfg.trajectory.num_segments)
+    return _shift(cfg.program(), state, frac)
 
 
 @jax.jit

@@ -1104,7 +1104,7 @@ def _conflict_depth(ctx: _Ctx, best) -> np.ndarray:
     s1, d1 = (Bs.P @ cx1)[None], (Bs.P @ cy1)[None]
     vs1, vd1 = (Bs.Pdot @ cx1)[None], (Bs.Pdot @ cy1)[None]
     # (O, n, C, K, 2) centres of every sample
-    return np.asarray(_depth_values(config, s1, d1, vs1, vd1, ctx.centres()))
+    return np.asarray(_depth_values(config.program(), s1, d1, vs1, vd1, ctx.centres()))
 
 
 @jax.jit
@@ -1481,8 +1481,8 @@ def _plan_mmd(ctx: _Ctx, s, d, vs, vd) -> float:
     config, ob = ctx.config, ctx.obstacles
     return float(
         _plan_mmd_value(
-            config, ctx.prob.t(), ob.centres, ob.weights, ob.margins, s[None], d[None], vs[None],
-            vd[None], n_terms=n_taylor_terms(config),
+            config.program(), ctx.prob.t(), ob.centres, ob.weights, ob.margins, s[None], d[None],
+            vs[None], vd[None], n_terms=n_taylor_terms(config),
         )[0]
     )  # fmt: skip
 

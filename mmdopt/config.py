@@ -22,6 +22,10 @@ section                what it holds
 =====================  =======================================================================
 
 Sizes and modes are static (changing them recompiles); tunable scalars are pytree leaves.
+The static fields that only the host-side steps of :func:`mmdopt.plan` read (``margin_mode``,
+``coverage_knn``, ``reselect``, ``risk_hits``, ``nearest_futures``, ``joint_futures``,
+``reduced_set_size`` and the selector's ``reduced_set``) do not recompile Algorithm 1: its
+programs see :meth:`MMDOptConfig.program`, with those fields at their defaults.
 Every field name is unique across the sections, so ``replace(name=value)`` reaches any of them.
 "Automatic" is spelled ``None`` everywhere (``reselect``, ``coverage_knn``, ``project_chunk``,
 ``admm_rho``, ``saa_eps``).
@@ -30,6 +34,7 @@ Every field name is unique across the sections, so ``replace(name=value)`` reach
 from __future__ import annotations
 
 import dataclasses
+import functools
 import math
 import warnings
 from collections.abc import Mapping
@@ -75,6 +80,14 @@ MMD_RISK_HITS = 12
 
 def _static(default):
     return field(default=default, metadata=dict(static=True))
+
+
+def _host(default):
+    """A static field that only the host-side steps of :func:`mmdopt.plan` read (which passes
+    run, how many futures are drawn, how the bound is stated), never Algorithm 1's jitted
+    programs: configs that differ only in such fields share those programs
+    (:meth:`MMDOptConfig.program`)."""
+    return field(default=default, metadata=dict(static=True, host=True))
 
 
 def _plain(v) -> bool:
@@ -312,8 +325,8 @@ class MarginConfig(_Section):
         longitudinal spread (0: off)
     """
 
-    margin_mode: str = _static("samples")
-    coverage_knn: int | None = _static(None)
+    margin_mode: str = _host("samples")
+    coverage_knn: int | None = _host(None)
     margin_long: float = 2.5
     margin_lat: float = 0.4
     margin_rate: float = 1.9
@@ -433,10 +446,10 @@ class SafetyConfig(_Section):
     """
 
     risk: float = 0.005
-    reselect: int | None = _static(None)
-    risk_hits: int | None = _static(None)
-    nearest_futures: int = _static(200)
-    joint_futures: bool = _static(True)
+    reselect: int | None = _host(None)
+    risk_hits: int | None = _host(None)
+    nearest_futures: int = _host(200)
+    joint_futures: bool = _host(True)
     footprint: Footprint = field(default_factory=Footprint)
     margins: MarginConfig = field(default_factory=MarginConfig)
     rules: RoadRules = field(default_factory=RoadRules)
@@ -475,9 +488,11 @@ class SelectionConfig(_Section):
     features: lateral intents count more than longitudinal spread) and the selector's
     :class:`~mmdopt.ReducedSetConfig` ``reduced_set``."""
 
-    reduced_set_size: int = _static(20)
+    reduced_set_size: int = _host(20)
     rs_lateral_scale: float = 10.0
-    reduced_set: ReducedSetConfig = field(default_factory=ReducedSetConfig)
+    reduced_set: ReducedSetConfig = field(
+        default_factory=ReducedSetConfig, metadata=dict(host=True)
+    )
 
     _ints = ("reduced_set_size",)
     _positive = ("rs_lateral_scale",)
@@ -562,6 +577,23 @@ RENAMED: Mapping[str, str] = MappingProxyType({"risk_eps": "risk"})
 _OLD_AUTO: Mapping[str, Any] = MappingProxyType(
     {"reselect": -1, "coverage_knn": 0, "project_chunk": 0}
 )
+
+
+def _program(obj):
+    """``obj`` (a config section) with every field marked ``host`` at its default, recursively
+    (the same object where nothing changes)."""
+    kw = {}
+    for f in dataclasses.fields(obj):
+        v = getattr(obj, f.name)
+        if f.metadata.get("host"):
+            d = f.default_factory() if f.default is dataclasses.MISSING else f.default
+            if dataclasses.is_dataclass(d) or v is not d and v != d:
+                kw[f.name] = d
+        elif dataclasses.is_dataclass(v) and not isinstance(v, type):
+            nv = _program(v)
+            if nv is not v:
+                kw[f.name] = nv
+    return dataclasses.replace(obj, **kw) if kw else obj
 
 
 def _apply(obj, changes: dict):
@@ -649,6 +681,19 @@ class MMDOptConfig:
     def to_dict(self) -> dict[str, Any]:
         """The nested JSON-able form that :meth:`from_dict` reads back."""
         return _to_dict(self)
+
+    def program(self) -> MMDOptConfig:
+        """This config as Algorithm 1's jitted programs see it: the host-only fields (the
+        margin mode, ``coverage_knn``, ``reselect``, ``risk_hits``, ``nearest_futures``,
+        ``joint_futures``, ``reduced_set_size`` and the selector's ``reduced_set``) at their
+        defaults.  :func:`mmdopt.plan` reads those fields around Algorithm 1, which receives
+        their effect as arrays (the reduced set, its margins, the futures), so configs with the
+        same program share a :class:`~mmdopt.Planner`'s workspaces and compiled steps."""
+        return self._program
+
+    @functools.cached_property
+    def _program(self) -> MMDOptConfig:  # computed once per config object (it is frozen)
+        return _program(self)
 
     # ------------------------------------------------------------------------------ presets
     @classmethod

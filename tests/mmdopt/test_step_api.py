@@ -219,6 +219,33 @@ def test_layers_import_nothing_above_them():
     assert _run(code) == "[]"
 
 
+def test_fields_read_only_around_algorithm_1_do_not_recompile_it():
+    """The host-only fields (which passes run, how many futures are drawn and how the bound is
+    stated, the selector's settings) share one compiled Algorithm 1: a config that changes only
+    them reuses the program, and, where they take no part (time-linear margins, no second
+    pass), plans the same trajectory.  A size Algorithm 1 reads still compiles anew."""
+    base = SMALL.replace(margin_mode="linear", reselect=0)
+    host = dict(
+        joint_futures=False, risk_hits=3, nearest_futures=50, coverage_knn=3,
+        reduced_set=base.selection.reduced_set.replace(n_elite=5),
+    )  # fmt: skip
+    other = base.replace(**host)
+    assert other.program() == base.program() and alg.statics(other) == alg.statics(base)
+    assert alg.statics(base.replace(iterations=4)) != alg.statics(base)
+    road, obs, key = mmdopt.Road(), _obstacle(), jax.random.PRNGKey(0)
+    p = mmdopt.Planner(base).plan(EGO, road, obs, key=key)
+    q = mmdopt.Planner(other).plan(EGO, road, obs, key=key)
+    assert q.feasible and np.array_equal(q.x, p.x) and q.config == other
+    # the step API: one workspace, one compiled run for both configs
+    planner = mmdopt.Planner(base)
+    problem, obstacles = _inputs(config=base)
+    ws = planner.workspace(road.bounds(), base)
+    assert planner.workspace(road.bounds(), other) is ws
+    a = alg.run(ws, base, problem, obstacles, key)
+    b = alg.run(ws, other, problem, obstacles, key)
+    assert ws.run._cache_size() == 1 and np.array_equal(a.best.cx, b.best.cx)
+
+
 def test_warm_and_cold_starts_share_one_compiled_program():
     """A replan from ``Plan.next`` runs the program the cold plan compiled (no second compile,
     so the first warm replan is as fast as a cold one)."""
