@@ -185,8 +185,9 @@ class Workspace:
 
 
 def statics(cfg: MMDOptConfig):
-    """The static part of ``cfg`` (sizes, modes, rules): its pytree structure, hashable; two
-    configs with equal statics share a :class:`Workspace` and its compiled steps."""
+    """The static part of ``cfg`` that Algorithm 1 reads (sizes, modes, rules): the pytree
+    structure of :meth:`~mmdopt.MMDOptConfig.program`, hashable; two configs with equal statics
+    share a :class:`Workspace` and its compiled steps."""
     return jax.tree_util.tree_structure(cfg.program())
 
 
