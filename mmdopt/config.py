@@ -587,7 +587,9 @@ def _program(obj):
         v = getattr(obj, f.name)
         if f.metadata.get("host"):
             d = f.default_factory() if f.default is dataclasses.MISSING else f.default
-            if dataclasses.is_dataclass(d) or v is not d and v != d:
+            # a section (the selector's config) is replaced without comparing: its leaves may
+            # be traced values, which have no truth value
+            if dataclasses.is_dataclass(d) or v != d:
                 kw[f.name] = d
         elif dataclasses.is_dataclass(v) and not isinstance(v, type):
             nv = _program(v)
