@@ -11,13 +11,20 @@ Reported per method, with the ratio against the peer method (SAA by default) of 
   1's programs (``_run_fixed``) apart from everything else (host-side helpers, selection,
   counts), so a helper that compiles op by op on the host shows up as many small programs.
 
+``--xla-default`` runs every method a second time with XLA's default compile options for the
+package's programs (``XLA_FLAGS=--xla_cpu_use_fusion_emitters=true``, :mod:`solvers.xla`) and
+prints the package's options against them: first plan, compile seconds, steady state, and
+whether every plan is bit for bit the same.
+
     python -m benchmarks.first_plan                        # mmd vs saa, 4 scenes, ε = 0.005
     python -m benchmarks.first_plan --scenes 6 --risk 0.001 --methods mmd,degroot
+    python -m benchmarks.first_plan --methods mmd,saa --xla-default
 """
 
 from __future__ import annotations
 
 import argparse
+import hashlib
 import json
 import logging
 import os
@@ -51,6 +58,8 @@ def _child(args) -> None:
     logger.setLevel(logging.WARNING)
     logger.propagate = False  # the log is counted, not printed
 
+    import numpy as np
+
     import mmdopt
     from mmdopt.bench.scenes import make_scene
     from mmdopt.bench.synthetic import run_scene
@@ -61,7 +70,7 @@ def _child(args) -> None:
         scene = make_scene(i, seed=args.seed, params=args.preset)
         n0 = len(log.records)
         t0 = time.perf_counter()
-        row, _ = run_scene(scene, args.child, config=cfg, forecast=True)
+        row, plan = run_scene(scene, args.child, config=cfg, forecast=True)
         wall = time.perf_counter() - t0
         rec = log.records[n0:]
         alg1 = [s for name, s in rec if "_run_fixed" in name]
@@ -73,14 +82,18 @@ def _child(args) -> None:
                 alg1_compile_s=sum(alg1),
                 other_programs=len(rec) - len(alg1),
                 other_compile_s=sum(s for _, s in rec) - sum(alg1),
+                plan_sha=hashlib.sha256(np.asarray(plan.x).tobytes()).hexdigest(),
             )
         )
     print("RESULT " + json.dumps(rows))
 
 
-def _run_method(method: str, args) -> list[dict]:
+def _run_method(method: str, args, xla_default: bool = False) -> list[dict]:
     env = dict(os.environ)
     env.pop("JAX_COMPILATION_CACHE_DIR", None)  # a cold start: every program compiles
+    if xla_default:  # a flag the caller sets wins over solvers.xla.compile_options
+        flags = env.get("XLA_FLAGS", "") + " --xla_cpu_use_fusion_emitters=true"
+        env["XLA_FLAGS"] = flags.strip()
     cmd = [
         sys.executable, "-m", "benchmarks.first_plan", "--child", method,
         "--scenes", str(args.scenes), "--seed", str(args.seed), "--preset", args.preset,
@@ -100,6 +113,11 @@ def main(argv=None) -> None:
     p.add_argument("--seed", type=int, default=777)
     p.add_argument("--preset", default="paper100")
     p.add_argument("--risk", type=float, default=0.005)
+    p.add_argument(
+        "--xla-default",
+        action="store_true",
+        help="also run each method with XLA's default compile options and print the ratios",
+    )
     p.add_argument("--child", help=argparse.SUPPRESS)
     args = p.parse_args(argv)
     if args.scenes < 2:
@@ -113,22 +131,34 @@ def main(argv=None) -> None:
         f"# first plan of a cold process: {args.preset} seed {args.seed}, {args.scenes} scenes, "
         f"ε = {args.risk:g}; {platform.machine()}, {os.cpu_count()} CPUs, no persistent cache"
     )
-    print("method     futures  first plan  steady  Alg. 1 programs (s)  other programs (s)")
-    out = {}
+    variants = [("package", False)] + ([("XLA default", True)] if args.xla_default else [])
+    print("method     options      futures  first plan  steady  Alg. 1 programs (s)  other (s)")
+    out, shas = {}, {}
     for m in methods:
-        rows = _run_method(m, args)
-        r = rows[0]
-        steady = float(np.median([x["wall_s"] for x in rows[1:]]))
-        out[m] = (r["wall_s"], steady)
-        print(
-            f"{m:10s} {r['n_futures']:7d} {r['wall_s']:9.1f} s {steady:6.2f} s "
-            f"{r['alg1_programs']:9d} ({r['alg1_compile_s']:5.1f}) "
-            f"{r['other_programs']:12d} ({r['other_compile_s']:5.1f})"
-        )
+        for label, xla_default in variants:
+            rows = _run_method(m, args, xla_default)
+            r = rows[0]
+            steady = float(np.median([x["wall_s"] for x in rows[1:]]))
+            compile_s = r["alg1_compile_s"] + r["other_compile_s"]
+            out[m, label] = (r["wall_s"], steady, compile_s)
+            shas[m, label] = [x["plan_sha"] for x in rows]
+            print(
+                f"{m:10s} {label:12s} {r['n_futures']:7d} {r['wall_s']:9.1f} s {steady:6.2f} s "
+                f"{r['alg1_programs']:9d} ({r['alg1_compile_s']:5.1f}) "
+                f"{r['other_programs']:9d} ({r['other_compile_s']:5.1f})"
+            )
     peer = methods[-1]
     for m in methods[:-1]:
-        (f, s), (fp, sp) = out[m], out[peer]
+        (f, s, _), (fp, sp, _) = out[m, "package"], out[peer, "package"]
         print(f"{m} / {peer}: first plan {f / fp:.2f}, steady state {s / sp:.2f}")
+    if args.xla_default:
+        for m in methods:
+            (f, s, c), (fd, sd, cd) = out[m, "package"], out[m, "XLA default"]
+            same = shas[m, "package"] == shas[m, "XLA default"]
+            print(
+                f"{m}: package options / XLA default: first plan {f / fd:.2f}, "
+                f"compile {c / cd:.2f}, steady state {s / sd:.2f}; plans bit-identical: {same}"
+            )
 
 
 if __name__ == "__main__":

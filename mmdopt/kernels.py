@@ -20,6 +20,8 @@ import jax
 import jax.numpy as jnp
 from numpy.typing import ArrayLike
 
+from solvers.xla import jit
+
 from ._x64 import x64
 
 __all__ = [
@@ -114,7 +116,7 @@ def _kth_smallest_nonneg(v: jax.Array, ks: jax.Array) -> jax.Array:
 
 
 @x64
-@jax.jit
+@jit
 def median_heuristic(x: ArrayLike) -> jax.Array:
     """Data-driven bandwidth: the median pairwise Euclidean distance (Gretton et al., 2012).
 
@@ -157,7 +159,7 @@ def median_heuristic(x: ArrayLike) -> jax.Array:
 
 
 @x64
-@jax.jit
+@jit
 def mmd2_weighted(
     x: ArrayLike, wx: ArrayLike, y: ArrayLike, wy: ArrayLike, bandwidth: ArrayLike
 ) -> jax.Array:
@@ -205,7 +207,7 @@ def mmd2_weighted(
 
 
 @x64
-@jax.jit
+@jit
 def mmd2_to_dirac(a: ArrayLike, w: ArrayLike, bandwidth: ArrayLike) -> jax.Array:
     """Squared MMD between ``Σ_p w_p φ(a_p)`` and a Dirac at 0 of the **same total mass** Σw.
 

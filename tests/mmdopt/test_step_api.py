@@ -258,3 +258,22 @@ def test_warm_and_cold_starts_share_one_compiled_program():
     ego, warm = p.next(0.5)
     q = planner.plan(ego, road, obs, key=jax.random.PRNGKey(1), warm_start=warm)
     assert q.feasible and ws.run._cache_size() == 1
+
+
+def test_the_package_compile_options_leave_algorithm_1_unchanged():
+    """:mod:`solvers.xla`'s options (XLA's CPU fusion emitters off) change how XLA compiles
+    Algorithm 1, not what it computes: the same run compiled with XLA's defaults picks the same
+    plan, to the float32 reassociation tolerance of the test above (bit for bit on the x86-64
+    machines measured)."""
+    from solvers import xla
+
+    if not xla.compile_options():
+        pytest.skip("no package compile options here (XLA_FLAGS names them, or jax < 0.6)")
+    problem, obstacles = _inputs()
+    ws = mmdopt.Planner(SMALL).workspace(problem.bounds)
+    cfg = SMALL.program()
+    args = (cfg, problem, obstacles, jax.random.PRNGKey(7), alg._as_warm(cfg, None))
+    ours, xla_default = ws.run._top(*args), ws.run._plain(*args)
+    rtol = 10 * SMALL.trajectory.num_steps * float(np.finfo(np.float32).eps)
+    np.testing.assert_allclose(ours.cost_trace, xla_default.cost_trace, rtol=rtol)
+    np.testing.assert_allclose(ours.best.d, xla_default.best.d, rtol=rtol, atol=rtol)
