@@ -11,14 +11,15 @@ Reported per method, with the ratio against the peer method (SAA by default) of 
   1's programs (``_run_fixed``) apart from everything else (host-side helpers, selection,
   counts), so a helper that compiles op by op on the host shows up as many small programs.
 
-``--xla-default`` runs every method a second time with XLA's default compile options for the
-package's programs (``XLA_FLAGS=--xla_cpu_use_fusion_emitters=true``, :mod:`solvers.xla`) and
-prints the package's options against them: first plan, compile seconds, steady state, and
-whether every plan is bit for bit the same.
+``--xla-flags FLAGS`` runs every method a second time with ``FLAGS`` added to ``XLA_FLAGS`` and
+prints that run against the first: first plan, compile seconds, steady state (the whole plan and
+Algorithm 1 alone), and whether every plan is bit for bit the same.  For example XLA's CPU fusion
+emitters off, which the test suite uses to compile faster (``tests/conftest.py``).
 
     python -m benchmarks.first_plan                        # mmd vs saa, 4 scenes, ε = 0.005
     python -m benchmarks.first_plan --scenes 6 --risk 0.001 --methods mmd,degroot
-    python -m benchmarks.first_plan --methods mmd,saa --xla-default
+    python -m benchmarks.first_plan --xla-flags=--xla_cpu_use_fusion_emitters=false
+    python -m benchmarks.first_plan --fixed --xla-flags=--xla_cpu_use_fusion_emitters=false
 """
 
 from __future__ import annotations
@@ -70,7 +71,7 @@ def _child(args) -> None:
         scene = make_scene(i, seed=args.seed, params=args.preset)
         n0 = len(log.records)
         t0 = time.perf_counter()
-        row, plan = run_scene(scene, args.child, config=cfg, forecast=True)
+        row, plan = run_scene(scene, args.child, config=cfg, forecast=not args.fixed)
         wall = time.perf_counter() - t0
         rec = log.records[n0:]
         alg1 = [s for name, s in rec if "_run_fixed" in name]
@@ -82,22 +83,22 @@ def _child(args) -> None:
                 alg1_compile_s=sum(alg1),
                 other_programs=len(rec) - len(alg1),
                 other_compile_s=sum(s for _, s in rec) - sum(alg1),
+                cem_s=float(plan.diagnostics["cem_s"]),
                 plan_sha=hashlib.sha256(np.asarray(plan.x).tobytes()).hexdigest(),
             )
         )
     print("RESULT " + json.dumps(rows))
 
 
-def _run_method(method: str, args, xla_default: bool = False) -> list[dict]:
+def _run_method(method: str, args, xla_flags: str = "") -> list[dict]:
     env = dict(os.environ)
     env.pop("JAX_COMPILATION_CACHE_DIR", None)  # a cold start: every program compiles
-    if xla_default:  # a flag the caller sets wins over solvers.xla.compile_options
-        flags = env.get("XLA_FLAGS", "") + " --xla_cpu_use_fusion_emitters=true"
-        env["XLA_FLAGS"] = flags.strip()
+    if xla_flags:
+        env["XLA_FLAGS"] = f"{env.get('XLA_FLAGS', '')} {xla_flags}".strip()
     cmd = [
         sys.executable, "-m", "benchmarks.first_plan", "--child", method,
         "--scenes", str(args.scenes), "--seed", str(args.seed), "--preset", args.preset,
-        "--risk", str(args.risk),
+        "--risk", str(args.risk), *(["--fixed"] if args.fixed else []),
     ]  # fmt: skip
     proc = subprocess.run(cmd, env=env, capture_output=True, text=True, check=False)
     lines = [ln for ln in proc.stdout.splitlines() if ln.startswith("RESULT ")]
@@ -114,9 +115,14 @@ def main(argv=None) -> None:
     p.add_argument("--preset", default="paper100")
     p.add_argument("--risk", type=float, default=0.005)
     p.add_argument(
-        "--xla-default",
+        "--xla-flags",
+        default="",
+        help="also run each method with these XLA_FLAGS added and print the ratios",
+    )
+    p.add_argument(
+        "--fixed",
         action="store_true",
-        help="also run each method with XLA's default compile options and print the ratios",
+        help="plan on the scene's fixed samples instead of drawing n(ε) from its predictor",
     )
     p.add_argument("--child", help=argparse.SUPPRESS)
     args = p.parse_args(argv)
@@ -129,35 +135,40 @@ def main(argv=None) -> None:
     methods = [m.strip() for m in args.methods.split(",") if m.strip()]
     print(
         f"# first plan of a cold process: {args.preset} seed {args.seed}, {args.scenes} scenes, "
-        f"ε = {args.risk:g}; {platform.machine()}, {os.cpu_count()} CPUs, no persistent cache"
+        f"ε = {args.risk:g}, {'fixed samples' if args.fixed else 'through the predictor'}; "
+        f"{platform.machine()}, {os.cpu_count()} CPUs, no persistent cache"
     )
-    variants = [("package", False)] + ([("XLA default", True)] if args.xla_default else [])
-    print("method     options      futures  first plan  steady  Alg. 1 programs (s)  other (s)")
+    variants = [("as set", "")] + ([(args.xla_flags, args.xla_flags)] if args.xla_flags else [])
+    print(
+        "method     futures  first plan  steady (Alg. 1)  Alg. 1 programs (s)  other (s)  XLA_FLAGS"
+    )
     out, shas = {}, {}
     for m in methods:
-        for label, xla_default in variants:
-            rows = _run_method(m, args, xla_default)
+        for label, flags in variants:
+            rows = _run_method(m, args, flags)
             r = rows[0]
             steady = float(np.median([x["wall_s"] for x in rows[1:]]))
+            cem = float(np.median([x["cem_s"] for x in rows[1:]]))
             compile_s = r["alg1_compile_s"] + r["other_compile_s"]
-            out[m, label] = (r["wall_s"], steady, compile_s)
+            out[m, label] = (r["wall_s"], steady, cem, compile_s)
             shas[m, label] = [x["plan_sha"] for x in rows]
             print(
-                f"{m:10s} {label:12s} {r['n_futures']:7d} {r['wall_s']:9.1f} s {steady:6.2f} s "
+                f"{m:10s} {r['n_futures']:7d} {r['wall_s']:9.1f} s {steady:6.2f} s ({cem:5.3f}) "
                 f"{r['alg1_programs']:9d} ({r['alg1_compile_s']:5.1f}) "
-                f"{r['other_programs']:9d} ({r['other_compile_s']:5.1f})"
+                f"{r['other_programs']:9d} ({r['other_compile_s']:5.1f})  {label}"
             )
     peer = methods[-1]
     for m in methods[:-1]:
-        (f, s, _), (fp, sp, _) = out[m, "package"], out[peer, "package"]
+        (f, s, _, _), (fp, sp, _, _) = out[m, "as set"], out[peer, "as set"]
         print(f"{m} / {peer}: first plan {f / fp:.2f}, steady state {s / sp:.2f}")
-    if args.xla_default:
+    if args.xla_flags:
         for m in methods:
-            (f, s, c), (fd, sd, cd) = out[m, "package"], out[m, "XLA default"]
-            same = shas[m, "package"] == shas[m, "XLA default"]
+            (f0, s0, a0, c0), (f1, s1, a1, c1) = out[m, "as set"], out[m, args.xla_flags]
+            same = shas[m, "as set"] == shas[m, args.xla_flags]
             print(
-                f"{m}: package options / XLA default: first plan {f / fd:.2f}, "
-                f"compile {c / cd:.2f}, steady state {s / sd:.2f}; plans bit-identical: {same}"
+                f"{m}: with {args.xla_flags} / without: first plan {f1 / f0:.2f}, "
+                f"compile {c1 / c0:.2f}, steady state {s1 / s0:.2f}, Algorithm 1 {a1 / a0:.2f}; "
+                f"plans bit-identical: {same}"
             )
 
 

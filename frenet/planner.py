@@ -31,7 +31,6 @@ import numpy as np
 from numpy.typing import ArrayLike, DTypeLike, NDArray
 
 import solvers
-from solvers.xla import jit
 
 from .basis import Basis
 
@@ -340,7 +339,7 @@ def _closed_form_fn(planner: BehaviouralPlanner, dtype):
     n = planner.basis.nvar
     W_np = np.asarray(planner.W)
 
-    @jit
+    @jax.jit
     def plan(d, state):
         dt = dtype
         if dt is None:

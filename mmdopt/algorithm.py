@@ -69,7 +69,6 @@ import numpy as np
 from jax import lax
 
 import frenet
-from solvers.xla import jit
 
 from ._x64 import x64
 from .collision import (
@@ -175,11 +174,11 @@ class Workspace:
         self.Pdot = np.asarray(self.basis.Pdot)
         self.Pddot = np.asarray(self.basis.Pddot)
         # Algorithm 1's jitted steps, with this workspace's constants closed over
-        self.init = jit(partial(_init, self))
-        self.step = jit(partial(_step, self))
-        self.run = jit(partial(_run_fixed, self))
-        self.sample = jit(partial(_sample_plan, self))
-        self.evaluate = jit(partial(_evaluate_host, self))
+        self.init = jax.jit(partial(_init, self))
+        self.step = jax.jit(partial(_step, self))
+        self.run = jax.jit(partial(_run_fixed, self))
+        self.sample = jax.jit(partial(_sample_plan, self))
+        self.evaluate = jax.jit(partial(_evaluate_host, self))
 
     def t(self) -> np.ndarray:
         return self.basis.grid.t
@@ -1231,7 +1230,7 @@ def shift(config: MMDOptConfig, state: CEMState, dt: float) -> CEMState:
     return _shift(cfg.program(), state, frac)
 
 
-@jit
+@jax.jit
 def _shift(cfg: MMDOptConfig, state: CEMState, frac) -> CEMState:
     # one compiled program per config (eagerly, each op would compile for every new shape)
     S = cfg.trajectory.num_segments

@@ -20,6 +20,7 @@ import math
 import time
 import warnings
 from dataclasses import dataclass, field
+from functools import partial
 from typing import Any
 
 import jax
@@ -29,7 +30,6 @@ from numpy.typing import ArrayLike, NDArray
 
 import frenet
 import solvers
-from solvers.xla import jit
 
 from . import algorithm as alg
 from ._checks import check_key
@@ -1107,7 +1107,7 @@ def _conflict_depth(ctx: _Ctx, best) -> np.ndarray:
     return np.asarray(_depth_values(config.program(), s1, d1, vs1, vd1, ctx.centres()))
 
 
-@jit
+@jax.jit
 def _depth_values(config: MMDOptConfig, s1, d1, vs1, vd1, centres):
     # one compiled program per shape for _conflict_depth (eagerly: a program per op and shape)
     b = jnp.asarray(config.safety.footprint.b)
@@ -1487,7 +1487,7 @@ def _plan_mmd(ctx: _Ctx, s, d, vs, vd) -> float:
     )  # fmt: skip
 
 
-@jit(static_argnames=("n_terms",))
+@partial(jax.jit, static_argnames=("n_terms",))
 def _plan_mmd_value(config: MMDOptConfig, t, centres, weights, margins, s, d, vs, vd, n_terms):
     # one compiled program per shape (eagerly: a program per op and shape)
     vs1 = vs if config.safety.rules.asymmetric else None

@@ -39,8 +39,6 @@ import numpy as np
 from jax import lax
 from numpy.typing import ArrayLike
 
-from solvers.xla import jit
-
 from ._x64 import x64
 from .geometry import (
     EGO_FOOTPRINT,
@@ -113,7 +111,7 @@ def headings(xy: ArrayLike, initial: ArrayLike | None = None) -> jax.Array:
     return _headings(xy, None if initial is None else jnp.asarray(initial, xy.dtype))
 
 
-@jit
+@jax.jit
 def _headings(xy, initial):
     # one compiled program per shape: called eagerly on the host (a plan's samples, its
     # candidates), op by op it would compile a dozen small programs for every new shape
@@ -156,7 +154,7 @@ def circle_centres(
     return _circle_centres(xy, r, None if heading is None else jnp.asarray(heading))
 
 
-@jit
+@jax.jit
 def _circle_centres(xy, r, heading):
     if heading is None:
         heading = _headings(xy, None)
@@ -544,7 +542,7 @@ def _check_surrogate(ego_xy, obstacles, config) -> None:
             raise ValueError(f"config.{name} must be positive and finite, got {v}")
 
 
-@jit
+@jax.jit
 def _surrogate_terms(ego_xy, obstacles: ReducedObstacles, config: SurrogateConfig, ego_heading):
     ego_c = _ego_centres(jnp.asarray(ego_xy), config, ego_heading)
     return jax.vmap(lambda e: _terms_one(e, obstacles, config))(ego_c)
@@ -614,7 +612,7 @@ class CollisionCounts:
     joint: jax.Array
 
 
-@jit
+@jax.jit
 def _count(ego_xy, samples, obstacle_footprint, ego_footprint, a, b, ego_heading, obs_heading):
     obs_c = circle_centres(samples, obstacle_footprint, obs_heading)  # (O, N, C, K, 2)
 

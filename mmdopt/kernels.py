@@ -20,8 +20,6 @@ import jax
 import jax.numpy as jnp
 from numpy.typing import ArrayLike
 
-from solvers.xla import jit
-
 from ._x64 import x64
 
 __all__ = [
@@ -116,7 +114,7 @@ def _kth_smallest_nonneg(v: jax.Array, ks: jax.Array) -> jax.Array:
 
 
 @x64
-@jit
+@jax.jit
 def median_heuristic(x: ArrayLike) -> jax.Array:
     """Data-driven bandwidth: the median pairwise Euclidean distance (Gretton et al., 2012).
 
@@ -159,7 +157,7 @@ def median_heuristic(x: ArrayLike) -> jax.Array:
 
 
 @x64
-@jit
+@jax.jit
 def mmd2_weighted(
     x: ArrayLike, wx: ArrayLike, y: ArrayLike, wy: ArrayLike, bandwidth: ArrayLike
 ) -> jax.Array:
@@ -207,7 +205,7 @@ def mmd2_weighted(
 
 
 @x64
-@jit
+@jax.jit
 def mmd2_to_dirac(a: ArrayLike, w: ArrayLike, bandwidth: ArrayLike) -> jax.Array:
     """Squared MMD between ``Σ_p w_p φ(a_p)`` and a Dirac at 0 of the **same total mass** Σw.
 

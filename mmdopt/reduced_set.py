@@ -70,13 +70,12 @@ from __future__ import annotations
 
 import dataclasses
 from dataclasses import dataclass, field
+from functools import partial
 
 import jax
 import jax.numpy as jnp
 import numpy as np
 from numpy.typing import ArrayLike
-
-from solvers.xla import jit
 
 from ._x64 import x64
 from .geometry import Footprint
@@ -584,7 +583,7 @@ def _cem_factor(key, cost, n: int, dtype, cfg: ReducedSetConfig) -> jax.Array:
     return elites[0]
 
 
-@jit(static_argnames=("m", "method", "axis_name"))
+@partial(jax.jit, static_argnames=("m", "method", "axis_name"))
 def select_reduced_set_unchecked(
     key: ArrayLike,
     samples: ArrayLike,
@@ -737,7 +736,7 @@ def select_reduced_set(
     )
 
 
-@jit(static_argnames=("m", "method"))
+@partial(jax.jit, static_argnames=("m", "method"))
 def _select_many(keys, samples, m, method, config, ego_guess, footprint):
     return jax.vmap(
         lambda k, s: select_reduced_set_unchecked(

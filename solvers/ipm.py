@@ -85,7 +85,6 @@ from .base import Backend
 from .problem import QP, QPBatch
 from .settings import SettingsSpec
 from .solution import BatchSolution, Solution, Status
-from .xla import jit
 
 __all__ = [
     "IPMSettings",
@@ -1006,7 +1005,7 @@ def ipm_iterate(setup: IPMSetup, q: Any, l: Any, u: Any) -> IPMResult:
     return out
 
 
-_ipm_iterate_jit = jit(ipm_iterate)
+_ipm_iterate_jit = jax.jit(ipm_iterate)
 
 
 def ipm_solve(

@@ -8,8 +8,6 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from solvers.xla import jit
-
 from .base import (
     PredictionContext,
     cartesian_to_lane,
@@ -195,4 +193,4 @@ def _lane_aware_sample(key, logits, s0, vs, d0, w, t, n, speed_std, accel_std, l
     return s, d
 
 
-_lane_aware_jit = jit(_lane_aware_sample, static_argnums=(7,))
+_lane_aware_jit = jax.jit(_lane_aware_sample, static_argnums=(7,))

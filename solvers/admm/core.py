@@ -50,7 +50,6 @@ from jax import lax
 
 from ..errors import InvalidSettingError
 from ..solution import Status
-from ..xla import jit
 
 __all__ = [
     "ADMMSettings",
@@ -760,7 +759,7 @@ def admm_iterate(
     return res
 
 
-_admm_iterate_jit = jit(admm_iterate, static_argnames=("iters",))
+_admm_iterate_jit = jax.jit(admm_iterate, static_argnames=("iters",))
 
 
 def _flops(n: int, m: int, B: int, iters: int, rung_matmuls: int, check_every: int) -> float:

@@ -56,6 +56,47 @@ def test_init_update_loop_equals_run(mode, slip, yaw):
         planner.update(problem, state, obstacles)
 
 
+_RUN_UNDER_XLA_DEFAULTS = """
+import sys, numpy as np, jax, mmdopt
+from tests.mmdopt.test_step_api import _inputs
+from tests.mmdopt.test_algorithm import SMALL
+problem, obstacles = _inputs("mmd")
+ran = mmdopt.Planner(SMALL).run(problem, obstacles, jax.random.PRNGKey(4))
+np.savez(sys.argv[1], cost_trace=np.asarray(ran.cost_trace), d=np.asarray(ran.best.d))
+"""
+
+
+def test_the_suites_compile_flag_leaves_algorithm_1_unchanged(tmp_path):
+    """The suite compiles with XLA's CPU fusion emitters off (``tests/conftest.py``: a compile
+    speed setting); users run XLA's defaults.  Algorithm 1 under XLA's defaults, in a fresh
+    process, picks the same plan as here, to the float32 reassociation tolerance of the test
+    above."""
+    import os
+    from pathlib import Path
+
+    from tests.conftest import FUSION_EMITTERS_OFF
+
+    root = Path(__file__).resolve().parents[2]
+    flags = os.environ.get("XLA_FLAGS", "").replace(FUSION_EMITTERS_OFF, "").strip()
+    env = dict(os.environ, XLA_FLAGS=flags, PYTHONPATH=str(root))
+    out_file = tmp_path / "defaults.npz"
+    out = subprocess.run(
+        [sys.executable, "-c", _RUN_UNDER_XLA_DEFAULTS, str(out_file)],
+        capture_output=True,
+        text=True,
+        env=env,
+        cwd=root,
+        timeout=600,
+    )
+    assert out.returncode == 0, out.stderr[-3000:]
+    problem, obstacles = _inputs("mmd")
+    here = mmdopt.Planner(SMALL).run(problem, obstacles, jax.random.PRNGKey(4))
+    there = np.load(out_file)
+    rtol = 10 * SMALL.trajectory.num_steps * float(np.finfo(np.float32).eps)
+    np.testing.assert_allclose(here.cost_trace, there["cost_trace"], rtol=rtol)
+    np.testing.assert_allclose(here.best.d, there["d"], rtol=rtol, atol=rtol)
+
+
 @pytest.mark.skipif(
     __import__("platform").machine().lower() not in ("x86_64", "amd64"),
     reason="XLA's --xla_cpu_max_isa flag names x86 instruction sets",
@@ -258,22 +299,3 @@ def test_warm_and_cold_starts_share_one_compiled_program():
     ego, warm = p.next(0.5)
     q = planner.plan(ego, road, obs, key=jax.random.PRNGKey(1), warm_start=warm)
     assert q.feasible and ws.run._cache_size() == 1
-
-
-def test_the_package_compile_options_leave_algorithm_1_unchanged():
-    """:mod:`solvers.xla`'s options (XLA's CPU fusion emitters off) change how XLA compiles
-    Algorithm 1, not what it computes: the same run compiled with XLA's defaults picks the same
-    plan, to the float32 reassociation tolerance of the test above (bit for bit on the x86-64
-    machines measured)."""
-    from solvers import xla
-
-    if not xla.compile_options():
-        pytest.skip("no package compile options here (XLA_FLAGS names them, or jax < 0.6)")
-    problem, obstacles = _inputs()
-    ws = mmdopt.Planner(SMALL).workspace(problem.bounds)
-    cfg = SMALL.program()
-    args = (cfg, problem, obstacles, jax.random.PRNGKey(7), alg._as_warm(cfg, None))
-    ours, xla_default = ws.run._top(*args), ws.run._plain(*args)
-    rtol = 10 * SMALL.trajectory.num_steps * float(np.finfo(np.float32).eps)
-    np.testing.assert_allclose(ours.cost_trace, xla_default.cost_trace, rtol=rtol)
-    np.testing.assert_allclose(ours.best.d, xla_default.best.d, rtol=rtol, atol=rtol)
