@@ -53,16 +53,19 @@ def _compile_faster() -> None:
     workers and every subprocess a test starts).  The suite is bound by XLA compiles (each
     distinct config and shape compiles Algorithm 1 anew), and the emitters spend much of that
     time on the gathers and scatters of its batched QP iterations: with them off the suite
-    takes about four fifths of the time.  XLA then orders some float operations differently:
-    results agree to rounding, which the CEM can turn into another winning sample (one of four
+    takes about 0.7 × the time (21 against 31 min on 2 cores).
+
+    XLA then orders some float operations differently: results agree to rounding, which the
+    CEM can turn into another winning sample, as another CPU's vector width can (one of four
     MMD-Opt plans of ``python -m benchmarks.first_plan --fixed
-    --xla-flags=--xla_cpu_use_fusion_emitters=false`` moved by up to 0.9 m), as another CPU's
-    vector width can; the tests assert properties that hold either way.  A plan can also take
-    up to 1.2 × as long once compiled, so the package leaves XLA's defaults alone and the
-    benchmarks run with them.  An ``XLA_FLAGS`` that already names
-    the option is used as is; ``MMDOPT_TEST_XLA_DEFAULTS=1`` keeps XLA's defaults, and
-    ``tests/mmdopt/test_step_api.py`` plans under them in a subprocess either way.  Set before
-    any test starts a JAX backend (XLA reads its flags then)."""
+    --xla-flags=--xla_cpu_use_fusion_emitters=false`` moved by up to 0.9 m); the tests assert
+    properties that hold either way.  A plan can also take up to 1.2 × as long once compiled,
+    so the package leaves XLA's defaults alone and the benchmarks run with them.
+
+    An ``XLA_FLAGS`` that already names the option is used as is;
+    ``MMDOPT_TEST_XLA_DEFAULTS=1`` keeps XLA's defaults; ``tests/mmdopt/test_step_api.py``
+    plans under them in a subprocess either way.  Set before any test starts a JAX backend
+    (XLA reads its flags then)."""
     if os.environ.get("MMDOPT_TEST_XLA_DEFAULTS", "0") == "1":
         return
     flags = os.environ.get("XLA_FLAGS", "")
