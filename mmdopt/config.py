@@ -581,7 +581,9 @@ _OLD_AUTO: Mapping[str, Any] = MappingProxyType(
 
 def _program(obj):
     """``obj`` (a config section) with every field marked ``host`` at its default, recursively
-    (the same object where nothing changes)."""
+    (the same object where no field changes; a host section, such as the selector's config, is
+    always replaced by its default, so its section is always rebuilt — once per config object,
+    as :meth:`MMDOptConfig.program` caches it)."""
     kw = {}
     for f in dataclasses.fields(obj):
         v = getattr(obj, f.name)
