@@ -14,12 +14,15 @@ Reported per method, with the ratio against the peer method (SAA by default) of 
 ``--xla-flags FLAGS`` runs every method a second time with ``FLAGS`` added to ``XLA_FLAGS`` and
 prints that run against the first: first plan, compile seconds, steady state (the whole plan and
 Algorithm 1 alone), and whether every plan is bit for bit the same.  For example XLA's CPU fusion
-emitters off, which the test suite uses to compile faster (``tests/conftest.py``).
+emitters off and LLVM at optimisation level 1, which the test suite uses to compile faster
+(``tests/conftest.py``).
 
     python -m benchmarks.first_plan                        # mmd vs saa, 4 scenes, ε = 0.005
     python -m benchmarks.first_plan --scenes 6 --risk 0.001 --methods mmd,degroot
     python -m benchmarks.first_plan --xla-flags=--xla_cpu_use_fusion_emitters=false
     python -m benchmarks.first_plan --fixed --xla-flags=--xla_cpu_use_fusion_emitters=false
+    python -m benchmarks.first_plan --fixed \
+        --xla-flags="--xla_cpu_use_fusion_emitters=false --xla_backend_optimization_level=1"
 """
 
 from __future__ import annotations

@@ -66,18 +66,20 @@ np.savez(sys.argv[1], cost_trace=np.asarray(ran.cost_trace), d=np.asarray(ran.be
 """
 
 
-def test_the_suites_compile_flag_leaves_algorithm_1_unchanged(tmp_path):
-    """The suite compiles with XLA's CPU fusion emitters off (``tests/conftest.py``: a compile
-    speed setting); users run XLA's defaults.  Algorithm 1 under XLA's defaults, in a fresh
-    process, picks the same plan as here, to the float32 reassociation tolerance of the test
-    above."""
+def test_the_suites_compile_flags_leave_algorithm_1_unchanged(tmp_path):
+    """The suite compiles with XLA's CPU fusion emitters off and LLVM at optimisation level 1
+    (``tests/conftest.py``: compile speed settings); users run XLA's defaults.  Algorithm 1
+    under XLA's defaults, in a fresh process, picks the same plan as here, to the float32
+    reassociation tolerance of the test above."""
     import os
     from pathlib import Path
 
-    from tests.conftest import FUSION_EMITTERS_OFF
+    from tests.conftest import SUITE_XLA_FLAGS
 
     root = Path(__file__).resolve().parents[2]
-    flags = os.environ.get("XLA_FLAGS", "").replace(FUSION_EMITTERS_OFF, "").strip()
+    flags = " ".join(
+        f for f in os.environ.get("XLA_FLAGS", "").split() if f not in SUITE_XLA_FLAGS.values()
+    )
     env = dict(os.environ, XLA_FLAGS=flags, PYTHONPATH=str(root))
     out_file = tmp_path / "defaults.npz"
     out = subprocess.run(
