@@ -174,17 +174,12 @@ def test_demo_writes_png_and_prints_table(tmp_path, capsys, monkeypatch):
 
 def test_synthetic_two_scenes_contract_and_resume(tmp_path, capsys, monkeypatch):
     """The result contract, the figure (``collision_free.png`` a readable figure:
-    ``test_figures.assert_readable``), resuming, and a folder refusing other settings.  The
-    planner is the sweeps' tiny config (``tests/reliability/test_kill_resume.py``): the contract
-    does not depend on its sizes, and its programs are compiled once per run."""
+    ``test_figures.assert_readable``), resuming, and a folder refusing other settings."""
     from tests.mmdopt.bench.test_figures import assert_readable
-    from tests.reliability.test_kill_resume import CONFIG as TINY
 
     saved = _record_figures(monkeypatch)
     small = tmp_path / "small.json"
-    small.write_text(json.dumps({"n_samples": 20, "n_validation": 300}))
-    tiny = tmp_path / "tiny.json"
-    tiny.write_text(json.dumps(TINY))
+    small.write_text(json.dumps({"n_validation": 300}))
     argv = [
         "bench",
         "synthetic",
@@ -200,8 +195,6 @@ def test_synthetic_two_scenes_contract_and_resume(tmp_path, capsys, monkeypatch)
         "1",
         "--scene-params",
         str(small),
-        "--config",
-        str(tiny),
         "--no-progress",
     ]
     rc, out = _run(argv, capsys)
