@@ -9,8 +9,9 @@ Frenet coordinates: ``s`` (arc length of the nearest path point) and ``d`` (sign
 positive to the left of the direction of travel): ``p = r(s) + d·n(s)``, ``n = (−sin θ, cos θ)``.
 The nearest point is found by a proper projection – a k-d tree over densely sampled path points,
 projection onto the two adjacent chords, then Newton's method on ``(r(s) − p)·r'(s) = 0`` – not a
-brute-force scan.  Round trips are exact to ~1e-9 m wherever the nearest point is unique
-(``|d| < 1/|κ|``).
+brute-force scan; on a straight path (:meth:`ReferencePath.straight`, or collinear way-points in
+order) it is the exact projection onto the line.  Round trips are exact to ~1e-9 m wherever the
+nearest point is unique (``|d| < 1/|κ|``).
 """
 
 from __future__ import annotations
@@ -57,6 +58,24 @@ def _broadcast(names: tuple[str, ...], *arrays) -> list[np.ndarray]:
         ) from None
 
 
+def _straight_line(s, px, py) -> tuple[float, float, float, float] | None:
+    """``(x0, y0, ux, uy)`` when the dense samples ``(px, py)`` at arc lengths ``s`` lie on one
+    straight line, in order, at their arc length from the first (to 1e-9 of the path's scale):
+    the spline through them is then that line, parameterised by arc length."""
+    x0, y0 = float(px[0]), float(py[0])
+    ex, ey = float(px[-1]) - x0, float(py[-1]) - y0
+    L = math.hypot(ex, ey)
+    tol = 1e-9 * max(1.0, float(np.max(np.abs(px))), float(np.max(np.abs(py))), float(s[-1]))
+    if L <= tol:
+        return None
+    ux, uy = ex / L, ey / L
+    along = (px - x0) * ux + (py - y0) * uy
+    across = -(px - x0) * uy + (py - y0) * ux
+    if np.max(np.abs(across)) > tol or np.max(np.abs(along - (s - s[0]))) > tol:
+        return None
+    return x0, y0, ux, uy
+
+
 def _check_finite(name: str, *arrays: np.ndarray) -> None:
     for a in arrays:
         if not np.all(np.isfinite(a)):
@@ -82,6 +101,9 @@ class ReferencePath:
     _knots: np.ndarray
     _tree: cKDTree
     waypoints: np.ndarray
+    #: ``(x0, y0, ux, uy)`` when the path is a straight line (start point, unit direction):
+    #: Cartesian → Frenet is then a projection, exact, with no search or Newton steps
+    _line: tuple[float, float, float, float] | None = None
 
     # ------------------------------------------------------------------ construction
     @classmethod
@@ -158,7 +180,7 @@ class ReferencePath:
         sx, sy = CubicSpline(s, px, bc_type=bc), CubicSpline(s, py, bc_type=bc)
         tree = cKDTree(np.column_stack([px, py]))
         spacing = float(np.max(np.diff(s)))
-        return cls(sx, sy, float(s[-1]), spacing, s, tree, waypoints)
+        return cls(sx, sy, float(s[-1]), spacing, s, tree, waypoints, _straight_line(s, px, py))
 
     # ------------------------------------------------------------------ geometry
     def _eval(self, s: np.ndarray):
@@ -227,6 +249,14 @@ class ReferencePath:
         _check_finite("x/y", x, y)
         shape = x.shape
         px, py = x.ravel(), y.ravel()
+        if self._line is not None:  # a straight path: the projection is exact
+            x0, y0, ux, uy = self._line
+            ex, ey = px - x0, py - y0
+            s = (float(self._knots[0]) + ex * ux + ey * uy).reshape(shape)
+            d = (ey * ux - ex * uy).reshape(shape)
+            if heading is None:
+                return s, d
+            return s, d, self._relative_heading(heading, shape, math.atan2(uy, ux))
         s = self._coarse(px, py)
         # Newton on f(s) = (r(s) − p)·r'(s)
         step_cap = 2.0 * self.spacing
@@ -246,6 +276,11 @@ class ReferencePath:
         s, d = s.reshape(shape), d.reshape(shape)
         if heading is None:
             return s, d
+        return s, d, self._relative_heading(heading, shape, np.arctan2(dy, dx).reshape(shape))
+
+    @staticmethod
+    def _relative_heading(heading: ArrayLike, shape: tuple, theta) -> NDArray[np.float64]:
+        """``heading`` (broadcast to ``shape``) relative to the path heading ``theta``, wrapped."""
         heading = _as_float("heading", heading)
         try:
             heading = np.broadcast_to(heading, shape)
@@ -255,7 +290,7 @@ class ReferencePath:
                 f"{heading.shape}"
             ) from None
         _check_finite("heading", heading)
-        return s, d, wrap_angle(heading - np.arctan2(dy, dx).reshape(shape))
+        return wrap_angle(heading - theta)
 
     def _coarse(self, px: np.ndarray, py: np.ndarray) -> np.ndarray:
         """Initial arc length: nearest dense sample, then projection onto its two chords."""

@@ -70,12 +70,12 @@ SAA_EPS_LINEAR = 0.02
 W_COVER = 100.0
 #: the planning futures (joint draws of every obstacle, ``SafetyConfig.joint_futures``) an
 #: MMD-Opt plan drawn from a predictor may meet with its 95 % bound ≤ ε ("samples" margin mode,
-#: ``SafetyConfig.risk_hits = None``): it draws n(ε) ≈ 19.4/ε futures instead of ≈ 3/ε (its
+#: ``SafetyConfig.risk_hits = None``): it draws n(ε) ≈ 52/ε futures instead of ≈ 3/ε (its
 #: reduced set keeps the cost of more futures small), so that its plans may come as close to ε
-#: as the bound allows instead of clearing every future (measured rate ≈ 0.66 ε at ε = 0.005 on
-#: the tuning scenes, against 0.55 ε with 5 hits and 0.37 ε with 2; 16 and 20 hits gain nothing
-#: more there)
-MMD_RISK_HITS = 12
+#: as the bound allows instead of clearing every future (at most 40/n(ε) ≈ 0.77 ε on the
+#: futures).  On the tuning scenes at ε = 0.001 the measured rate is 0.80 ε (SAA's 0.79–0.81 ε),
+#: against 0.77 ε with 30 hits, 0.72 ε with 12 and 0.41 ε with the one hit 5000 futures allow
+MMD_RISK_HITS = 40
 
 
 def _static(default):

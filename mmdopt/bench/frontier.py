@@ -179,7 +179,7 @@ def run_frontier(
     ``risks``: the grid per method, default :data:`DEFAULT_RISKS`).  ``forecast=True`` plans
     through the scene's predictor (:meth:`~mmdopt.bench.scenes.Scene.forecast`): n(ε) futures
     per (scene, ε), at least ``params.n_samples`` and at most
-    :data:`~mmdopt.bench.synthetic.MAX_FORECAST_SAMPLES`, the same for every method; ``False``
+    :func:`~mmdopt.bench.synthetic.forecast_cap` (5000; 50 000 for MMD-Opt); ``False``
     on the scene's ``params.n_samples`` fixed samples (the CLI's ``--n-samples N``).  ``isolate``
     as in
     :func:`~mmdopt.bench.executors.run_tasks`: ``True`` (the CLI) plans every task in a worker

@@ -119,3 +119,39 @@ def test_bad_waypoints_raise(xy, msg):
 def test_nan_query_raises():
     with pytest.raises(ValueError, match="NaN"):
         ReferencePath.straight(10.0).to_frenet(np.array([np.nan]), np.array([0.0]))
+
+
+@pytest.mark.parametrize(
+    "make",
+    [
+        lambda: ReferencePath.straight(300.0, start=(5.0, -2.0), heading=0.4),
+        lambda: ReferencePath.straight(2000.0),
+        lambda: ReferencePath.from_waypoints(np.c_[np.linspace(3.0, 93.0, 7), np.linspace(1, -44, 7)]),
+    ],
+)
+def test_straight_path_projection_agrees_with_the_newton_search(make):
+    """A straight path converts by exact projection; the general search (k-d tree, chords,
+    Newton) gives the same Frenet coordinates to 1e-9 m, past the ends too."""
+    import dataclasses
+
+    path = make()
+    assert path._line is not None
+    general = dataclasses.replace(path, _line=None)
+    rng = np.random.default_rng(3)
+    s = rng.uniform(-50.0, path.length + 50.0, (40, 30))
+    d = rng.uniform(-12.0, 12.0, (40, 30))
+    h = rng.uniform(-np.pi, np.pi, (40, 30))
+    x, y, hc = path.to_cartesian(s, d, h)
+    fast, slow = path.to_frenet(x, y, hc), general.to_frenet(x, y, hc)
+    assert np.max(np.abs(fast[0] - slow[0])) <= 1e-9
+    assert np.max(np.abs(fast[1] - slow[1])) <= 1e-9
+    assert np.max(np.abs(wrap_angle(fast[2] - slow[2]))) <= 1e-12
+    assert np.max(np.abs(fast[0] - s)) <= 1e-9 and np.max(np.abs(fast[1] - d)) <= 1e-9
+
+
+def test_a_path_that_bends_or_turns_back_is_not_taken_for_a_line():
+    bent = ReferencePath.from_waypoints(np.c_[np.linspace(0, 100, 5), [0, 0, 1e-3, 0, 0]])
+    back = ReferencePath.from_waypoints(np.array([[0.0, 0.0], [50.0, 0.0], [20.0, 0.0]]))
+    assert bent._line is None and back._line is None
+    with pytest.raises(ValueError, match="heading"):
+        ReferencePath.straight(100.0).to_frenet(np.zeros(3), np.zeros(3), np.zeros(4))

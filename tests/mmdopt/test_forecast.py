@@ -39,7 +39,7 @@ def test_plan_draws_the_futures_the_risk_level_needs_and_confirms_it():
     fc = _forecast(min_samples=10)
     p = mmdopt.plan(EGO, mmdopt.Road(), fc, config=CFG, key=key, risk=0.05)
     # MMD-Opt draws enough for a plan that meets MMD_RISK_HITS of them to keep its bound
-    n = samples_for_risk(0.05, 1, hits=MMD_RISK_HITS)  # 386
+    n = samples_for_risk(0.05, 1, hits=MMD_RISK_HITS)  # 1041 for 40 hits
     assert n > samples_for_risk(0.05, 1)  # 59: the fewest that can confirm ε at all
     assert p.diagnostics["forecast_samples"] == n == p.diagnostics["n_planning_samples"]
     assert p.status == "ok" and p.risk_bound <= 0.05, p.status_text
@@ -47,7 +47,9 @@ def test_plan_draws_the_futures_the_risk_level_needs_and_confirms_it():
     q = mmdopt.plan(EGO, mmdopt.Road(), fc, config=CFG, key=key, risk=0.05)
     np.testing.assert_array_equal(p.x, q.x)
     # at least min_samples (default 100) are drawn even when fewer would do
-    r = mmdopt.plan(EGO, mmdopt.Road(), _forecast(), config=CFG, key=key, risk=0.2)
+    r = mmdopt.plan(
+        EGO, mmdopt.Road(), _forecast(), config=CFG.replace(risk_hits=2), key=key, risk=0.2
+    )  # n(0.2) = 30 for 2 hits
     assert r.diagnostics["forecast_samples"] == 100
     # the baselines (and MMD-Opt with risk_hits=0) draw the fewest that can confirm ε
     s = mmdopt.plan(EGO, mmdopt.Road(), fc, config=CFG.replace(risk_hits=0), key=key, risk=0.05)
