@@ -126,7 +126,9 @@ def test_nan_query_raises():
     [
         lambda: ReferencePath.straight(300.0, start=(5.0, -2.0), heading=0.4),
         lambda: ReferencePath.straight(2000.0),
-        lambda: ReferencePath.from_waypoints(np.c_[np.linspace(3.0, 93.0, 7), np.linspace(1, -44, 7)]),
+        lambda: ReferencePath.from_waypoints(
+            np.c_[np.linspace(3.0, 93.0, 7), np.linspace(1, -44, 7)]
+        ),
     ],
 )
 def test_straight_path_projection_agrees_with_the_newton_search(make):
