@@ -29,7 +29,7 @@ method              what ε sets
                     SAA's chance term at the number of futures the 95 % bound lets the plan
                     meet (``hits_for_risk``) and loose margins (level 10ε), repeated with one
                     hit fewer while its plan breaks the bound; from a predictor it draws
-                    enough futures for 12 allowed hits (``risk_hits``, about 19.4/ε)
+                    enough futures for 40 allowed hits (``risk_hits``, about 52/ε)
 ``"random"``        the same margins and coverage term, no second pass
 ``"degroot"``       the same margins (its scenario cost is unchanged)
 ``"scenario_all"``  the same margins, each sample's cluster being its ``n // m`` nearest
@@ -313,8 +313,8 @@ def samples_for_risk(
     ``hits = 0`` gives the fewest that can confirm ε at all (:func:`risk_floor` ≤ ε),
     ``⌈ln(δ/G) / ln(1 − ε/G)⌉`` with δ = 1 − confidence and G = ``obstacles`` (about 3·G/ε at
     95 %): a plan must then clear every sample.  More hits ask for more samples (about 6.3·G/ε
-    for 2, 10.5·G/ε for 5, 19.4·G/ε for 12) and let a plan come as close to its budget as the
-    samples show it does."""
+    for 2, 10.5·G/ε for 5, 19.4·G/ε for 12, 52·G/ε for 40) and let a plan come as close to
+    its budget as the samples show it does."""
     eps = check_risk(eps, "eps")
     _check_int(obstacles, "obstacles", 1)
     _check_int(hits, "hits", 0)

@@ -83,9 +83,9 @@ def plan_scene(
 
 #: the most futures per obstacle a plan through the scene's predictor draws (:meth:`Scene.forecast`)
 MAX_FORECAST_SAMPLES = 5000
-#: MMD-Opt's cap: its reduced set is chosen among at most 1000 futures and its margins fitted on
-#: at most 5000, so only its nearest-futures pass, re-selection and final check grow with n
-#: (the other methods plan on every future: their cost grows with n)
+#: MMD-Opt's cap: its reduced set is chosen among at most 1000 futures, so only its margins,
+#: nearest-futures pass, re-selection and final check grow with n (the other methods plan on
+#: every future: their cost grows faster with n)
 MMD_MAX_FORECAST_SAMPLES = 50_000
 
 
@@ -107,10 +107,9 @@ def run_scene(
 
     ``forecast=False`` plans on the scene's fixed planning samples; ``True`` through the scene's
     predictor (:meth:`Scene.forecast`): the plan draws n(ε) futures (at most ``max_samples``,
-    default :func:`forecast_cap`),
-    the same ones for every method at a given risk level (the draw's key is the scene's planner
-    key).  ``n_planning`` (= ``n_samples``) and ``collision_free_planning`` of the row are those
-    of the futures the plan met."""
+    default :func:`forecast_cap`) with the scene's planner key, so methods that draw as many
+    plan on the same futures at a given risk level.  ``n_planning`` (= ``n_samples``) and
+    ``collision_free_planning`` of the row are those of the futures the plan met."""
     cfg = scene_config(scene, config)
     obstacles = None
     if forecast:

@@ -1,0 +1,65 @@
+"""Cartesian -> Frenet conversion of many obstacle futures: a straight path's exact projection
+against the general search (k-d tree, chords, Newton steps) on the same points.
+
+A plan that draws its futures from a predictor converts every one of them (n futures x K = 100
+steps) before it plans; at MMD-Opt's n(0.001) = 50 000 futures that is 5 million points.
+Prints, per size, the time of each way (best of ``--repeats``), their ratio and the largest
+difference of their (s, d), and the general search on a curved path of the same length.
+
+    python -m benchmarks.frenet_conversion --futures 5000,50000 --repeats 3
+"""
+
+from __future__ import annotations
+
+import argparse
+import dataclasses
+import time
+
+import numpy as np
+
+from frenet import ReferencePath
+
+
+def _best(fn, repeats: int) -> tuple[float, tuple]:
+    best, out = np.inf, None
+    for _ in range(repeats):
+        t = time.perf_counter()
+        out = fn()
+        best = min(best, time.perf_counter() - t)
+    return best, out
+
+
+def main(argv=None) -> None:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--futures", default="5000,50000", help="comma-separated numbers of futures")
+    ap.add_argument("--steps", type=int, default=100)
+    ap.add_argument("--repeats", type=int, default=3)
+    args = ap.parse_args(argv)
+    straight = ReferencePath.straight(2000.0)
+    general = dataclasses.replace(straight, _line=None)
+    xs = np.linspace(0.0, 2000.0, 200)
+    curved = ReferencePath.from_waypoints(np.c_[xs, 40.0 * np.sin(xs / 150.0)])
+    rng = np.random.default_rng(0)
+    print(
+        "| futures | points | straight projection (s) | general search (s) | ratio "
+        "| max abs diff (m) | curved path, general search (s) |"
+    )
+    print("|---|---|---|---|---|---|---|")
+    for n in (int(v) for v in args.futures.split(",")):
+        K = args.steps
+        s0 = rng.uniform(40.0, 80.0, (n, 1)) + np.cumsum(rng.uniform(0.3, 1.0, (n, K)), axis=1)
+        d0 = rng.uniform(-4.0, 4.0, (n, 1)) + rng.normal(0.0, 0.05, (n, K)).cumsum(axis=1)
+        x, y = straight.to_cartesian(s0, d0)
+        cx, cy = curved.to_cartesian(s0, d0)
+        t_fast, fast = _best(lambda x=x, y=y: straight.to_frenet(x, y), args.repeats)
+        t_gen, slow = _best(lambda x=x, y=y: general.to_frenet(x, y), args.repeats)
+        t_cur, _ = _best(lambda cx=cx, cy=cy: curved.to_frenet(cx, cy), args.repeats)
+        diff = max(np.max(np.abs(fast[0] - slow[0])), np.max(np.abs(fast[1] - slow[1])))
+        print(
+            f"| {n} | {n * K} | {t_fast:.3f} | {t_gen:.3f} | {t_gen / t_fast:.0f} x | "
+            f"{diff:.1e} | {t_cur:.3f} |"
+        )
+
+
+if __name__ == "__main__":
+    main()
