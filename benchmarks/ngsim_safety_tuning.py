@@ -29,8 +29,8 @@ import mmdopt
 from mmdopt.bench.ngsim.data import split_files
 from mmdopt.bench.ngsim.runner import (
     NgsimParams,
-    _predictor,
     _score_recorded,
+    cached_predictor,
     ngsim_config,
     plan_inputs,
     select_tasks,
@@ -264,7 +264,7 @@ def main(argv=None) -> None:
     if a.max_tasks:
         tasks = tasks[: a.max_tasks]
     print(f"{len(tasks)} training tasks, variants {list(variants)}", flush=True)
-    pred = _predictor(a.predictor)
+    pred = cached_predictor(a.predictor)
     if a.predictor_spread != 1.0:
         from mmdopt.predict import make_predictor
 

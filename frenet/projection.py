@@ -229,7 +229,7 @@ class ProjectionResult:
 
     @property
     def solved(self) -> np.ndarray:
-        return self.status == int(solvers.Status.SOLVED)
+        return self.status == solvers.STATUS_CODES.SOLVED
 
 
 @dataclass(frozen=True, eq=False)
@@ -674,7 +674,7 @@ class ProjectionProblem:
         x = np.asarray(sol.x, dtype=np.float64)
         finite = np.all(np.isfinite(x), axis=1)
         status = np.asarray(sol.status).copy()
-        status[~finite] = int(solvers.Status.ERROR)
+        status[~finite] = solvers.STATUS_CODES.ERROR
         cx_bar, cy_bar = self._coeffs(cx_bar, cy_bar)
         cx = np.where(finite[:, None], x[:, :n], cx_bar)
         cy = np.where(finite[:, None], x[:, n:], cy_bar)
@@ -693,7 +693,8 @@ class ProjectionProblem:
     ) -> Callable[..., JaxProjection]:
         """A pure-JAX batched projector for use inside jitted code (Algorithm 1's inner loop).
 
-        Built on :func:`solvers.admm.admm_factor` / :func:`solvers.admm.admm_iterate`: ``P`` and
+        Built on :func:`solvers.admm.admm_factor` / :func:`solvers.admm.admm_projector` (a
+        :class:`solvers.JaxProjector` running :func:`solvers.admm.admm_iterate`): ``P`` and
         ``A`` are factored once here (float64, NumPy); each call runs a fixed budget of
         ``num_iters`` ADMM iterations (rounded up to a multiple of ``check_every``; it may stop
         earlier once every sample meets the tolerances), no polish.  ``settings`` are
@@ -915,10 +916,11 @@ def _run_admm(factor, q, l, u, x0, y0, iters: int):
     import jax
     import jax.numpy as jnp
 
-    from solvers.admm import admm_iterate
+    from solvers.admm import admm_projector
 
     fj = jax.tree_util.tree_map(jnp.asarray, factor)  # constants of the traced function
-    return admm_iterate(fj, q, l, u, x0=x0, y0=y0, iters=iters)
+    project: solvers.JaxProjector = admm_projector(fj, iters)
+    return project(q, l, u, x0=x0, y0=y0)
 
 
 def _correct_equalities(z, Ae, b, M, dt):
@@ -941,10 +943,10 @@ def _jax_projector(
     problem: ProjectionProblem, num_iters: int, dtype: str, settings, split_axes=None
 ):
     try:
-        from solvers.admm import admm_factor, admm_iterate  # noqa: F401
+        from solvers.admm import admm_factor, admm_projector  # noqa: F401
     except ImportError as exc:  # pragma: no cover - depends on the solvers package state
         raise ImportError(
-            "ProjectionProblem.jax_projector needs solvers.admm.admm_factor/admm_iterate"
+            "ProjectionProblem.jax_projector needs solvers.admm.admm_factor/admm_projector"
         ) from exc
 
     s = _projector_settings(problem, num_iters, dtype, settings)
@@ -1126,12 +1128,11 @@ def _merge_axis_states(ox, oy, inv):
     import jax.numpy as jnp
 
     from solvers.admm import ADMMState
-    from solvers.admm.core import _SOLVED
 
     def joint(fx, fy):  # per-row arrays in the joint row order
         return jnp.concatenate([fx, fy], axis=1)[:, _ix(inv)]
 
-    status = jnp.where(ox.status == _SOLVED, oy.status, ox.status)
+    status = jnp.where(ox.status == solvers.STATUS_CODES.SOLVED, oy.status, ox.status)
     return ADMMState(
         x=jnp.concatenate([ox.x, oy.x], axis=1),
         z=joint(ox.z, oy.z),

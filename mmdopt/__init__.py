@@ -5,17 +5,19 @@ Modules, bottom up: :mod:`~mmdopt.kernels` (Gaussian kernels, MMD²), :mod:`~mmd
 :mod:`~mmdopt.reduced_set` (reduced-set selection), :mod:`~mmdopt.collision` (f̄, the MMD and
 scenario costs, the collision-free count), :mod:`~mmdopt.config` (the planner's configuration
 sections and presets), :mod:`~mmdopt.algorithm` (Algorithm 1: state, init/update/run/shift),
-:mod:`~mmdopt.baselines` (which samples and which collision term each method uses),
-:mod:`~mmdopt.api` (:func:`plan`), :mod:`~mmdopt.predict` (predictors).  Experiments live in
+:mod:`~mmdopt.methods` (the registry of planning methods), :mod:`~mmdopt.baselines` (each
+method's selection of samples), :mod:`~mmdopt.schedule` (the risk passes),
+:mod:`~mmdopt.plans` (:class:`Road`, :class:`Plan`, :class:`PlanStatus`), :mod:`~mmdopt.validate`
+(the input checks), :mod:`~mmdopt.planner` (:class:`Planner`), :mod:`~mmdopt.api`
+(:func:`plan`), :mod:`~mmdopt.predict` (predictors).  Experiments live in
 :mod:`mmdopt.bench`, which this package never imports.
 
 ``import mmdopt`` does not change JAX's global configuration: the public functions that need
 float64 ask for it locally (``jax.enable_x64`` inside the call).
 """
 
-from . import algorithm, risk
-from .api import Plan, Planner, PlanStatus, Road, plan, plan_frenet
-from .baselines import PLAN_METHODS
+from . import algorithm, methods, risk, schedule
+from .api import plan, plan_frenet
 from .collision import (
     CollisionCounts,
     ReducedObstacles,
@@ -38,6 +40,7 @@ from .config import (
     ProjectionConfig,
     RoadRules,
     SafetyConfig,
+    ScheduleConfig,
     SelectionConfig,
     TrajectoryConfig,
 )
@@ -57,6 +60,9 @@ from .kernels import (
     one_minus_gaussian_gram,
     sq_distances,
 )
+from .methods import PLAN_METHODS, PlanMethod
+from .planner import Planner
+from .plans import Plan, PlanStatus, Road
 from .reduced_set import (
     SELECTORS,
     ReducedSetConfig,
@@ -75,7 +81,10 @@ __version__ = "0.2.0"
 __all__ = [
     "__version__",
     "algorithm",
+    "methods",
     "risk",
+    "schedule",
+    "PlanMethod",
     "config_for_risk",
     "CircleFootprint",
     "EGO_FOOTPRINT",
@@ -119,6 +128,7 @@ __all__ = [
     "RoadRules",
     "SelectionConfig",
     "BaselineConfig",
+    "ScheduleConfig",
     "Road",
     "Plan",
     "Planner",

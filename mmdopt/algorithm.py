@@ -57,9 +57,7 @@ boundary rows corrected exactly) inside the jitted step, so :func:`run` is one `
 
 from __future__ import annotations
 
-import dataclasses
 import math
-from dataclasses import dataclass, field
 from functools import partial
 from typing import Any, NamedTuple
 
@@ -71,17 +69,24 @@ from jax import lax
 import frenet
 
 from ._x64 import x64
-from .collision import (
-    collision_cost,
-    compact_order,
-    lane_lateral,
-    mmd_cost,
-    rear_exempt,
-    saa_cost,
-    scenario_cost,
-    taylor_terms,
-)
+from .collision import compact_order
 from .config import SAA_EPS_LINEAR, W_COVER, MMDOptConfig  # noqa: F401 (re-exported)
+from .cost import (  # noqa: F401 (re-exported)
+    YAW_SPEED_FLOOR,
+    headway_semi_axis,
+    margin_ellipse_values,
+    obstacle_cost,
+    planning_semi_axis,
+    yaw_widening,
+)
+from .problem import (  # noqa: F401 (re-exported)
+    ObstacleSet,
+    Problem,
+    bounds_from_key,
+    bounds_key,
+    n_taylor_terms,
+    statics,
+)
 
 __all__ = [
     "PLANNER_PROJECTOR",
@@ -121,13 +126,8 @@ PLANNER_BACKEND = PLANNER_PROJECTOR
 #: added to the cost of a row beyond ``res_tol`` when the slip limit is on
 #: (``safety.rules.slip_ratio`` > 0)
 INFEASIBLE_COST = 1.0e12
-#: ego speed (m/s) under which the heading relative to the path is ill-defined: the floor in
-#: the yaw widening's ``|ḋ| / sqrt(ṡ² + ḋ² + v²)`` (the heading hold of
-#: :meth:`frenet.ReferencePath.trajectory_to_cartesian` uses the same speed)
-YAW_SPEED_FLOOR = 0.05
 
 
-# ---------------------------------------------------------------------------------- problem set-up
 class Workspace:
     """What Algorithm 1 builds once for one (static config, road bounds) pair: the Bernstein
     basis, the Frenet planner's closed form, the projection QP with its factorisation and
@@ -182,175 +182,6 @@ class Workspace:
 
     def t(self) -> np.ndarray:
         return self.basis.grid.t
-
-
-def statics(cfg: MMDOptConfig):
-    """The static part of ``cfg`` that Algorithm 1 reads (sizes, modes, rules): the pytree
-    structure of :meth:`~mmdopt.MMDOptConfig.program`, hashable; two configs with equal statics
-    share a :class:`Workspace` and its compiled steps."""
-    return jax.tree_util.tree_structure(cfg.program())
-
-
-def bounds_key(b: frenet.ProjectionBounds) -> tuple:
-    """A hashable description of projection bounds (static data of :class:`Problem`)."""
-    return tuple(
-        (
-            f.name,
-            tuple(np.atleast_1d(np.asarray(getattr(b, f.name), float)).tolist())
-            if getattr(b, f.name) is not None
-            else None,
-        )
-        for f in dataclasses.fields(b)
-    )
-
-
-def bounds_from_key(bkey: tuple) -> frenet.ProjectionBounds:
-    """The :class:`frenet.ProjectionBounds` that :func:`bounds_key` describes."""
-    kw = {
-        name: None if v is None else (float(v[0]) if len(v) == 1 else np.asarray(v, float))
-        for name, v in bkey
-    }
-    defaults = {f.name: f.default for f in dataclasses.fields(frenet.ProjectionBounds)}
-    for name, v in kw.items():
-        if isinstance(defaults.get(name), int) and isinstance(v, float):
-            kw[name] = int(v)
-    return frenet.ProjectionBounds(**kw)
-
-
-# ------------------------------------------------------------------------------ inputs and state
-@jax.tree_util.register_dataclass
-@dataclass(frozen=True)
-class Problem:
-    """One planning problem: the ego state, the sampling prior and the bounds (a pytree).
-
-    state : (6,) Frenet ego state ``(s, d, ṡ, ḋ, s̈, d̈)``;  mu0, cov0 : (D,), (D, D) initial
-    sampling distribution of the behavioural input ``d`` (speed set-points, then lateral
-    set-points);  lo, hi : (D,) clip bounds of ``d``;  brake : (n_brake, D) "brake in lane"
-    inputs (constant speed set-points ``v_min … v₀``);  bounds : static, the projection bounds
-    (:func:`bounds_key` of a :class:`frenet.ProjectionBounds`).
-    """
-
-    state: Any
-    mu0: Any
-    cov0: Any
-    lo: Any
-    hi: Any
-    brake: Any
-    bounds: tuple = field(metadata=dict(static=True))
-    lanes: Any = None
-
-    @staticmethod
-    def create(
-        cfg: MMDOptConfig,
-        ego: frenet.EgoState,
-        bounds: frenet.ProjectionBounds,
-        lanes: tuple[float, ...] = (),
-    ) -> Problem:
-        """The problem of planning from ``ego`` (Frenet) within ``bounds``: the sampling prior is
-        centred on the ego's speed and lateral offset (clipped to the bounds), with spreads
-        ``speed_std0`` and ``lateral_std_scale`` × half the lane width.  ``lanes``: the road's
-        lane-centre offsets, kept (for :func:`lane_cost`) when ``cfg.cost.w_lane > 0``."""
-        S = cfg.trajectory.num_segments
-        b = bounds.per_step(1)
-        v_min, v_max = float(b["vx_min"][0]), float(b["vx_max"][0])
-        y_lb, y_ub = float(b["y_lb"][0]), float(b["y_ub"][0])
-        v0 = float(np.clip(ego.vs, v_min, v_max))
-        y0 = float(np.clip(ego.d, y_lb, y_ub))
-        half = 0.5 * (y_ub - y_lb)
-        lat_std = float(cfg.cem.lateral_std_scale) * (half if np.isfinite(half) else 1.75)
-        lat_std = max(lat_std, 1e-3)
-        mu0 = np.array([v0] * S + [y0] * S)
-        cov0 = np.diag([float(cfg.cem.speed_std0) ** 2] * S + [lat_std**2] * S)
-        lo = np.array([v_min] * S + [y_lb] * S)
-        hi = np.array([v_max] * S + [y_ub] * S)
-        vlo = v_min if np.isfinite(v_min) else 0.0
-        ladder = np.linspace(vlo, max(v0, vlo), cfg.cem.n_brake)
-        brake = np.concatenate(
-            [np.repeat(ladder[:, None], S, 1), np.full((cfg.cem.n_brake, S), y0)], 1
-        )
-        bkey = bounds_key(bounds)
-        with jax.enable_x64(True):
-            arr = lambda x: jnp.asarray(np.asarray(x, np.float64))  # noqa: E731
-            lane_arr = None
-            if (float(cfg.cost.w_lane) > 0.0 or cfg.trajectory.lane_setpoints) and len(lanes) > 0:
-                lane_arr = arr(np.sort(np.asarray(lanes, np.float64)))
-            return Problem(
-                arr(ego.as_array()),
-                arr(mu0),
-                arr(cov0),
-                arr(lo),
-                arr(hi),
-                arr(brake),
-                bkey,
-                lane_arr,
-            )
-
-
-@jax.tree_util.register_dataclass
-@dataclass(frozen=True)
-class ObstacleSet:
-    """What the collision term plans against (a pytree).
-
-    centres : (O, J, C, K, 2) obstacle circle centres in the planning (Frenet) frame, J samples
-    per obstacle (a reduced set, or all samples);  weights : (O, J) ᾱ;  mask : (O, J) bool;
-    mode : static, the collision term — "mmd" (eq. l_dist), "scenario" (deterministic scenario
-    cost) or "saa" (sample-average chance constraint), :mod:`mmdopt.collision`;  n_terms :
-    static, Taylor features of the MMD cost (:func:`n_taylor_terms`).
-    """
-
-    centres: Any
-    weights: Any
-    mask: Any
-    mode: str = field(metadata=dict(static=True))
-    n_terms: int = field(default=0, metadata=dict(static=True))
-    margins: Any = None
-
-    @staticmethod
-    def create(
-        cfg: MMDOptConfig, centres, weights, mode: str, mask=None, margins=None
-    ) -> ObstacleSet:
-        """Build (and validate) an obstacle set for ``cfg``; ``mode`` as above.
-
-        ``margins`` : optional (3, O, J, K) sample-driven planning margins (m): longitudinal
-        behind and ahead of each point, lateral (:func:`mmdopt.risk.coverage_margins`); when
-        given they replace the time-linear margins of every method.
-        """
-        if mode not in ("mmd", "scenario", "saa"):
-            raise ValueError(f"mode must be 'mmd', 'scenario' or 'saa', got {mode!r}")
-        c = np.asarray(centres, np.float64)
-        w = np.asarray(weights, np.float64)
-        if c.ndim != 5 or c.shape[-1] != 2 or c.shape[-2] != cfg.trajectory.num_steps:
-            raise ValueError(
-                "centres must have shape (O, J, C, K, 2) with K = "
-                f"{cfg.trajectory.num_steps}, got {c.shape}"
-            )
-        if w.shape != c.shape[:2]:
-            raise ValueError(f"weights must have shape {c.shape[:2]}, got {w.shape}")
-        if not (np.all(np.isfinite(c)) and np.all(np.isfinite(w))):
-            raise ValueError("centres and weights must be finite")
-        if np.any(w < 0):
-            raise ValueError("weights must be >= 0")
-        m = np.ones(w.shape, bool) if mask is None else np.asarray(mask, bool)
-        if m.shape != w.shape:
-            raise ValueError(f"mask must have shape {w.shape}, got {m.shape}")
-        n_terms = n_taylor_terms(cfg) if mode == "mmd" else 0
-        mg = None
-        if margins is not None:
-            mg = np.asarray(margins, np.float64)
-            want = (3, *w.shape, cfg.trajectory.num_steps)
-            if mg.shape != want:
-                raise ValueError(f"margins must have shape {want}, got {mg.shape}")
-            if not np.all(np.isfinite(mg)) or np.any(mg < 0):
-                raise ValueError("margins must be finite and >= 0")
-        with jax.enable_x64(True):
-            return ObstacleSet(
-                jnp.asarray(c),
-                jnp.asarray(w),
-                jnp.asarray(m),
-                mode,
-                n_terms,
-                None if mg is None else jnp.asarray(mg),
-            )
 
 
 class Best(NamedTuple):
@@ -428,85 +259,6 @@ def _sample(cfg: MMDOptConfig, key, mu, cov, elites, problem: Problem, z=None):
     return jnp.clip(d, problem.lo, problem.hi)
 
 
-def yaw_widening(cfg: MMDOptConfig, vs, vd):
-    """Growth of the lateral semi-axis from the ego's heading relative to the path, (B, K):
-    ``yaw_extent·|ḋ| / sqrt(ṡ² + ḋ² + v_f²)`` = ``yaw_extent·|sin Δθ|`` (:class:`MMDOptConfig`,
-    yaw-aware footprint); ``vs``, ``vd`` (B, K) the samples' ṡ and ḋ."""
-    vs, vd = jnp.asarray(vs), jnp.asarray(vd)
-    if vs.ndim != 2 or vs.shape != vd.shape:
-        raise ValueError(f"vs and vd must both be (B, K), got {vs.shape} and {vd.shape}")
-    floor = jnp.asarray(YAW_SPEED_FLOOR * YAW_SPEED_FLOOR, vs.dtype)
-    return cfg.safety.footprint.yaw_extent * jnp.abs(vd) / jnp.sqrt(vs * vs + vd * vd + floor)
-
-
-def _collision_term(
-    cfg: MMDOptConfig, prob: Workspace, s, dd, obstacles: ObstacleSet, dt, vs=None, vd=None
-):
-    """The method's collision term and its weight (eq. c_aug), per ego sample (B,); ``vs``,
-    ``vd`` (B, K) the samples' ṡ and ḋ (needed when ``cfg.safety.rules.asymmetric`` /
-    ``cfg.safety.footprint.yaw_aware``)."""
-    mode = obstacles.mode
-    if cfg.safety.rules.asymmetric and vs is None:
-        raise ValueError("config.safety.rules.asymmetric needs the ego samples' speeds vs")
-    if cfg.safety.footprint.yaw_aware and (vs is None or vd is None):
-        raise ValueError(
-            "config.safety.footprint.yaw_aware needs the ego samples' velocities vs, vd"
-        )
-    # the yaw-aware footprint: lateral semi-axis per sample and step (B, K), else none
-    wide = yaw_widening(cfg, vs, vd).astype(dt) if cfg.safety.footprint.yaw_aware else None
-    if obstacles.margins is not None:
-        # sample-driven coverage margins (mmdopt.risk): per-point ellipses
-        f = margin_ellipse_values(
-            cfg, s, dd, obstacles.centres.astype(dt), obstacles.margins, vs=vs, widen=wide
-        )
-        if mode == "mmd":
-            coll = mmd_cost(
-                f,
-                obstacles.weights.astype(dt),
-                cfg.cost.bandwidth,
-                cfg.cost.f_scale,
-                obstacles.n_terms,
-            )
-            # coverage term: every penetration of a point's coverage ellipse costs
-            # w_cover·f̄ whatever the point's weight ᾱ (the 1 − ε coverage holds only if no
-            # ellipse is entered); returned weighted (the term's weight is then 1)
-            cover = scenario_cost(f, obstacles.mask)
-            return cfg.cost.w_mmd * coll + cfg.cost.w_cover * cover, jnp.asarray(1.0, dt)
-        if mode == "scenario":
-            return scenario_cost(f, obstacles.mask), cfg.baselines.w_coll
-        coll, _ = saa_cost(f, obstacles.mask, cfg.saa_level, cfg.baselines.saa_temperature)
-        return coll, cfg.baselines.w_saa
-    scale = 1.0 if mode == "mmd" else cfg.baselines.baseline_margin_scale
-    a_plan = planning_semi_axis(cfg, prob.t(), dt, scale)
-    a_behind = rear_w = None
-    if cfg.safety.rules.asymmetric:
-        a_behind = headway_semi_axis(cfg, a_plan, vs)
-        a_plan = planning_semi_axis(cfg, prob.t(), dt, scale * cfg.safety.rules.margin_ahead_scale)
-        rear_w = cfg.safety.rules.rear_exempt_width
-    coll = collision_cost(
-        mode,
-        s,
-        dd,
-        obstacles.centres.astype(dt),
-        obstacles.weights.astype(dt),
-        obstacles.mask,
-        a_plan,
-        cfg.safety.footprint.b
-        + scale * cfg.safety.margins.margin_lat
-        + (0.0 if wide is None else wide),
-        a_behind=a_behind,
-        rear_exempt_width=rear_w,
-        headway_lane=cfg.safety.rules.headway_lane,
-        bandwidth=cfg.cost.bandwidth,
-        f_scale=cfg.cost.f_scale,
-        n_terms=obstacles.n_terms,
-        saa_eps=cfg.saa_level,
-        saa_temperature=cfg.baselines.saa_temperature,
-    )
-    w = {"mmd": cfg.cost.w_mmd, "scenario": cfg.baselines.w_coll, "saa": cfg.baselines.w_saa}[mode]
-    return coll, w
-
-
 class _CostCache(NamedTuple):
     """What carries over between the iterations of :func:`run` (obstacles fixed): rows
     ``0 … n_elite + n_brake − 1`` of the next batch are the elites and the brake rows, whose
@@ -568,17 +320,17 @@ def lane_cost(dd, lanes, start: float = 0.5):
     return jnp.mean(dev * dev, axis=-1)
 
 
-def _row_costs(cfg: MMDOptConfig, prob: Workspace, obstacles: ObstacleSet, cx, cy, res, lanes=None):
+def _row_costs(cfg: MMDOptConfig, ws: Workspace, obstacles: ObstacleSet, cx, cy, res, lanes=None):
     """eq. (c_aug) + residual (+ :func:`lane_cost` when ``lanes`` is given) for coefficient rows
     (R, nvar): ``(cost, collision term)``."""
     dt = cx.dtype
-    P, Pd, Pdd = (jnp.asarray(M, dt) for M in (prob.P, prob.Pdot, prob.Pddot))
+    P, Pd, Pdd = (jnp.asarray(M, dt) for M in (ws.P, ws.Pdot, ws.Pddot))
     s, vs, as_ = cx @ P.T, cx @ Pd.T, cx @ Pdd.T
     dd, ad = cy @ P.T, cy @ Pdd.T
     j_speed = jnp.mean((vs - cfg.cost.v_des) ** 2, axis=1)
     j_acc = jnp.mean(as_ * as_ + ad * ad, axis=1)
     vd = cy @ Pd.T if cfg.safety.footprint.yaw_aware else None
-    coll, w = _collision_term(cfg, prob, s, dd, obstacles, dt, vs=vs, vd=vd)
+    coll, w = obstacle_cost(cfg, ws, s, dd, obstacles, dt, vs=vs, vd=vd)
     cost = cfg.cost.w_speed * j_speed + cfg.cost.w_accel * j_acc + w * coll + cfg.cost.w_res * res
     if lanes is not None:
         cost = cost + cfg.cost.w_lane * lane_cost(dd, lanes, cfg.cost.lane_from)
@@ -589,7 +341,7 @@ def _row_costs(cfg: MMDOptConfig, prob: Workspace, obstacles: ObstacleSet, cx, c
     return jnp.where(jnp.isfinite(cost), cost, jnp.asarray(1e30, dt)), coll
 
 
-def _cached_costs(cfg, prob, obstacles, ces, cx_c, cy_c, res_c, cache: _CostCache, lanes=None):
+def _cached_costs(cfg, ws, obstacles, ces, cx_c, cy_c, res_c, cache: _CostCache, lanes=None):
     """:func:`_row_costs` of the ConstraintEliteSet ``ces`` (n_cem,), reusing the cached costs of
     elites and brake rows; the other rows are scored in chunks of :func:`cost_chunk_size`
     (one chunk once the cache is filled, as many as needed before: a while loop)."""
@@ -612,7 +364,7 @@ def _cached_costs(cfg, prob, obstacles, ces, cx_c, cy_c, res_c, cache: _CostCach
         q, cost, coll = c
         sl = lax.dynamic_slice_in_dim(order, q * U, U)
         i = jnp.maximum(sl, 0)
-        cq, kq = _row_costs(cfg, prob, obstacles, cx_c[i], cy_c[i], res_c[i], lanes)
+        cq, kq = _row_costs(cfg, ws, obstacles, cx_c[i], cy_c[i], res_c[i], lanes)
         tgt = jnp.where(sl >= 0, i, nces)  # empty slots are dropped
         cost = cost.at[tgt].set(cq, mode="drop")
         coll = coll.at[tgt].set(kq.astype(coll.dtype), mode="drop")
@@ -649,7 +401,7 @@ def _next_cache(
 def _evaluate(
     cfg: MMDOptConfig,
     state: CEMState,
-    prob: Workspace,
+    ws: Workspace,
     obstacles: ObstacleSet,
     d,
     cx,
@@ -675,9 +427,9 @@ def _evaluate(
     d_c, cx_c, cy_c, res_c = d[ces], cx[ces], cy[ces], res[ces]
     # --- cost, eq. (c_aug) + residual
     if cache is None:
-        cost, coll = _row_costs(cfg, prob, obstacles, cx_c, cy_c, res_c, lanes)
+        cost, coll = _row_costs(cfg, ws, obstacles, cx_c, cy_c, res_c, lanes)
     else:
-        cost, coll = _cached_costs(cfg, prob, obstacles, ces, cx_c, cy_c, res_c, cache, lanes)
+        cost, coll = _cached_costs(cfg, ws, obstacles, ces, cx_c, cy_c, res_c, cache, lanes)
     # --- EliteSet and the MPPI-weighted update, eqs. (mean_update), (cov_update), (s_formula)
     neg, el = lax.top_k(-cost, cfg.cem.n_elite)
     cost_e = -neg
@@ -727,21 +479,20 @@ def _evaluate(
     return new, _next_cache(cfg, ces, cost, coll, el, cx, cy, res, end, cache)
 
 
-def slip_residual(cfg: MMDOptConfig, prob: Workspace, ego_state, cx, cy):
+def slip_residual(cfg: MMDOptConfig, ws: Workspace, ego_state, cx, cy):
     """Kinematic slip limit (:class:`MMDOptConfig`, not in the paper): per row (B,) the largest
     excess ``max_k max(0, |ḋ_k| − r·max(ṡ_k, 0) − v₀)`` (m/s) of the lateral speed over
     ``r = slip_ratio`` times the longitudinal speed, ``v₀`` that of the initial state
     ``ego_state`` (6,) = (s, d, ṡ, ḋ, s̈, d̈), in residual units (× ``res_tol / slip_tol``)."""
     cx, cy = jnp.asarray(cx), jnp.asarray(cy)
-    if cx.ndim != 2 or cy.shape != cx.shape or cx.shape[1] != prob.Pdot.shape[1]:
+    if cx.ndim != 2 or cy.shape != cx.shape or cx.shape[1] != ws.Pdot.shape[1]:
         raise ValueError(
-            f"cx and cy must both have shape (B, {prob.Pdot.shape[1]}), got {cx.shape} and "
-            f"{cy.shape}"
+            f"cx and cy must both have shape (B, {ws.Pdot.shape[1]}), got {cx.shape} and {cy.shape}"
         )
     if jnp.shape(ego_state) != (6,):
         raise ValueError(f"ego_state must have shape (6,), got {jnp.shape(ego_state)}")
     dt = cx.dtype
-    Pd = jnp.asarray(prob.Pdot, dt)
+    Pd = jnp.asarray(ws.Pdot, dt)
     vs, vd = cx @ Pd.T, cy @ Pd.T
     r = jnp.asarray(cfg.safety.rules.slip_ratio, dt)
     st = ego_state.astype(dt)
@@ -752,79 +503,10 @@ def slip_residual(cfg: MMDOptConfig, prob: Workspace, ego_state, cx, cy):
     )
 
 
-def planning_semi_axis(cfg: MMDOptConfig, t, dt=None, scale=1.0):
-    """Longitudinal semi-axis of the planning ellipse per step,
-    ``a + scale·(margin_long + margin_rate·t)`` (m; the margin may grow with time like the spread
-    of the predictions; ``scale`` is 1 for MMD-Opt, ``baseline_margin_scale`` for baselines)."""
-    t = jnp.asarray(t, dt) if dt is not None else jnp.asarray(t)
-    return cfg.safety.footprint.a + scale * (
-        cfg.safety.margins.margin_long + cfg.safety.margins.margin_rate * t
-    )
-
-
-def headway_semi_axis(cfg: MMDOptConfig, a, vs):
-    """Longitudinal semi-axis behind an obstacle point with the following distance:
-    ``max(a_plan, a + d₀ + h·max(ṡ, 0))`` (m), ``a_plan`` the planning semi-axis ((K,) or
-    scalar: ``a`` plus the margins), ``vs`` (B, K) the ego samples' speeds; returns (B, K).  The
-    time-headway gap ≥ d₀ + h·v (ACC/RSS-style) is a floor under the prediction-spread margins,
-    not added to them; not in the paper (:class:`MMDOptConfig`)."""
-    vs = jnp.asarray(vs)
-    floor = (
-        cfg.safety.footprint.a
-        + cfg.safety.rules.headway_gap
-        + cfg.safety.rules.headway_time * jnp.maximum(vs, 0.0)
-    )
-    return jnp.maximum(a, floor)
-
-
-def margin_ellipse_values(cfg: MMDOptConfig, s, d, centres, margins, vs=None, widen=None):
-    """Collision function with per-point, per-step sample-driven margins (:mod:`mmdopt.risk`):
-    ``f = 1 − Δs²/a_±² − Δd²/(b + m_lat)²`` with ``a_− = a + m_behind`` when the ego is behind
-    the point (Δs < 0) and ``a_+ = a + m_ahead`` otherwise.  ``s, d`` (B, K); ``centres``
-    (O, J, C, K, 2); ``margins`` (3, O, J, K); with ``cfg.safety.rules.asymmetric`` the
-    following distance
-    ``d₀ + h·ṡ`` of ``vs`` (B, K) is added to ``a_−``; ``widen`` (B, K) is added to the lateral
-    semi-axis (:func:`yaw_widening`).  Returns (B, O, J, C, K)."""
-    dt = centres.dtype
-    mg = margins.astype(dt)[:, :, :, None, :]  # (3, O, J, 1, K)
-    ds = s[:, None, None, None, :] - centres[None, ..., 0]
-    dd = d[:, None, None, None, :] - centres[None, ..., 1]
-    behind, ahead = mg[0][None], mg[1][None]
-    if cfg.safety.rules.asymmetric:
-        if vs is None:
-            raise ValueError("config.safety.rules.asymmetric needs the ego samples' speeds vs")
-        floor = (
-            headway_semi_axis(cfg, cfg.safety.footprint.a, vs).astype(dt) - cfg.safety.footprint.a
-        )  # (B, K)
-        behind = jnp.maximum(behind, floor[:, None, None, None, :])
-        ahead = cfg.safety.rules.margin_ahead_scale * ahead
-    # reciprocals per (point, step) before broadcasting over the ego samples (one division
-    # per step, not per value); with the headway floor (per ego sample) per value
-    if cfg.safety.rules.asymmetric:
-        a = cfg.safety.footprint.a + jnp.where(ds < 0, behind, ahead)
-        ia = 1.0 / (a * a)
-    else:
-        ia_b, ia_a = (
-            1.0 / ((cfg.safety.footprint.a + behind) ** 2),
-            1.0 / ((cfg.safety.footprint.a + ahead) ** 2),
-        )
-        ia = jnp.where(ds < 0, ia_b, ia_a)
-    b = cfg.safety.footprint.b + mg[2][None]
-    if widen is not None:
-        b = b + widen[:, None, None, None, :]
-    lat = dd * dd * (1.0 / (b * b))
-    if cfg.safety.rules.asymmetric:
-        lat = lane_lateral(lat, ds, dd, cfg.safety.rules.headway_lane)
-    f = 1.0 - ds * ds * ia - lat
-    if cfg.safety.rules.asymmetric:
-        f = rear_exempt(f, ds, dd, b, cfg.safety.rules.rear_exempt_width)
-    return f
-
-
-def planner_output(prob: Workspace, d, state, dt):
+def planner_output(ws: Workspace, d, state, dt):
     """Frenet planner, closed form: behavioural inputs (B, D) -> coefficients c̄x, c̄y (B, nvar)."""
-    W = jnp.asarray(prob.W, dt)
-    n = prob.nvar
+    W = jnp.asarray(ws.W, dt)
+    n = ws.nvar
     st = jnp.broadcast_to(state[None], (d.shape[0], 6))
     z = jnp.concatenate([d, st], axis=1) @ W
     return z[:, :n], z[:, n:]
@@ -835,14 +517,14 @@ class _WarmStart(NamedTuple):
     y: Any
 
 
-def project_fixed(prob: Workspace, cx_bar, cy_bar, state):
+def project_fixed(ws: Workspace, cx_bar, cy_bar, state):
     """The ``admm-fixed`` projection, warm-started from the planner output with zero duals:
     ``(cx, cy, residual)``."""
-    m = prob.projection.num_rows
-    ws = _WarmStart(
+    m = ws.projection.num_rows
+    start = _WarmStart(
         jnp.concatenate([cx_bar, cy_bar], axis=1), jnp.zeros((cx_bar.shape[0], m), cx_bar.dtype)
     )
-    out = prob.projector(cx_bar, cy_bar, state, warm_start=ws)
+    out = ws.projector(cx_bar, cy_bar, state, warm_start=start)
     return out.cx, out.cy, out.residual
 
 
@@ -854,7 +536,7 @@ def project_chunk_size(cfg: MMDOptConfig) -> int:
     return min(c, cfg.cem.n_samples)
 
 
-def project_rows(cfg: MMDOptConfig, prob: Workspace, d, ego, dt):
+def project_rows(cfg: MMDOptConfig, ws: Workspace, d, ego, dt):
     """Planner + ``admm-fixed`` projection of the batch ``d`` (B, D), chunk by chunk, until the
     projected rows hold ``n_cem`` feasible ones: ``(cx, cy, res, n_projected)``, ``res = inf``
     on the rows not projected.
@@ -865,21 +547,21 @@ def project_rows(cfg: MMDOptConfig, prob: Workspace, d, ego, dt):
     batch-wide test before the last iteration).  The later fresh draws would be planned and
     projected only to be discarded; on the tuning scenes ≥ 99 % of all rows are feasible, so
     one chunk of ``n_cem + n_elite`` rows almost always suffices (docs/experiments/synthetic.md)."""
-    cx, cy, res, n_proj, _ = _project_rows(cfg, prob, d, ego, dt)
+    cx, cy, res, n_proj, _ = _project_rows(cfg, ws, d, ego, dt)
     return cx, cy, res, n_proj
 
 
-def _project_fixed_slip(cfg: MMDOptConfig, prob: Workspace, cx_bar, cy_bar, ego):
+def _project_fixed_slip(cfg: MMDOptConfig, ws: Workspace, cx_bar, cy_bar, ego):
     """:func:`project_fixed`, its residual with the slip limit's added when
     ``cfg.safety.rules.kinematic``
     (once, where the residual is made: cached rows carry it already)."""
-    cx, cy, res = project_fixed(prob, cx_bar, cy_bar, ego)
+    cx, cy, res = project_fixed(ws, cx_bar, cy_bar, ego)
     if cfg.safety.rules.kinematic:
-        res = res + slip_residual(cfg, prob, ego, cx, cy).astype(res.dtype)
+        res = res + slip_residual(cfg, ws, ego, cx, cy).astype(res.dtype)
     return cx, cy, res
 
 
-def _project_rows(cfg: MMDOptConfig, prob: Workspace, d, ego, dt, cache=None):
+def _project_rows(cfg: MMDOptConfig, ws: Workspace, d, ego, dt, cache=None):
     """:func:`project_rows`; with ``cache`` (:func:`run`) the first ``cache.known`` rows (the
     elites and brake rows, projected in an earlier iteration) are taken from it and the chunks,
     ``n_elite + n_brake`` rows shorter, start after them.  Also returns the end of the known
@@ -887,11 +569,11 @@ def _project_rows(cfg: MMDOptConfig, prob: Workspace, d, ego, dt, cache=None):
     B, D = d.shape
     C = min(project_chunk_size(cfg), B)
     if C >= B:
-        cx_bar, cy_bar = planner_output(prob, d, ego, dt)
-        cx, cy, res = _project_fixed_slip(cfg, prob, cx_bar, cy_bar, ego)
+        cx_bar, cy_bar = planner_output(ws, d, ego, dt)
+        cx, cy, res = _project_fixed_slip(cfg, ws, cx_bar, cy_bar, ego)
         n = jnp.asarray(B, jnp.int32)
         return cx, cy, res.astype(dt), n, n
-    n = prob.nvar
+    n = ws.nvar
     inf = jnp.asarray(jnp.inf, dt)
     L = -(-B // C) * C  # rows of the padded batch
     zero, i0 = jnp.zeros((L, n), dt), jnp.asarray(0, jnp.int32)
@@ -915,8 +597,8 @@ def _project_rows(cfg: MMDOptConfig, prob: Workspace, d, ego, dt, cache=None):
     def chunk(c):
         i, nf, cx, cy, res = c
         start = base + i * C
-        cx_bar, cy_bar = planner_output(prob, lax.dynamic_slice_in_dim(dp, start, C), ego, dt)
-        cxi, cyi, ri = _project_fixed_slip(cfg, prob, cx_bar, cy_bar, ego)
+        cx_bar, cy_bar = planner_output(ws, lax.dynamic_slice_in_dim(dp, start, C), ego, dt)
+        cxi, cyi, ri = _project_fixed_slip(cfg, ws, cx_bar, cy_bar, ego)
         ri = jnp.where(start + jnp.arange(C) < B, ri.astype(dt), inf)  # padding: never chosen
         nf = nf + jnp.sum(ri <= cfg.projection.res_tol).astype(jnp.int32)
         cx = lax.dynamic_update_slice_in_dim(cx, cxi, start, 0)
@@ -930,7 +612,7 @@ def _project_rows(cfg: MMDOptConfig, prob: Workspace, d, ego, dt, cache=None):
 
 
 def _step(
-    prob: Workspace,
+    ws: Workspace,
     cfg: MMDOptConfig,
     problem: Problem,
     state: CEMState,
@@ -946,12 +628,12 @@ def _step(
     k = state.keys[state.iteration]
     d = _sample(cfg, k, state.mu, state.cov, state.elites, problem, z)
     d_plan = lane_inputs(cfg, d, problem.lanes, problem.state)
-    cx, cy, res, n_proj, end = _project_rows(cfg, prob, d_plan, problem.state, dt, cache)
-    return _evaluate(cfg, state, prob, obstacles, d, cx, cy, res, n_proj, cache, end, problem.lanes)
+    cx, cy, res, n_proj, end = _project_rows(cfg, ws, d_plan, problem.state, dt, cache)
+    return _evaluate(cfg, state, ws, obstacles, d, cx, cy, res, n_proj, cache, end, problem.lanes)
 
 
 def _init(
-    prob: Workspace,
+    ws: Workspace,
     cfg: MMDOptConfig,
     problem: Problem,
     key,
@@ -974,7 +656,7 @@ def _init(
         cov = warm_start.cov.astype(dt)
         elites = jnp.clip(warm_start.elites.astype(dt), problem.lo, problem.hi)
     keys = jax.random.split(k_loop, cfg.cem.iterations)
-    empty = _empty_best(D, prob.nvar, dt)
+    empty = _empty_best(D, ws.nvar, dt)
     N = cfg.cem.iterations
     return CEMState(
         mu=mu,
@@ -1018,7 +700,7 @@ def _as_warm(cfg: MMDOptConfig, warm_start: CEMState | None) -> _Warm:
 
 
 def _run_fixed(
-    prob: Workspace, cfg: MMDOptConfig, problem: Problem, obstacles: ObstacleSet, key, warm: _Warm
+    ws: Workspace, cfg: MMDOptConfig, problem: Problem, obstacles: ObstacleSet, key, warm: _Warm
 ):
     """The whole of Algorithm 1 as one jitted function (``lax.scan`` over the iterations); a
     cold start and a warm start are one program (the state is selected by ``warm.cold``)."""
@@ -1029,7 +711,7 @@ def _run_fixed(
     # at 940 × 8 values)
     prefix = bool(jax.config.jax_threefry_partitionable) and cfg.cem.n_elite <= _n_fresh(cfg)
     if not prefix:
-        state = _init(prob, cfg, problem, key, None)
+        state = _init(ws, cfg, problem, key, None)
         z_all = jax.vmap(lambda k: _normals(cfg, k, dt))(state.keys)
     else:
         # the initial elites' draws are the first rows of a draw of the iterations' shape from
@@ -1038,37 +720,37 @@ def _run_fixed(
         k_init, k_loop = jax.random.split(key)
         keys = jnp.concatenate([k_init[None], jax.random.split(k_loop, cfg.cem.iterations)])
         z = jax.vmap(lambda k: _normals(cfg, k, dt))(keys)
-        state = _init(prob, cfg, problem, key, None, z[0, : cfg.cem.n_elite])
+        state = _init(ws, cfg, problem, key, None, z[0, : cfg.cem.n_elite])
         z_all = z[1:]
     # a warm start: its distribution and elites (clipped to the bounds), the same keys
-    ws = state._replace(
+    warmed = state._replace(
         mu=jnp.clip(warm.mu, problem.lo, problem.hi),
         cov=warm.cov,
         elites=jnp.clip(warm.elites, problem.lo, problem.hi),
     )
-    state = jax.tree_util.tree_map(lambda c, w: jnp.where(warm.cold, c, w), state, ws)
+    state = jax.tree_util.tree_map(lambda c, w: jnp.where(warm.cold, c, w), state, warmed)
     # the obstacles are the same in every iteration: the elites' and brake rows' costs carry
     # over (_CostCache) and only the new rows of each ConstraintEliteSet are scored
     (state, _), _ = lax.scan(
-        lambda c, z: (_step(prob, cfg, problem, c[0], obstacles, z, c[1]), None),
-        (state, _empty_cache(cfg, prob.nvar, dt)),
+        lambda c, z: (_step(ws, cfg, problem, c[0], obstacles, z, c[1]), None),
+        (state, _empty_cache(cfg, ws.nvar, dt)),
         z_all,
     )
     return state
 
 
-def _sample_plan(prob: Workspace, cfg: MMDOptConfig, problem: Problem, state: CEMState):
+def _sample_plan(ws: Workspace, cfg: MMDOptConfig, problem: Problem, state: CEMState):
     dt = jnp.dtype(cfg.cem.dtype)
     problem = _cast(problem, dt)
     d = _sample(cfg, state.keys[state.iteration], state.mu, state.cov, state.elites, problem)
     cx_bar, cy_bar = planner_output(
-        prob, lane_inputs(cfg, d, problem.lanes, problem.state), problem.state, dt
+        ws, lane_inputs(cfg, d, problem.lanes, problem.state), problem.state, dt
     )
     return d, cx_bar, cy_bar
 
 
 def _evaluate_host(
-    prob: Workspace,
+    ws: Workspace,
     cfg: MMDOptConfig,
     problem: Problem,
     state: CEMState,
@@ -1082,8 +764,8 @@ def _evaluate_host(
     problem = _cast(problem, dt)
     cx, cy, res = cx.astype(dt), cy.astype(dt), res.astype(dt)
     if cfg.safety.rules.kinematic:  # the slip limit joins the backend's residual
-        res = res + slip_residual(cfg, prob, problem.state, cx, cy)
-    return _evaluate(cfg, state, prob, obstacles, d, cx, cy, res, lanes=problem.lanes)
+        res = res + slip_residual(cfg, ws, problem.state, cx, cy)
+    return _evaluate(cfg, state, ws, obstacles, d, cx, cy, res, lanes=problem.lanes)
 
 
 # ------------------------------------------------------------------------------------ public API
@@ -1259,11 +941,3 @@ def _shift(cfg: MMDOptConfig, state: CEMState, frac) -> CEMState:
         n_feasible=jnp.zeros((N,), jnp.int32),
         n_projected=jnp.zeros((N,), jnp.int32),
     )
-
-
-def n_taylor_terms(cfg: MMDOptConfig) -> int:
-    """Static number of Taylor features for the MMD cost (f̄ ≤ 1, so ``t ≤ f_scale/bandwidth``):
-    truncation below the loop's float resolution (relative 1e-7 in float32: 18 terms at the
-    defaults instead of 21 for 1e-9; 1e-12 in float64)."""
-    rel = 1e-7 if cfg.cem.dtype == "float32" else 1e-12
-    return taylor_terms(float(cfg.cost.f_scale) / float(cfg.cost.bandwidth), rel)

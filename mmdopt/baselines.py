@@ -1,37 +1,14 @@
-"""The planning methods: which obstacle samples each one plans against, with which collision term.
+"""The obstacle samples each planning method plans against (its selection step).
 
-Every method runs the *same* optimiser (:mod:`mmdopt.algorithm`: sampling, Frenet planner,
-projection, ConstraintEliteSet, EliteSet, MPPI update); they differ only in which obstacle samples
-enter the cost and in the collision term (paper, "Baselines": "we just replace our MMD cost with a
-deterministic collision cost").  The collision terms live in :mod:`mmdopt.collision`.
-
-==================  ==========================================  ===============================
-method              obstacle samples in the cost                collision term
-==================  ==========================================  ===============================
-``"mmd"``           m-sample reduced set by MMD, weights ᾱ      ``w_mmd · l_dist`` (l_dist)
-``"random"``        m-sample uniformly random subset, ᾱ         ``w_mmd · l_dist``
-``"degroot"``       m-sample de Groot set (deepest conflict     ``w_coll · Σ_j Σ_k f̄_jk``
-                    with a constant-velocity ego guess)         (deterministic scenario cost)
-``"scenario_all"``  all n samples                               ``w_coll · Σ_j Σ_k f̄_jk``
-``"saa"``           all n samples                               ``w_saa · Σ_o (π̂_o − ε)₊/ε``
-==================  ==========================================  ===============================
-
-**Scenario formulation chosen** (the authors' reference code puts the reduced-set collision
-constraints into its non-convex polar-form projection instead): here collisions enter as a
-*deterministic collision cost* on the scenario samples, as the paper's Baselines paragraph says.
-Linearised half-planes as projection rows were not chosen: the normal of each half-plane depends on
-the sample's own trajectory, so the constraint matrix would differ per sample and the batched
-projection (one factorisation shared by the batch) would no longer apply.
-
-To add a method: a row in :data:`SELECTOR` (which samples: a selector of
-:mod:`mmdopt.reduced_set`, or ``None`` for all samples) and in :data:`COLLISION_TERM` (which
-collision term of :mod:`mmdopt.collision`).
+The methods themselves are records of :mod:`mmdopt.methods` (which samples, which collision
+term, which risk passes); this module carries out a record's choice of samples:
+:func:`select_for_method` runs its reduced-set selector (:mod:`mmdopt.reduced_set`) with the
+record's preprocessing (the anisotropic kernel features, de Groot's constant-velocity ego
+guess), or returns :func:`all_samples_set` for a method that plans on every sample.
 """
 
 from __future__ import annotations
 
-from collections.abc import Mapping
-from types import MappingProxyType
 from typing import Any
 
 import jax
@@ -39,33 +16,11 @@ import jax.numpy as jnp
 import numpy as np
 
 from .geometry import Footprint
+from .methods import PLAN_METHODS, PlanMethod
 from .reduced_set import ReducedSetConfig, select_reduced_sets
 from .samples import ReducedSet
 
-__all__ = ["PLAN_METHODS", "COLLISION_TERM", "SELECTOR", "all_samples_set", "select_for_method"]
-
-#: the planning methods, in the order of the public API (the first is MMD-Opt)
-PLAN_METHODS = ("mmd", "degroot", "random", "saa", "scenario_all")
-#: the collision term of each plan method (:data:`mmdopt.collision.COLLISION_TERMS`)
-COLLISION_TERM = MappingProxyType(
-    {
-        "mmd": "mmd",
-        "random": "mmd",
-        "degroot": "scenario",
-        "scenario_all": "scenario",
-        "saa": "saa",
-    }
-)
-#: the reduced-set selector of each plan method (``None``: plan against all n samples)
-SELECTOR: Mapping[str, str | None] = MappingProxyType(
-    {
-        "mmd": "mmd",
-        "random": "random",
-        "degroot": "degroot",
-        "scenario_all": None,
-        "saa": None,
-    }
-)
+__all__ = ["PLAN_METHODS", "all_samples_set", "select_for_method"]
 
 
 def all_samples_set(n: int, O: int) -> ReducedSet:
@@ -83,7 +38,7 @@ def all_samples_set(n: int, O: int) -> ReducedSet:
 
 
 def select_for_method(
-    method: str,
+    method: PlanMethod,
     key: Any,
     obstacles_frenet: np.ndarray,
     m: int,
@@ -93,21 +48,22 @@ def select_for_method(
     ego_guess: np.ndarray | None = None,
     footprint: Footprint | None = None,
 ) -> ReducedSet:
-    """The obstacle samples ``method`` plans against, as a :class:`ReducedSet` (leading axis O).
+    """The obstacle samples ``method`` (a :class:`~mmdopt.methods.PlanMethod`) plans against,
+    as a :class:`ReducedSet` (leading axis O).
 
     ``obstacles_frenet`` (O, n, K, 2) in the planning frame; ``lateral_scale`` multiplies the
     lateral offsets in the selection's kernel features (an anisotropic kernel: lateral intents
-    count more than longitudinal spread; not for "degroot", which scores conflicts in metres);
-    ``ego_guess`` (K, 2) is the constant-velocity ego guess "degroot" scores against, with the
-    collision ellipse ``footprint`` (the planner's: ``config.safety.footprint``).
+    count more than longitudinal spread; only for a record with ``lateral_features``);
+    ``ego_guess`` (K, 2) is the constant-velocity ego guess a record with ``ego_guess`` (de
+    Groot's) scores against, with the collision ellipse ``footprint`` (the planner's:
+    ``config.safety.footprint``).
     """
     O, n = obstacles_frenet.shape[:2]
-    sel = SELECTOR[method]
-    if sel is None:
+    if method.selector is None:
         return all_samples_set(n, O)
     feats = obstacles_frenet
-    if sel != "degroot" and float(lateral_scale) != 1.0:
+    if method.lateral_features and float(lateral_scale) != 1.0:
         feats = obstacles_frenet * np.array([1.0, float(lateral_scale)])
-    guess = ego_guess if sel == "degroot" else None
-    rs = select_reduced_sets(key, feats, m, sel, config, guess, footprint)
+    guess = ego_guess if method.ego_guess else None
+    rs = select_reduced_sets(key, feats, m, method.selector, config, guess, footprint)
     return jax.block_until_ready(rs)

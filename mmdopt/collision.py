@@ -30,8 +30,9 @@ from __future__ import annotations
 
 import dataclasses
 import math
-from collections.abc import Sequence
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
+from types import MappingProxyType
 
 import jax
 import jax.numpy as jnp
@@ -77,6 +78,8 @@ __all__ = [
     "collision_free_count",
     "check_weights",
     "COLLISION_TERMS",
+    "COLLISION_TERM_ALIASES",
+    "collision_term",
     "collision_cost",
 ]
 
@@ -698,13 +701,25 @@ def collision_free_count(
 
 
 # --------------------------------------------------------- the collision term, obstacle by obstacle
-#: the collision terms: "mmd" (l_dist, eq. l_dist), "scenario" (deterministic scenario cost),
-#: "saa" (sample-average chance constraint)
-COLLISION_TERMS = ("mmd", "scenario", "saa")
+#: the collision terms: "embedding" (the MMD of the constraint-violation distribution to a
+#: Dirac at 0, l_dist, eq. l_dist), "scenario" (deterministic scenario cost), "chance" (SAA's
+#: sample-average chance constraint)
+COLLISION_TERMS = ("embedding", "scenario", "chance")
+#: former names of the collision terms, still accepted (they were the plan methods' names)
+COLLISION_TERM_ALIASES: Mapping[str, str] = MappingProxyType({"mmd": "embedding", "saa": "chance"})
+
+
+def collision_term(mode: str) -> str:
+    """The collision term named ``mode`` (:data:`COLLISION_TERMS`, or a former name of
+    :data:`COLLISION_TERM_ALIASES`); ``ValueError`` naming ``mode`` otherwise."""
+    term = COLLISION_TERM_ALIASES.get(mode, mode) if isinstance(mode, str) else mode
+    if term not in COLLISION_TERMS:
+        raise ValueError(f"mode must be one of {COLLISION_TERMS}, got {mode!r}")
+    return term
 
 
 def _term(mode, f, weights, mask, bandwidth, f_scale, n_terms, saa_eps, saa_temperature):
-    if mode == "mmd":
+    if mode == "embedding":
         return mmd_cost(f, weights, bandwidth, f_scale, n_terms)
     if mode == "scenario":
         return scenario_cost(f, mask)
@@ -747,8 +762,7 @@ def collision_cost(
     first bounded from the per-step intervals of ego and obstacle positions, so far traffic
     costs O(B·K) and the cost grows with the number of *interacting* obstacles.
     """
-    if mode not in COLLISION_TERMS:
-        raise ValueError(f"mode must be one of {COLLISION_TERMS}, got {mode!r}")
+    mode = collision_term(mode)
     kw = (bandwidth, f_scale, n_terms, saa_eps, saa_temperature)
     if centres.shape[0] == 1:
         return _term(
@@ -760,7 +774,7 @@ def collision_cost(
         )
 
     def reaches(fmax):
-        if mode == "saa":  # π̂ ≤ sigmoid(max f / τ) < ε ⇒ max(0, π̂ − ε) = 0
+        if mode == "chance":  # π̂ ≤ sigmoid(max f / τ) < ε ⇒ max(0, π̂ − ε) = 0
             return jax.nn.sigmoid(fmax / saa_temperature) >= saa_eps
         return fmax > 0.0
 

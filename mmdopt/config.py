@@ -19,6 +19,7 @@ section                what it holds
                        ellipse, in ``mmdopt.geometry``), ``MarginConfig``, ``RoadRules``
 ``SelectionConfig``    the reduced set: its size m and the selector's CEM
 ``BaselineConfig``     fields only the baselines read (de Groot, SAA, all samples)
+``ScheduleConfig``     the constants of the risk passes around Algorithm 1 (``mmdopt.schedule``)
 =====================  =======================================================================
 
 Sizes and modes are static (changing them recompiles); tunable scalars are pytree leaves.
@@ -58,6 +59,7 @@ __all__ = [
     "SafetyConfig",
     "SelectionConfig",
     "BaselineConfig",
+    "ScheduleConfig",
     "MMDOptConfig",
     "SAA_EPS_LINEAR",
     "W_COVER",
@@ -72,9 +74,8 @@ W_COVER = 100.0
 #: MMD-Opt plan drawn from a predictor may meet with its 95 % bound ≤ ε ("samples" margin mode,
 #: ``SafetyConfig.risk_hits = None``): it draws n(ε) ≈ 52/ε futures instead of ≈ 3/ε (its
 #: reduced set keeps the cost of more futures small), so that its plans may come as close to ε
-#: as the bound allows instead of clearing every future (at most 40/n(ε) ≈ 0.77 ε on the
-#: futures).  On the tuning scenes at ε = 0.001 the measured rate is 0.80 ε (SAA's 0.79–0.81 ε),
-#: against 0.77 ε with 30 hits, 0.72 ε with 12 and 0.41 ε with the one hit 5000 futures allow
+#: as the bound allows instead of clearing every future (docs/experiments/frontier.md gives the
+#: measured rates for each choice)
 MMD_RISK_HITS = 40
 
 
@@ -421,14 +422,14 @@ class SafetyConfig(_Section):
         predictor's distribution of futures (:mod:`mmdopt.risk`; 0.005)
     reselect : samples in deepest conflict with the first plan added to the reduced set for a
         second, warm-started pass (``None``: automatic — m/2 for MMD-Opt in the "samples"
-        margin mode, else 0; 0: off; :meth:`MMDOptConfig.reselect_for`)
+        margin mode, else 0; 0: off; :meth:`mmdopt.methods.PlanMethod.reselect`)
     footprint : the collision ellipse (:class:`mmdopt.Footprint`), the one every user reads
     margins : :class:`MarginConfig`;  rules : :class:`RoadRules`
     risk_hits : when ``plan`` draws its futures from a predictor, n(ε) is the fewest futures per
         obstacle for which a plan meeting ``risk_hits`` of them still has a 95 % bound ≤ ε
         (:func:`mmdopt.risk.samples_for_risk`; 0: the fewest that can confirm ε at all, so a
         plan must clear every one; ``None``: automatic — :data:`MMD_RISK_HITS` for MMD-Opt in
-        the "samples" margin mode, else 0; :meth:`MMDOptConfig.risk_hits_for`)
+        the "samples" margin mode, else 0; :meth:`mmdopt.methods.PlanMethod.risk_hits`)
     nearest_futures : MMD-Opt's nearest-futures pass in the "samples" margin mode: Algorithm 1,
         warm-started from the plan so far, against the ``nearest_futures`` planning futures per
         obstacle nearest to that plan (all of them when there are fewer), with the sample-average
@@ -539,6 +540,57 @@ class BaselineConfig(_Section):
             raise ValueError(f"BaselineConfig.saa_eps must be in (0, 1) or None, got {v!r}")
 
 
+@jax.tree_util.register_dataclass
+@dataclass(frozen=True)
+class ScheduleConfig(_Section):
+    """The constants of the risk passes around Algorithm 1 in the "samples" margin mode
+    (:mod:`mmdopt.schedule`); host-side only, so changing them recompiles nothing.
+
+    nearest_repeats : the most repeats of the nearest-futures pass while its plan's bound
+        exceeds ε, each around the last plan with one allowed hit fewer (2)
+    nearest_margin_factor : the nearest-futures pass's coverage margins are at level
+        min(this · ε, ``level_cap``): it plans against the futures that matter themselves, and
+        the final check's bound covers the rest (10)
+    tail_passes : the most tail passes of the final check, each adding the planning samples the
+        best plan so far meets to the reduced set (3; 0: off)
+    margin_ladder : MMD-Opt's margin ladder in the final check: one more pass per rung with
+        coverage margins at level rung · ε (capped at ``level_cap``; ``inf``: the cap), each
+        warm-started from the one before, then one refining tail pass; a rung's plan is
+        returned only if its bound is ≤ ε and its task cost the least (``()``: off, the
+        default; docs/experiments/frontier.md, "What we tried")
+    level_cap : the loosest coverage level of a pass (0.45: z = Φ⁻¹(0.55) ≈ 0.13 σ)
+    selection_pool : the most samples a method with a selection pool
+        (:attr:`mmdopt.methods.PlanMethod.selection_pool`) selects among in the "samples" mode:
+        beyond it the reduced set is chosen from a random pool of this size (1000)
+    """
+
+    nearest_repeats: int = _host(2)
+    nearest_margin_factor: float = _host(10.0)
+    tail_passes: int = _host(3)
+    margin_ladder: tuple[float, ...] = _host(())
+    level_cap: float = _host(0.45)
+    selection_pool: int = _host(1000)
+
+    _ints = ("nearest_repeats", "tail_passes", "selection_pool")
+    _nonneg = ("nearest_repeats", "tail_passes")
+    _positive = ("nearest_margin_factor", "level_cap", "selection_pool")
+
+    def __post_init__(self) -> None:
+        try:
+            ladder = tuple(float(r) for r in self.margin_ladder)
+        except (TypeError, ValueError):
+            raise ValueError(
+                f"ScheduleConfig.margin_ladder must be a sequence of numbers, got "
+                f"{self.margin_ladder!r}"
+            ) from None
+        if any(not (r > 0) for r in ladder):
+            raise ValueError(f"ScheduleConfig.margin_ladder rungs must be > 0, got {ladder}")
+        object.__setattr__(self, "margin_ladder", ladder)
+        self._check()
+        if not 0 < float(self.level_cap) < 0.5:
+            raise ValueError(f"ScheduleConfig.level_cap must be in (0, 0.5), got {self.level_cap}")
+
+
 _SECTIONS: tuple[tuple[str, type], ...] = (
     ("cem", CEMConfig),
     ("trajectory", TrajectoryConfig),
@@ -547,6 +599,7 @@ _SECTIONS: tuple[tuple[str, type], ...] = (
     ("safety", SafetyConfig),
     ("selection", SelectionConfig),
     ("baselines", BaselineConfig),
+    ("schedule", ScheduleConfig),
 )
 _SUBSECTIONS: tuple[tuple[str, type], ...] = (
     ("footprint", Footprint),
@@ -564,8 +617,7 @@ def _field_paths() -> dict[str, tuple[str, ...]]:
             if f.name in sub:
                 for g in dataclasses.fields(sub[f.name]):
                     out[g.name] = (sec, f.name, g.name)
-            else:
-                out[f.name] = (sec, f.name)
+            out[f.name] = (sec, f.name)  # a subsection by its name too (footprint=Footprint(...))
     return out
 
 
@@ -605,7 +657,17 @@ def _apply(obj, changes: dict):
     then see the new values together)."""
     if not changes:
         return obj
-    kw = {k: _apply(getattr(obj, k), v) if isinstance(v, dict) else v for k, v in changes.items()}
+    known = {f.name for f in dataclasses.fields(obj)}
+    bad = [k for k in changes if k not in known]
+    if bad:
+        raise ValueError(
+            f"{type(obj).__name__} has no field {bad[0]!r}; its fields: {', '.join(sorted(known))}"
+        )
+    kw = {
+        k: _apply(getattr(obj, k), v) if isinstance(v, dict) and dataclasses.is_dataclass(
+            getattr(obj, k)) else v
+        for k, v in changes.items()
+    }  # fmt: skip
     return dataclasses.replace(obj, **kw)
 
 
@@ -621,6 +683,7 @@ class MMDOptConfig:
     safety: SafetyConfig = field(default_factory=SafetyConfig)
     selection: SelectionConfig = field(default_factory=SelectionConfig)
     baselines: BaselineConfig = field(default_factory=BaselineConfig)
+    schedule: ScheduleConfig = field(default_factory=ScheduleConfig)
 
     def __post_init__(self) -> None:
         for name, cls in _SECTIONS:
@@ -662,7 +725,7 @@ class MMDOptConfig:
                     "(safety.rules / safety.footprint.yaw_extent)"
                 )
             else:
-                raise ValueError(f"MMDOptConfig has no field {k!r}; known: {sorted(FIELD_PATHS)}")
+                raise ValueError(_unknown_field(k))
         return _apply(self, changes)
 
     @classmethod
@@ -783,32 +846,24 @@ class MMDOptConfig:
             return self.safety.risk
         return SAA_EPS_LINEAR
 
-    def risk_hits_for(self, method: str) -> int:
-        """The planning futures per obstacle a plan of ``method`` may meet with its 95 % bound
-        ≤ ε, which sets how many it draws from a predictor (:func:`mmdopt.risk.samples_for_risk`):
-        ``safety.risk_hits``, or when that is ``None`` (automatic) :data:`MMD_RISK_HITS` for
-        "mmd" in the "samples" margin mode and 0 otherwise."""
-        if self.safety.risk_hits is not None:
-            return self.safety.risk_hits
-        if method == "mmd" and self.safety.margins.margin_mode == "samples":
-            return MMD_RISK_HITS
-        return 0
-
     def bound_groups(self, obstacles: int) -> int:
         """How many counts the plan's risk bound sums over (:func:`mmdopt.risk.risk_bound`,
         :func:`~mmdopt.risk.samples_for_risk`): 1 (the joint futures met) when
         ``safety.joint_futures``, else one per obstacle."""
         return 1 if self.safety.joint_futures else int(obstacles)
 
-    def reselect_for(self, method: str) -> int:
-        """The re-selection pass size ``method`` runs with: ``safety.reselect``, or when that is
-        ``None`` (automatic) ``max(1, reduced_set_size // 2)`` for "mmd" in the "samples" margin
-        mode and 0 otherwise."""
-        if self.safety.reselect is not None:
-            return self.safety.reselect
-        if method == "mmd" and self.safety.margins.margin_mode == "samples":
-            return max(1, self.selection.reduced_set_size // 2)
-        return 0
+
+def _unknown_field(name: str) -> str:
+    """The message for an unknown field ``name``: the nearest known names, and where to find
+    them all (the full list is long)."""
+    import difflib
+
+    near = difflib.get_close_matches(name, list(FIELD_PATHS) + [s for s, _ in _SECTIONS], n=3)
+    hint = f"; did you mean {' or '.join(repr(n) for n in near)}?" if near else ""
+    return (
+        f"MMDOptConfig has no field {name!r}{hint} (every field: mmdopt.config.FIELD_PATHS; "
+        "sections: " + ", ".join(s for s, _ in _SECTIONS) + ")"
+    )
 
 
 def _type_check(name: str, value: Any, default: Any) -> Any:

@@ -73,6 +73,41 @@ class Footprint:
     def replace(self, **kw) -> Footprint:
         return dataclasses.replace(self, **kw)
 
+    @classmethod
+    def from_vehicles(
+        cls,
+        length: float,
+        width: float,
+        margin: float = 0.0,
+        *,
+        obstacle_length: float | None = None,
+        obstacle_width: float | None = None,
+        yaw_extent: float = 0.0,
+    ) -> Footprint:
+        """The ellipse of an ego ``length`` × ``width`` (m, overall) against cars of
+        ``obstacle_length`` × ``obstacle_width`` (default: the ego's), with ``margin`` (m) of
+        clearance on every side.  The planner checks the ego's reference point against the
+        circles on each car's axis (:data:`OBSTACLE_FOOTPRINT`, the outer ones at ±2.5 m), so
+        the semi-axes are ``a = length/2 + max(obstacle_length/2 − 2.5, 0) + margin`` (the ego's
+        half length plus what of the car lies beyond its outer circle) and ``b = width/2 +
+        obstacle_width/2 + margin``.  Two 5 m × 2 m cars with 0.5 m of margin:
+        ``Footprint(a=3.0, b=2.5)``; the paper's ``a = 4.5, b = 3.5`` are semi-axes (an
+        ellipse 9 m × 7 m overall)."""
+        vals = dict(length=length, width=width, margin=margin)
+        vals["obstacle_length"] = length if obstacle_length is None else obstacle_length
+        vals["obstacle_width"] = width if obstacle_width is None else obstacle_width
+        for name, v in vals.items():
+            least = 0.0 if name == "margin" else None
+            if not _plain_number(v) or not math.isfinite(v) or (
+                v < 0 if least is not None else v <= 0
+            ):
+                bound = ">= 0" if least is not None else "> 0"
+                raise ValueError(f"{name} must be a finite number {bound} (m), got {v!r}")
+        reach = max(abs(o) for o in OBSTACLE_FOOTPRINT.offsets)
+        a = vals["length"] / 2 + max(vals["obstacle_length"] / 2 - reach, 0.0) + vals["margin"]
+        b = vals["width"] / 2 + vals["obstacle_width"] / 2 + vals["margin"]
+        return cls(a=float(a), b=float(b), yaw_extent=yaw_extent)
+
 
 @jax.tree_util.register_dataclass
 @dataclass(frozen=True)

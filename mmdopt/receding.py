@@ -14,8 +14,9 @@ traffic, a synthetic scene.  Each step the loop
 
 1. ``obs = source.observe()``: the ego's Frenet state, the road, and samples of the obstacles'
    futures ``(O, n, K, 2)`` (Cartesian, on the planner's time grid; from any predictor);
-2. plans with :func:`mmdopt.plan` (``method`` of :data:`mmdopt.PLAN_METHODS`), warm-started from
-   the previous step's Algorithm 1 state shifted by δ (``plan(..., warm_start=
+2. plans with ``planner.plan`` (any :class:`PlansLike`; default the cached
+   :class:`~mmdopt.Planner` of ``config``; ``method`` a name of :mod:`mmdopt.methods`),
+   warm-started from the previous step's Algorithm 1 state shifted by δ (``plan(..., warm_start=
    algorithm.shift(previous.state, δ))``: the sampling mean, covariance and elites re-timed; the
    first step, and a step after a braking fallback, start cold);
 3. ``source.step(plan, δ)`` executes the first δ seconds of the plan and says whether the episode
@@ -41,12 +42,15 @@ import numpy as np
 import frenet
 
 from . import algorithm
+from . import methods as registry
 from .algorithm import PLANNER_PROJECTOR, MMDOptConfig
-from .api import Plan, Road, _apply_risk, _check_obstacle_headings, _draw_forecast, plan
-from .baselines import PLAN_METHODS
+from .padding import pad_obstacles
+from .planner import PLANNERS, apply_risk, draw_forecast
+from .plans import Plan, Road
 from .predict.base import Forecast
 from .safety import RSSConfig, obstacle_states_from_cartesian, obstacle_states_from_samples
 from .safety import shield as rss_shield
+from .validate import check_obstacle_headings
 
 __all__ = [
     "Observation",
@@ -56,6 +60,7 @@ __all__ = [
     "StepRecord",
     "RecedingResult",
     "run_receding",
+    "PlansLike",
     "pad_obstacles",
     "warm_up",
 ]
@@ -123,6 +128,18 @@ class SceneSource(Protocol):
         ...
 
 
+@runtime_checkable
+class PlansLike(Protocol):
+    """Anything that plans a step of the loop: :class:`mmdopt.Planner` is one.  ``plan`` takes
+    the observation's ego, road and obstacle samples ``(O, n, K, 2)`` and the keywords
+    ``method``, ``projector``, ``key`` and, when given, ``warm_start`` (the previous plan's
+    :meth:`~mmdopt.Plan.next` state, or ``None`` after a plan without one) and
+    ``obstacle_headings``; it returns an :class:`mmdopt.Plan`.  A ``config`` attribute, when
+    present, is the loop's default config."""
+
+    def plan(self, ego: frenet.EgoState, road: Road, obstacles: Any, **kwargs: Any) -> Plan: ...
+
+
 @dataclass(frozen=True)
 class RecedingConfig:
     """Settings of the receding-horizon loop (the planner's own settings are an
@@ -131,7 +148,7 @@ class RecedingConfig:
     dt : δ, seconds of each plan executed before replanning (> 0, at most the planner's horizon)
     max_steps : at most this many replans (the source may end the episode earlier)
     budget_s : per-step plan-time budget (s); longer plans are counted, not cut
-    method : planning method (:data:`mmdopt.PLAN_METHODS`)
+    method : planning method (a name of :func:`mmdopt.methods.names`)
     projector : the projection of :func:`mmdopt.plan` (default: the planner's jitted
         projector, :data:`mmdopt.algorithm.PLANNER_PROJECTOR`; or a :mod:`solvers` backend)
     warm_start : warm-start each plan from the previous solution shifted by δ (False: all cold)
@@ -166,10 +183,7 @@ class RecedingConfig:
             )
         if not (isinstance(self.budget_s, int | float) and self.budget_s > 0):
             raise ValueError(f"RecedingConfig.budget_s must be > 0, got {self.budget_s!r}")
-        if self.method not in PLAN_METHODS:
-            raise ValueError(
-                f"RecedingConfig.method must be one of {PLAN_METHODS}, got {self.method!r}"
-            )
+        registry.get(self.method, "RecedingConfig.method")
         if self.max_obstacles is not None and (
             isinstance(self.max_obstacles, bool)
             or not isinstance(self.max_obstacles, int)
@@ -249,33 +263,6 @@ class RecedingResult:
 
 
 # ------------------------------------------------------------------------------------ helpers
-def pad_obstacles(
-    obstacles, num: int | None, ego: frenet.EgoState, road: Road, t: np.ndarray
-) -> np.ndarray:
-    """Obstacle samples with exactly ``num`` obstacles (``None``: at least one).
-
-    Extra obstacles are dropped (the source should sort them by relevance); missing ones are
-    phantoms driving 500 m behind the ego at its speed (their collision term is exactly zero: far
-    outside every ellipse), their samples 1 m apart so kernel bandwidths stay positive.
-    """
-    arr = np.asarray(obstacles, dtype=np.float64)
-    if arr.ndim != 4 or arr.shape[-1] != 2 or arr.shape[2] != t.shape[0]:
-        raise ValueError(
-            f"obstacles must have shape (O, n, K, 2) with K = {t.shape[0]}, got {arr.shape}"
-        )
-    O, n = arr.shape[0], max(arr.shape[1], 1)
-    want = max(O, 1) if num is None else int(num)
-    if O >= want:
-        return arr[:want]
-    s = ego.s - 500.0 - np.arange(n, dtype=np.float64)[:, None] + max(ego.vs, 0.0) * t[None, :]
-    x, y = road.path.to_cartesian(s, np.full_like(s, ego.d))
-    phantom = np.stack([x, y], axis=-1)  # (n, K, 2)
-    pad = np.broadcast_to(phantom, (want - O, n, t.shape[0], 2))
-    if O == 0:
-        return np.array(pad)
-    return np.concatenate([arr, pad], axis=0)
-
-
 def _drawn(obs: Observation, rc: RecedingConfig, config: MMDOptConfig, key):
     """``obs`` with its obstacles as an array: a :class:`~mmdopt.predict.Forecast` (its first
     ``rc.max_obstacles``) is drawn from exactly as :func:`mmdopt.plan` draws it with ``key``;
@@ -288,7 +275,7 @@ def _drawn(obs: Observation, rc: RecedingConfig, config: MMDOptConfig, key):
         fc = dataclasses.replace(
             fc, history=fc.history[keep], context=fc.context.subset(keep)
         )  # fmt: skip
-    arr, diag = _draw_forecast(fc, _apply_risk(rc.method, None, config), rc.method, key)
+    arr, diag = draw_forecast(fc, apply_risk(rc.method, None, config), rc.method, key)
     info = dict(obs.info, predict_s=diag["forecast_s"])
     return dataclasses.replace(obs, obstacles=arr, info=info), diag
 
@@ -300,12 +287,13 @@ def _observed_headings(obs: Observation) -> np.ndarray | None:
         return None
     fc = obs.obstacles
     O = fc.num_obstacles if isinstance(fc, Forecast) else int(np.shape(fc)[0])
-    return _check_obstacle_headings(obs.obstacle_headings, O)
+    return check_obstacle_headings(obs.obstacle_headings, O)
 
 
-def _plan_once(obs: Observation, rc: RecedingConfig, config: MMDOptConfig, key, warm, t_grid):
+def _plan_once(obs: Observation, rc: RecedingConfig, planner, config: MMDOptConfig, key, warm,
+               t_grid):  # fmt: skip
     """One plan of the loop: ``(plan, warm start used, obs with its obstacles drawn)``; the
-    plan time covers :func:`mmdopt.plan` only (a forecast's draw is the observation's
+    plan time covers ``planner.plan`` only (a forecast's draw is the observation's
     ``info["predict_s"]``).  A forecast drawn for the risk dial (the "samples" margin mode) is
     not padded with phantoms: they would count as obstacles in the plan's risk bound."""
     heads = _observed_headings(obs)
@@ -314,7 +302,7 @@ def _plan_once(obs: Observation, rc: RecedingConfig, config: MMDOptConfig, key, 
     if drawn and drawn.get("forecast_samples_needed") is not None:
         num = None  # the real obstacles only (at least one)
     obstacles = pad_obstacles(obs.obstacles, num, obs.ego, obs.road, t_grid)
-    kw: dict[str, Any] = dict(method=rc.method, config=config, projector=rc.projector, key=key)
+    kw: dict[str, Any] = dict(method=rc.method, projector=rc.projector, key=key)
     if heads is not None:  # cut as the obstacles were; phantoms along the path at the ego
         O = obstacles.shape[0]
         pad = float(np.asarray(obs.road.path.heading(np.asarray([obs.ego.s])))[0])
@@ -325,7 +313,9 @@ def _plan_once(obs: Observation, rc: RecedingConfig, config: MMDOptConfig, key, 
     if warm_used:
         kw["warm_start"] = warm
     t0 = time.perf_counter()
-    p = plan(obs.ego, obs.road, obstacles, **kw)
+    p = planner.plan(obs.ego, obs.road, obstacles, **kw)
+    if not isinstance(p, Plan):
+        raise ValueError(f"planner.plan must return an mmdopt.Plan, got {type(p).__name__}")
     p.diagnostics.update(drawn, plan_wall_s=time.perf_counter() - t0)
     return p, warm_used, obs
 
@@ -350,23 +340,55 @@ def _shielded(p: Plan, obs: Observation, rc: RecedingConfig, t_grid: np.ndarray)
     )
 
 
-def warm_up(obs: Observation, receding: RecedingConfig, config: MMDOptConfig, key=None) -> float:
+def warm_up(
+    obs: Observation,
+    receding: RecedingConfig,
+    config: MMDOptConfig | None = None,
+    key=None,
+    *,
+    planner: PlansLike | None = None,
+) -> float:
     """Compile the planner for the loop's shapes before timing it: one cold plan on ``obs`` and,
     when warm starts are used, one warm-started plan (a different traced input).  Returns the
     wall time (s), i.e. mostly JIT compilation.  Results are discarded; the loop's own plans are
-    unaffected (they use their own keys)."""
+    unaffected (they use their own keys).  ``planner`` as in :func:`run_receding`."""
+    planner, config = _planner_of(planner, config)
     key = jax.random.PRNGKey(0) if key is None else key
     t_grid = frenet.TimeGrid(config.trajectory.horizon, config.trajectory.num_steps).t
     t0 = time.perf_counter()
-    p, _, _ = _plan_once(obs, receding, config, key, None, t_grid)
+    p, _, _ = _plan_once(obs, receding, planner, config, key, None, t_grid)
     if receding.warm_start:
         warm = _shifted(p, receding.dt)
         if warm is not None:
-            _plan_once(obs, receding, config, key, warm, t_grid)
+            _plan_once(obs, receding, planner, config, key, warm, t_grid)
     return time.perf_counter() - t0
 
 
 # ------------------------------------------------------------------------------------ the loop
+def _planner_of(planner: Any, config: Any) -> tuple[Any, MMDOptConfig]:
+    """The loop's planner and config: the cached :class:`~mmdopt.Planner` of ``config`` when no
+    planner is given; a given planner's own ``config`` (when it has one) unless ``config``
+    disagrees."""
+    if planner is None:
+        config = MMDOptConfig() if config is None else config
+        if not isinstance(config, MMDOptConfig):
+            raise ValueError(f"config must be an mmdopt.MMDOptConfig, got {type(config).__name__}")
+        return PLANNERS.get(config), config
+    if not callable(getattr(planner, "plan", None)):
+        raise ValueError(
+            f"planner must have a plan(ego, road, obstacles, *, method, projector, key, ...) "
+            f"method (an mmdopt.Planner or a PlansLike), got {type(planner).__name__}"
+        )
+    own = getattr(planner, "config", None)
+    if config is None:
+        config = own if isinstance(own, MMDOptConfig) else MMDOptConfig()
+    elif not isinstance(config, MMDOptConfig):
+        raise ValueError(f"config must be an mmdopt.MMDOptConfig, got {type(config).__name__}")
+    elif isinstance(own, MMDOptConfig) and own is not config and own != config:
+        raise ValueError("config differs from planner.config: pass one of them")
+    return planner, config
+
+
 def run_receding(
     source: SceneSource,
     receding: RecedingConfig | None = None,
@@ -374,6 +396,7 @@ def run_receding(
     config: MMDOptConfig | None = None,
     key=None,
     callback=None,
+    planner: PlansLike | None = None,
 ) -> RecedingResult:
     """Drive ``source`` with the receding-horizon loop until it reports done or crashed.
 
@@ -381,7 +404,11 @@ def run_receding(
     ----------
     source : a :class:`SceneSource`
     receding : :class:`RecedingConfig` (δ, budget, method, ...)
-    config : the planner's :class:`MMDOptConfig` (default: ``MMDOptConfig()``)
+    config : the planner's :class:`MMDOptConfig` (default: ``planner.config``, else
+        ``MMDOptConfig()``); it sets the time grid the loop pads and shifts on
+    planner : what plans each step: an :class:`mmdopt.Planner`, or any object with its
+        ``plan`` signature (:class:`PlansLike`: a policy that is not MMD-Opt, a wrapper that
+        logs); default the cached planner of ``config`` (what :func:`mmdopt.plan` uses)
     key : jax PRNG key; step ``i`` plans with ``fold_in(key, i)``, so the same key and the same
         source give the same run
     callback : optional ``callback(step_index, observation, plan, outcome)`` after each step
@@ -391,11 +418,9 @@ def run_receding(
     :class:`RecedingResult`: per-step records (plan time, over budget, status), crashed, done.
     """
     rc = RecedingConfig() if receding is None else receding
-    config = MMDOptConfig() if config is None else config
     if not isinstance(rc, RecedingConfig):
         raise ValueError(f"receding must be a RecedingConfig, got {type(rc).__name__}")
-    if not isinstance(config, MMDOptConfig):
-        raise ValueError(f"config must be an mmdopt.MMDOptConfig, got {type(config).__name__}")
+    planner, config = _planner_of(planner, config)
     if rc.dt > config.trajectory.horizon:
         raise ValueError(
             f"RecedingConfig.dt = {rc.dt} s exceeds the planner's horizon "
@@ -415,7 +440,9 @@ def run_receding(
             raise ValueError(f"source.observe() must return an Observation, got {type(obs)!r}")
         if obs.frame_changed:
             warm = None
-        p, warm_used, obs = _plan_once(obs, rc, config, jax.random.fold_in(key, i), warm, t_grid)
+        p, warm_used, obs = _plan_once(
+            obs, rc, planner, config, jax.random.fold_in(key, i), warm, t_grid
+        )
         plan_s = p.diagnostics["plan_wall_s"]
         planned, shield_rec = p, None
         if rc.shield is not None:

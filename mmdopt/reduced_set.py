@@ -2,12 +2,12 @@
 
 One signature for every method (paper §"Proposed Reduced-Set Selection")::
 
-    rs = select_reduced_set(key, samples, m, method="mmd", config=ReducedSetConfig())
+    rs = select_reduced_set(key, samples, m, method="kernel-cem", config=ReducedSetConfig())
     rs.indices (m,), rs.weights (m,) summing to 1, rs.alpha (n,), rs.method, rs.mmd2, rs.bandwidth
 
 Methods
 -------
-``"mmd"``     the paper's eq. (red_set_opt_proposed) by CEM over α ∈ ℝⁿ, then the refinement
+``"kernel-cem"`` the paper's eq. (red_set_opt_proposed) by CEM over α ∈ ℝⁿ, then the refinement
               eq. (red_set_opt_proposed_2) of the m weights.  Cost
                   J(α) = αᵀKα − (2/n)1ᵀKα + (1/n²)1ᵀK1 − β Σ_top-m|α| / Σ_bottom-(n−m)|α|
               i.e. the **exact** squared MMD between the uniform embedding and the α-weighted one.
@@ -20,15 +20,12 @@ Methods
               every iteration (the reference reuses one), and the best α seen over all
               iterations is returned (the reference: best of the last; with elitism these agree).
               The reduced set is the m largest |α*_j|.
-              Three defaults differ from the reference, by measurement (40 two-intent mixtures,
-              n = 100, m = 10, docs/experiments/synthetic.md): CEM runs over u with α = u/n
-              (``alpha_scale=None``; the reference samples α itself, where the 0.01·I floor alone
-              adds ≈ 0.01·tr K = 1 of noise to an MMD whose differences are ≈ 1e-3, so its
-              selection is noise-driven), β = 0.01 (on that scale the ratio is O(1) and the MMD
-              O(1e-3)) and smoothing 0.5.  Median MMD² of the refined set (p = 0.8 / 0.2):
-              2.5e-3 / 3.9e-3 against 6.7e-3 / 5.6e-3 for the reference settings and
-              4.3e-3 / 4.9e-3 for a random subset; herding reaches 1.2e-3 / 1.3e-3.  (The median
-              over 40 mixtures moves by ≈ ±30 % with the random stream alone.)
+              Three defaults differ from the reference, chosen by measurement
+              (docs/experiments/synthetic.md gives the figures): CEM runs over u with α = u/n
+              (``alpha_scale=None``; the reference samples α itself, where the 0.01·I floor
+              alone adds noise of the order of tr K to an MMD whose differences are far
+              smaller, so its selection is noise-driven), β = 0.01 (on that scale the ratio is
+              O(1)) and smoothing 0.5.
               ``ReducedSetConfig.reference()`` restores the reference's settings.
               Implementation (speed, docs/experiments/synthetic.md): the CEM ranks in float32 (the
               MMD² is
@@ -42,8 +39,8 @@ Methods
               ≤ ``gram_tol`` = 1e-9, else the full K): O(n·r) instead of O(n²) per candidate.
 ``"herding"`` greedy MMD minimisation = kernel herding without replacement (Chen et al., 2010):
               step t adds argmax_j (1/n)Σ_i K_ij − (1/(t+1)) Σ_{s∈S} K_js.
-``"random"``  a uniformly random m-subset (the paper's "exhaustive search" baseline).
-``"degroot"`` de Groot et al. as in the reference's baseline: score g_j = max_k f(ego_guess_k,
+``"uniform"`` a uniformly random m-subset (the paper's "exhaustive search" baseline).
+``"conflict"`` de Groot et al. as in the reference's baseline: score g_j = max_k f(ego_guess_k,
               obstacle centre_j,k), f the ellipse collision function (a, b); top-m by score.
               Needs ``ego_guess`` (K, 2).
 
@@ -54,9 +51,8 @@ Weights of the m selected samples (``config.weights``), the same for every metho
               accelerated projected-gradient solve on the simplex (warm-started from the projected
               KKT point).  Non-negative weights keep the collision surrogate a mixture of
               non-negative masses (a negative ᾱ_j would *reward* collision with sample j).
-              Measured: the signed KKT solution has a negative weight in 22 of 40 CEM sets
-              (down to −0.25) and 22 of 40 random sets, 3 of 40 herding sets; the simplex
-              constraint costs a median factor 1.006 (max 1.35) in MMD² for CEM sets.
+              The signed KKT solution often has negative weights, and the simplex constraint
+              costs little MMD² (docs/experiments/synthetic.md).
 ``"kkt"``     the reference: the equality-constrained QP only (ᾱ may be negative).
 ``"uniform"`` ᾱ = 1/m.
 
@@ -69,8 +65,10 @@ coefficient vectors and makes K nearly flat: rank ≈ 5).
 from __future__ import annotations
 
 import dataclasses
+from collections.abc import Mapping
 from dataclasses import dataclass, field
 from functools import partial
+from types import MappingProxyType
 
 import jax
 import jax.numpy as jnp
@@ -84,6 +82,8 @@ from .samples import ReducedSet
 
 __all__ = [
     "SELECTORS",
+    "SELECTOR_ALIASES",
+    "selector_name",
     "WEIGHT_MODES",
     "ReducedSetConfig",
     "ReducedSet",
@@ -95,22 +95,38 @@ __all__ = [
     "reduced_set_objective",
 ]
 
-#: the reduced-set selectors (``method=`` of :func:`select_reduced_set`)
-SELECTORS = ("mmd", "herding", "random", "degroot")
+#: the reduced-set selectors (``method=`` of :func:`select_reduced_set`): "kernel-cem" (the
+#: paper's MMD selection by CEM), "herding", "uniform" (a random m-subset), "conflict" (de
+#: Groot's deepest conflicts with an ego guess)
+SELECTORS = ("kernel-cem", "herding", "uniform", "conflict")
+#: former selector names, still accepted (they were the plan methods' names)
+SELECTOR_ALIASES: Mapping[str, str] = MappingProxyType(
+    {"mmd": "kernel-cem", "random": "uniform", "degroot": "conflict"}
+)
+
+
+def selector_name(method: str) -> str:
+    """The selector named ``method`` (:data:`SELECTORS`, or a former name of
+    :data:`SELECTOR_ALIASES`); ``ValueError`` naming ``method`` otherwise."""
+    name = SELECTOR_ALIASES.get(method, method) if isinstance(method, str) else method
+    if name not in SELECTORS:
+        raise ValueError(f"method must be one of {SELECTORS}, got {method!r}")
+    return name
+
+
 WEIGHT_MODES = ("simplex", "kkt", "uniform")
 #: how the CEM draws from N(μ, Σ): "cholesky" (a Cholesky of the n × n Σ every iteration,
 #: O(n³)), "factor" (Σ kept as a·I + L Lᵀ with L the last ``cov_window`` elite sets, O(n·E·W)
-#: per draw, no factorisation), "auto" = "factor" when n > FACTOR_MIN_N.  Measured
-#: (benchmarks/reduced_set_timing.py --samplers, docs/experiments/synthetic.md): the same MMD² of
-#: the
-#: refined set; Cholesky is faster at n ≤ 200, the factor 56× at n = 300 and 39× at n = 1000.
+#: per draw, no factorisation), "auto" = "factor" when n > FACTOR_MIN_N (both give the same
+#: MMD² of the refined set; their times: benchmarks/reduced_set_timing.py --samplers,
+#: docs/experiments/synthetic.md).
 SAMPLERS = ("auto", "cholesky", "factor")
 FACTOR_MIN_N = 256
 #: how the CEM evaluates the quadratic form dᵀKd of its population: "full" (d @ K, O(n²) per
 #: candidate), "lowrank" (‖dL‖² with L the rank-``gram_rank`` pivoted-Cholesky factor of K when
 #: its largest residual diagonal is ≤ ``gram_tol``, else the full K: O(n·r)), "auto" = "lowrank"
 #: when n > FACTOR_MIN_N.  A Gaussian Gram of smooth trajectory samples has a fast-decaying
-#: spectrum (n = 1000 ``paper100`` samples: residual trace < 1e-9·tr K at rank ≈ 29).
+#: spectrum, so a low rank holds it to the tolerance.
 GRAM_MODES = ("auto", "full", "lowrank")
 
 
@@ -588,7 +604,7 @@ def select_reduced_set_unchecked(
     key: ArrayLike,
     samples: ArrayLike,
     m: int,
-    method: str = "mmd",
+    method: str = "kernel-cem",
     config: ReducedSetConfig = ReducedSetConfig(),  # noqa: B008 (frozen, hashable)
     ego_guess: ArrayLike | None = None,
     axis_name: str | None = None,
@@ -598,6 +614,7 @@ def select_reduced_set_unchecked(
 
     ``axis_name``: when vmapped over obstacles with ``jax.vmap(..., axis_name=...)``, that name
     (the CEM's choice between the low-rank and the full Gram is then made once for the batch)."""
+    method = selector_name(method)
     samples = jnp.asarray(samples)
     if not jnp.issubdtype(samples.dtype, jnp.floating):
         samples = samples.astype(float)
@@ -608,7 +625,7 @@ def select_reduced_set_unchecked(
     K = gaussian_gram(feats, None, bw)
     D = one_minus_gaussian_gram(feats, None, bw)
 
-    if method == "mmd":
+    if method == "kernel-cem":
         alpha = _cem_alpha(key, K, m, config, axis_name)
         _, idx = jax.lax.top_k(jnp.abs(alpha), m)
     elif method == "herding":
@@ -622,9 +639,9 @@ def select_reduced_set_unchecked(
 
         init = (jnp.zeros((n,), bool), jnp.zeros((n,), K.dtype), jnp.zeros((m,), jnp.int32))
         _, _, idx = jax.lax.fori_loop(0, m, body, init)
-    elif method == "random":
+    elif method == "uniform":
         _, idx = jax.lax.top_k(jax.random.uniform(key, (n,)), m)  # uniform m-subset
-    elif method == "degroot":
+    elif method == "conflict":
         ego = jnp.asarray(ego_guess, dtype=samples.dtype)
         d = ego[None] - samples  # (n, K, 2)
         fp = Footprint() if footprint is None else footprint
@@ -636,7 +653,7 @@ def select_reduced_set_unchecked(
 
     idx = idx.astype(jnp.int32)
     w = refine_weights(K, idx, config)
-    if method != "mmd":
+    if method != "kernel-cem":
         alpha = jnp.zeros((n,), K.dtype).at[idx].set(w)
     return ReducedSet(
         indices=idx,
@@ -653,8 +670,7 @@ def _is_concrete(x) -> bool:
 
 
 def _validate(key, samples, m, method, config, ego_guess, batched: bool, footprint=None):
-    if method not in SELECTORS:
-        raise ValueError(f"method must be one of {SELECTORS}, got {method!r}")
+    method = selector_name(method)
     if footprint is not None and not isinstance(footprint, Footprint):
         raise ValueError(f"footprint must be an mmdopt.Footprint, got {type(footprint).__name__}")
     if not isinstance(config, ReducedSetConfig):
@@ -682,9 +698,9 @@ def _validate(key, samples, m, method, config, ego_guess, batched: bool, footpri
             raise ValueError(f"samples must be numeric, got dtype {arr.dtype}")
         if not np.all(np.isfinite(arr)):
             raise ValueError("samples contains NaN or inf")
-    if method == "degroot":
+    if method == "conflict":
         if ego_guess is None:
-            raise ValueError("ego_guess (K, 2) is required for method='degroot'")
+            raise ValueError("ego_guess (K, 2) is required for method='conflict' (de Groot)")
         if np.shape(ego_guess) != (k, 2):
             raise ValueError(f"ego_guess must have shape ({k}, 2), got {np.shape(ego_guess)}")
         if _is_concrete(ego_guess) and not np.all(np.isfinite(np.asarray(ego_guess))):
@@ -702,7 +718,7 @@ def select_reduced_set(
     key: ArrayLike,
     samples: ArrayLike,
     m: int,
-    method: str = "mmd",
+    method: str = "kernel-cem",
     config: ReducedSetConfig | None = None,
     ego_guess: ArrayLike | None = None,
     footprint: Footprint | None = None,
@@ -711,13 +727,14 @@ def select_reduced_set(
 
     Parameters
     ----------
-    key : jax PRNG key (used by "mmd" and "random"; the same key gives the same set)
+    key : jax PRNG key (used by "kernel-cem" and "uniform"; the same key gives the same set)
     samples : (n, K, 2) obstacle trajectory samples (m), any frame
     m : size of the reduced set, 1 <= m <= n
-    method : "mmd" | "herding" | "random" | "degroot" (see module docstring)
+    method : "kernel-cem" | "herding" | "uniform" | "conflict" (see module docstring; the former
+        names "mmd", "random", "degroot" are accepted)
     config : :class:`ReducedSetConfig`
-    ego_guess : (K, 2) ego initial-guess trajectory, required for "degroot"
-    footprint : the collision ellipse "degroot" scores with (default :class:`Footprint`(): the
+    ego_guess : (K, 2) ego initial-guess trajectory, required for "conflict"
+    footprint : the collision ellipse "conflict" scores with (default :class:`Footprint`(): the
         planner's default; :func:`mmdopt.plan` passes its config's ``safety.footprint``)
 
     Returns
@@ -727,7 +744,7 @@ def select_reduced_set(
     Raises
     ------
     ValueError naming the argument: unknown method, wrong shapes, empty or non-finite samples,
-    m < 1 or m > n, missing ego_guess for "degroot".
+    m < 1 or m > n, missing ego_guess for "conflict".
     """
     config = ReducedSetConfig() if config is None else config
     m = _validate(key, samples, m, method, config, ego_guess, False, footprint)
@@ -751,7 +768,7 @@ def select_reduced_sets(
     key: ArrayLike,
     samples: ArrayLike,
     m: int,
-    method: str = "mmd",
+    method: str = "kernel-cem",
     config: ReducedSetConfig | None = None,
     ego_guess: ArrayLike | None = None,
     footprint: Footprint | None = None,

@@ -52,17 +52,14 @@ for the same quantity: ≈ 1 σ of the speed spread integrated over time.
 from __future__ import annotations
 
 import math
-from collections.abc import Mapping
 from statistics import NormalDist
-from types import MappingProxyType
 
 import numpy as np
 
-from .baselines import PLAN_METHODS, SELECTOR
-from .config import W_COVER, MMDOptConfig
+from . import methods as registry
+from .config import MMDOptConfig
 
 __all__ = [
-    "DEFAULT_RISK",
     "RISK_CONFIDENCE",
     "config_for_risk",
     "coverage_margins",
@@ -74,18 +71,6 @@ __all__ = [
     "samples_for_risk",
     "hits_for_risk",
 ]
-
-#: the default knob of every method (target collision probability ε); each reproduces a
-#: sensible operating point (docs/experiments/frontier.md)
-DEFAULT_RISK: Mapping[str, float] = MappingProxyType(
-    {
-        "mmd": 0.005,
-        "random": 0.005,
-        "degroot": 0.005,
-        "scenario_all": 0.005,
-        "saa": 0.005,
-    }
-)
 
 
 def check_risk(risk: float, name: str = "risk") -> float:
@@ -107,28 +92,22 @@ def risk_z(eps: float) -> float:
 
 
 def config_for_risk(
-    method: str, risk: float | None = None, config: MMDOptConfig | None = None
+    method: str | registry.PlanMethod, risk: float | None = None, config: MMDOptConfig | None = None
 ) -> MMDOptConfig:
     """``config`` (default ``MMDOptConfig()``) with ``method``'s margins, weights and chance level
-    derived from the target collision probability ``risk`` (default :data:`DEFAULT_RISK`).
+    derived from the target collision probability ``risk`` (default: the method's
+    :attr:`~mmdopt.methods.PlanMethod.default_risk`), by the record's rule
+    (:meth:`~mmdopt.methods.PlanMethod.settings_for_risk`).
 
     See the module docstring for each method's mapping.  Raises ``ValueError`` for an unknown
     method or a risk outside (0, 0.5).
     """
-    if method not in PLAN_METHODS:
-        raise ValueError(f"method must be one of {PLAN_METHODS}, got {method!r}")
-    eps = DEFAULT_RISK[method] if risk is None else check_risk(risk)
+    rec = registry.get(method)
+    eps = rec.default_risk if risk is None else check_risk(risk)
     cfg = MMDOptConfig() if config is None else config
     if not isinstance(cfg, MMDOptConfig):
         raise ValueError(f"config must be an MMDOptConfig, got {type(cfg).__name__}")
-    kw: dict = dict(margin_mode="samples", risk=eps)
-    if method in ("mmd", "random"):
-        kw["w_cover"] = W_COVER
-    if method == "mmd":
-        kw["reselect"] = None  # automatic: MMDOptConfig.reselect_for, m/2 in this mode
-    if method == "saa":
-        kw["saa_eps"] = None  # the chance level follows risk (MMDOptConfig.saa_level)
-    return cfg.replace(**kw)
+    return cfg.replace(**rec.settings_for_risk(eps))
 
 
 def _margins_from_moments(c, mu_e, mu_u, v_e, v_u, z, prior, h_e=0.0):
@@ -227,11 +206,6 @@ def coverage_margins(
             np.put_along_axis(M, nb, 1.0, axis=1)
         out[:, o] = _cluster_margins(flat, idx[o], M, z, prior, h_e)
     return out
-
-
-def needs_knn(method: str) -> bool:
-    """Whether ``method`` plans on all samples (its margins use k-NN clusters)."""
-    return SELECTOR[method] is None
 
 
 # ------------------------------------------------------------------------- what samples support

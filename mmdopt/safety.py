@@ -56,7 +56,7 @@ import numpy as np
 
 import frenet
 
-from .api import Plan, PlanStatus
+from .plans import Plan, PlanStatus, replacement_plan
 
 __all__ = [
     "RSSConfig",
@@ -301,48 +301,40 @@ def check_plan(
 GENTLE_LEVELS = 5
 
 
-def braking_plan(plan: Plan, path: frenet.ReferencePath, decel: float, *, reason: str = "") -> Plan:
+def braking_plan(
+    plan: Plan,
+    path: frenet.ReferencePath,
+    decel: float,
+    *,
+    reason: str = "",
+    status: PlanStatus = PlanStatus.FALLBACK,
+) -> Plan:
     """The braking fallback of ``plan``: from the plan's first state, hold the lateral offset
-    and brake at ``decel`` (m/s²) to a stop, on the plan's time grid; a :class:`Plan` with status
-    FALLBACK, no Algorithm 1 state (the next plan starts cold) and ``message`` ``reason``."""
+    and brake at ``decel`` (m/s²) to a stop, on the plan's time grid; a :class:`Plan` with
+    ``status`` (FALLBACK; the shield's are SHIELDED), no Algorithm 1 state (the next plan starts
+    cold), ``message`` ``reason`` and nothing measured on ``plan`` kept
+    (:func:`mmdopt.plans.replacement_plan`)."""
     b = float(decel)
     if not (math.isfinite(b) and b > 0):
         raise ValueError(f"decel must be a finite number > 0, got {decel!r}")
     t = np.asarray(plan.t, dtype=np.float64)
     zero = np.zeros_like(t)
-    return _fallback(plan, path, b, np.full_like(t, float(plan.d[0])), zero, zero.copy(), reason)
+    d = np.full_like(t, float(plan.d[0]))
+    return _fallback(plan, path, b, d, zero, zero.copy(), reason, status)
 
 
-def _fallback(plan: Plan, path, b: float, d, vd, ad, reason: str, **diag_extra) -> Plan:
-    """The FALLBACK :class:`Plan` that brakes at ``b`` from ``plan``'s first state to a stop
-    along the lateral profile ``(d, ḋ, d̈)`` on the plan's grid (no Algorithm 1 state)."""
+def _fallback(plan: Plan, path, b: float, d, vd, ad, reason: str, status, **diag_extra) -> Plan:
+    """The :class:`Plan` (``status``) that brakes at ``b`` from ``plan``'s first state to a stop
+    along the lateral profile ``(d, ḋ, d̈)`` on the plan's grid, built by the one constructor of
+    replacing plans (:func:`mmdopt.plans.replacement_plan`)."""
     t = np.asarray(plan.t, dtype=np.float64)
     tp = t - t[0]
     s0, v0 = float(plan.s[0]), max(float(plan.vs[0]), 0.0)
     s = _braking(s0, v0, b, tp)
     vs = np.maximum(v0 - b * tp, 0.0)
     as_ = np.where(vs > 0.0, -b, 0.0)
-    x, y, heading, speed = path.trajectory_to_cartesian(s, d, vs, vd)
-    diag = dict(plan.diagnostics)
-    diag.update(shield_decel=b, **diag_extra)
-    return dataclasses.replace(
-        plan,
-        x=x,
-        y=y,
-        heading=heading,
-        speed=speed,
-        s=s,
-        d=d,
-        vs=vs,
-        vd=vd,
-        as_=as_,
-        ad=ad,
-        cost=float("nan"),
-        status=PlanStatus.FALLBACK,
-        message=reason,
-        diagnostics=diag,
-        state=None,
-    )
+    arrays = dict(s=s, d=d, vs=vs, vd=vd, as_=as_, ad=ad)
+    return replacement_plan(plan, path, arrays, status, reason, shield_decel=b, **diag_extra)
 
 
 def _lateral_profile(d0: float, vd0: float, centre: float, vs, tp, a_lat: float):
@@ -373,6 +365,7 @@ def lane_braking_plan(
     lateral_accel: float,
     *,
     reason: str = "",
+    status: PlanStatus = PlanStatus.FALLBACK,
 ) -> Plan | None:
     """The braking fallback of ``plan`` that finishes the move to the lane centre ``centre``
     (m) while it brakes at ``decel`` (m/s²) to a stop: the lateral offset follows a quintic from
@@ -396,7 +389,7 @@ def lane_braking_plan(
     if lat is None:
         return None
     d, vd, ad = lat
-    return _fallback(plan, path, b, d, vd, ad, reason, shield_lane_centre=float(centre))
+    return _fallback(plan, path, b, d, vd, ad, reason, status, shield_lane_centre=float(centre))
 
 
 def shield(
@@ -463,10 +456,10 @@ def shield(
         vs = np.maximum(v0 - b_try * tp, 0.0)
         prof = _braking(s0, v0, float(b_try), tp)
         if check_plan(tp, prof, d_plan, vs, obstacles, c, executed=executed).safe:
-            reason = f"shield: {why}; braking at {b_try:.3g} m/s² along the plan's lateral path"
+            reason = f"{why}; braking at {b_try:.3g} m/s² along the plan's lateral path"
             fb = _fallback(
                 plan, path, float(b_try), d_plan, np.asarray(plan.vd, np.float64),
-                np.asarray(plan.ad, np.float64), reason,
+                np.asarray(plan.ad, np.float64), reason, PlanStatus.SHIELDED,
             )  # fmt: skip
             return fb, ShieldRecord(True, why, chk.margin, float(b_try), True, chk.n_checked)
     for b_try in decels:  # each fallback checked along its own profile (executed: all of it)
@@ -477,7 +470,8 @@ def shield(
                 float(b_try),
                 cen,
                 c.lateral_accel,
-                reason=f"shield: {why}; braking at {b_try:g} m/s² into the lane at {cen:g} m",
+                reason=f"{why}; braking at {b_try:g} m/s² into the lane at {cen:g} m",
+                status=PlanStatus.SHIELDED,
             )
             if (
                 fb is not None
@@ -487,10 +481,12 @@ def shield(
         vs = np.maximum(v0 - b_try * tp, 0.0)
         prof = _braking(s0, v0, float(b_try), tp)
         if check_plan(tp, prof, d0, vs, obstacles, c, executed=horizon).safe:
-            reason = f"shield: {why}; braking at {b_try:g} m/s²"
-            fb = braking_plan(plan, path, float(b_try), reason=reason)
+            reason = f"{why}; braking at {b_try:g} m/s²"
+            fb = braking_plan(plan, path, float(b_try), reason=reason, status=PlanStatus.SHIELDED)
             return fb, ShieldRecord(True, why, chk.margin, float(b_try), True, chk.n_checked)
     b = float(decels[-1])
-    fb = braking_plan(plan, path, b, reason=f"shield: {why}; braking at {b:g} m/s²")
+    fb = braking_plan(
+        plan, path, b, reason=f"{why}; braking at {b:g} m/s²", status=PlanStatus.SHIELDED
+    )
     fb = dataclasses.replace(fb, message=fb.message + " (no braking passes the check)")
     return fb, ShieldRecord(True, why, chk.margin, b, False, chk.n_checked)

@@ -19,6 +19,10 @@ Habits kept from qpsolvers/OSQP::
     batch = QPBatch.from_qpsolvers(P, qs, G, hs, lb=lb, ub=ub)   # qs (B, n), hs (B, k) or shared
     sols = solve_batch(batch, solver="ipm")
     sols.status_names, sols.ok   # ('SOLVED', ...), boolean array (B,)
+    STATUS_CODES.SOLVED          # 1: the integer codes as plain ints (for array and JAX code)
+
+A :class:`JaxProjector` is the contract of a jittable batched QP solve with ``P`` and ``A``
+fixed (:func:`solvers.admm.admm_projector` builds one; the planner's projection runs it).
 
 Importing :mod:`solvers` imports NumPy and SciPy only; each backend's package (JAX, osqp, cvxpy,
 qpsolvers, ...) is imported when that backend is first used.
@@ -33,6 +37,7 @@ from .errors import (
     UnknownBackendError,
 )
 from .problem import QP, QPBatch, check_convex
+from .protocols import JaxProjector, JaxQPResult
 from .registry import (
     available_backends,
     get_backend,
@@ -42,7 +47,7 @@ from .registry import (
     solve_qp,
 )
 from .settings import COMMON_SETTINGS, WarmStart
-from .solution import BatchSolution, Solution, Status
+from .solution import STATUS_CODES, BatchSolution, Solution, Status, StatusCodes
 
 __all__ = [
     "QP",
@@ -50,6 +55,10 @@ __all__ = [
     "Solution",
     "BatchSolution",
     "Status",
+    "StatusCodes",
+    "STATUS_CODES",
+    "JaxProjector",
+    "JaxQPResult",
     "Backend",
     "WarmStart",
     "COMMON_SETTINGS",

@@ -9,7 +9,7 @@ import numpy as np
 
 from .problem import QP, QPBatch
 from .settings import SettingsSpec, translate
-from .solution import BatchSolution, Solution, Status
+from .solution import STATUS_CODES, BatchSolution, Solution, Status
 
 __all__ = [
     "Backend",
@@ -62,6 +62,11 @@ class Backend:
         """``(eps_abs, eps_rel)`` the backend claims for a solve whose recorded settings are
         ``used``: what the residual check holds a ``SOLVED`` to."""
         return self.settings_spec(used).stated_tolerance(used)
+
+    def clear_cache(self) -> None:
+        """Forget what the backend keeps between calls (its setups for shared ``P``, ``A``);
+        the next call rebuilds it, with the same results (see :mod:`solvers.cache`).  Default:
+        nothing is kept."""
 
     def solve(self, qp: QP, *, warm_start: Solution | None = None, **settings: Any) -> Solution:
         raise NotImplementedError
@@ -141,7 +146,7 @@ def residual_check(be: Backend, problem: QP | QPBatch, sol: Solution | BatchSolu
         return
     tol = primal_tolerance(problem.l, problem.u, eps_abs, eps_rel)
     prim = np.asarray(sol.primal_residual, dtype=np.float64)
-    solved = np.asarray(sol.status) == int(Status.SOLVED)
+    solved = np.asarray(sol.status) == STATUS_CODES.SOLVED
     with np.errstate(invalid="ignore"):
         failed = solved & ~(prim <= RESIDUAL_FLAG_FACTOR * tol)
     info: dict[str, Any] = {

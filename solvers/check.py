@@ -72,7 +72,7 @@ import numpy as np
 import scipy.sparse as sp
 
 from .problem import QP, QPBatch
-from .solution import BatchSolution, Solution, Status
+from .solution import STATUS_CODES, BatchSolution, Solution, Status
 
 __all__ = [
     "CERT_TOL",
@@ -110,8 +110,8 @@ CERT_ZERO = 1e-9
 #: the margin a certificate must show (``S̃(ỹ) ≤ −CERT_TOL``, ``qᵀd ≤ −CERT_TOL·‖q‖∞``)
 CERT_TOL = 1e-6
 _TINY = 1e-300
-_SOLVED_LIKE = (int(Status.SOLVED), int(Status.SOLVED_INACCURATE))
-_INFEASIBLE = (int(Status.PRIMAL_INFEASIBLE), int(Status.DUAL_INFEASIBLE))
+_SOLVED_LIKE = (STATUS_CODES.SOLVED, STATUS_CODES.SOLVED_INACCURATE)
+_INFEASIBLE = (STATUS_CODES.PRIMAL_INFEASIBLE, STATUS_CODES.DUAL_INFEASIBLE)
 
 
 # --------------------------------------------------------------------------- pieces of data
@@ -247,7 +247,11 @@ def _verdict(
     res = np.array([primal, dual, gap])
     names = ("primal", "dual", "gap")
     if not np.isfinite(primal) or np.any(np.isinf(res)):
-        return int(Status.ERROR), "non-finite", "the returned point or its residuals are not finite"
+        return (
+            STATUS_CODES.ERROR,
+            "non-finite",
+            "the returned point or its residuals are not finite",
+        )
     known = res[np.isfinite(res)]
     worst = float(known.max(initial=0.0))
     if worst <= SOLVED_FACTOR * eps:
@@ -256,14 +260,14 @@ def _verdict(
     far = _far(eps)
     if worst > far:
         return (
-            int(Status.MAX_ITER),
+            STATUS_CODES.MAX_ITER,
             "far",
             f"reported {Status(status).name} but the relative {which} residual is {worst:.3g} "
             f"(> {far:.3g}, far beyond the stated tolerance {eps:.3g}): an unconverged iterate",
         )
-    if status == int(Status.SOLVED):
+    if status == STATUS_CODES.SOLVED:
         return (
-            int(Status.SOLVED_INACCURATE),
+            STATUS_CODES.SOLVED_INACCURATE,
             "inaccurate",
             f"reported SOLVED but the relative {which} residual is {worst:.3g} "
             f"(> {SOLVED_FACTOR:g} × the stated tolerance {eps:.3g})",
@@ -389,7 +393,7 @@ def dual_certificate(qp: QP) -> np.ndarray | None:
 
 def _certify(qp: QP, status: int, extras: dict[str, Any]) -> tuple[np.ndarray | None, str, str]:
     """``(certificate, source, why not)`` for an infeasibility claim."""
-    primal = status == int(Status.PRIMAL_INFEASIBLE)
+    primal = status == STATUS_CODES.PRIMAL_INFEASIBLE
     key = "prim_inf_cert" if primal else "dual_inf_cert"
     verify = verify_primal_certificate if primal else verify_dual_certificate
     given = extras.get(key)
@@ -433,11 +437,11 @@ def check_solution(be: Any, qp: QP, sol: Solution) -> Solution:
         if new != status:
             changes["status"] = Status(new)
             info["reason"] = reason
-            if new == int(Status.ERROR):
+            if new == STATUS_CODES.ERROR:
                 changes.update(_nan_point(qp))
     elif status in _INFEASIBLE:
         cert, source, why = _certify(qp, status, extras)
-        key = "prim_inf_cert" if status == int(Status.PRIMAL_INFEASIBLE) else "dual_inf_cert"
+        key = "prim_inf_cert" if status == STATUS_CODES.PRIMAL_INFEASIBLE else "dual_inf_cert"
         changes.update(_nan_point(qp))
         if cert is not None:
             extras[key] = cert
@@ -505,11 +509,11 @@ def check_batch_solution(be: Any, batch: QPBatch, sol: BatchSolution) -> BatchSo
             certs[int(i)], sources[int(i)] = cert, source
             result[i] = "certified"
         else:
-            status[i] = int(Status.ERROR)
+            status[i] = STATUS_CODES.ERROR
             result[i] = "refuted"
             reasons[int(i)] = f"reported {Status(int(before[i])).name}, not verified: {why}"
     nanpt = np.isin(before, _INFEASIBLE) | (
-        (status == int(Status.ERROR)) & np.isin(before, _SOLVED_LIKE)
+        (status == STATUS_CODES.ERROR) & np.isin(before, _SOLVED_LIKE)
     )
     x[nanpt], y[nanpt] = np.nan, np.nan
     obj[nanpt], prim[nanpt], dres[nanpt] = np.nan, np.nan, np.nan

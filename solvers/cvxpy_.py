@@ -223,6 +223,10 @@ class CvxpyBackend(Backend):
         self._cache: OrderedDict[int, _Built] = OrderedDict()
         self._key = 0
 
+    def clear_cache(self) -> None:
+        """Forget the compiled cvxpy problems (see :mod:`solvers.cache`)."""
+        self._cache.clear()
+
     def _get(self, qp: QP) -> tuple[_Built, np.ndarray, np.ndarray, np.ndarray]:
         eq, up, lo = _rows(qp)
         pattern = np.concatenate([eq, up, lo]).tobytes()

@@ -82,9 +82,11 @@ from jax import lax
 from scipy.sparse.csgraph import reverse_cuthill_mckee
 
 from .base import Backend
+from .cache import BoundedCache
 from .problem import QP, QPBatch
+from .scaling import ruiz_equilibrate
 from .settings import SettingsSpec
-from .solution import BatchSolution, Solution, Status
+from .solution import RUNNING_CODE, STATUS_CODES, BatchSolution, Solution, Status
 
 __all__ = [
     "IPMSettings",
@@ -96,13 +98,6 @@ __all__ = [
     "ipm_solve",
     "make_backend",
 ]
-
-_RUNNING = 0
-_SOLVED = int(Status.SOLVED)
-_MAX_ITER = int(Status.MAX_ITER)
-_PINF = int(Status.PRIMAL_INFEASIBLE)
-_DINF = int(Status.DUAL_INFEASIBLE)
-_ERROR = int(Status.ERROR)
 
 
 @dataclass(frozen=True)
@@ -238,7 +233,7 @@ class IPMSetup:
 
     def with_settings(self, settings: IPMSettings) -> IPMSetup:
         """The same shared data with another set of tunables (no new factorisation tables)."""
-        arrays = {**self.arrays, "params": _params(settings)}
+        arrays = {**self.arrays, "params": tunable_params(settings)}
         return IPMSetup(
             arrays,
             self.kind,
@@ -264,29 +259,13 @@ _TUNABLE = (
 )
 
 
-def _params(s: IPMSettings) -> np.ndarray:
+def tunable_params(s: IPMSettings) -> np.ndarray:
+    """The tunable settings (tolerances, ``max_iter``, step fraction, regularisations) as the
+    float64 vector the iteration reads, the setup's ``"params"`` leaf: an array, so that changing
+    them does not recompile."""
+    if not isinstance(s, IPMSettings):
+        raise ValueError(f"s must be an IPMSettings, got {type(s).__name__}")
     return np.array([float(getattr(s, k)) for k in _TUNABLE], dtype=np.float64)
-
-
-def _ruiz(P: np.ndarray, A: np.ndarray, iters: int) -> tuple[np.ndarray, np.ndarray, float]:
-    """Modified Ruiz equilibration of ``[[P, Aᵀ], [A, 0]]`` plus a cost scaling (OSQP's)."""
-    n, m = P.shape[0], A.shape[0]
-    D, E, c = np.ones(n), np.ones(m), 1.0
-    Ps, As = P.copy(), A.copy()
-    lo, hi = 1e-4, 1e4
-    for _ in range(iters):
-        cn = np.maximum(np.abs(Ps).max(axis=0, initial=0.0), np.abs(As).max(axis=0, initial=0.0))
-        rn = np.abs(As).max(axis=1, initial=0.0)
-        dD = np.clip(1.0 / np.sqrt(np.where(cn < lo, 1.0, cn)), lo, hi)
-        dE = np.clip(1.0 / np.sqrt(np.where(rn < lo, 1.0, rn)), lo, hi)
-        Ps = dD[:, None] * Ps * dD[None, :]
-        As = dE[:, None] * As * dD[None, :]
-        D, E = D * dD, E * dE
-        pn = float(np.mean(np.abs(Ps).max(axis=0, initial=0.0)))
-        g = float(np.clip(1.0 / pn if pn >= lo else 1.0, lo, hi))
-        Ps *= g
-        c *= g
-    return D, E, c
 
 
 def _band_tables(Ps: np.ndarray, As: np.ndarray, w: int):
@@ -388,7 +367,7 @@ def ipm_setup(P: Any, A: Any, settings: IPMSettings | None = None) -> IPMSetup:
     if np.max(np.abs(P - P.T), initial=0.0) > 1e-9 * max(1.0, np.max(np.abs(P), initial=0.0)):
         raise ValueError("P must be symmetric")
     m = A.shape[0]
-    D, E, c = _ruiz(P, A, s.scaling_iter)
+    D, E, c = ruiz_equilibrate(P, A, s.scaling_iter)
     Ps = c * D[:, None] * P * D[None, :]
     As = E[:, None] * A * D[None, :]
     # bandwidth-reducing order of the pattern of M = P + AᵀA (shared by every QP and iteration)
@@ -411,7 +390,7 @@ def ipm_setup(P: Any, A: Any, settings: IPMSettings | None = None) -> IPMSetup:
         "c": np.asarray(c),
         "perm": perm.astype(np.int32),
         "iperm": np.argsort(perm).astype(np.int32),
-        "params": _params(s),
+        "params": tunable_params(s),
     }
     if kind == "banded":
         slots = _slot_tables(Ap)
@@ -782,14 +761,18 @@ def _check(qp: _QP, x, y, Ax, Px, ATy, dxs, dys, Adx, Pdx, ATdy, it):
     bad = ~(jnp.all(jnp.isfinite(x)) & jnp.all(jnp.isfinite(y)))
     status = jnp.where(
         bad,
-        _ERROR,
+        STATUS_CODES.ERROR,
         jnp.where(
             solved,
-            _SOLVED,
+            STATUS_CODES.SOLVED,
             jnp.where(
                 pinf,
-                _PINF,
-                jnp.where(dinf, _DINF, jnp.where(it >= qp.prm.max_iter, _MAX_ITER, 0)),
+                STATUS_CODES.PRIMAL_INFEASIBLE,
+                jnp.where(
+                    dinf,
+                    STATUS_CODES.DUAL_INFEASIBLE,
+                    jnp.where(it >= qp.prm.max_iter, STATUS_CODES.MAX_ITER, RUNNING_CODE),
+                ),
             ),
         ),
     )
@@ -945,7 +928,7 @@ def _ipm_one(st: IPMSetup, q, l, u):
     m = l.shape[0]
     qp = _QP(q, l, u, st.n, m, st.refine_iter, prm, sc, rows, _linear_algebra(st, prm.rho))
     out = lax.while_loop(
-        lambda carry: carry.status == _RUNNING,
+        lambda carry: carry.status == RUNNING_CODE,
         lambda carry: _ipm_step(qp, carry),
         _starting_point(qp),
     )
@@ -1035,6 +1018,10 @@ SPEC = SettingsSpec(
 )
 
 
+#: setups (scaling, ordering, band tables) an :class:`IPMBackend` keeps, oldest evicted first
+SETUP_CACHE_SIZE = 16
+
+
 class IPMBackend(Backend):
     """Batched interior-point backend (see the module docstring)."""
 
@@ -1046,7 +1033,12 @@ class IPMBackend(Backend):
         return SPEC
 
     def __init__(self) -> None:
-        self._setups: dict[tuple, IPMSetup] = {}
+        # one setup per (P, A, scaling and linear-solver settings): see solvers.cache
+        self._setups: BoundedCache[tuple, IPMSetup] = BoundedCache(SETUP_CACHE_SIZE)
+
+    def clear_cache(self) -> None:
+        """Forget the cached setups (the next batch recomputes its scaling and tables)."""
+        self._setups.clear()
 
     def _setup(self, P: np.ndarray, A: np.ndarray, s: IPMSettings) -> tuple[IPMSetup, bool]:
         h = hashlib.blake2b(digest_size=16)
@@ -1054,15 +1046,10 @@ class IPMBackend(Backend):
             h.update(np.ascontiguousarray(arr).tobytes())
             h.update(str(arr.shape).encode())
         key = (h.hexdigest(), s.scaling_iter, s.linear_solver, s.band_ratio)
-        hit = self._setups.get(key)
-        if hit is None:
-            hit = ipm_setup(P, A, s)
-            if len(self._setups) > 16:
-                self._setups.pop(next(iter(self._setups)))
-            self._setups[key] = hit
-            return hit, False
+        if key not in self._setups:
+            return self._setups.get_or_create(key, lambda: ipm_setup(P, A, s)), False
         # tolerances are not baked into the tables: swap the tunables in
-        return hit.with_settings(s), True
+        return self._setups[key].with_settings(s), True
 
     def solve(self, qp: QP, *, warm_start: Solution | None = None, **settings: Any) -> Solution:
         # interior point: no warm start (warm_start is accepted and ignored)
@@ -1122,7 +1109,7 @@ class IPMBackend(Backend):
         y = np.asarray(res.y, np.float64)
         status = np.asarray(res.status, np.int32).copy()
         finite = np.all(np.isfinite(x), axis=1)
-        status[~finite] = _ERROR
+        status[~finite] = STATUS_CODES.ERROR
         xs = np.where(finite[:, None], x, 0.0)
         yfin = np.all(np.isfinite(y), axis=1)
         obj = np.where(finite, batch.objective(xs), np.nan)

@@ -92,14 +92,16 @@ import jax.numpy as jnp
 import numpy as np
 from jax import lax
 
-from .solution import Status
+from .cache import BoundedCache
+from .scaling import ruiz_equilibrate
+from .solution import STATUS_CODES
 
-__all__ = ["QPSolution", "solve_qp", "METHODS"]
+__all__ = ["QPSolution", "solve_qp", "METHODS", "clear_cache"]
 
 #: the solvers :func:`solve_qp` accepts
 METHODS = ("ipm", "admm")
-
-_SOLVED = int(Status.SOLVED)
+#: custom-JVP solve functions kept, one per (method, settings, polish, active_tol)
+SOLVER_CACHE_SIZE = 64
 
 
 class QPSolution(NamedTuple):
@@ -109,32 +111,6 @@ class QPSolution(NamedTuple):
     x: Any
     y: Any
     status: Any
-
-
-# ------------------------------------------------------------------------------ scaling (JAX)
-def _ruiz(P, A, iters: int):
-    """OSQP's modified Ruiz equilibration of ``[[P, Aᵀ], [A, 0]]`` plus a cost scaling, in JAX
-    (the same arithmetic as the host versions in :mod:`solvers.ipm` and :mod:`solvers.admm`)."""
-    n, m = P.shape[0], A.shape[0]
-    dt = P.dtype
-    D, E, c = jnp.ones(n, dt), jnp.ones(m, dt), jnp.ones((), dt)
-    Ps, As = P, A
-    lo, hi = 1e-4, 1e4
-    for _ in range(iters):
-        cn = jnp.maximum(
-            jnp.max(jnp.abs(Ps), axis=0, initial=0.0), jnp.max(jnp.abs(As), axis=0, initial=0.0)
-        )
-        rn = jnp.max(jnp.abs(As), axis=1, initial=0.0)
-        dD = jnp.clip(1.0 / jnp.sqrt(jnp.where(cn < lo, 1.0, cn)), lo, hi)
-        dE = jnp.clip(1.0 / jnp.sqrt(jnp.where(rn < lo, 1.0, rn)), lo, hi)
-        Ps = dD[:, None] * Ps * dD[None, :]
-        As = dE[:, None] * As * dD[None, :]
-        D, E = D * dD, E * dE
-        pn = jnp.mean(jnp.max(jnp.abs(Ps), axis=0, initial=0.0))
-        g = jnp.clip(jnp.where(pn >= lo, 1.0 / jnp.where(pn >= lo, pn, 1.0), 1.0), lo, hi)
-        Ps = g * Ps
-        c = c * g
-    return D, E, c
 
 
 # --------------------------------------------------------------------------- active set (JAX)
@@ -225,10 +201,10 @@ def _kkt_matrix(P, A, act: _Active):
 
 # ------------------------------------------------------------------------------ forward solves
 def _ipm_forward(s, P, q, A, l, u):
-    from .ipm import IPMSetup, _params, ipm_iterate
+    from .ipm import IPMSetup, ipm_iterate, tunable_params
 
     n, m = P.shape[0], A.shape[0]
-    D, E, c = _ruiz(P, A, s.scaling_iter)
+    D, E, c = ruiz_equilibrate(P, A, s.scaling_iter, xp=jnp)
     arrays = {
         "P": c * D[:, None] * P * D[None, :],
         "A": E[:, None] * A * D[None, :],
@@ -237,7 +213,7 @@ def _ipm_forward(s, P, q, A, l, u):
         "c": c,
         "perm": jnp.arange(n, dtype=jnp.int32),
         "iperm": jnp.arange(n, dtype=jnp.int32),
-        "params": jnp.asarray(_params(s)),
+        "params": jnp.asarray(tunable_params(s)),
     }
     setup = IPMSetup(arrays, "dense", n - 1, n, m, s.refine_iter, None)
     res = ipm_iterate(setup, q, l, u)
@@ -250,7 +226,7 @@ def _admm_forward(s, polish: bool, active_tol: float, P, q, A, l, u):
     n, m = P.shape[0], A.shape[0]
     dt = jnp.dtype(s.dtype)
     P, q, A, l, u = (v.astype(dt) for v in (P, q, A, l, u))
-    D, E, c = _ruiz(P, A, s.scaling_iter)
+    D, E, c = ruiz_equilibrate(P, A, s.scaling_iter, xp=jnp)
     Ps = c * D[:, None] * P * D[None, :]
     As = E[:, None] * A * D[None, :]
     eq = jnp.isfinite(l) & (l == u)
@@ -275,7 +251,7 @@ def _admm_forward(s, polish: bool, active_tol: float, P, q, A, l, u):
         ok = _kkt_ok(P, q, A, l, u, x, y, s.eps_abs, s.eps_rel)
         x = jnp.where(ok, x, st.x)
         y = jnp.where(ok, y, st.y)
-        status = jnp.where(ok, _SOLVED, status).astype(jnp.int32)
+        status = jnp.where(ok, STATUS_CODES.SOLVED, status).astype(jnp.int32)
     return x, y, status
 
 
@@ -311,10 +287,25 @@ def _kkt_ok(P, q, A, l, u, x, y, eps_abs, eps_rel):
 
 
 # ----------------------------------------------------------------------- the differentiable map
-@functools.lru_cache(maxsize=64)
+#: one custom-JVP function per (method, settings, polish, active_tol), see :mod:`solvers.cache`
+_SOLVERS: BoundedCache[tuple, Any] = BoundedCache(SOLVER_CACHE_SIZE)
+
+
+def clear_cache() -> None:
+    """Forget the solve functions built for each settings (``jit`` then retraces a new one; the
+    results are unchanged)."""
+    _SOLVERS.clear()
+
+
 def _solver(method: str, settings: Any, polish: bool, active_tol: float):
     """The custom-JVP solve for one (method, settings) pair (cached: one Python function each,
     so ``jit`` caches its traces)."""
+    key = (method, settings, polish, active_tol)
+    return _SOLVERS.get_or_create(key, lambda: _build_solver(method, settings, polish, active_tol))
+
+
+def _build_solver(method: str, settings: Any, polish: bool, active_tol: float):
+    """The custom-JVP solve of :func:`_solver` (uncached)."""
     eps_abs, eps_rel = float(settings.eps_abs), float(settings.eps_rel)
     if method == "ipm":
         forward = functools.partial(_ipm_forward, settings)
@@ -346,7 +337,7 @@ def _solver(method: str, settings: Any, polish: bool, active_tol: float):
         r2 = act.wl * dlf + act.wu * duf - act.a * (dA @ x)
         # NaN derivatives for a QP that is not solved (products on both sides of the solve, so
         # reverse mode inherits it in every entry)
-        bad = jnp.where(status == _SOLVED, 1.0, jnp.nan).astype(dt)
+        bad = jnp.where(status == STATUS_CODES.SOLVED, 1.0, jnp.nan).astype(dt)
         dx, dy = kkt(bad * r1, bad * r2)
         dx, dy = bad * dx, bad * dy
         dstatus = np.zeros(np.shape(status), dtype=jax.dtypes.float0)

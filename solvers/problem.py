@@ -32,8 +32,11 @@ BOUND_INF = 1e20
 Matrix = np.ndarray | sp.spmatrix | sp.sparray
 
 
-def _real(v: Any, name: str) -> np.ndarray:
-    """``v`` as a float64 array; complex, strings and other non-numbers raise naming ``name``."""
+def real_array(v: Any, name: str) -> np.ndarray:
+    """``v`` as a float64 array; complex, strings and other non-numbers raise ``ValueError``
+    naming ``name`` (the caller's name for the argument).  Shared by every input check."""
+    if not isinstance(name, str):
+        raise ValueError(f"name must be a string, got {type(name).__name__}")
     a = np.asarray(v)
     if a.dtype.kind == "c":
         raise ValueError(
@@ -61,7 +64,7 @@ def _as_matrix(M: Any, name: str, shape: tuple[int, int]) -> np.ndarray | sp.csc
         M = sp.csc_matrix(M, dtype=np.float64)
         data = M.data
     else:
-        M = _real(M, name)
+        M = real_array(M, name)
         if M.ndim == 1 and shape[0] == 0:
             M = M.reshape(0, shape[1])
         data = M
@@ -75,7 +78,7 @@ def _as_matrix(M: Any, name: str, shape: tuple[int, int]) -> np.ndarray | sp.csc
 def _as_vector(v: Any, name: str, size: int, *, allow_inf: bool, batch: int | None = None):
     if v is None:
         raise ValueError(f"{name} is required, got None")
-    v = _real(v, name)
+    v = real_array(v, name)
     shape = (size,) if batch is None else (batch, size)
     if v.shape != shape:
         raise ValueError(f"{name} has shape {v.shape}, expected {shape}")
@@ -214,7 +217,7 @@ def _from_qpsolvers_form(
     """
     if q is None:
         raise ValueError("q is required, got None")
-    q = _real(q, "q")
+    q = real_array(q, "q")
     if not batched and (q.ndim != 1 or q.shape[0] == 0):
         raise ValueError(f"q must be a non-empty 1-D vector, got shape {q.shape}")
     if batched and (q.ndim not in (1, 2) or q.shape[-1] == 0):
@@ -229,7 +232,7 @@ def _from_qpsolvers_form(
 
     def _rows(M: Any, name: str) -> sp.csc_matrix:
         if not sp.issparse(M):
-            M = _real(M, name)
+            M = real_array(M, name)
             if M.ndim == 1:
                 M = M.reshape(1, -1)
             if M.ndim != 2:
@@ -239,7 +242,7 @@ def _from_qpsolvers_form(
         return sp.csc_matrix(M)
 
     def _rhs(v: Any, name: str, k: int) -> np.ndarray:
-        v = _real(v, name)
+        v = real_array(v, name)
         if batched and v.ndim == 2:
             if v.shape[1] != k:
                 raise ValueError(
@@ -392,7 +395,7 @@ class QP:
     def __post_init__(self) -> None:
         if self.q is None:
             raise ValueError("q is required, got None")
-        q = _real(self.q, "q")
+        q = real_array(self.q, "q")
         if q.ndim != 1:
             raise ValueError(f"q must be 1-D, got shape {np.shape(q)}")
         n = q.shape[0]
@@ -611,7 +614,7 @@ class QPBatch:
     def __post_init__(self) -> None:
         if self.q is None:
             raise ValueError("q is required, got None")
-        q = _real(self.q, "q")
+        q = real_array(self.q, "q")
         if q.ndim != 2:
             raise ValueError(f"q must have shape (B, n) with a leading batch axis, got {q.shape}")
         B, n = q.shape

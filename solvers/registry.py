@@ -22,6 +22,7 @@ from typing import Any
 import numpy as np
 
 from .base import Backend, residual_check
+from .cache import BoundedCache
 from .check import check_batch_solution, check_solution
 from .errors import BackendUnavailableError, UnknownBackendError
 from .problem import QP, QPBatch
@@ -32,6 +33,7 @@ __all__ = [
     "BackendUnavailableError",
     "UnknownBackendError",
     "available_backends",
+    "clear_backend_cache",
     "get_backend",
     "register_backend",
     "solve",
@@ -68,7 +70,19 @@ _QPSOLVERS_MODULES: dict[str, str] = {
     "kvxopt": "kvxopt",
 }
 _USER: dict[str, Callable[[], Backend]] = {}
-_CACHE: dict[str, Backend] = {}
+#: backend objects by name (each keeps its own setups), see :mod:`solvers.cache`
+BACKEND_CACHE_SIZE = 64
+_CACHE: BoundedCache[str, Backend] = BoundedCache(BACKEND_CACHE_SIZE)
+
+
+def clear_backend_cache() -> None:
+    """Forget every backend object :func:`get_backend` made, and with it what each one cached
+    (its setups for shared ``P``, ``A``); the next :func:`get_backend` builds a new one."""
+    for be in list(_CACHE.values()):
+        clear = getattr(be, "clear_cache", None)  # a duck-typed user backend may have none
+        if callable(clear):
+            clear()
+    _CACHE.clear()
 
 
 def register_backend(name: str, factory: Callable[[], Backend]) -> None:
@@ -96,9 +110,12 @@ def _found(module: str) -> bool:
 
 
 def get_backend(name: str) -> Backend:
-    """The backend object for ``name`` (imported on first use, then cached)."""
+    """The backend object for ``name`` (imported on first use, then cached: at most
+    :data:`BACKEND_CACHE_SIZE` names, the oldest evicted first; :func:`clear_backend_cache`)."""
     if not isinstance(name, str):
         raise TypeError(f"backend must be a string, got {type(name).__name__}")
+    # plain mapping operations on _CACHE (the bound is in its __setitem__), so that a copy a
+    # test swaps in for it behaves the same
     if name in _CACHE:
         return _CACHE[name]
     if name in _USER:

@@ -216,10 +216,10 @@ def as_warm_start(ws: Any, n: int, m: int, batch: int | None = None) -> WarmStar
         )
     shape_x = (n,) if batch is None else (batch, n)
     shape_y = (m,) if batch is None else (batch, m)
-    from .problem import _real
+    from .problem import real_array
 
-    x = _real(x, "warm_start x")
-    y = np.zeros(shape_y) if y is None else _real(y, "warm_start y")
+    x = real_array(x, "warm_start x")
+    y = np.zeros(shape_y) if y is None else real_array(y, "warm_start y")
     if x.shape != shape_x:
         raise ValueError(f"warm_start x has shape {x.shape}, expected {shape_x}")
     if y.shape != shape_y:

@@ -59,14 +59,14 @@ from __future__ import annotations
 
 from dataclasses import dataclass, field
 from enum import IntEnum
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING, Any, NamedTuple
 
 import numpy as np
 
 if TYPE_CHECKING:
     from .problem import QP, QPBatch
 
-__all__ = ["Status", "Solution", "BatchSolution"]
+__all__ = ["Status", "StatusCodes", "STATUS_CODES", "RUNNING_CODE", "Solution", "BatchSolution"]
 
 
 class Status(IntEnum):
@@ -102,6 +102,30 @@ class Status(IntEnum):
         if spec and spec[-1] in "bcdoxXneEfFgG%":  # a numeric format: the integer code
             return format(int(self), spec)
         return format(self.name, spec)
+
+
+class StatusCodes(NamedTuple):
+    """The integer code of every :class:`Status` member, as plain ``int`` fields.
+
+    The one table the solvers' array code reads (``jnp.where(ok, STATUS_CODES.SOLVED, status)``,
+    ``status == STATUS_CODES.MAX_ITER``): plain integers keep JAX and NumPy from seeing an enum,
+    and one table keeps the codes from being restated module by module.
+    """
+
+    SOLVED: int
+    SOLVED_INACCURATE: int
+    MAX_ITER: int
+    PRIMAL_INFEASIBLE: int
+    DUAL_INFEASIBLE: int
+    ERROR: int
+
+
+#: ``int(Status.X)`` for every member ``X`` (built from :class:`Status`, so the two cannot drift)
+STATUS_CODES = StatusCodes(**{s.name: int(s) for s in Status})
+
+#: the per-QP code an iteration loop holds until a check decides; no :class:`Status` has it, and
+#: no solver returns it
+RUNNING_CODE = 0
 
 
 def _check_eps(eps_abs: Any) -> None:

@@ -11,20 +11,25 @@ import math
 from collections.abc import Callable, Sequence
 from pathlib import Path
 
-from .executors import EXECUTORS
+from .executors import ADDRESS_FORMS, EXECUTORS, parse_ray_address
 
 
-def method_list(allowed: Sequence[str]) -> Callable[[str], list[str]]:
-    """``"a,b"`` -> ``["a", "b"]`` (duplicates dropped), every name one of ``allowed``."""
+def method_list(
+    allowed: Sequence[str] | Callable[[], Sequence[str]],
+) -> Callable[[str], list[str]]:
+    """``"a,b"`` -> ``["a", "b"]`` (duplicates dropped), every name one of ``allowed`` (or of
+    ``allowed()`` at parse time: :func:`mmdopt.methods.names`, so a method registered before the
+    command line is parsed is a choice)."""
 
     def parse(s: str) -> list[str]:
+        names = tuple(allowed() if callable(allowed) else allowed)
         ms = [m.strip() for m in s.split(",") if m.strip()]
         if not ms:
             raise argparse.ArgumentTypeError("needs at least one method")
-        bad = [m for m in ms if m not in allowed]
+        bad = [m for m in ms if m not in names]
         if bad:
             raise argparse.ArgumentTypeError(
-                f"unknown method(s) {', '.join(bad)}; choose from {', '.join(allowed)}"
+                f"unknown method(s) {', '.join(bad)}; choose from {', '.join(names)}"
             )
         return list(dict.fromkeys(ms))
 
@@ -87,6 +92,18 @@ def existing_path(s: str) -> Path:
     return p
 
 
+def ray_address(s: str) -> str:
+    """``--address``: a Ray cluster's address in one of the forms of
+    :func:`~mmdopt.bench.executors.parse_ray_address` (``auto``, ``ray://HOST:PORT``,
+    ``HOST:PORT``), refused at once otherwise (Ray would retry a malformed one for half a
+    minute).  Whether a cluster answers there is checked before the command starts."""
+    try:
+        parse_ray_address(s)
+    except ValueError as e:
+        raise argparse.ArgumentTypeError(str(e)) from None
+    return s
+
+
 def add_executor(q: argparse.ArgumentParser) -> None:
     """``--executor local|ray`` and ``--address`` (every runner that uses executors.run_tasks)."""
     q.add_argument(
@@ -97,6 +114,8 @@ def add_executor(q: argparse.ArgumentParser) -> None:
     )
     q.add_argument(
         "--address",
+        type=ray_address,
         default=None,
-        help="with --executor ray: address of an existing Ray cluster (default: a local one)",
+        help=f"with --executor ray: address of an existing Ray cluster, {ADDRESS_FORMS} "
+        "(default: a local one)",
     )

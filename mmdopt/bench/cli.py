@@ -21,8 +21,16 @@
 Bad options, files and folders exit with status 2 and a message naming the option (argparse),
 before anything is written into ``--out`` (:mod:`.inputs`, :mod:`.ngsim.inputs`); so does
 ``bench ngsim`` on scenes that give no task (the message says which condition nobody meets).
+An error prints the usage of the command it belongs to (``usage: mmdopt bench frontier ...``).
 Every sweep plans in worker processes with one XLA thread, ``--jobs 1`` included, so its rows do
 not depend on ``--jobs`` or ``--executor``.
+
+Building the parser imports neither the method nor JAX, matplotlib or Ray: a command imports
+what it runs, and the sub-commands defined in modules that import the method (``bench highway``,
+``bench ngsim``, ``predictor``) get their parser when chosen (:class:`_LazySubParsers`), so
+``--help`` and ``--version`` answer at once.  The names the help lists (the built-in methods,
+the default risk grid, the presets, the planner's backend) are literals here, checked against
+their sources by the tests.
 """
 
 from __future__ import annotations
@@ -32,13 +40,10 @@ import json
 import os
 import sys
 import time
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from pathlib import Path
 
 __all__ = ["main", "build_parser"]
-
-from mmdopt.algorithm import PLANNER_BACKEND
-from mmdopt.baselines import PLAN_METHODS
 
 from ._optional import MissingExtra, install_hint, missing_for
 from .argtypes import (
@@ -53,22 +58,46 @@ from .executors import Interrupted, stop_on_signals
 
 REDUCED_SET_METHODS = ("mmd", "herding", "degroot", "random")
 
+#: the built-in planning methods, :data:`mmdopt.methods.PLAN_METHODS` (the default of ``bench
+#: frontier --methods``), written out so that the parser need not import the method
+PLAN_METHODS = ("mmd", "degroot", "random", "saa", "scenario_all")
+#: the planner's own projection backend, :data:`mmdopt.algorithm.PLANNER_BACKEND`
+PLANNER_BACKEND = "admm-fixed"
+#: the default risk grid of ``bench frontier``, :data:`mmdopt.bench.frontier.DEFAULT_RISK_GRID`
+DEFAULT_RISK_GRID = (1e-5, 1e-4, 0.001, 0.005, 0.02, 0.1)
+#: the scene presets, the names of :data:`mmdopt.bench.scenes.PRESETS` (sorted)
+PRESETS = ("lanechange", "paper100", "reference36")
+
 
 # ---------------------------------------------------------------------------------------------
 # argument types
 
 
+def _method_names() -> tuple[str, ...]:
+    """The planning methods registered when ``--methods`` is parsed
+    (:func:`mmdopt.methods.names`); imported only then."""
+    import mmdopt.methods
+
+    return tuple(mmdopt.methods.names())
+
+
 def _backend(s: str) -> str:
     if s == PLANNER_BACKEND:
         return s
-    import solvers
-
-    avail = [PLANNER_BACKEND, *solvers.available_backends()]
+    avail = _backend_names()
     if s not in avail:
         raise argparse.ArgumentTypeError(
             f"backend {s!r} is not available; available: {', '.join(avail)}"
         )
     return s
+
+
+def _backend_names() -> list[str]:
+    """The planner's own backend and every QP backend installed (:func:`solvers.available_backends`,
+    which imports NumPy and SciPy: only when a backend is named or the help is shown)."""
+    import solvers
+
+    return [PLANNER_BACKEND, *solvers.available_backends()]
 
 
 class _DeprecatedRisks(argparse.Action):
@@ -79,10 +108,55 @@ class _DeprecatedRisks(argparse.Action):
         setattr(namespace, self.dest, values)
 
 
-def _presets() -> list[str]:
-    from .scenes import PRESETS
+class _HelpFormatter(argparse.HelpFormatter):
+    """argparse's formatter; an action with a ``help_more`` callable gets its text appended to
+    its help line when the help is shown (the installed QP backends are looked up then, not
+    when the parser is built or an error prints the usage)."""
 
-    return sorted(PRESETS)
+    def _get_help_string(self, action):
+        text = super()._get_help_string(action)
+        more = getattr(action, "help_more", None)
+        return text + more().replace("%", "%%") if more and text else text
+
+
+class _LazySubParsers(argparse._SubParsersAction):
+    """Sub-commands whose parser is built when one is chosen (:meth:`add_lazy`): until then a
+    placeholder carries its name and one-line help for the listing of ``--help``.  ``bench
+    highway``, ``bench ngsim`` and ``predictor`` are defined in modules that import the method
+    (JAX): building them for every ``mmdopt --help`` would cost seconds."""
+
+    def __init__(self, *args, **kwargs):
+        super().__init__(*args, **kwargs)
+        self._builders: dict[str, Callable[[argparse._SubParsersAction], object]] = {}
+
+    def add_lazy(self, name: str, help: str, build: Callable[[_LazySubParsers], object]) -> None:
+        """A placeholder for ``name``; ``build(self)`` adds the real parser (``add_parser``)."""
+        self.add_parser(name, help=help, add_help=False)
+        self._builders[name] = build
+
+    def load(self, name: str) -> argparse.ArgumentParser:
+        """The parser of ``name``, built now if it is a placeholder (in the placeholder's place
+        of the listing)."""
+        build = self._builders.pop(name, None)
+        if build is not None:
+            i, old = next((i, a) for i, a in enumerate(self._choices_actions) if a.dest == name)
+            del self._choices_actions[i], self._name_parser_map[name]
+            build(self)
+            new = [a for a in self._choices_actions if a.dest == name]
+            if new:
+                self._choices_actions.remove(new[0])
+            self._choices_actions.insert(i, new[0] if new else old)
+        return self._name_parser_map[name]
+
+    def load_all(self) -> None:
+        """Build every placeholder's parser (e.g. to inspect the whole command line)."""
+        for name in list(self._builders):
+            self.load(name)
+
+    def __call__(self, parser, namespace, values, option_string=None):
+        if values and values[0] in self._builders:
+            self.load(values[0])
+        super().__call__(parser, namespace, values, option_string)
 
 
 # ---------------------------------------------------------------------------------------------
@@ -102,8 +176,15 @@ def version() -> str:
         return mmdopt.__version__
 
 
-def _add_backend(q: argparse.ArgumentParser, help: str | None = "projection QP backend") -> None:
-    q.add_argument("--backend", type=_backend, default=PLANNER_BACKEND, help=help)
+def _add_backend(q: argparse.ArgumentParser, help: str = "projection QP backend") -> None:
+    a = q.add_argument(
+        "--backend",
+        type=_backend,
+        default=PLANNER_BACKEND,
+        metavar="NAME",
+        help=f"{help} (default: {PLANNER_BACKEND})",
+    )
+    a.help_more = lambda: f"; choices (installed): {', '.join(_backend_names())}"
 
 
 def _add_methods(q: argparse.ArgumentParser, choices, default: list[str], help: str | None) -> None:
@@ -126,7 +207,7 @@ def _add_sweep_options(q: argparse.ArgumentParser, scenes_default: int | None) -
     q.add_argument("--seed", type=nonneg_int, default=0, help="sweep seed (default 0)")
     q.add_argument(
         "--preset",
-        choices=_presets(),
+        choices=PRESETS,
         default="paper100",
         help="scene preset (default paper100)",
     )
@@ -143,8 +224,8 @@ def _add_sweep_options(q: argparse.ArgumentParser, scenes_default: int | None) -
         type=existing_file,
         default=None,
         metavar="FILE.json",
-        help="JSON object overriding MMDOptConfig fields, e.g. "
-        '{"baseline_margin_scale": 1.0} (see README)',
+        help="JSON object overriding MMDOptConfig fields, nested by section, e.g. "
+        '{"cem": {"iterations": 10}} (see README)',
     )
     q.add_argument(
         "--jobs",
@@ -164,7 +245,7 @@ def _add_demo_parser(sub) -> None:
     d.add_argument("--out", default="out/demo", help="output folder (default: out/demo)")
     _add_methods(
         d,
-        PLAN_METHODS,
+        _method_names,
         ["mmd", "degroot"],
         "comma-separated planning methods (default: mmd,degroot)",
     )
@@ -206,7 +287,7 @@ def _add_synthetic_parser(bs) -> None:
     _add_sweep_options(s, None)
     _add_methods(
         s,
-        PLAN_METHODS,
+        _method_names,
         ["mmd", "degroot", "random", "saa"],
         "comma-separated methods (default: mmd,degroot,random,saa)",
     )
@@ -229,14 +310,17 @@ def _add_frontier_parser(bs) -> None:
     fr = bs.add_parser("frontier", help="safety-progress frontier: each method's risk level swept")
     _add_sweep_options(fr, None)
     _add_methods(
-        fr, PLAN_METHODS, list(PLAN_METHODS), "comma-separated methods (default: all five)"
+        fr,
+        _method_names,
+        list(PLAN_METHODS),
+        f"comma-separated methods (default: the built-ins, {','.join(PLAN_METHODS)})",
     )
     fr.add_argument(
         "--risks",
         default=None,
         help="risk grids (target collision probability): '0.1,0.02,0.005' for every method or "
         "per method, e.g. 'mmd=0.001,0.005,0.02;saa=0.005,0.02' "
-        "(default: mmdopt.bench.frontier.DEFAULT_RISKS)",
+        f"(default: {','.join(f'{r:g}' for r in DEFAULT_RISK_GRID)} for every method)",
     )
     fr.add_argument("--knobs", dest="risks", action=_DeprecatedRisks, help=argparse.SUPPRESS)
     fr.add_argument(
@@ -310,10 +394,10 @@ def _add_figure_parser(bs) -> None:
         help="scene index in the preset (default: the built-in demo scene)",
     )
     f.add_argument("--seed", type=nonneg_int, default=0)
-    f.add_argument("--preset", choices=_presets(), default="reference36")
+    f.add_argument("--preset", choices=PRESETS, default="reference36")
     f.add_argument("--scene-params", type=existing_file, default=None, metavar="FILE.json")
-    _add_methods(f, PLAN_METHODS, ["degroot", "mmd"], None)
-    _add_backend(f, None)
+    _add_methods(f, _method_names, ["degroot", "mmd"], None)
+    _add_backend(f)
     f.add_argument("--out", required=True, help="output folder")
 
 
@@ -324,24 +408,61 @@ def _add_qp_backends_parser(bs) -> None:
     q.add_argument("args", nargs=argparse.REMAINDER, help="arguments passed to the benchmark")
 
 
-def build_parser() -> argparse.ArgumentParser:
-    """The ``mmdopt`` argument parser: ``demo``, ``bench <experiment>`` and ``predictor``."""
-    from .highway.cli import add_highway_parser
-    from .ngsim.cli import add_ngsim_parser, add_train_parser
+class _Parser(argparse.ArgumentParser):
+    """argparse's parser with :class:`_HelpFormatter`; its sub-commands are parsers of this
+    class too (argparse makes them of the parent's class)."""
 
-    p = argparse.ArgumentParser(
+    def __init__(self, *args, formatter_class=_HelpFormatter, **kwargs):
+        super().__init__(*args, formatter_class=formatter_class, **kwargs)
+
+
+#: one-line help of the sub-commands built when chosen (a test checks it is their modules')
+LAZY_HELP = {
+    "highway": "closed-loop receding-horizon driving in highway-env",
+    "ngsim": "plan as a recorded car in recorded US-101 traffic (CommonRoad scenes)",
+    "predictor": "train / evaluate the learned predictor",
+}
+
+
+def _add_highway(bs) -> None:
+    from .highway.cli import add_highway_parser
+
+    add_highway_parser(bs)
+
+
+def _add_ngsim(bs) -> None:
+    from .ngsim.cli import add_ngsim_parser
+
+    add_ngsim_parser(bs)
+
+
+def _add_predictor(sub) -> None:
+    from .ngsim.cli import add_train_parser
+
+    add_train_parser(sub)
+
+
+def build_parser() -> argparse.ArgumentParser:
+    """The ``mmdopt`` argument parser: ``demo``, ``bench <experiment>`` and ``predictor``.
+
+    Imports nothing of the method: ``bench highway``, ``bench ngsim`` and ``predictor`` are
+    placeholders until chosen (:class:`_LazySubParsers`; :func:`load_all_parsers` builds them)."""
+    p = _Parser(
         prog="mmdopt",
         description="MMD-Opt: planning under multi-modal obstacle predictions - demo and "
         "the paper's experiments.",
     )
     p.add_argument("--version", action="version", version=f"%(prog)s {version()}")
-    sub = p.add_subparsers(dest="command", required=True, metavar="{demo,bench,predictor}")
+    sub = p.add_subparsers(
+        dest="command", required=True, metavar="{demo,bench,predictor}", action=_LazySubParsers
+    )
     _add_demo_parser(sub)
     b = sub.add_parser("bench", help="the paper's experiments")
     bs = b.add_subparsers(
         dest="experiment",
         required=True,
         metavar="{synthetic,frontier,reduced-set,timing,figure,qp-backends,highway,ngsim}",
+        action=_LazySubParsers,
     )
     for add in (
         _add_synthetic_parser,
@@ -350,11 +471,41 @@ def build_parser() -> argparse.ArgumentParser:
         _add_timing_parser,
         _add_figure_parser,
         _add_qp_backends_parser,
-        add_highway_parser,
-        add_ngsim_parser,
     ):
         add(bs)
-    add_train_parser(sub)
+    bs.add_lazy("highway", LAZY_HELP["highway"], _add_highway)
+    bs.add_lazy("ngsim", LAZY_HELP["ngsim"], _add_ngsim)
+    sub.add_lazy("predictor", LAZY_HELP["predictor"], _add_predictor)
+    return p
+
+
+def _subparsers(p: argparse.ArgumentParser) -> argparse._SubParsersAction | None:
+    """``p``'s sub-command action, if it has one."""
+    return next((a for a in p._actions if isinstance(a, argparse._SubParsersAction)), None)
+
+
+def load_all_parsers(parser: argparse.ArgumentParser) -> argparse.ArgumentParser:
+    """``parser`` (of :func:`build_parser`) with every placeholder sub-command built: the whole
+    command line, e.g. to list every option (imports the method)."""
+    sub = _subparsers(parser)
+    if sub is not None:
+        if isinstance(sub, _LazySubParsers):
+            sub.load_all()
+        for q in set(sub.choices.values()):
+            load_all_parsers(q)
+    return parser
+
+
+def command_parser(parser: argparse.ArgumentParser, args) -> argparse.ArgumentParser:
+    """The parser of the sub-command that ``args`` (parsed by ``parser``) names, e.g. that of
+    ``mmdopt bench frontier`` or ``mmdopt predictor train``: its ``error`` prints that command's
+    usage (exit status 2)."""
+    p = parser
+    while (sub := _subparsers(p)) is not None:
+        name = getattr(args, sub.dest, None)
+        if name not in sub.choices:
+            break
+        p = sub.choices[name]
     return p
 
 
@@ -496,6 +647,14 @@ TIMING_HEADERS = {
     "algorithm1_s": "Algorithm 1 time (s)",
     "plan_s": "plan time (s)",
     "compile_s": "compile time (s)",
+}
+#: printed headers of the frontier's first table (its collision-free counts are per 1000)
+FRONTIER_HEADERS = {
+    "mean": "collision-free per 1000: mean",
+    "q1": "Q1 per 1000",
+    "min": "min per 1000",
+    "progress_m": "progress_m (m)",
+    "plan_time_s": "plan_time_s (s)",
 }
 REDUCED_SET_HEADERS = {
     "mean_pct": "collision-free mean (%)",
@@ -676,7 +835,12 @@ def cmd_frontier(args, parser) -> int:
         parser.error(str(e))
     cols = ["method", "risk", "scenes", "mean", "q1", "min", "progress_m", "plan_time_s",
             "n_planning"]  # fmt: skip
-    print(_table(res["points"], cols))
+    print(
+        "collision-free validation futures per 1000 (each scene's count scaled to 1000) over "
+        "the scenes: mean, lower quartile, min; mean progress; median plan time (s, without the "
+        "JIT compile: compile_s in frontier.csv)"
+    )
+    print(_table(res["points"], cols, FRONTIER_HEADERS))
     print(
         "measured collision rate (pooled over scenes, with its 95 % Clopper-Pearson interval), "
         "share of plans with status ok, mean risk_bound"
@@ -686,8 +850,8 @@ def cmd_frontier(args, parser) -> int:
     print(_table(res["points"], cols))
     lv = [f"{x:g}" for x in TARGET_LEVELS]
     readouts = (
-        ("interpolated", "interpolated mean progress (m) at mean collision-free level (of 1000); "
-         "nan: not reached"),
+        ("interpolated", "interpolated mean progress (m) at mean collision-free level (per "
+         "1000); nan: not reached"),
         ("at_level", "most mean progress (m) of a risk level whose mean collision-free count "
          "reaches the level (measured points only); nan: not reached"),
         ("at_level_kept", "the same over the risk levels whose plans kept the request (status ok "
@@ -822,8 +986,9 @@ def cmd_qp_backends(args, parser) -> int:
 
 def _check_out(args, parser) -> None:
     """``--out`` must be a folder, or a path where one can be created, that this process can
-    write into (``predictor``: a file); ``--address`` needs ``--executor ray``.  Exit 2 naming
-    the option otherwise (:mod:`.inputs`).  Nothing is created here."""
+    write into (``predictor``: a file); ``--address`` needs ``--executor ray`` and a cluster
+    that answers there.  Exit 2 naming the option otherwise (:mod:`.inputs`).  Nothing is
+    created here."""
     from .inputs import check_address, check_out_file, check_out_folder
 
     out = getattr(args, "out", None)
@@ -837,8 +1002,12 @@ def _check_out(args, parser) -> None:
     except ValueError as e:
         parser.error(f"argument --out: {e}")
     if hasattr(args, "address"):
+        from .executors import check_ray_address
+
         try:
             check_address(args.executor, args.address)
+            if args.address is not None:
+                check_ray_address(args.address)
         except ValueError as e:
             parser.error(f"argument --address: {e}")
 
@@ -873,15 +1042,18 @@ def _missing_extra(args) -> str | None:
 def main(argv: Sequence[str] | None = None) -> int:
     """Entry point of the ``mmdopt`` console script; returns the exit status.
 
-    SIGINT and SIGTERM stop a run cleanly: every worker is terminated, finished result files are
-    kept (writes are atomic), one line goes to stderr and the status is 130 / 143."""
+    The command runs with the parser of its sub-command (:func:`command_parser`): its errors
+    print that command's usage.  SIGINT and SIGTERM stop a run cleanly: every worker is
+    terminated, finished result files are kept (writes are atomic), one line goes to stderr and
+    the status is 130 / 143."""
     parser = build_parser()
     # ``bench qp-backends`` passes its arguments on, options first included (``--help``):
     # argparse's REMAINDER does not take an argument list that starts with an option
     args, extra = parser.parse_known_args(argv)
+    own = command_parser(parser, args)
     if extra:
         if getattr(args, "experiment", None) != "qp-backends":
-            parser.error(f"unrecognized arguments: {' '.join(extra)}")
+            own.error(f"unrecognized arguments: {' '.join(extra)}")
         args.args = extra + list(args.args)
     if args.command == "demo":
         cmd = cmd_demo
@@ -907,8 +1079,8 @@ def main(argv: Sequence[str] | None = None) -> int:
         return 2
     try:
         with stop_on_signals():
-            _check_out(args, parser)
-            return cmd(args, parser)
+            _check_out(args, own)
+            return cmd(args, own)
     except MissingExtra as e:
         print(f"mmdopt: {e}", file=sys.stderr)
         return 2

@@ -10,7 +10,9 @@ other settings).
 with one XLA thread (the workers, not XLA, use the cores); each worker compiles once and reuses its
 jit caches for all its tasks.  ``executor="ray"``: the tasks as Ray remote functions
 (``pip install mmdopt[ray]``), on a local Ray instance with ``jobs`` CPUs or on an existing
-cluster at ``address`` (e.g. ``"ray://head:10001"`` or ``"auto"``).
+cluster at ``address`` (``"auto"``, ``"HOST:PORT"`` or ``"ray://HOST:PORT"``, e.g.
+``"ray://head:10001"``); the workers of either get the one-thread environment of the local pool
+(:data:`_WORKER_ENV`, through Ray's ``runtime_env``), so a cluster computes the same rows.
 """
 
 from __future__ import annotations
@@ -21,6 +23,7 @@ import json
 import multiprocessing as mp
 import os
 import signal
+import socket
 import threading
 from collections.abc import Callable, Sequence
 from pathlib import Path
@@ -31,7 +34,10 @@ from .results import write_json
 
 __all__ = [
     "EXECUTORS",
+    "ADDRESS_FORMS",
     "Interrupted",
+    "parse_ray_address",
+    "check_ray_address",
     "run_tasks",
     "check_manifest",
     "stop_on_signals",
@@ -200,17 +206,49 @@ def run_tasks(
     try:
         if not tasks:
             return []
-        if executor == "ray":
-            return _run_ray(fn, tasks, jobs, address, bar)
-        if (jobs <= 1 or len(tasks) <= 1) and not isolate:
+        if (jobs <= 1 or len(tasks) <= 1) and not isolate and executor != "ray":
             out = []
             for t in tasks:
                 out.append(fn(t))
                 _tick(bar)
             return out
+        fn = WithMethods.wrap(fn)  # a worker knows the methods registered here
+        if executor == "ray":
+            return _run_ray(fn, tasks, jobs, address, bar)
         return _run_pool(fn, tasks, jobs, bar)
     finally:
         bar.close()
+
+
+class WithMethods:
+    """``fn`` that first registers, in the worker process it runs in, the planning methods the
+    caller registered beyond the built-ins (:func:`mmdopt.methods.register`): a worker starts
+    with the built-ins only.  Such a method's record must pickle (its ``risk_settings`` a
+    module-level function)."""
+
+    def __init__(self, fn: Callable[[Any], Any], methods: tuple) -> None:
+        self.fn, self.methods = fn, methods
+
+    @classmethod
+    def wrap(cls, fn: Callable[[Any], Any]) -> Callable[[Any], Any]:
+        import mmdopt.methods
+
+        extra = tuple(
+            r for r in mmdopt.methods.records() if r.name not in mmdopt.methods.PLAN_METHODS
+        )
+        return cls(fn, extra) if extra else fn
+
+    def __call__(self, task: Any) -> Any:
+        import mmdopt.methods
+
+        for rec in self.methods:
+            mmdopt.methods.register(rec, replace=True)
+        return self.fn(task)
+
+
+def _apply(fn: Callable[[Any], Any], task: Any) -> Any:
+    """``fn(task)``: the remote function of a Ray run."""
+    return fn(task)
 
 
 def _tick(bar) -> None:
@@ -289,15 +327,65 @@ def _code_root() -> str:
     return str(Path(__file__).resolve().parents[2])
 
 
-def _worker_env() -> dict[str, str]:
-    """Environment of local Ray workers: :data:`_WORKER_ENV` (as the local pool's workers, so
-    both executors compute the same numbers) and this process's code first on the path (an
-    installed ``mmdopt`` elsewhere, e.g. an editable install of another checkout, must not win)."""
-    path = [_code_root()] + [p for p in os.environ.get("PYTHONPATH", "").split(os.pathsep) if p]
-    env = {**_WORKER_ENV, "PYTHONPATH": os.pathsep.join(path)}
+def _thread_env() -> dict[str, str]:
+    """:data:`_WORKER_ENV` with this process's ``XLA_FLAGS`` kept in front: the environment the
+    local pool's workers plan in (they inherit this process's flags), for Ray's workers."""
+    env = dict(_WORKER_ENV)
     if os.environ.get("XLA_FLAGS"):
         env["XLA_FLAGS"] = os.environ["XLA_FLAGS"] + " " + _ONE_XLA_THREAD
     return env
+
+
+def _worker_env() -> dict[str, str]:
+    """Environment of local Ray workers: :func:`_thread_env` (as the local pool's workers, so
+    both executors compute the same numbers) and this process's code first on the path (an
+    installed ``mmdopt`` elsewhere, e.g. an editable install of another checkout, must not win)."""
+    path = [_code_root()] + [p for p in os.environ.get("PYTHONPATH", "").split(os.pathsep) if p]
+    return {**_thread_env(), "PYTHONPATH": os.pathsep.join(path)}
+
+
+#: the forms of a Ray cluster's address that :func:`parse_ray_address` takes
+ADDRESS_FORMS = "auto, ray://HOST:PORT or HOST:PORT"
+
+
+def parse_ray_address(address: str) -> tuple[str, int] | None:
+    """``(host, port)`` of a Ray cluster's address ``"HOST:PORT"`` (its GCS, as ``ray start
+    --head`` prints it) or ``"ray://HOST:PORT"`` (its client server); ``None`` for ``"auto"``
+    (the cluster Ray finds on this machine).  Raises ``ValueError`` with the reason for any
+    other form, e.g. a host without a port, which Ray would otherwise retry for half a minute."""
+    a = address.strip()
+    if not a:
+        raise ValueError("is empty (omit it to start a local Ray instance)")
+    if a == "auto":
+        return None
+    rest = a.removeprefix("ray://")
+    host, sep, port = rest.rpartition(":")
+    if host.startswith("[") and host.endswith("]"):  # [::1]:6379
+        host = host[1:-1]
+    if not (sep and host and port.isdigit() and 0 < int(port) < 65536) or any(
+        c in host for c in "/@ \t"
+    ):
+        raise ValueError(f"expected {ADDRESS_FORMS} (e.g. 127.0.0.1:6379), got {address!r}")
+    return host, int(port)
+
+
+def check_ray_address(address: str, timeout: float = 3.0) -> None:
+    """``address`` has one of the forms of :func:`parse_ray_address` and, unless ``"auto"``,
+    something accepts a TCP connection at its host and port within ``timeout`` seconds; raises
+    ``ValueError`` with the reason otherwise (no cluster, a wrong port, an unknown host), in
+    seconds rather than after Ray's own retries."""
+    hp = parse_ray_address(address)
+    if hp is None:
+        return
+    try:
+        with socket.create_connection(hp, timeout=timeout):
+            pass
+    except OSError as e:
+        why = e.strerror or str(e) or type(e).__name__
+        raise ValueError(
+            f"no Ray cluster answers at {address!r} ({why}); start one with `ray start --head` "
+            "or check the host and port"
+        ) from None
 
 
 def _run_ray(fn, tasks, jobs, address, bar) -> list[Any]:
@@ -314,12 +402,23 @@ def _run_ray(fn, tasks, jobs, address, bar) -> list[Any]:
                 kw.update(num_cpus=jobs, include_dashboard=False)
                 kw["runtime_env"] = {"env_vars": _worker_env()}
             else:
-                kw["address"] = address
-            ray.init(**kw)
+                try:
+                    check_ray_address(address)
+                except ValueError as e:
+                    raise ValueError(f"--address: {e}") from None
+                # a cluster's workers were started by `ray start`, not by this process: they
+                # get the local pool's one-thread environment here (not this process's path:
+                # the cluster's machines have their own install)
+                kw.update(address=address, runtime_env={"env_vars": _thread_env()})
+            try:
+                ray.init(**kw)
+            except (ConnectionError, TimeoutError) as e:
+                where = "a local Ray instance" if address is None else f"--address {address!r}"
+                raise ValueError(f"cannot connect to {where}: {e}") from None
             started = True
             _reinstall_handlers()  # ray.init installs its own SIGTERM handler
-        remote = ray.remote(num_cpus=1)(fn)
-        pending = [remote.remote(t) for t in tasks]
+        remote = ray.remote(num_cpus=1)(_apply)  # a function: fn may be a WithMethods
+        pending = [remote.remote(fn, t) for t in tasks]
         out = []
         while pending:
             done, pending = ray.wait(pending, num_returns=1)
@@ -333,6 +432,6 @@ def _run_ray(fn, tasks, jobs, address, bar) -> list[Any]:
                 ray.cancel(ref, force=True)
         raise
     finally:
-        if started and address is None:
+        if started:  # a local instance stops; a cluster stays up, this process disconnects
             with contextlib.suppress(Exception):
                 ray.shutdown()

@@ -9,7 +9,13 @@ over scenes with its 95 % Clopper–Pearson interval, the share of plans whose s
 the mean :attr:`mmdopt.Plan.risk_bound`; and each method's progress interpolated at the target
 levels) and ``OUT/frontier.png`` (:func:`frontier_axes`: the frontier and a calibration panel).
 Folders written when the ``risk`` column was called ``knob`` are read with the old name mapped
-to the new one.
+to the new one, and rows written before ``compile_s`` existed get NaN there (not measured).
+
+``plan_time_s`` is a plan's own time: the first plan of each worker process for a (method, risk)
+(the plan's shapes: the number of futures n(ε) and the config depend on them, not on the scene)
+is preceded by an untimed warm-up plan of the same scene with another key, which compiles the
+programs; ``compile_s`` is how much longer that first call took than the timed plan (as
+``mmdopt demo`` measures it), 0.0 in the rows of later tasks.
 """
 
 from __future__ import annotations
@@ -24,8 +30,8 @@ from typing import Any
 import numpy as np
 
 import mmdopt
+import mmdopt.methods
 from mmdopt.algorithm import PLANNER_BACKEND
-from mmdopt.baselines import PLAN_METHODS as METHODS
 from mmdopt.risk import check_risk, config_for_risk
 
 from .executors import MISSING, check_manifest, run_tasks, worker_layout
@@ -34,7 +40,8 @@ from .scenes import SceneParams, make_scene, num_scenes
 from .synthetic import config_overrides, planning_samples, run_scene
 
 __all__ = [
-    "DEFAULT_RISKS",
+    "DEFAULT_RISK_GRID",
+    "default_risks",
     "FRONTIER_COLUMNS",
     "TARGET_LEVELS",
     "parse_risks",
@@ -47,16 +54,16 @@ __all__ = [
     "frontier_figure",
 ]
 
-#: default risk grid (target collision probability ε) per method: down to 1e-5, so that the
-#: printed target levels 995 and 999 lie inside the swept range (docs/experiments/frontier.md)
-_GRID = (1e-5, 1e-4, 0.001, 0.005, 0.02, 0.1)
-DEFAULT_RISKS: dict[str, tuple[float, ...]] = {
-    "mmd": _GRID,
-    "degroot": _GRID,
-    "random": _GRID,
-    "saa": _GRID,
-    "scenario_all": _GRID,
-}
+#: the default risk grid (target collision probability ε) of every method: down to 1e-5, so that
+#: the printed target levels 995 and 999 lie inside the swept range (docs/experiments/frontier.md)
+DEFAULT_RISK_GRID: tuple[float, ...] = (1e-5, 1e-4, 0.001, 0.005, 0.02, 0.1)
+
+
+def default_risks(methods: Sequence[str]) -> dict[str, list[float]]:
+    """The default grid of each method (a name of :func:`mmdopt.methods.names`)."""
+    return {m: list(DEFAULT_RISK_GRID) for m in (mmdopt.methods.get(x).name for x in methods)}
+
+
 #: columns of ``frontier.csv`` (the first eight are the outside contract)
 FRONTIER_COLUMNS = (
     "method",
@@ -74,6 +81,7 @@ FRONTIER_COLUMNS = (
     "seed",
     "risk_bound",
     "n_planning",
+    "compile_s",
 )
 #: target collision-free levels (of 1000) at which progress is interpolated
 TARGET_LEVELS = (990.0, 995.0, 999.0)
@@ -87,7 +95,7 @@ def parse_risks(spec: str | None, methods: Sequence[str]) -> dict[str, list[floa
     """Risk grid per method from ``"0.1,0.02"`` (every method) or ``"mmd=0.001,0.005;saa=0.01"``
     (per method; the defaults for methods not named).  Raises ``ValueError`` for an unknown or
     unselected method or a risk outside (0, 0.5)."""
-    risks = {m: list(DEFAULT_RISKS[m]) for m in methods}
+    risks = default_risks(methods)
     if not spec:
         return risks
     if "=" not in spec:
@@ -99,8 +107,10 @@ def parse_risks(spec: str | None, methods: Sequence[str]) -> dict[str, list[floa
         if "=" not in part:
             raise ValueError(f"risks: expected METHOD=v1,v2,... got {part!r}")
         m, vals = (x.strip() for x in part.split("=", 1))
-        if m not in METHODS:
-            raise ValueError(f"risks: unknown method {m!r}; choose from {', '.join(METHODS)}")
+        if m not in mmdopt.methods.names():
+            raise ValueError(
+                f"risks: unknown method {m!r}; choose from {', '.join(mmdopt.methods.names())}"
+            )
         if m not in methods:
             raise ValueError(f"risks: method {m!r} is not among --methods")
         risks[m] = _risk_grid(vals, m)
@@ -133,15 +143,47 @@ def _task_path(out: Path, scene: int, method: str, risk: float) -> Path:
 
 
 def _read_task(path: Path) -> dict[str, Any]:
-    """One task's row; a row of an older folder has its ``knob`` renamed ``risk`` in place."""
+    """One task's row; a row of an older folder has its ``knob`` renamed ``risk`` in place and
+    NaN as its ``compile_s`` (written before the compile was measured apart)."""
     row = json.loads(path.read_text())
     if OLD_RISK_COLUMN in row and "risk" not in row:
         row = {("risk" if k == OLD_RISK_COLUMN else k): v for k, v in row.items()}
+    row.setdefault("compile_s", math.nan)
     return row
 
 
+#: what the compiled programs of a plan depend on, for each one this process has planned:
+#: (method, risk, backend, forecast, scene parameters, config); the first plan of each is
+#: preceded by a warm-up (:func:`_warm_up`)
+_WARM: set[tuple[Any, ...]] = set()
+
+
+def _warm_up(scene, method: str, config, backend: str, forecast: bool) -> float:
+    """Plan ``scene`` as :func:`~mmdopt.bench.synthetic.run_scene` does, with another key (the
+    same shapes: the same compiled programs, without repeating the timed computation), untimed;
+    returns that call's plan time, which includes the JIT compile."""
+    import jax
+
+    from .synthetic import forecast_cap, plan_scene, scene_config
+
+    obstacles = None
+    if forecast:
+        cap = forecast_cap(method)
+        obstacles = scene.forecast(min_samples=scene.params.n_samples, max_samples=cap)
+    plan, _, wall = plan_scene(
+        scene,
+        method,
+        config=scene_config(scene, config),
+        backend=backend,
+        key=jax.random.fold_in(scene.key(), 1),
+        obstacles=obstacles,
+    )
+    return float(getattr(plan, "plan_time_s", wall))
+
+
 def _frontier_task(args) -> int:
-    """Worker: scene ``index``, plan every missing (method, risk), one file per plan."""
+    """Worker: scene ``index``, plan every missing (method, risk), one file per plan; the first
+    plan of this process for a (method, risk) gets its compile apart (``compile_s``)."""
     index, seed, params_dict, todo, backend, out, config, forecast = args
     scene = make_scene(index, seed, SceneParams.from_dict(params_dict))
     done = 0
@@ -150,8 +192,15 @@ def _frontier_task(args) -> int:
         if path.exists():
             continue
         cfg = config_for_risk(method, risk, config)
+        shapes = (method, float(risk), backend, bool(forecast),
+                  json.dumps(params_dict, sort_keys=True, default=str), repr(cfg))  # fmt: skip
+        first = shapes not in _WARM
+        if first:
+            warm_s = _warm_up(scene, method, cfg, backend, forecast)
+            _WARM.add(shapes)
         row, _ = run_scene(scene, method, config=cfg, backend=backend, forecast=forecast)
-        row.update(risk=float(risk), seed=int(seed))
+        compile_s = max(0.0, warm_s - float(row["plan_time_s"])) if first else 0.0
+        row.update(risk=float(risk), seed=int(seed), compile_s=compile_s)
         write_json(path, row)
         done += 1
     return done
@@ -161,7 +210,7 @@ def run_frontier(
     out: str | Path,
     *,
     risks: Mapping[str, Sequence[float]] | None = None,
-    methods: Sequence[str] = METHODS,
+    methods: Sequence[str] | None = None,
     scenes: int | None = None,
     seed: int = 0,
     params: SceneParams | None = None,
@@ -176,7 +225,7 @@ def run_frontier(
     forecast: bool = False,
 ) -> dict[str, Any]:
     """Sweep every method's risk level on the scenes; resumable (existing task files are reused;
-    ``risks``: the grid per method, default :data:`DEFAULT_RISKS`).  ``forecast=True`` plans
+    ``risks``: the grid per method, default :data:`DEFAULT_RISK_GRID`).  ``forecast=True`` plans
     through the scene's predictor (:meth:`~mmdopt.bench.scenes.Scene.forecast`): n(ε) futures
     per (scene, ε), at least ``params.n_samples`` and at most
     :func:`~mmdopt.bench.synthetic.forecast_cap` (5000; 50 000 for MMD-Opt); ``False``
@@ -193,10 +242,10 @@ def run_frontier(
     params = SceneParams() if params is None else params
     n = num_scenes(params, scenes)
     methods = list(dict.fromkeys(methods))
-    bad = [m for m in methods if m not in METHODS]
+    bad = [m for m in methods if m not in mmdopt.methods.names()]
     if bad or not methods:
-        raise ValueError(f"methods must be among {METHODS}, got {methods}")
-    risks = {m: list(DEFAULT_RISKS[m]) for m in methods} if risks is None else dict(risks)
+        raise ValueError(f"methods must be among {mmdopt.methods.names()}, got {methods}")
+    risks = default_risks(methods) if risks is None else dict(risks)
     for m in methods:
         if m not in risks or not risks[m]:
             raise ValueError(f"no risk values for method {m!r}")
@@ -445,7 +494,9 @@ def frontier_axes(points: Sequence[Mapping[str, Any]], title: str = ""):
     method through its risk points (ε named at both ends of each line).  Right: calibration,
     the requested ε against the measured collision rate pooled over scenes, with its 95 %
     Clopper–Pearson interval and the line measured = requested."""
-    from .plots import METHOD_COLOURS, _label, _plt
+    from .plots import method_colour
+    from .plots import method_label as _label
+    from .plots import pyplot as _plt
 
     if not points:
         raise ValueError("points must not be empty")
@@ -462,7 +513,7 @@ def frontier_axes(points: Sequence[Mapping[str, Any]], title: str = ""):
     common = max(grids.values(), key=list(grids.values()).count)
     spread = 10.0 ** (0.04 * (np.arange(len(methods)) - (len(methods) - 1) / 2))
     for j, m in enumerate(methods):
-        ps, colour = per[m], METHOD_COLOURS.get(m)
+        ps, colour = per[m], method_colour(m)
         style = dict(marker=_MARKERS[j % len(_MARKERS)], color=colour, label=_label(m))
         x = [p["progress_m"] for p in ps]
         y = [max(c, floor) for c in coll[m]]
@@ -524,7 +575,7 @@ def frontier_axes(points: Sequence[Mapping[str, Any]], title: str = ""):
 
 def frontier_figure(points: Sequence[Mapping[str, Any]], path: str | Path, title: str = "") -> Path:
     """Save :func:`frontier_axes` of ``points`` to ``path`` (PNG)."""
-    from .plots import _plt
+    from .plots import pyplot as _plt
 
     fig = frontier_axes(points, title)
     path = Path(path)

@@ -124,10 +124,10 @@ def evaluate_plan(plan, scene: Scene, road=None) -> dict[str, Any]:
         planner_feasible=planner_feasible,
         fallback=bool(getattr(plan, "fallback", False)),
         status=str(getattr(plan, "status_text", getattr(plan, "status", ""))),
-        risk_bound=_float(getattr(plan, "risk_bound", math.nan)),
-        cost=_float(getattr(plan, "cost", math.nan)),
-        mmd=_float(getattr(plan, "mmd", math.nan)),
-        residual=_float(getattr(plan, "residual", math.nan)),
+        risk_bound=float_or_nan(getattr(plan, "risk_bound", math.nan)),
+        cost=float_or_nan(getattr(plan, "cost", math.nan)),
+        mmd=float_or_nan(getattr(plan, "mmd", math.nan)),
+        residual=float_or_nan(getattr(plan, "residual", math.nan)),
         x0=scene.x0,
         y0=scene.y0,
         p=scene.p,
@@ -135,7 +135,8 @@ def evaluate_plan(plan, scene: Scene, road=None) -> dict[str, Any]:
     )
 
 
-def _float(v) -> float:
+def float_or_nan(v) -> float:
+    """``float(v)``, NaN where ``v`` is no number (a missing or non-numeric plan field)."""
     try:
         return float(v)
     except (TypeError, ValueError):

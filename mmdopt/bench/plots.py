@@ -11,11 +11,13 @@ from typing import Any
 
 import numpy as np
 
+import mmdopt.methods
+
 from ._optional import require
 
 __all__ = [
-    "METHOD_LABELS",
-    "METHOD_COLOURS",
+    "method_label",
+    "method_colour",
     "collision_box_violin",
     "scene_figure",
     "demo_figure",
@@ -24,25 +26,28 @@ __all__ = [
     "reduced_set_indices",
 ]
 
-METHOD_LABELS = {
-    "mmd": "MMD-Opt",
-    "degroot": "de Groot (scenario)",
-    "random": "random reduced set",
-    "saa": "SAA",
-    "scenario_all": "scenario, all samples",
-    "herding": "kernel herding",
-}
-METHOD_COLOURS = {
-    "mmd": "tab:blue",
-    "degroot": "goldenrod",
-    "random": "tab:gray",
-    "saa": "tab:green",
-    "scenario_all": "tab:purple",
-    "herding": "tab:cyan",
-}
+#: names of selections that are not plan methods (the reduced-set benchmark's herding)
+_OTHER_LABELS = {"herding": "kernel herding"}
+_OTHER_COLOURS = {"herding": "tab:cyan"}
 
 
-def _plt():
+def method_label(name: str) -> str:
+    """How tables and figures name ``name``: its record's label (:mod:`mmdopt.methods`)."""
+    if name in mmdopt.methods.names():
+        return mmdopt.methods.get(name).label
+    return _OTHER_LABELS.get(name, name)
+
+
+def method_colour(name: str) -> str | None:
+    """The colour figures draw ``name`` in: its record's colour (``None``: matplotlib's)."""
+    if name in mmdopt.methods.names():
+        return mmdopt.methods.get(name).colour
+    return _OTHER_COLOURS.get(name)
+
+
+def pyplot():
+    """``matplotlib.pyplot`` on a non-interactive backend (Agg unless the caller chose a file
+    backend), so figures are written without a display."""
     matplotlib = require("matplotlib", "plotting")
 
     if matplotlib.get_backend().lower() not in ("agg", "pdf", "svg", "cairo"):
@@ -53,10 +58,6 @@ def _plt():
     import matplotlib.pyplot as plt
 
     return plt
-
-
-def _label(m: str) -> str:
-    return METHOD_LABELS.get(m, m)
 
 
 def _box_legend(ax, plt) -> None:
@@ -87,7 +88,7 @@ def collision_box_violin(
     """Paper Fig. 5: box and violin plots of collision-free validation samples per method,
     with a third panel for progress (m) so a method cannot win by standing still.  One point per
     scene; every mark is explained in the panels' legends."""
-    plt = _plt()
+    plt = pyplot()
     from matplotlib.lines import Line2D
     from matplotlib.patches import Patch
 
@@ -99,7 +100,7 @@ def collision_box_violin(
     keep = [i for i, d in enumerate(data) if d.size]
     methods = [methods[i] for i in keep]
     data, prog = [data[i] for i in keep], [prog[i] for i in keep]
-    labels = [_label(m) for m in methods]
+    labels = [method_label(m) for m in methods]
     nvs = sorted({int(r["n_validation"]) for r in rows if "n_validation" in r})
     of = f"of {nvs[0]}" if len(nvs) == 1 else "count"
     fig, axs = plt.subplots(1, 3, figsize=(15, 4.8))
@@ -109,13 +110,13 @@ def collision_box_violin(
     _box_legend(axs[0], plt)
     parts = axs[1].violinplot(data, showmedians=True)
     for body, m in zip(parts["bodies"], methods, strict=True):
-        body.set_facecolor(METHOD_COLOURS.get(m, "tab:blue"))
+        body.set_facecolor(method_colour(m) or "tab:blue")
     axs[1].set_xticks(range(1, len(labels) + 1), labels)
     axs[1].set_title("collision-free validation samples per scene (violin)", fontsize=10)
     axs[1].set_ylabel(f"collision-free validation samples ({of})")
     axs[1].legend(
         handles=[
-            Patch(facecolor=METHOD_COLOURS.get(m, "tab:blue"), alpha=0.5, label=f"{lab}: density")
+            Patch(facecolor=(method_colour(m) or "tab:blue"), alpha=0.5, label=f"{lab}: density")
             for m, lab in zip(methods, labels, strict=True)
         ]
         + [
@@ -179,6 +180,13 @@ def _scene_xlim(scene, plans: Mapping[str, Any], validation_index: int) -> tuple
     return float(min(xs)) - 5.0, float(max(xs)) + 5.0
 
 
+def _footprint(plan) -> tuple[float, float] | None:
+    """The collision ellipse's semi-axes ``(a, b)`` the plan was made with (``None``: unknown)."""
+    cfg = getattr(plan, "config", None)
+    fp = getattr(getattr(cfg, "safety", None), "footprint", None)
+    return None if fp is None else (float(fp.a), float(fp.b))
+
+
 def _scene_panel(ax, scene, m: str, plan, validation_index: int, title: str | None = None):
     """One method's panel of :func:`scene_figure`: samples, reduced set, hits, plan, legend."""
     from matplotlib.lines import Line2D
@@ -197,14 +205,14 @@ def _scene_panel(ax, scene, m: str, plan, validation_index: int, title: str | No
     for intent in np.unique(scene.intents):
         sel = obs[scene.intents == intent]
         ax.plot(sel[:, :, 0].T, sel[:, :, 1].T, color="0.7", lw=0.6, alpha=0.6)
-    col = METHOD_COLOURS.get(m, "m")
+    col = method_colour(m) or "m"
     handles = [
         Line2D([], [], color="0.7", lw=1, label=f"planning samples ({obs.shape[0]})"),
     ]
     idx = reduced_set_indices(plan)
     if idx is not None:
         rs = obs[idx]
-        ax.plot(rs[:, :, 0].T, rs[:, :, 1].T, color=col, lw=1.6)
+        ax.plot(rs[:, :, 0].T, rs[:, :, 1].T, color=col, lw=1.6, zorder=2)
         handles.append(
             Line2D([], [], color=col, lw=1.6, label=f"reduced set used by the cost ({idx.size})")
         )
@@ -212,7 +220,8 @@ def _scene_panel(ax, scene, m: str, plan, validation_index: int, title: str | No
     hit = np.asarray(counts.colliding)[0]
     if hit.any():
         hv = val[hit][:50]
-        ax.plot(hv[:, :, 0].T, hv[:, :, 1].T, color="red", lw=0.7, alpha=0.5)
+        # on top of the reduced set: the hits are what the panel is about
+        ax.plot(hv[:, :, 0].T, hv[:, :, 1].T, color="red", lw=0.9, alpha=0.8, zorder=4)
         handles.append(
             Line2D(
                 [], [], color="red", lw=0.9,
@@ -230,8 +239,19 @@ def _scene_panel(ax, scene, m: str, plan, validation_index: int, title: str | No
         )
     )  # fmt: skip
     pc = "k"  # the plan in black in every panel (the reduced set has the method colour)
-    ax.plot(xy[:, 0], xy[:, 1], color=pc, lw=2)
-    ax.plot(xy[::every, 0], xy[::every, 1], "o", color=pc, ms=4)
+    ax.plot(xy[:, 0], xy[:, 1], color=pc, lw=2, zorder=5)
+    ax.plot(xy[::every, 0], xy[::every, 1], "o", color=pc, ms=4, zorder=5)
+    fp = _footprint(plan)
+    if fp is not None:  # what "unsafe" means: a sample's circle inside this ellipse
+        from matplotlib.patches import Ellipse
+
+        for x0, y0 in xy[::every][1::2]:
+            ax.add_patch(Ellipse((x0, y0), 2 * fp[0], 2 * fp[1], fill=False, ec=pc, lw=0.6,
+                                 ls="-", alpha=0.45, zorder=3))  # fmt: skip
+        handles.append(
+            Line2D([], [], color=pc, lw=0.6, alpha=0.45,
+                   label=f"collision ellipse (semi-axes {fp[0]:g} m, {fp[1]:g} m)")
+        )  # fmt: skip
     handles += [
         Line2D(
             [], [], color=pc, lw=2, marker="o", ms=4,
@@ -247,7 +267,7 @@ def _scene_panel(ax, scene, m: str, plan, validation_index: int, title: str | No
     cf_ = int(counts.joint)
     prog = float(np.asarray(plan.s)[-1] - np.asarray(plan.s)[0])
     ax.set_title(
-        f"{title or _label(m)}: {cf_}/{val.shape[0]} validation samples collision-free, "
+        f"{title or method_label(m)}: {cf_}/{val.shape[0]} validation samples collision-free, "
         f"progress {prog:.0f} m",
         fontsize=10,
     )
@@ -257,9 +277,11 @@ def _scene_panel(ax, scene, m: str, plan, validation_index: int, title: str | No
 
 
 def _scene_title(scene) -> str:
+    off, p = float(scene.params.intent_offsets[0]), float(scene.intent_probs[0])
+    where = "into the ego's lane" if off == 0.0 else f"to the lane at y = {off:g} m"
     return (
-        f"scene {scene.index}: obstacle at x0 = {scene.x0:.0f} m, y0 = {scene.y0:.1f} m; "
-        f"P(y_d = {scene.params.intent_offsets[0]:g} m) = {scene.intent_probs[0]:.2f}"
+        f"scene {scene.index}: a car at x = {scene.x0:.0f} m, y = {scene.y0:.1f} m moves "
+        f"{where} with probability {p:.2f}"
     )
 
 
@@ -274,7 +296,7 @@ def scene_figure(
     the method's reduced set (coloured), its plan (ego positions every 1.5 s) and the validation
     samples it collides with (red), plus one validation sample with its positions at the plan's
     time steps (black dashed).  The x axis spans what is drawn."""
-    plt = _plt()
+    plt = pyplot()
     n = len(plans)
     fig, axs = plt.subplots(n, 1, figsize=(15, 3.1 * n), squeeze=False)
     if validation_index is None:
@@ -304,7 +326,7 @@ def demo_figure(
     against progress, one line per method through its risk levels ε, each point labelled with
     its ε (``points``: rows with ``method``, ``risk``, ``collision_free``, ``n_validation``,
     ``progress_m``, as the demo's table)."""
-    plt = _plt()
+    plt = pyplot()
     n = len(plans)
     fig = plt.figure(figsize=(18, max(3.6 * n, 5.0)))
     # the middle column holds the scene panels' legends
@@ -314,7 +336,9 @@ def demo_figure(
     xlim = _scene_xlim(scene, plans, validation_index)
     for i, (m, plan) in enumerate(plans.items()):
         ax = fig.add_subplot(gs[i, 0])
-        _scene_panel(ax, scene, m, plan, validation_index, title=f"{_label(m)} at ε = {risk:g}")
+        _scene_panel(
+            ax, scene, m, plan, validation_index, title=f"{method_label(m)} at ε = {risk:g}"
+        )
         ax.set_xlim(*xlim)
     ax = fig.add_subplot(gs[:, 2])
     nvs = sorted({int(p["n_validation"]) for p in points})
@@ -322,13 +346,15 @@ def demo_figure(
         pts = sorted((p for p in points if p["method"] == m), key=lambda p: p["progress_m"])
         x = [float(p["progress_m"]) for p in pts]
         y = [int(p["collision_free"]) for p in pts]
-        col = METHOD_COLOURS.get(m, "tab:blue")
-        ax.plot(x, y, "o-", color=col, label=f"{_label(m)} ({m})")
+        col = method_colour(m) or "tab:blue"
+        ax.plot(x, y, "o-", color=col, label=f"{method_label(m)} ({m})")
+        same: dict[tuple[float, int], list[str]] = {}  # one label per drawn point
         for p, xi, yi in zip(pts, x, y, strict=True):
+            same.setdefault((round(xi, 1), yi), []).append(f"{float(p['risk']):g}")
+        for (xi, yi), eps in same.items():
             ax.annotate(
-                f"ε={float(p['risk']):g}", (xi, yi), textcoords="offset points",
-                xytext=(5, 4) if k % 2 == 0 else (-5, -10), ha="left" if k % 2 == 0 else "right",
-                fontsize=7, color=col,
+                "ε=" + ", ".join(sorted(eps, key=float)), (xi, yi), textcoords="offset points",
+                xytext=(5, 4 if k % 2 == 0 else -10), ha="left", fontsize=7, color=col,
             )  # fmt: skip
     xs = [float(p["progress_m"]) for p in points]
     ys = [int(p["collision_free"]) for p in points]
@@ -378,7 +404,7 @@ def reduced_set_figure(
     """Paper Fig. 4: (a) mean ± std of collision-free validation samples per reduced-set method
     and for the random reduced sets (the near-exhaustive search); (b) per scene, every random
     set's count (dots) against each method's."""
-    plt = _plt()
+    plt = pyplot()
     fig, axs = plt.subplots(1, 2, figsize=(13, 4.2), gridspec_kw=dict(width_ratios=[1, 2]))
     names = list(per_scene)
     means = [np.mean(per_scene[m]) / n_validation * 100 for m in names]
@@ -388,7 +414,7 @@ def reduced_set_figure(
     names_all = names + ["random sets (mean)", "random sets (best, oracle)"]
     means += [rnd.mean(), rnd_best.mean()]
     stds += [rnd.std(), rnd_best.std()]
-    cols = [METHOD_COLOURS.get(m, "tab:blue") for m in names] + ["0.6", "0.3"]
+    cols = [(method_colour(m) or "tab:blue") for m in names] + ["0.6", "0.3"]
     bars = axs[0].bar(
         range(len(names_all)),
         means,
@@ -424,7 +450,7 @@ def reduced_set_figure(
             "_",
             ms=10,
             mew=2,
-            color=METHOD_COLOURS.get(m, "tab:blue"),
+            color=(method_colour(m) or "tab:blue"),
             label=_rs_label(m),
         )
     axs[1].set_xticks(range(len(random_sets)))
@@ -452,7 +478,7 @@ def reduced_set_figure(
 def timing_figure(rows: Sequence[Mapping[str, Any]], path: str | Path) -> Path:
     """Paper Table II as a plot: reduced-set selection and Algorithm 1 time vs reduced-set size
     (at the default sample count) and vs the number of samples."""
-    plt = _plt()
+    plt = pyplot()
     fig, axs = plt.subplots(1, 2, figsize=(11, 3.8))
     n_def = max(
         {r["n_samples"] for r in rows}, key=lambda n: sum(r["n_samples"] == n for r in rows)

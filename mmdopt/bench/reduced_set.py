@@ -9,8 +9,9 @@ draw).  Resumable: one JSON per scene in ``out/scenes/``.
 from __future__ import annotations
 
 import json
-from collections.abc import Sequence
+from collections.abc import Mapping, Sequence
 from pathlib import Path
+from types import MappingProxyType
 from typing import Any
 
 import jax
@@ -18,23 +19,31 @@ import jax.numpy as jnp
 import numpy as np
 
 from mmdopt.algorithm import PLANNER_BACKEND
-from mmdopt.reduced_set import select_reduced_set
+from mmdopt.reduced_set import SELECTORS, select_reduced_set
 
 from . import plots
 from .executors import check_manifest, run_tasks, worker_layout
-from .metric import _float, collision_free, progress
+from .metric import collision_free, float_or_nan, progress
 from .results import remove_temp_files, write_json, write_results
 from .scenes import SceneParams, make_scene, num_scenes
 from .synthetic import (
-    _manifest,
-    _manifest_aliases,
     check_sweep_config,
     load_task_file,
+    manifest_aliases,
     plan_scene,
     scene_config,
+    sweep_manifest,
 )
 
-__all__ = ["REDUCED_SET_COLUMNS", "run_reduced_set"]
+__all__ = ["REDUCED_SET_COLUMNS", "SELECTIONS", "run_reduced_set"]
+
+#: the benchmark's selection names (its ``--methods`` and the ``selection`` column) and the
+#: selector of :data:`mmdopt.reduced_set.SELECTORS` each one runs; "random" draws
+#: ``random_sets`` sets per scene
+SELECTIONS: Mapping[str, str] = MappingProxyType(
+    {"mmd": "kernel-cem", "herding": "herding", "degroot": "conflict", "random": "uniform"}
+    | {name: name for name in SELECTORS}
+)
 
 REDUCED_SET_COLUMNS = (
     "scene",
@@ -62,18 +71,19 @@ def _reduced_set_task(args) -> list[dict[str, Any]]:
     key = scene.key()
     rs_cfg = cfg.selection.reduced_set
     ego_guess = np.stack([scene.params.ego_speed * scene.t, np.zeros_like(scene.t)], -1)
-    jobs = [(meth, 0) for meth in methods if meth != "random"]
-    jobs += [("random", r) for r in range(random_sets if "random" in methods else 0)]
+    jobs = [(meth, 0) for meth in methods if SELECTIONS[meth] != "uniform"]
+    jobs += [(meth, r) for meth in methods if SELECTIONS[meth] == "uniform"
+             for r in range(random_sets)]  # fmt: skip
     rows = []
     # the selection's features as in mmdopt.plan (an anisotropic kernel when the config has one)
     lam = float(cfg.selection.rs_lateral_scale)
     feats = obs * np.array([1.0, lam])
     for meth, r in jobs:
         k = jax.random.fold_in(key, 1000 + r)
-        if meth == "degroot":
-            rs = select_reduced_set(k, obs, m, meth, rs_cfg, ego_guess=ego_guess)
+        if SELECTIONS[meth] == "conflict":  # scores conflicts in metres: no feature scaling
+            rs = select_reduced_set(k, obs, m, SELECTIONS[meth], rs_cfg, ego_guess=ego_guess)
         else:
-            rs = select_reduced_set(k, feats, m, meth, rs_cfg)
+            rs = select_reduced_set(k, feats, m, SELECTIONS[meth], rs_cfg)
         batched = jax.tree_util.tree_map(lambda x: jnp.asarray(x)[None], rs)
         plan, _, wall = plan_scene(scene, "mmd", config=cfg, backend=backend, reduced_set=batched)
         xy = np.stack([np.asarray(plan.x), np.asarray(plan.y)], -1)
@@ -87,7 +97,7 @@ def _reduced_set_task(args) -> list[dict[str, Any]]:
                 progress_m=progress(plan),
                 feasible=bool(getattr(plan, "feasible", True)),
                 rs_mmd2=float(rs.mmd2),
-                plan_time_s=_float(getattr(plan, "plan_time_s", wall)),
+                plan_time_s=float_or_nan(getattr(plan, "plan_time_s", wall)),
                 x0=scene.x0,
                 y0=scene.y0,
                 p=scene.p,
@@ -134,16 +144,20 @@ def run_reduced_set(
     and ``out/reduced_set.png``.
     """
     params = SceneParams() if params is None else params
+    bad = [m for m in methods if m not in SELECTIONS]
+    if bad:
+        raise ValueError(f"methods must be among {tuple(SELECTIONS)}, got {bad}")
     n = num_scenes(params, scenes)
     check_sweep_config(params, config, ["mmd"], backend, seed)
     out = Path(out)
     (out / "scenes").mkdir(parents=True, exist_ok=True)
-    man = _manifest(seed, params, backend, config, worker_layout(jobs, executor, isolate))
+    man = sweep_manifest(seed, params, backend, config, worker_layout(jobs, executor, isolate))
     man.update(methods=list(methods), random_sets=int(random_sets))
-    check_manifest(out, man, "run_reduced_set.json", aliases=_manifest_aliases(config))
+    check_manifest(out, man, "run_reduced_set.json", aliases=manifest_aliases(config))
     remove_temp_files(out / "scenes")
     remove_temp_files(out)
-    want = len([m for m in methods if m != "random"]) + (random_sets if "random" in methods else 0)
+    n_random = sum(SELECTIONS[m] == "uniform" for m in methods)
+    want = len(methods) - n_random + random_sets * n_random
     todo = [
         (i, seed, params.to_dict(), list(methods), random_sets, backend, str(out), config)
         for i in range(n)
@@ -168,7 +182,8 @@ def run_reduced_set(
     for i in range(n):
         rows += json.loads(_scene_path(out, i).read_text())
     write_results(rows, out / "reduced_set.csv", REDUCED_SET_COLUMNS)
-    sel = [m for m in methods if m != "random"]
+    sel = [m for m in methods if SELECTIONS[m] != "uniform"]
+    uniform = [m for m in methods if SELECTIONS[m] == "uniform"]
     per_scene = {
         m: [
             next(r["collision_free"] for r in rows if r["scene"] == i and r["selection"] == m)
@@ -177,7 +192,7 @@ def run_reduced_set(
         for m in sel
     }
     rnd = [
-        [r["collision_free"] for r in rows if r["scene"] == i and r["selection"] == "random"]
+        [r["collision_free"] for r in rows if r["scene"] == i and r["selection"] in uniform]
         for i in range(n)
     ]
     nv = rows[0]["n_validation"] if rows else 1
@@ -247,8 +262,9 @@ def _summary_table(
             scenes=n,
         )
     )
-    if "mmd" in per_scene:
-        a = np.asarray(per_scene["mmd"], float)
+    ours = next((m for m in per_scene if SELECTIONS[m] == "kernel-cem"), None)
+    if ours is not None:
+        a = np.asarray(per_scene[ours], float)
         frac = [np.mean(a[i] >= np.asarray(rnd[i])) for i in range(n)]
         table.append(
             dict(

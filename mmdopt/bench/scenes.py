@@ -82,6 +82,10 @@ def _tuple(v) -> tuple:
     return tuple(float(x) for x in v)
 
 
+#: how a family's scenes are laid out: drawn at random, or on a grid of its ranges
+LAYOUTS = ("random", "grid")
+
+
 @dataclass(frozen=True)
 class SceneParams:
     """Parameters of the scene generator (SI units).  Field names are the ``--scene-params`` keys.
@@ -131,8 +135,8 @@ class SceneParams:
 
     def __post_init__(self) -> None:
         set_ = lambda k, v: object.__setattr__(self, k, v)  # noqa: E731
-        if self.layout not in ("random", "grid"):
-            raise ValueError(f"layout must be 'random' or 'grid', got {self.layout!r}")
+        if self.layout not in LAYOUTS:
+            raise ValueError(f"layout must be one of {LAYOUTS}, got {self.layout!r}")
         for name in ("x0_range", "p_range"):
             v = _tuple(getattr(self, name))
             if len(v) != 2 or not v[0] <= v[1]:

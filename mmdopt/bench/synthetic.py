@@ -23,7 +23,8 @@ import mmdopt
 from mmdopt.algorithm import PLANNER_BACKEND
 
 from .executors import MISSING, check_manifest, run_tasks, worker_layout
-from .metric import _float, evaluate_plan
+from .metric import evaluate_plan
+from .metric import float_or_nan as _float
 from .results import (
     check_bars,
     remove_temp_files,
@@ -91,7 +92,7 @@ MMD_MAX_FORECAST_SAMPLES = 50_000
 
 def forecast_cap(method: str) -> int:
     """The most futures per obstacle ``method`` draws from a scene's predictor."""
-    return MMD_MAX_FORECAST_SAMPLES if method == "mmd" else MAX_FORECAST_SAMPLES
+    return int(mmdopt.methods.get(method).max_futures)
 
 
 def run_scene(
@@ -165,7 +166,7 @@ def _scene_task(args) -> int:
     return done
 
 
-def _manifest(
+def sweep_manifest(
     seed, params: SceneParams, backend, config, layout: str = "in-process", forecast=False
 ):
     # the effective config (the default when none is given): the same settings, the same manifest
@@ -187,7 +188,7 @@ def planning_samples(forecast: bool) -> str:
     return f"forecast n(eps) <= {MAX_FORECAST_SAMPLES} (mmd <= {MMD_MAX_FORECAST_SAMPLES})"
 
 
-def _manifest_aliases(config, forecast: bool = False) -> dict[str, list[Any]]:
+def manifest_aliases(config, forecast: bool = False) -> dict[str, list[Any]]:
     """Older manifests had no ``workers`` key, nor ``planning_samples`` (they planned on the
     fixed samples).  (They recorded the default config as ``{}``: the time-linear margins, which
     are no longer the default, so such a folder is refused.)"""
@@ -202,8 +203,7 @@ def check_sweep_config(
     reduced-set size for every method, the backend, the planning problem (built once).  Raises
     ``ValueError``; the runners call it before writing anything into the sweep folder."""
     from mmdopt import algorithm as alg
-    from mmdopt.api import _check_obstacles
-    from mmdopt.baselines import PLAN_METHODS as METHODS
+    from mmdopt.validate import check_obstacles
 
     if config is not None and not isinstance(config, mmdopt.MMDOptConfig):
         raise ValueError(f"config must be an mmdopt.MMDOptConfig, got {type(config).__name__}")
@@ -213,9 +213,8 @@ def check_sweep_config(
     if not isinstance(cfg, alg.MMDOptConfig):  # a stand-in planner's config: nothing to build
         return
     for m in methods:
-        if m not in METHODS:
-            raise ValueError(f"method must be one of {METHODS}, got {m!r}")
-        _check_obstacles(scene.obstacles, cfg, m, name="the scene's obstacle samples")
+        mmdopt.methods.get(m)
+        check_obstacles(scene.obstacles, cfg, m, name="the scene's obstacle samples")
     road = scene.road()
     mmdopt.Planner(cfg).workspace(road.bounds())  # the projection is built (and checked)
 
@@ -321,8 +320,8 @@ def run_synthetic(
     layout = worker_layout(jobs, executor, isolate)
     check_manifest(
         out,
-        _manifest(seed, params, backend, config, layout, forecast),
-        aliases=_manifest_aliases(config, forecast),
+        sweep_manifest(seed, params, backend, config, layout, forecast),
+        aliases=manifest_aliases(config, forecast),
     )
     remove_temp_files(out / "scenes")
     remove_temp_files(out)

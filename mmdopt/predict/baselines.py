@@ -43,7 +43,7 @@ def lane_state(history: np.ndarray, context: PredictionContext, window: int = 5)
     return sd, s0, v[:, 0], v[:, 1]
 
 
-def _to_cartesian(context: PredictionContext, s: np.ndarray, d: np.ndarray) -> np.ndarray:
+def frenet_to_cartesian(context: PredictionContext, s: np.ndarray, d: np.ndarray) -> np.ndarray:
     """(O, n, K) lane coordinates → (O, n, K, 2) Cartesian, each obstacle in its own lane."""
     out = np.empty(s.shape + (2,))
     for o in range(s.shape[0]):
@@ -170,7 +170,7 @@ class LaneAware:
             float(self.lc_max),
         )
         s, d = np.asarray(s[:O], np.float64), np.asarray(d[:O], np.float64)
-        return _to_cartesian(context, s, d)
+        return frenet_to_cartesian(context, s, d)
 
 
 def _lane_aware_sample(key, logits, s0, vs, d0, w, t, n, speed_std, accel_std, lc_min, lc_max):

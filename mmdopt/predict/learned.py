@@ -32,7 +32,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from .base import GAP_NONE, PredictionContext, check_history, check_key, check_n, pad_rows
-from .baselines import _to_cartesian, lane_state
+from .baselines import frenet_to_cartesian, lane_state
 
 __all__ = ["MDNConfig", "MDN", "Learned", "encode", "poly_basis", "DEFAULT_WEIGHTS"]
 
@@ -212,7 +212,7 @@ class Learned:
         dd = c[..., B:] @ phi.T
         s = s0[:, None, None] + np.maximum(vs, 0.0)[:, None, None] * t + ds
         d = d0[:, None, None] + dd
-        return _to_cartesian(context, s, d)
+        return frenet_to_cartesian(context, s, d)
 
 
 def save_weights(path: str | Path, model: MDN, config: MDNConfig, norm: dict, info: dict) -> Path:

@@ -2,7 +2,8 @@
 
 * :mod:`solvers.admm.core` — :class:`ADMMSettings` (with :class:`PolishSettings`),
   :func:`admm_factor`, :func:`admm_iterate`, :class:`ADMMState` (pure JAX, for use inside your
-  own ``jit``; the planner's projector uses it).
+  own ``jit``) and :func:`admm_projector`, the two as a :class:`solvers.JaxProjector` (what the
+  planner's projector runs).
 * :mod:`solvers.admm.polish` — the float64 active-set polish and termination test (NumPy).
 * :mod:`solvers.admm.backend` — :class:`ADMMBackend`, what ``solve(..., backend="admm")`` runs.
 
@@ -17,6 +18,7 @@ from .core import (
     PolishSettings,
     admm_factor,
     admm_iterate,
+    admm_projector,
     flops_per_iteration,
     rows_from_bounds,
 )
@@ -31,6 +33,7 @@ __all__ = [
     "DENSE_N_WARN",
     "admm_factor",
     "admm_iterate",
+    "admm_projector",
     "rows_from_bounds",
     "polish",
     "flops_per_iteration",

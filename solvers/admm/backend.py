@@ -47,20 +47,16 @@ import jax
 import numpy as np
 
 from ..base import Backend, primal_tolerance
+from ..cache import BoundedCache
 from ..problem import QP, QPBatch
 from ..settings import SettingsSpec, WarmStart
-from ..solution import BatchSolution, Solution, Status
+from ..solution import STATUS_CODES, BatchSolution, Solution, Status
 from .core import (
-    _DINF,
-    _ERROR,
-    _MAX_ITER,
-    _PINF,
-    _SOLVED,
     ADMMFactor,
     ADMMSettings,
-    _admm_iterate_jit,
-    _flops,
     admm_factor,
+    admm_iterate_jit,
+    flops_per_call,
     rows_from_bounds,
 )
 from .polish import PolishData, polish, polish_data, termination
@@ -71,6 +67,8 @@ __all__ = ["ADMMBackend", "DENSE_N_WARN", "DIVERGED", "make_backend"]
 DENSE_N_WARN = 2000
 #: ``‖x‖∞`` beyond this times ``max(1, ‖q‖∞, ‖finite l, u‖∞)``, with no certificate: diverged
 DIVERGED = 1e8
+#: factors (scaling, ladder of inverses, polish data) an :class:`ADMMBackend` keeps, oldest first
+FACTOR_CACHE_SIZE = 16
 
 
 #: the common vocabulary: ADMMSettings uses the common names; time_limit and verbose are ignored
@@ -95,7 +93,14 @@ class ADMMBackend(Backend):
         return SPEC
 
     def __init__(self) -> None:
-        self._factors: dict[tuple, tuple[ADMMFactor, PolishData | None]] = {}
+        # one factor (and its polish data) per (P, A, row masks, settings): see solvers.cache
+        self._factors: BoundedCache[tuple, tuple[ADMMFactor, PolishData | None]] = BoundedCache(
+            FACTOR_CACHE_SIZE
+        )
+
+    def clear_cache(self) -> None:
+        """Forget the cached factors (the next batch recomputes its scaling and inverses)."""
+        self._factors.clear()
 
     # -- caching of the host-side precomputation per (P, A, row masks, settings)
     def _factor(self, P, A, eq, free, s: ADMMSettings, need_polish: bool):
@@ -105,14 +110,9 @@ class ADMMBackend(Backend):
             h.update(str(arr.shape).encode())
         key_s = s.replace(polish=False, fallback=None, eps_abs=0.0, eps_rel=0.0)
         key = (h.hexdigest(), key_s)
-        hit = self._factors.get(key)
-        if hit is None:
-            f = admm_factor(P, A, key_s, eq_rows=eq, free_rows=free)
-            hit = (f, None)
-            if len(self._factors) > 16:
-                self._factors.pop(next(iter(self._factors)))
-            self._factors[key] = hit
-        f, pd = hit
+        f, pd = self._factors.get_or_create(
+            key, lambda: (admm_factor(P, A, key_s, eq_rows=eq, free_rows=free), None)
+        )
         if need_polish and pd is None:
             pd = polish_data(P, A, s, f.D, f.E, f.c)
             self._factors[key] = (f, pd)
@@ -168,7 +168,7 @@ class ADMMBackend(Backend):
             done_iter += k
         extras = run.extras(t_factor, s)
         rejected = _recheck_certificates(batch, P, A, run.status, run.dx, run.dy, s)
-        run.status[rejected] = _MAX_ITER
+        run.status[rejected] = STATUS_CODES.MAX_ITER
         extras["certificate_rejected"] = rejected
         fb = 0
         if s.fallback == "clarabel":
@@ -207,7 +207,7 @@ class _Run:
         if warm_start is not None:
             x = np.nan_to_num(np.asarray(warm_start.x, float), nan=0.0, posinf=0.0, neginf=0.0)
             y = np.nan_to_num(np.asarray(warm_start.y, float), nan=0.0, posinf=0.0, neginf=0.0)
-        status = np.full(B, _MAX_ITER, np.int32)
+        status = np.full(B, STATUS_CODES.MAX_ITER, np.int32)
         return cls(
             x=x,
             y=y,
@@ -249,7 +249,7 @@ def _run_stage(run: _Run, factor, pd, P, A, batch: QPBatch, todo, k: int, s: ADM
     Bs = todo.size if todo.size == B else min(B, 1 << (todo.size - 1).bit_length())
     sub = np.concatenate([todo, np.repeat(todo[:1], Bs - todo.size)])  # padded
     t1 = time.perf_counter()
-    st = _admm_iterate_jit(
+    st = admm_iterate_jit(
         factor, q[sub], l[sub], u[sub], run.x[sub], run.y[sub], iters=k, rho0=run.rho[sub]
     )
     st = jax.tree_util.tree_map(np.asarray, st)
@@ -267,25 +267,30 @@ def _run_stage(run: _Run, factor, pd, P, A, batch: QPBatch, todo, k: int, s: ADM
     it_s = int(st.iterations.max(initial=0))
     run.iters_run += it_s
     run.rung_mm += int(st.rung_matmuls)
-    run.flops += _flops(n, m, Bs, it_s, int(st.rung_matmuls), s.check_every)
+    run.flops += flops_per_call(n, m, Bs, it_s, int(st.rung_matmuls), s.check_every)
     # float64 re-check of what the iteration dtype declared solved
     ok64, *_ = termination(P, A, q[todo], l[todo], u[todo], run.x[todo], run.y[todo], s)
-    run.status[todo[(stt == _SOLVED) & ~ok64]] = int(Status.SOLVED_INACCURATE)
+    run.status[todo[(stt == STATUS_CODES.SOLVED) & ~ok64]] = STATUS_CODES.SOLVED_INACCURATE
     t2 = time.perf_counter()
     if s.polish:
-        cand = todo[~np.isin(stt, (_PINF, _DINF, _ERROR))]
+        cand = todo[
+            ~np.isin(
+                stt,
+                (STATUS_CODES.PRIMAL_INFEASIBLE, STATUS_CODES.DUAL_INFEASIBLE, STATUS_CODES.ERROR),
+            )
+        ]
         if cand.size:
             acc, xp, yp, _, _ = polish(
                 pd, P, A, q[cand], l[cand], u[cand], run.x[cand], run.z[cand], run.y[cand], s
             )
             ids = cand[acc]
             run.x[ids], run.y[ids] = xp[acc], yp[acc]
-            run.status[ids] = _SOLVED
+            run.status[ids] = STATUS_CODES.SOLVED
             run.polished[ids] = True
             run.attempted += int(cand.size)
     run.t_pol += time.perf_counter() - t2
     # only QPs that ran out of iterations and were not polished go on
-    return todo[(stt == _MAX_ITER) & ~run.polished[todo]]
+    return todo[(stt == STATUS_CODES.MAX_ITER) & ~run.polished[todo]]
 
 
 def _clarabel_fallback(batch: QPBatch, run: _Run) -> tuple[int, int]:
@@ -293,7 +298,12 @@ def _clarabel_fallback(batch: QPBatch, run: _Run) -> tuple[int, int]:
     Clarabel solves or certifies.  Returns ``(attempted, replaced)``."""
     from ..clarabel_ import ClarabelBackend
 
-    need = np.flatnonzero(~np.isin(run.status, (_SOLVED, _PINF, _DINF)))
+    need = np.flatnonzero(
+        ~np.isin(
+            run.status,
+            (STATUS_CODES.SOLVED, STATUS_CODES.PRIMAL_INFEASIBLE, STATUS_CODES.DUAL_INFEASIBLE),
+        )
+    )
     cb = ClarabelBackend()
     fb = 0
     for i in need:
@@ -311,7 +321,7 @@ def _batch_solution(
     x, y, status = run.x, run.y, run.status
     total = time.perf_counter() - t0
     finite = np.all(np.isfinite(x), axis=1)
-    status[~finite] = _ERROR
+    status[~finite] = STATUS_CODES.ERROR
     xs = np.where(finite[:, None], x, 0.0)
     obj = np.where(finite, batch.objective(xs), np.nan)
     prim = np.where(finite, batch.constraint_violation(xs), np.nan)
@@ -346,7 +356,7 @@ def _recheck_certificates(batch: QPBatch, P, A, status, dx, dy, s: ADMMSettings)
     l, u, q = batch.l, batch.u, batch.q
     fl, fu = np.isfinite(l), np.isfinite(u)
     rejected = np.zeros(len(batch), bool)
-    pinf = status == _PINF
+    pinf = status == STATUS_CODES.PRIMAL_INFEASIBLE
     if pinf.any():
         d = dy[pinf]
         d = np.where(fu[pinf], d, np.minimum(d, 0.0))
@@ -360,7 +370,7 @@ def _recheck_certificates(batch: QPBatch, P, A, status, dx, dy, s: ADMMSettings)
         )
         ok = (nd > 0) & (At <= s.eps_prim_inf * nd) & (supp <= -s.eps_prim_inf * nd)
         rejected[np.flatnonzero(pinf)[~ok]] = True
-    dinf = status == _DINF
+    dinf = status == STATUS_CODES.DUAL_INFEASIBLE
     if dinf.any():
         d = dx[dinf]
         nd = np.abs(d).max(axis=1, initial=0.0)
@@ -394,18 +404,18 @@ def _final_check(
     """
     status = status.copy()
     tol = primal_tolerance(batch.l, batch.u, s.eps_abs, s.eps_rel)
-    solved = status == _SOLVED
+    solved = status == STATUS_CODES.SOLVED
     with np.errstate(invalid="ignore"):
         floor_failed = solved & ~(prim <= tol)
-    status[floor_failed] = int(Status.SOLVED_INACCURATE)
+    status[floor_failed] = STATUS_CODES.SOLVED_INACCURATE
     bounds = np.maximum(
         np.where(np.isfinite(batch.l), np.abs(batch.l), 0.0).max(axis=1, initial=0.0),
         np.where(np.isfinite(batch.u), np.abs(batch.u), 0.0).max(axis=1, initial=0.0),
     )
     data = np.maximum(1.0, np.maximum(np.abs(batch.q).max(axis=1), bounds))
-    certified = np.isin(status, (_PINF, _DINF))
+    certified = np.isin(status, (STATUS_CODES.PRIMAL_INFEASIBLE, STATUS_CODES.DUAL_INFEASIBLE))
     diverged = ~certified & (np.abs(x).max(axis=1, initial=0.0) > DIVERGED * data)
-    status[diverged] = _ERROR
+    status[diverged] = STATUS_CODES.ERROR
     return status, diverged, floor_failed
 
 

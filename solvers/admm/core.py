@@ -49,7 +49,9 @@ import scipy.sparse as sp
 from jax import lax
 
 from ..errors import InvalidSettingError
-from ..solution import Status
+from ..protocols import JaxProjector
+from ..scaling import ruiz_equilibrate
+from ..solution import RUNNING_CODE, STATUS_CODES
 
 __all__ = [
     "ADMMSettings",
@@ -58,17 +60,11 @@ __all__ = [
     "ADMMState",
     "admm_factor",
     "admm_iterate",
+    "admm_projector",
     "rows_from_bounds",
     "spd_inverse",
     "flops_per_iteration",
 ]
-
-_SOLVED = int(Status.SOLVED)
-_MAX_ITER = int(Status.MAX_ITER)
-_PINF = int(Status.PRIMAL_INFEASIBLE)
-_DINF = int(Status.DUAL_INFEASIBLE)
-_ERROR = int(Status.ERROR)
-_RUNNING = 0
 
 
 class PolishSettings(NamedTuple):
@@ -287,32 +283,6 @@ def rows_from_bounds(l: np.ndarray, u: np.ndarray) -> tuple[np.ndarray, np.ndarr
     return eq, free
 
 
-def _ruiz(P: np.ndarray, A: np.ndarray, iters: int) -> tuple[np.ndarray, np.ndarray, float]:
-    """OSQP's modified Ruiz equilibration of ``[[P, Aᵀ], [A, 0]]`` plus a cost scaling."""
-    n, m = P.shape[0], A.shape[0]
-    D, E = np.ones(n), np.ones(m)
-    Ps, As = P.copy(), A.copy()
-    c = 1.0
-    lo, hi = 1e-4, 1e4
-    for _ in range(iters):
-        cn = np.maximum(np.abs(Ps).max(axis=0, initial=0.0), np.abs(As).max(axis=0, initial=0.0))
-        rn = np.abs(As).max(axis=1, initial=0.0)
-        cn = np.where(cn < lo, 1.0, cn)
-        rn = np.where(rn < lo, 1.0, rn)
-        dD = np.clip(1.0 / np.sqrt(cn), lo, hi)
-        dE = np.clip(1.0 / np.sqrt(rn), lo, hi)
-        Ps = dD[:, None] * Ps * dD[None, :]
-        As = dE[:, None] * As * dD[None, :]
-        D, E = D * dD, E * dE
-        # cost scaling from P only (q differs per QP, the factor is shared)
-        pn = float(np.mean(np.abs(Ps).max(axis=0, initial=0.0))) if n else 0.0
-        g = 1.0 / pn if pn >= lo else 1.0
-        g = float(np.clip(g, lo, hi))
-        Ps *= g
-        c *= g
-    return D, E, c
-
-
 def spd_inverse(K: np.ndarray) -> np.ndarray:
     """Inverse of a symmetric positive definite matrix via Cholesky (LU-based ``inv`` is far
     slower here); falls back to ``inv`` when Cholesky fails."""
@@ -347,7 +317,7 @@ def admm_factor(
     eq = np.zeros(m, bool) if eq_rows is None else np.asarray(eq_rows, bool)
     free = np.zeros(m, bool) if free_rows is None else np.asarray(free_rows, bool)
     free = free & ~eq
-    D, E, c = _ruiz(P, A, s.scaling_iter)
+    D, E, c = ruiz_equilibrate(P, A, s.scaling_iter)
     Ps = c * D[:, None] * P * D[None, :]
     As = E[:, None] * A * D[None, :]
     Rbase = np.where(eq, s.rho_eq_scale, 1.0)
@@ -418,7 +388,7 @@ class _Carry(NamedTuple):
     z: jax.Array  # (B, m)
     y: jax.Array  # (B, m)
     rung: jax.Array  # (B,) int32 ladder index of each QP
-    status: jax.Array  # (B,) int32, _RUNNING until a check decides
+    status: jax.Array  # (B,) int32, RUNNING_CODE until a check decides
     iterations: jax.Array  # (B,) int32 iterations each QP ran
     prim: jax.Array  # (B,) unscaled primal residual at the last check
     dual: jax.Array  # (B,) unscaled dual residual at the last check
@@ -613,7 +583,7 @@ def _adapt_rung(pb: _Scaled, s: ADMMSettings, r: _Residuals, z, rung, status, ac
     lr = jnp.log(jnp.clip(rho_new, 1e-30, 1e30))
     best = jnp.argmin(jnp.abs(lr[:, None] - jnp.log(pb.ladder)[None, :]), axis=-1)
     keep = ~jnp.isfinite(lr) | (r.prim == 0) | (r.dual == 0)
-    return jnp.where(active & (status == _RUNNING) & ~keep, best.astype(jnp.int32), rung)
+    return jnp.where(active & (status == RUNNING_CODE) & ~keep, best.astype(jnp.int32), rung)
 
 
 def _check(pb: _Scaled, s: ADMMSettings, x, z, y, xp, yp, rung, status, active):
@@ -627,8 +597,16 @@ def _check(pb: _Scaled, s: ADMMSettings, x, z, y, xp, yp, rung, status, active):
     )
     new = jnp.where(
         bad,
-        _ERROR,
-        jnp.where(r.solved, _SOLVED, jnp.where(pinf, _PINF, jnp.where(dinf, _DINF, _RUNNING))),
+        STATUS_CODES.ERROR,
+        jnp.where(
+            r.solved,
+            STATUS_CODES.SOLVED,
+            jnp.where(
+                pinf,
+                STATUS_CODES.PRIMAL_INFEASIBLE,
+                jnp.where(dinf, STATUS_CODES.DUAL_INFEASIBLE, RUNNING_CODE),
+            ),
+        ),
     )
     status = jnp.where(active, new, status)
     if s.adaptive_rho:
@@ -641,7 +619,7 @@ def _chunk(pb: _Scaled, s: ADMMSettings, fixed, carry: _Carry, all_active=False)
     fixed-rung path, or ``None``."""
     x, z, y, rung = carry.x, carry.z, carry.y, carry.rung
     cnt = carry.matmuls
-    active = carry.status == _RUNNING
+    active = carry.status == RUNNING_CODE
 
     def it(_, c_):
         x, z, y, _xp, _yp, cnt = c_
@@ -736,11 +714,13 @@ def admm_iterate(
         out = _chunk(pb, s, fixed, init, all_active=True)
     else:
         out = lax.while_loop(
-            lambda c: (c.chunk < n_chunks) & jnp.any(c.status == _RUNNING),
+            lambda c: (c.chunk < n_chunks) & jnp.any(c.status == RUNNING_CODE),
             lambda c: _chunk(pb, s, fixed, c),
             init,
         )
-    status = jnp.where(out.status == _RUNNING, _MAX_ITER, out.status).astype(jnp.int32)
+    status = jnp.where(out.status == RUNNING_CODE, STATUS_CODES.MAX_ITER, out.status).astype(
+        jnp.int32
+    )
     res = ADMMState(
         x=pb.D * out.x,
         z=pb.Einv * out.z,
@@ -759,11 +739,41 @@ def admm_iterate(
     return res
 
 
-_admm_iterate_jit = jax.jit(admm_iterate, static_argnames=("iters",))
+#: :func:`admm_iterate` jitted once for the host-side backend (``iters`` static); one module-level
+#: function so that every backend call shares its compiled code
+admm_iterate_jit = jax.jit(admm_iterate, static_argnames=("iters",))
 
 
-def _flops(n: int, m: int, B: int, iters: int, rung_matmuls: int, check_every: int) -> float:
-    """Matmul FLOPs of one :func:`admm_iterate` call on a dense batch of ``B``."""
+def admm_projector(factor: ADMMFactor, iters: int | None = None) -> JaxProjector:
+    """:func:`admm_iterate` on ``factor`` as a :class:`solvers.JaxProjector`: the jittable
+    ``project(q, l, u, x0=None, y0=None) -> ADMMState`` of a fixed ``P`` and ``A``.
+
+    ``iters`` (default ``settings.max_iter``) is the fixed budget of every call; the call is
+    exactly ``admm_iterate(factor, q, l, u, x0=x0, y0=y0, iters=iters)``.
+    """
+    if not isinstance(factor, ADMMFactor):
+        raise ValueError(f"factor must be an ADMMFactor, got {type(factor).__name__}")
+    if iters is not None and (
+        isinstance(iters, bool) or not isinstance(iters, (int, np.integer)) or iters < 0
+    ):
+        raise ValueError(f"iters must be None or an integer ≥ 0, got {iters!r}")
+
+    def project(q: Any, l: Any, u: Any, x0: Any = None, y0: Any = None) -> ADMMState:
+        return admm_iterate(factor, q, l, u, x0=x0, y0=y0, iters=iters)
+
+    return project
+
+
+def flops_per_call(
+    n: int, m: int, B: int, iters: int, rung_matmuls: int, check_every: int
+) -> float:
+    """Matmul FLOPs of one :func:`admm_iterate` call on a dense batch of ``B`` that ran ``iters``
+    iterations and ``rung_matmuls`` ``K⁻¹`` products (what the backend reports as its work)."""
+    for name, v in (("n", n), ("m", m), ("B", B), ("iters", iters), ("rung_matmuls", rung_matmuls)):
+        if v < 0:
+            raise ValueError(f"{name} must be ≥ 0, got {v!r}")
+    if check_every < 1:
+        raise ValueError(f"check_every must be ≥ 1, got {check_every!r}")
     checks = (iters // check_every) * B * (8.0 * m * n + 4.0 * n * n)
     return 4.0 * m * n * B * iters + 2.0 * n * n * B * rung_matmuls + checks
 

@@ -127,15 +127,27 @@ def test_no_feasible_sample_returns_least_violating_plan():
     "obstacles, match",
     [
         (np.full((1, 20, K, 2), np.nan), "NaN"),
-        (np.zeros((0, 20, K, 2)), "zero obstacles"),
         (np.zeros((1, 20, 50, 2)), "time steps"),
         (np.zeros((1, 5, K, 2)), "reduced_set_size"),
         (np.zeros((20, K, 2)), "shape"),
+        ([[[[0.0, 0.0]]], [[[0.0, 0.0], [1.0, 1.0]]]], "obstacles must be a numeric array"),
     ],
 )
 def test_bad_obstacles_raise(road, obstacles, match):
     with pytest.raises(ValueError, match=match):
         mmdopt.plan(EGO, road, obstacles, config=SMALL)
+
+
+def test_an_empty_road_is_an_ok_plan_with_a_zero_bound(road):
+    """No obstacle: nothing to collide with, so the plan is ``ok`` with ``risk_bound`` 0 at
+    any requested risk level, and drives at the desired speed."""
+    for obstacles in (np.zeros((0, 20, K, 2)), np.zeros((0, 0, K, 2))):
+        p = mmdopt.plan(EGO, road, obstacles, config=SMALL, risk=1e-4)
+        assert p.status == "ok" and p.risk_bound == 0.0, p.status_text
+        assert p.diagnostics["empty_road"] and p.feasible
+        assert abs(p.vs[-1] - SMALL.cost.v_des) < 1.0
+    with pytest.raises(ValueError, match="empty"):
+        mmdopt.plan(EGO, road, np.zeros((0, 20, K, 2)), config=SMALL, obstacle_headings=[])
 
 
 def test_bad_arguments_raise(road):

@@ -19,6 +19,7 @@ import frenet
 import mmdopt
 from mmdopt.receding import (
     Observation,
+    PlansLike,
     RecedingConfig,
     SceneSource,
     StepOutcome,
@@ -190,6 +191,36 @@ def test_same_key_same_run():
         )
 
 
+class CountingPlanner:
+    """A policy of the user's own (a :class:`mmdopt.receding.PlansLike`): it logs each call and
+    plans with an :class:`mmdopt.Planner` underneath."""
+
+    def __init__(self, config):
+        self.config = config
+        self.inner = mmdopt.Planner(config)
+        self.calls: list[dict] = []
+
+    def plan(self, ego, road, obstacles, **kw):
+        self.calls.append(kw)
+        return self.inner.plan(ego, road, obstacles, **kw)
+
+
+def test_the_loop_drives_a_users_planner_and_plans_as_the_default_one():
+    pl = CountingPlanner(CFG)
+    assert isinstance(pl, PlansLike) and isinstance(mmdopt.Planner(CFG), PlansLike)
+    own = run_receding(TwoLaneScene(duration=1.5), planner=pl, key=jax.random.PRNGKey(7))
+    ref = run_receding(TwoLaneScene(duration=1.5), config=CFG, key=jax.random.PRNGKey(7))
+    assert len(pl.calls) == len(own.steps) == len(ref.steps)
+    assert all(c["method"] == "mmd" for c in pl.calls) and "warm_start" in pl.calls[-1]
+    for ra, rb in zip(own.steps, ref.steps, strict=True):
+        assert (ra.cost, ra.s, ra.d, ra.speed, ra.status) == (rb.cost, rb.s, rb.d, rb.speed,
+                                                              rb.status)  # fmt: skip
+    with pytest.raises(ValueError, match="planner"):
+        run_receding(TwoLaneScene(duration=1.0), planner=object())
+    with pytest.raises(ValueError, match="differs from planner.config"):
+        run_receding(TwoLaneScene(duration=1.0), planner=pl, config=CFG.replace(v_des=3.0))
+
+
 def test_loop_stops_when_the_source_reports_a_crash():
     res = run_receding(
         TwoLaneScene(duration=10.0, crash_at=2), config=CFG, key=jax.random.PRNGKey(0)
@@ -319,7 +350,7 @@ def test_a_forecast_in_the_samples_mode_draws_what_the_risk_level_needs():
         key=jax.random.PRNGKey(1), callback=lambda i, obs, p, out: seen.append((obs, p)),
     )  # fmt: skip
     obs, p = seen[0]
-    n = samples_for_risk(0.05, 1, hits=cfg.risk_hits_for(RecedingConfig().method))
+    n = samples_for_risk(0.05, 1, hits=mmdopt.methods.get(RecedingConfig().method).risk_hits(cfg))
     assert np.asarray(obs.obstacles).shape[:2] == (1, n) and p.diagnostics["forecast_samples"] == n
     # no phantoms under the risk dial: the plan's bound is over the one real car's n futures
     assert res.steps[0].n_obstacles == 1 and p.diagnostics["n_planning_samples"] == n

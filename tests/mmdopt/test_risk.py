@@ -7,8 +7,8 @@ import numpy as np
 import pytest
 
 import mmdopt
-from mmdopt.api import _apply_risk
-from mmdopt.risk import DEFAULT_RISK, config_for_risk, coverage_margins, risk_z
+from mmdopt.planner import apply_risk
+from mmdopt.risk import config_for_risk, coverage_margins, risk_z
 
 from .test_algorithm import EGO, SMALL, _obstacle
 
@@ -25,19 +25,23 @@ def _two_clusters(n=40, seed=0):
 def test_every_method_has_a_knob_with_a_default():
     for m in mmdopt.PLAN_METHODS:
         cfg = config_for_risk(m)
-        assert cfg.safety.margins.margin_mode == "samples" and cfg.safety.risk == DEFAULT_RISK[m]
-        if m in ("mmd", "random"):  # the coverage term of the MMD cost
+        rec = mmdopt.methods.get(m)
+        assert cfg.safety.margins.margin_mode == "samples"
+        assert cfg.safety.risk == rec.default_risk
+        if rec.collision == "embedding":  # the coverage term of the MMD cost
             assert cfg.cost.w_cover == 100.0
-        assert cfg.reselect_for(m) == (cfg.selection.reduced_set_size // 2 if m == "mmd" else 0)
+        want = cfg.selection.reduced_set_size // 2 if rec.auto_reselect else 0
+        assert rec.reselect(cfg) == want
     assert config_for_risk("saa", 0.03).saa_level == 0.03
     # the knob only changes what it maps to: the rest of the caller's config is kept
     assert config_for_risk("mmd", 0.01, SMALL).cem.n_samples == SMALL.cem.n_samples
 
 
 def test_the_default_config_is_every_methods_knob_at_its_default():
-    """``plan(..., method=m)`` plans as ``plan(..., method=m, risk=DEFAULT_RISK[m])``: the
-    sample-driven margins, the coverage term, the re-selection pass (MMD-Opt only) and SAA's
-    chance level all follow the knob; ``margin_mode="linear"`` keeps the old constants."""
+    """``plan(..., method=m)`` plans as ``plan(..., method=m, risk=ε)`` (ε the record's
+    default): the sample-driven margins, the coverage term, the re-selection pass (MMD-Opt
+    only) and SAA's chance level all follow the knob; ``margin_mode="linear"`` keeps the old
+    constants."""
     X = _two_clusters()
     road = mmdopt.Road()
     key = jax.random.PRNGKey(3)
@@ -47,19 +51,22 @@ def test_the_default_config_is_every_methods_knob_at_its_default():
         and cfg.safety.risk == 0.005
         and cfg.cost.w_cover == 100.0
     )
-    assert cfg.reselect_for("mmd") == cfg.selection.reduced_set_size // 2
-    assert [cfg.reselect_for(m) for m in ("random", "degroot", "saa", "scenario_all")] == [0] * 4
+    get = mmdopt.methods.get
+    assert get("mmd").reselect(cfg) == cfg.selection.reduced_set_size // 2
+    assert [get(m).reselect(cfg) for m in ("random", "degroot", "saa", "scenario_all")] == [0] * 4
     assert cfg.saa_level == cfg.safety.risk
     assert cfg.replace(margin_mode="linear").saa_level == 0.02
     assert cfg.replace(saa_eps=0.1).saa_level == 0.1
     small = SMALL
     for m in mmdopt.PLAN_METHODS:
         # the config plan() runs with: the same, field by field (SAA's level made explicit)
-        a, b = (_apply_risk(m, r, small) for r in (None, DEFAULT_RISK[m]))
+        eps = mmdopt.methods.get(m).default_risk
+        a, b = (apply_risk(m, r, small) for r in (None, eps))
         assert a.replace(saa_eps=a.saa_level) == b.replace(saa_eps=b.saa_level), m
     for m in ("mmd", "saa"):  # and the plans (the automatic re-selection, SAA's level)
         a = mmdopt.plan(EGO, road, X, method=m, config=small, key=key)
-        b = mmdopt.plan(EGO, road, X, method=m, config=small, key=key, risk=DEFAULT_RISK[m])
+        eps = mmdopt.methods.get(m).default_risk
+        b = mmdopt.plan(EGO, road, X, method=m, config=small, key=key, risk=eps)
         assert a.status in ("ok", "risk floor"), (m, a.status_text)
         np.testing.assert_array_equal(a.s, b.s, err_msg=m)
         np.testing.assert_array_equal(a.d, b.d, err_msg=m)
@@ -71,7 +78,7 @@ def test_the_default_config_is_every_methods_knob_at_its_default():
 @pytest.mark.parametrize("bad", [0.0, 0.5, -0.1, float("nan"), float("inf"), "x", True, None])
 def test_bad_knob_is_a_clear_error(bad):
     if bad is None:  # None means "the default": not an error
-        assert config_for_risk("mmd", None).safety.risk == DEFAULT_RISK["mmd"]
+        assert config_for_risk("mmd", None).safety.risk == mmdopt.methods.get("mmd").default_risk
         return
     with pytest.raises(ValueError, match="risk"):
         config_for_risk("mmd", bad)

@@ -9,7 +9,6 @@ import numpy as np
 
 import frenet
 import mmdopt
-import mmdopt.api as api
 from mmdopt.risk import samples_for_risk
 
 TINY = mmdopt.MMDOptConfig().replace(
@@ -27,20 +26,23 @@ def _slow_car_ahead(n: int) -> np.ndarray:
     return np.stack([s, 0.0 * s], -1)[None]
 
 
-def _plan(obs, **kw):
-    return mmdopt.plan_frenet(frenet.EgoState(vs=10.0), mmdopt.Road(), obs, config=TINY,
+LADDER = (4.0, 16.0)
+
+
+def _plan(obs, config=TINY, **kw):
+    return mmdopt.plan_frenet(frenet.EgoState(vs=10.0), mmdopt.Road(), obs, config=config,
                               key=jax.random.PRNGKey(5), risk=EPS, method="mmd", **kw)  # fmt: skip
 
 
-def test_the_ladder_only_adds_candidates_and_keeps_the_promise(monkeypatch):
+def test_the_ladder_only_adds_candidates_and_keeps_the_promise():
     obs = _slow_car_ahead(samples_for_risk(EPS, 1))
-    assert api.MARGIN_LADDER == ()  # off by default
+    assert TINY.schedule.margin_ladder == ()  # off by default
     without = _plan(obs)
-    monkeypatch.setattr(api, "MARGIN_LADDER", (4.0, 16.0))
-    with_ladder = _plan(obs)
+    with_ladder = _plan(obs, TINY.replace(margin_ladder=LADDER))  # a config field: no recompile
     b1, b0 = (p.diagnostics["final_check_bounds"] for p in (with_ladder, without))
     # the same passes at ε, then one candidate per rung of the ladder
-    assert len(b1) >= len(b0) + len(api.MARGIN_LADDER) - without.diagnostics["tail_passes"]
+    assert len(b1) >= len(b0) + len(LADDER) - without.diagnostics["tail_passes"]
+    assert with_ladder.diagnostics["final_check_passes"].count("ladder") == len(LADDER)
     np.testing.assert_allclose(b1[:2], b0[:2])
     for p in (with_ladder, without):
         if p.status == "ok":  # an ok plan meets ε against all its planning samples
@@ -52,14 +54,14 @@ def test_the_ladder_only_adds_candidates_and_keeps_the_promise(monkeypatch):
     assert with_ladder.status == "ok" and t1 <= t0 + 1e-9
 
 
-def test_other_methods_plan_without_the_ladder(monkeypatch):
-    """With the ladder switched on, a method other than MMD-Opt gets no rung passes.  Random
-    reduced sets stand for every other method: planned like MMD-Opt (a reduced set, its weights
-    and margins), only the method check in ``api._ladder_passes`` keeps the ladder from them
-    (SAA, also run here before, takes the same check; a second method only compiles again)."""
-    monkeypatch.setattr(api, "MARGIN_LADDER", (4.0, 16.0))
+def test_other_methods_plan_without_the_ladder():
+    """With the ladder switched on, a method whose record does not run it gets no rung passes.
+    Random reduced sets stand for every other method: planned like MMD-Opt (a reduced set, its
+    weights and margins), only their record's ``passes`` keeps the ladder from them."""
+    assert not mmdopt.methods.get("random").runs("ladder")
     obs = _slow_car_ahead(samples_for_risk(EPS, 1))
-    p = mmdopt.plan_frenet(frenet.EgoState(vs=10.0), mmdopt.Road(), obs, config=TINY,
+    cfg = TINY.replace(margin_ladder=LADDER)
+    p = mmdopt.plan_frenet(frenet.EgoState(vs=10.0), mmdopt.Road(), obs, config=cfg,
                            key=jax.random.PRNGKey(5), risk=EPS, method="random")  # fmt: skip
     n_passes = 1 + p.diagnostics["tail_passes"]
     assert len(p.diagnostics["final_check_bounds"]) == n_passes

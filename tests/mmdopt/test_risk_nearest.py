@@ -118,13 +118,14 @@ def test_no_nearest_pass_below_the_floor_of_the_futures():
 def test_the_pass_repeats_while_its_plan_breaks_the_bound_and_the_promise_holds(monkeypatch):
     """A nearest-futures pass that allows 20 hits more than the bound does (its count made too
     generous), behind a slow car 12 m ahead, gives plans that meet too many futures: the pass
-    repeats around each such plan, one allowed hit fewer each time, at most NEAREST_REPEATS
-    times, and the plan's status says whether its bound meets ε."""
+    repeats around each such plan, one allowed hit fewer each time, at most
+    ``schedule.nearest_repeats`` times, and the plan's status says whether its bound meets ε."""
     import mmdopt.risk
-    from mmdopt.api import NEAREST_REPEATS
+    import mmdopt.schedule
 
+    NEAREST_REPEATS = mmdopt.MMDOptConfig().schedule.nearest_repeats
     true_hits = mmdopt.risk.hits_for_risk
-    monkeypatch.setattr(mmdopt.risk, "hits_for_risk", lambda *a, **k: true_hits(*a, **k) + 20)
+    monkeypatch.setattr(mmdopt.schedule, "hits_for_risk", lambda *a, **k: true_hits(*a, **k) + 20)
     obs = _slow_car_ahead(3 * samples_for_risk(EPS, 1), gap=12.0)  # close: clearing costs
     p = _plan(obs, TINY.replace(nearest_futures=40))
     d = p.diagnostics

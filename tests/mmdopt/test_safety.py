@@ -105,7 +105,7 @@ def test_an_unsafe_plan_is_replaced_by_a_braking_fallback_that_passes_the_check(
     lead = np.array([[150.0, 0.0, 15.0]])
     out, rec = shield(p, PATH, lead, c, executed=0.5)
     assert rec.intervened and rec.fallback_safe and "obstacle 0" in rec.reason
-    assert out.status is PlanStatus.FALLBACK and out.state is None
+    assert out.status is PlanStatus.SHIELDED and out.state is None
     assert np.all(np.diff(out.vs) <= 1e-12) and out.vs[-1] == 0.0  # brakes to a stop
     assert np.allclose(out.d, 0.3) and out.as_[0] == pytest.approx(-rec.fallback_decel)
     assert c.b_min <= rec.fallback_decel <= c.b_emergency
@@ -147,7 +147,7 @@ def test_below_b_min_the_gentlest_braking_checked_as_a_plan_is_used():
     p = dataclasses.replace(_changing_lanes(25.0), d=np.full_like(T, 0.3), vd=np.zeros_like(T))
     out, rec = shield(p, PATH, lead, c, executed=0.5)
     assert rec.intervened and rec.fallback_safe and c.b_gentle <= rec.fallback_decel < c.b_min
-    assert out.status is PlanStatus.FALLBACK and "along the plan's lateral path" in out.message
+    assert out.status is PlanStatus.SHIELDED and "along the plan's lateral path" in out.message
     assert check_plan(out.t, out.s, out.d, out.vs, lead, c, executed=0.5).safe
     gentler = rec.fallback_decel - 1.0  # the levels are 1 m/s² apart
     if gentler >= c.b_gentle:
@@ -190,7 +190,7 @@ def test_a_plan_replaced_mid_lane_change_finishes_the_change_while_braking():
     assert not check_plan(p.t, p.s, p.d, p.vs, lead, c, executed=0.5).safe
     out, rec = shield(p, PATH, lead, c, executed=0.5, lane_centres=(0.0, 4.0, 8.0))
     assert rec.intervened and rec.fallback_safe and rec.fallback_decel == c.b_min
-    assert out.status is PlanStatus.FALLBACK and out.state is None
+    assert out.status is PlanStatus.SHIELDED and out.state is None
     assert out.d[0] == pytest.approx(2.0) and out.vd[0] == pytest.approx(1.5)
     assert out.d[-1] == pytest.approx(4.0, abs=1e-9) and np.all(out.d <= 4.0 + 1e-9)
     assert np.max(np.abs(out.ad)) <= 3.0 + 1e-9
@@ -247,3 +247,18 @@ def test_obstacle_states_from_samples_and_from_cartesian_agree():
     assert st[0] == pytest.approx([150.0, 0.0, 20.0])  # the slower sample's speed
     cart = obstacle_states_from_cartesian(PATH, np.array([[50.0, 0.0, 20.0, 0.0]]))
     assert cart[0] == pytest.approx(st[0])
+
+
+def test_the_shields_plan_has_its_own_status_and_no_stale_fields():
+    """A shielded plan says so (``SHIELDED``, not the planner's ``FALLBACK``) and keeps nothing
+    measured on the plan it replaced: its bound, MMD and cost were the replaced plan's."""
+    import dataclasses
+
+    c = RSSConfig(b_gentle=6.0)
+    p = dataclasses.replace(_plan(25.0, accel=2.0, d=0.3), risk_bound=1e-3, mmd=0.5, feasible=True)
+    out, rec = shield(p, PATH, np.array([[150.0, 0.0, 15.0]]), c, executed=0.5)
+    assert rec.intervened and out.status is PlanStatus.SHIELDED and not out.fallback
+    assert np.isnan(out.risk_bound) and np.isnan(out.mmd) and np.isnan(out.cost)
+    assert not out.feasible and out.state is None
+    assert out.diagnostics["replaced_status"] == str(p.status)
+    assert out.status_text.startswith("shielded: ")

@@ -16,7 +16,7 @@ import pytest
 from mmdopt.bench import cli
 from mmdopt.bench.executors import check_manifest
 from mmdopt.bench.scenes import SceneParams
-from mmdopt.bench.synthetic import _manifest, _manifest_aliases
+from mmdopt.bench.synthetic import manifest_aliases, sweep_manifest
 
 REPO = Path(__file__).resolve().parents[2]
 
@@ -242,7 +242,7 @@ def test_corrupt_run_json_is_exit_2_naming_the_file(name, text, tmp_path, capsys
 def test_folder_of_other_settings_is_refused_naming_them(tmp_path, capsys):
     out = tmp_path / "out"
     out.mkdir()
-    man = _manifest(5, SceneParams(), "admm-fixed", None, "workers")
+    man = sweep_manifest(5, SceneParams(), "admm-fixed", None, "workers")
     (out / "run.json").write_text(json.dumps(man))
     err = expect_error(["bench", "synthetic", "--scenes", "1", "--out", out], capsys)
     assert "seed" in err and "different settings" in err
@@ -250,37 +250,39 @@ def test_folder_of_other_settings_is_refused_naming_them(tmp_path, capsys):
 
 def test_empty_config_equals_no_config_in_the_manifest(tmp_path):
     params = SceneParams()
-    none = _manifest(0, params, "admm-fixed", None, "workers")
-    empty = _manifest(0, params, "admm-fixed", cli.load_planner_config_from_dict({}), "workers")
+    none = sweep_manifest(0, params, "admm-fixed", None, "workers")
+    empty = sweep_manifest(
+        0, params, "admm-fixed", cli.load_planner_config_from_dict({}), "workers"
+    )
     assert none == empty
     # a folder made without --config accepts --config {} and vice versa
     check_manifest(tmp_path, none)
-    check_manifest(tmp_path, empty, aliases=_manifest_aliases(None))
+    check_manifest(tmp_path, empty, aliases=manifest_aliases(None))
     # a folder written before the manifest had a workers key is accepted...
     old = dict(none)
     old.pop("workers")
     (tmp_path / "run.json").write_text(json.dumps(old))
-    check_manifest(tmp_path, empty, aliases=_manifest_aliases(None))
+    check_manifest(tmp_path, empty, aliases=manifest_aliases(None))
     # ...but not one that recorded the default config as {}: that default was the time-linear
     # margins, no longer the default
     (tmp_path / "run.json").write_text(json.dumps(dict(old, config={})))
     with pytest.raises(ValueError, match="config"):
-        check_manifest(tmp_path, empty, aliases=_manifest_aliases(None))
+        check_manifest(tmp_path, empty, aliases=manifest_aliases(None))
     # a different config is still refused
     with pytest.raises(ValueError, match="config"):
         other = cli.load_planner_config_from_dict({"w_mmd": 5.0})
         check_manifest(
             tmp_path,
-            _manifest(0, params, "admm-fixed", other, "workers"),
-            aliases=_manifest_aliases(other),
+            sweep_manifest(0, params, "admm-fixed", other, "workers"),
+            aliases=manifest_aliases(other),
         )
 
 
 def test_mixing_in_process_and_worker_results_is_refused(tmp_path):
     params = SceneParams()
-    check_manifest(tmp_path, _manifest(0, params, "admm-fixed", None, "in-process"))
+    check_manifest(tmp_path, sweep_manifest(0, params, "admm-fixed", None, "in-process"))
     with pytest.raises(ValueError, match="workers"):
-        check_manifest(tmp_path, _manifest(0, params, "admm-fixed", None, "workers"))
+        check_manifest(tmp_path, sweep_manifest(0, params, "admm-fixed", None, "workers"))
 
 
 # --------------------------------------------------------------------- as a user runs it
@@ -308,4 +310,8 @@ def test_module_entry_point_exit_2_without_traceback(argv, option, tmp_path):
     )
     assert r.returncode == 2, r.stderr
     assert option in r.stderr and "Traceback" not in r.stderr
-    assert len(r.stderr.strip().splitlines()) == 2  # usage line + "error: …"
+    # the command's usage (its lines), then one line "mmdopt bench synthetic: error: …"
+    lines = r.stderr.strip().splitlines()
+    assert lines[0].startswith("usage: mmdopt bench synthetic "), r.stderr
+    assert [x for x in lines if "error:" in x] == [lines[-1]], r.stderr
+    assert lines[-1].startswith("mmdopt bench synthetic: error: argument "), r.stderr

@@ -144,9 +144,9 @@ def test_no_recompile_for_new_data_of_the_same_shape():
     b1 = projection_like_batch(3, horizon=12, seed=3)
     b2 = projection_like_batch(3, horizon=12, seed=4)
     solve_batch(b1, "admm", **PROJ)
-    n0 = admm_core._admm_iterate_jit._cache_size()
+    n0 = admm_core.admm_iterate_jit._cache_size()
     solve_batch(b2, "admm", **PROJ)
-    assert admm_core._admm_iterate_jit._cache_size() == n0
+    assert admm_core.admm_iterate_jit._cache_size() == n0
 
 
 def test_warm_start_from_previous_batch_needs_no_more_iterations():

@@ -32,10 +32,11 @@ episode, the resumable sweep, videos) and ``cli``.
   changes — multi-modal by construction; :class:`ConstantVelocityPredictor` extrapolates each
   car's velocity with Gaussian velocity noise; :class:`LearnedPredictor` samples the
   mixture-density network trained on highway-env rollouts of other seeds (``training``).
-* Methods: ``mmd`` (MMD-Opt), ``degroot`` (the scenario baseline), ``cv`` (Algorithm 1 with the
-  scenario cost against the single noise-free constant-velocity prediction of each car: a planner
-  that ignores uncertainty) and ``idm`` (highway-env's own IDM/MOBIL driver as the ego: the
-  reference for speed).
+* Agents (``--methods``, :data:`AGENTS` of :class:`Agent` records: a driver, a plan method, a
+  predictor): ``mmd`` (MMD-Opt), ``degroot`` (the scenario baseline), ``cv`` (Algorithm 1 with
+  the scenario cost against the single noise-free constant-velocity prediction of each car: a
+  planner that ignores uncertainty) and ``idm`` (highway-env's own IDM/MOBIL driver as the ego,
+  no planner: the reference for speed).
 * :func:`run_highway` — the resumable benchmark behind ``mmdopt bench highway`` (one JSON per
   finished episode, ``episodes.csv`` rebuilt from them), :func:`write_video` for one episode with
   the planner drawn on it (:mod:`.video`).
@@ -55,16 +56,18 @@ from .predictors import (
     ConstantVelocityPredictor,
     LearnedPredictor,
     SimulatorPredictor,
-    _straight_parallel,
     make_predictor,
+    straight_parallel,
 )
 from .runner import CSV_COLUMNS, run_episode, run_highway, summarize, write_csv, write_video
 from .settings import (
+    AGENTS,
     EGO_MODELS,
     HIGHWAY_PLANNER,
     METHODS,
     PREDICTORS,
     SHIELD,
+    Agent,
     HighwaySettings,
     highway_available,
     highway_config,
@@ -72,6 +75,8 @@ from .settings import (
 
 __all__ = [
     "HIGHWAY_PLANNER",
+    "AGENTS",
+    "Agent",
     "METHODS",
     "PREDICTORS",
     "CSV_COLUMNS",
@@ -99,5 +104,5 @@ __all__ = [
     "add_highway_parser",
     "cmd_highway",
     "main",
-    "_straight_parallel",
+    "straight_parallel",
 ]

@@ -13,9 +13,10 @@ import frenet
 import mmdopt
 from mmdopt.receding import Observation, StepOutcome
 
-from .predictors import ConstantVelocityPredictor, make_predictor
+from .context import scene_context
+from .predictors import make_predictor
 from .roads import build_road, on_road, reanchor
-from .settings import EGO_MODELS, METHODS, HighwaySettings, _require_highway
+from .settings import AGENTS, EGO_MODELS, METHODS, HighwaySettings, require_highway
 
 
 # ------------------------------------------------------------------------------ state conversion
@@ -304,8 +305,12 @@ class HighwayDraw:
 class HighwaySource:
     """A highway-env episode as a :class:`mmdopt.receding.SceneSource`.
 
-    ``method`` is the planning method ("mmd", "degroot", "cv") or "idm" (the ego is highway-env's
-    own IDM/MOBIL driver with desired speed ``v_des``; drive it with :meth:`run_idm`).
+    ``method`` names the agent that drives the ego (:data:`~.settings.AGENTS`, kept as
+    :attr:`agent`): a planner agent ("mmd", "degroot", "cv") is driven by
+    :func:`mmdopt.receding.run_receding` and observes the predictions of the settings' predictor
+    or of its own (:attr:`own_predictor`, "cv": the noise-free constant-velocity mean, one sample
+    per car); the IDM agent ("idm") makes the ego highway-env's own IDM/MOBIL driver with desired
+    speed ``v_des`` (drive it with :meth:`run_idm`).
     """
 
     def __init__(
@@ -319,8 +324,9 @@ class HighwaySource:
     ):
         if method not in METHODS:
             raise ValueError(f"method must be one of {METHODS}, got {method!r}")
-        gym = _require_highway()
+        gym = require_highway()
         self.settings, self.seed, self.config, self.method = settings, int(seed), config, method
+        self.agent = AGENTS[method]
         env_cfg = {
             "simulation_frequency": settings.simulation_frequency,
             "policy_frequency": settings.policy_frequency,
@@ -341,7 +347,7 @@ class HighwaySource:
         self._s_shift = 0.0  # path arc length moved by the last re-anchoring of a loop's window
         self._s_travelled = 0.0  # arc length of the windows left behind (m)
         self.off_road = False
-        if method == "idm":
+        if self.agent.driver == "idm":
             from highway_env.vehicle.behavior import IDMVehicle
 
             ego = IDMVehicle(
@@ -362,7 +368,10 @@ class HighwaySource:
         self.ego = ego
         self.t_grid = frenet.TimeGrid(config.trajectory.horizon, config.trajectory.num_steps).t
         self.predictor = make_predictor(settings.predictor)
-        self.cv_mean = ConstantVelocityPredictor(sigma_long=0.0, sigma_lat=0.0)
+        #: the agent's own predictor (planned on with one sample per car), else None
+        self.own_predictor = (
+            None if self.agent.predictor is None else make_predictor(self.agent.predictor)
+        )
         self.step_index = 0
         self.s0 = float(self.path.to_frenet(*ego.position)[0])
         self.speeds: list[float] = [float(ego.speed)]
@@ -519,9 +528,10 @@ class HighwaySource:
         targets = self._targets()
         rng = np.random.default_rng([self.seed, self.step_index])
         info: dict = {"n_targets": len(targets)}
-        if self.method == "cv":
-            obstacles = self.cv_mean(self.env.road, self.ego, targets, self.t_grid, 1, rng)
-            pred_s = self.cv_mean.last_time_s
+        if self.own_predictor is not None:
+            own = self.own_predictor
+            obstacles = own(self.env.road, self.ego, targets, self.t_grid, 1, rng)
+            pred_s = own.last_time_s
         elif self.settings.forecast and targets:
             obstacles, pred_s = self._forecast(targets), None
         else:
@@ -546,10 +556,8 @@ class HighwaySource:
     def _forecast(self, targets) -> mmdopt.predict.Forecast:
         """The targets as a :class:`mmdopt.predict.Forecast` of this replan's
         :class:`HighwayDraw`: histories of two rows (0.1 s ago at the current velocity, now),
-        the lane context of :func:`~.training.scene_context`, ``n_samples`` futures with the
+        the lane context of :func:`~.context.scene_context`, ``n_samples`` futures with the
         time-linear margins (n(ε) in the "samples" mode, at most :data:`MAX_FORECAST_SAMPLES`)."""
-        from .training import scene_context
-
         road = self.env.road
         cars = list(road.vehicles)
         idx = [next(i for i, u in enumerate(cars) if u is v) for v in targets]
@@ -581,8 +589,8 @@ class HighwaySource:
             env.road.act()
             env.road.step(1.0 / self.settings.simulation_frequency)
             self.predictor.record(env.road, 1.0 / self.settings.simulation_frequency)
-            if self.method == "cv":
-                self.cv_mean.record(env.road, 1.0 / self.settings.simulation_frequency)
+            if self.own_predictor is not None:
+                self.own_predictor.record(env.road, 1.0 / self.settings.simulation_frequency)
             env.steps += 1
             self.speeds.append(float(self.ego.speed))
             if self._between_lanes():
@@ -618,7 +626,7 @@ class HighwaySource:
         return self._advance()
 
     def run_idm(self) -> StepOutcome:
-        """Drive the whole episode with the IDM ego (``method="idm"``)."""
+        """Drive the whole episode with the IDM ego (the agent whose driver is "idm")."""
         out = StepOutcome(done=False, crashed=False)
         while not out.done:
             out = self._advance()

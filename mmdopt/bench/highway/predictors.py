@@ -16,8 +16,9 @@ from pathlib import Path
 
 import numpy as np
 
+from .context import scene_context
 from .roads import follow_lanes
-from .settings import PREDICTORS
+from .settings import CV_MEAN, PREDICTORS
 
 
 # ----------------------------------------------------------------------------------- predictors
@@ -101,7 +102,7 @@ class SimulatorPredictor:
         t_roll = np.arange(steps + 1) * dt
         mode = self.mode
         if mode == "auto":
-            mode = "vectorised" if _straight_parallel(road.network) else "clone"
+            mode = "vectorised" if straight_parallel(road.network) else "clone"
         if mode == "vectorised":
             traj = self._vectorised(road, near, idx, ego_vehicle, steps, dt, n, rng)
         else:
@@ -377,7 +378,7 @@ class _VectorisedTraffic:
         return t
 
 
-def _straight_parallel(network) -> bool:
+def straight_parallel(network) -> bool:
     """Whether every lane of ``network`` is a straight lane along +x (the vectorised rollout's
     road model)."""
     from highway_env.road.lane import StraightLane
@@ -431,7 +432,7 @@ class LearnedPredictor:
     ``dt_history`` spacing back from now, and where a car has been seen for less than that
     (the first replans) continues its oldest position backwards at its current velocity.  The
     context (lane centre line, lane width, side lanes, neighbour gaps) comes from the road's
-    lane network (:func:`.training.scene_context`).  ``spread`` scales the mixture's standard
+    lane network (:func:`.context.scene_context`).  ``spread`` scales the mixture's standard
     deviations when sampling.  On roads whose lanes all run along +x (highway-v0, merge-v0)
     every sample stays on the road: its lateral position is clipped to the road's extent at its
     x (:func:`_road_extent`; highway-env's cars never leave the lanes), which the mixture's wide
@@ -487,8 +488,6 @@ class LearnedPredictor:
 
     def __call__(self, road, ego_vehicle, targets, t_grid: np.ndarray, n: int, rng) -> np.ndarray:
         import jax
-
-        from .training import scene_context
 
         t0 = time.perf_counter()
         t_grid = np.asarray(t_grid, dtype=np.float64)
@@ -814,7 +813,7 @@ class ConstantVelocityPredictor:
         noise[:, 0] = 0.0
         speed = np.hypot(vel[:, 0], vel[:, 1])
         noise[..., 1] *= np.clip(speed / LATERAL_FULL_SPEED, 0.0, 1.0)[:, None]
-        if not _straight_parallel(road.network):
+        if not straight_parallel(road.network):
             # curved lanes: constant velocity in each car's lane frame, along the lane's centre
             lanes = [road.network.get_lane(v.lane_index) for v in targets]
             hl = np.array(
@@ -840,11 +839,15 @@ class ConstantVelocityPredictor:
 
 def make_predictor(name: str, weights: str | Path | None = None):
     """The predictor ``name`` (:data:`~.settings.PREDICTORS`): ``"sim"`` (the simulator oracle),
-    ``"cv"`` or ``"learned"`` (``weights``: a path other than the shipped highway weights)."""
+    ``"cv"`` or ``"learned"`` (``weights``: a path other than the shipped highway weights); or
+    :data:`~.settings.CV_MEAN`, the noise-free constant-velocity extrapolation of the ``cv``
+    agent (:data:`~.settings.AGENTS`)."""
     if name == "sim":
         return SimulatorPredictor()
     if name == "cv":
         return ConstantVelocityPredictor()
     if name == "learned":
         return LearnedPredictor(weights=weights)
-    raise ValueError(f"predictor must be one of {PREDICTORS}, got {name!r}")
+    if name == CV_MEAN:
+        return ConstantVelocityPredictor(sigma_long=0.0, sigma_lat=0.0, name=CV_MEAN)
+    raise ValueError(f"predictor must be one of {(*PREDICTORS, CV_MEAN)}, got {name!r}")

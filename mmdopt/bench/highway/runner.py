@@ -14,6 +14,7 @@ from typing import Any
 import numpy as np
 
 import mmdopt
+from mmdopt.planner import PLANNERS
 from mmdopt.receding import RecedingConfig, run_receding, warm_up
 
 from ..executors import EXECUTORS, MISSING, check_manifest, run_tasks, worker_layout
@@ -59,47 +60,53 @@ def run_episode(
     render: bool = False,
     callback=None,
 ) -> dict[str, Any]:
-    """Drive one episode with ``method``; the episode record (a JSON-friendly dict with the CSV
-    columns, per-step plan and predictor times, and the frames and their views when ``render``).
-    ``callback(i, observation, plan, outcome)`` is :func:`mmdopt.receding.run_receding`'s, after
-    each replan (not called for ``idm``)."""
+    """Drive one episode with the agent ``method`` (:data:`~.settings.AGENTS`); the episode
+    record (a JSON-friendly dict with the CSV columns, per-step plan and predictor times, and the
+    frames and their views when ``render``).  ``callback(i, observation, plan, outcome)`` is
+    :func:`mmdopt.receding.run_receding`'s, after each replan (not called for the IDM driver)."""
     import jax
 
     src = HighwaySource(settings, seed, config, method=method, render=render)
     t_start = time.perf_counter()
+    agent = src.agent
+    if agent.driver == "idm":
+        predictor = "-"  # no predictor
+    else:
+        predictor = settings.predictor if agent.predictor is None else agent.predictor
     rec: dict[str, Any] = {
         "episode": int(episode),
         "seed": int(seed),
         "env": settings.env,
         "method": method,
-        "predictor": "-"
-        if method == "idm"
-        else ("cv-mean" if method == "cv" else settings.predictor),
+        "predictor": predictor,
     }
     plan_times: list[float] = []
     first_plan = float("nan")
     fallbacks = interventions = 0
     shield_reasons: list[str] = []
     steps_status: list[str] = []
-    if method == "idm":
+    if agent.driver == "idm":
         out = src.run_idm()
         crashed = out.crashed
     else:
-        planner_method = "scenario_all" if method == "cv" else method
         rc = RecedingConfig(
             dt=settings.dt,
             budget_s=settings.budget_s,
-            method=planner_method,
+            method=agent.plan_method,
             max_obstacles=settings.max_obstacles,
             max_steps=int(math.ceil(settings.duration / settings.dt)) + 1,
             shield=SHIELD if settings.shield else None,
         )
         # compile once on the first scene (shapes are fixed by max_obstacles), untimed by the loop
         obs0 = src.observe()
-        first_plan = warm_up(obs0, rc, config, jax.random.PRNGKey(seed))
+        # the config's planner on the process's shared workspaces: episodes compile once
+        planner = PLANNERS.get(config)
+        first_plan = warm_up(obs0, rc, key=jax.random.PRNGKey(seed), planner=planner)
         src.predict_times.clear()
         src.step_index = 0
-        res = run_receding(src, rc, config=config, key=jax.random.PRNGKey(seed), callback=callback)
+        res = run_receding(
+            src, rc, key=jax.random.PRNGKey(seed), callback=callback, planner=planner
+        )
         crashed = res.crashed
         plan_times = [float(x) for x in res.plan_times]
         fallbacks = sum(r.fallback for r in res.steps)

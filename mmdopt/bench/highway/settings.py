@@ -1,16 +1,67 @@
-"""Settings of the highway benchmark: methods, predictors, the planner defaults, the
-environment/loop settings and the optional-dependency check."""
+"""Settings of the highway benchmark: the agents that drive the ego, predictors, the planner
+defaults, the environment/loop settings and the optional-dependency check."""
 
 from __future__ import annotations
 
 import math
 from dataclasses import dataclass, field
+from types import MappingProxyType
 from typing import Any
 
 import mmdopt
 from mmdopt.safety import RSSConfig
 
-METHODS = ("mmd", "degroot", "cv", "idm")
+#: drivers of the ego: the receding-horizon planner, or highway-env's own IDM/MOBIL driver
+DRIVERS = ("planner", "idm")
+#: the predictor an agent may bring instead of the settings' one: the noise-free
+#: constant-velocity extrapolation, one sample per car (:func:`~.predictors.make_predictor`)
+CV_MEAN = "cv-mean"
+
+
+@dataclass(frozen=True)
+class Agent:
+    """What drives the ego in one column of the benchmark (a value of ``--methods``).
+
+    name : the ``--methods`` value, the ``method`` column of ``episodes.csv`` and the episode
+        files' name
+    driver : "planner" (the receding-horizon planner, :func:`mmdopt.receding.run_receding`) or
+        "idm" (highway-env's IDM/MOBIL driver as the ego: no planner, no predictor; the
+        reference for speed)
+    plan_method : the planner's method (:data:`mmdopt.PLAN_METHODS`); ``None`` for the IDM driver
+    predictor : the predictions it plans on: ``None`` for those of the settings' predictor
+        (:attr:`HighwaySettings.predictor`), or :data:`CV_MEAN` (its own noise-free
+        constant-velocity prediction of each car, a planner that ignores uncertainty)
+    """
+
+    name: str
+    driver: str
+    plan_method: str | None
+    predictor: str | None = None
+
+    def __post_init__(self) -> None:
+        if self.driver not in DRIVERS:
+            raise ValueError(f"driver must be one of {DRIVERS}, got {self.driver!r}")
+        if (self.driver == "planner") != (self.plan_method is not None):
+            raise ValueError("a planner agent needs a plan_method, the IDM driver none")
+        if self.driver == "idm" and self.predictor is not None:
+            raise ValueError("the IDM driver uses no predictor")
+        if self.predictor not in (None, CV_MEAN):
+            raise ValueError(f"predictor must be None or {CV_MEAN!r}, got {self.predictor!r}")
+
+
+#: the agents of ``mmdopt bench highway --methods``, by name
+AGENTS = MappingProxyType(
+    {
+        "mmd": Agent("mmd", "planner", "mmd"),
+        "degroot": Agent("degroot", "planner", "degroot"),
+        # Algorithm 1 with the scenario cost against the single noise-free constant-velocity
+        # prediction of each car
+        "cv": Agent("cv", "planner", "scenario_all", CV_MEAN),
+        "idm": Agent("idm", "idm", None),
+    }
+)
+#: the agents' names (the choices of ``--methods``)
+METHODS = tuple(AGENTS)
 #: "sim": the simulator oracle (rollouts of highway-env's own driver models); "cv": constant
 #: velocity; "learned": the MDN trained on highway-env rollouts of seeds >= 100000 (the
 #: benchmark's episodes use seeds below 100000)
@@ -52,7 +103,9 @@ def highway_available() -> bool:
     return True
 
 
-def _require_highway():
+def require_highway():
+    """The ``gymnasium`` module with highway-env's environments registered; ``ImportError``
+    saying how to install them when either is missing."""
     try:
         import gymnasium as gym
         import highway_env  # noqa: F401  (registers the environments)
@@ -67,7 +120,7 @@ def _require_highway():
 def check_env(env: str) -> None:
     """Raise ``ValueError`` unless ``env`` is a registered gymnasium id of highway-env (checked
     before a benchmark writes anything; the message lists highway-env's ids)."""
-    gym = _require_highway()
+    gym = require_highway()
     if not isinstance(env, str) or not env:
         raise ValueError(f"env must be a highway-env id such as 'highway-v0', got {env!r}")
     try:
@@ -101,7 +154,7 @@ def check_env_config(env: str, env_config) -> None:
             f"env_config must be a JSON object of {env}'s config keys, "
             f"got {type(env_config).__name__}"
         )
-    known = load_env_creator(_require_highway().spec(env).entry_point).default_config()
+    known = load_env_creator(require_highway().spec(env).entry_point).default_config()
     unknown = sorted(str(k) for k in env_config if k not in known)
     if unknown:
         raise ValueError(

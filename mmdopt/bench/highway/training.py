@@ -7,8 +7,8 @@ replaces the ego by highway-env's own IDM/MOBIL driver (:class:`~highway_env.veh
 vehicle's position, speed and lane.  Every ``stride`` frames, the vehicles recorded over the
 whole history (``history`` rows) and the horizon (the planner's 5 s, 51 points at 0.1 s) make a
 :class:`~mmdopt.predict.train.Window`, with a :class:`~mmdopt.predict.PredictionContext` built
-from the lane network (:func:`scene_context`: each vehicle's lane centre line, followed along the
-network while it continues the lane, is its centerline).
+from the lane network (:func:`~.context.scene_context`: each vehicle's lane centre line, followed
+along the network while it continues the lane, is its centerline).
 
 Seeds.  Training rollouts use seeds ``TRAIN_SEED0 + i`` (100000, 100001, ...); the benchmark's
 episodes (``mmdopt bench highway --seed S --episodes N``) and the held-out evaluation use seeds
@@ -22,16 +22,11 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from mmdopt.predict.base import (
-    GAP_NONE,
-    PredictionContext,
-    cartesian_to_lane,
-    neighbour_gaps,
-)
 from mmdopt.predict.train import Window
 
-from .predictors import TRACK_FRAMES, tracked_velocity
-from .settings import _require_highway
+from .context import lane_centerline, scene_context
+from .predictors import TRACK_FRAMES, ConstantVelocityPredictor, LearnedPredictor, tracked_velocity
+from .settings import require_highway
 
 __all__ = [
     "TRAIN_SEED0",
@@ -59,108 +54,6 @@ TRAINING_ENVS: tuple[tuple[str, dict, int], ...] = (
     ("highway-v0", {"vehicles_density": 2}, 1),
     ("merge-v0", {}, 4),
 )
-#: centre-line extent (m) behind / ahead of the vehicle and point spacing
-CENTERLINE_BACK, CENTERLINE_AHEAD, CENTERLINE_SPACING = 50.0, 200.0, 2.5
-
-
-# ------------------------------------------------------------------------------ lane geometry
-def lane_centerline(network, lane_index, position) -> np.ndarray:
-    """(P, 2) centre line of the lane ``lane_index`` from ``CENTERLINE_BACK`` m behind the
-    longitudinal position of ``position`` to ``CENTERLINE_AHEAD`` m ahead, every
-    ``CENTERLINE_SPACING`` m (P fixed).  Past the lane's end it continues on the network's next
-    lane (highway-env's ``next_lane``) while that one starts where this one ends; otherwise
-    (a merging lane that ends, no successor) it goes straight on along the last heading."""
-    if lane_index is None:
-        raise ValueError("lane_index must be a highway-env lane index, got None")
-    lane = network.get_lane(lane_index)
-    s0 = float(lane.local_coordinates(np.asarray(position, float))[0])
-    P = int(round((CENTERLINE_BACK + CENTERLINE_AHEAD) / CENTERLINE_SPACING)) + 1
-    s_all = s0 - CENTERLINE_BACK + CENTERLINE_SPACING * np.arange(P)
-    out = np.empty((P, 2))
-    rng = np.random.RandomState(0)  # next_lane's choice among branches (none in these maps)
-    offset, index, straight = 0.0, lane_index, None  # s on `lane` = s_all - offset
-    for p, s in enumerate(s_all):
-        if straight is None and s - offset < 0.0:  # behind the lane's start: straight back
-            h = lane.heading_at(0.0)
-            out[p] = lane.position(0.0, 0.0) + (s - offset) * np.array([math.cos(h), math.sin(h)])
-            continue
-        while straight is None and s - offset > lane.length:
-            nxt_index = network.next_lane(
-                index, position=lane.position(lane.length, 0.0), np_random=rng
-            )
-            nxt = network.get_lane(nxt_index)
-            end = lane.position(lane.length, 0.0)
-            if nxt_index == index or np.linalg.norm(nxt.position(0.0, 0.0) - end) > 0.5:
-                h = lane.heading_at(lane.length)
-                straight = (end, np.array([math.cos(h), math.sin(h)]), offset + lane.length)
-                break
-            offset += lane.length
-            lane, index = nxt, nxt_index
-        if straight is not None:
-            end, u, s_end = straight
-            out[p] = end + (s - s_end) * u
-        else:
-            out[p] = lane.position(s - offset, 0.0)
-    return out
-
-
-def _side_flags(network, lane_index, position) -> tuple[bool, bool, float]:
-    """(a lane to the left, a lane to the right, the lane's width) — "left" is the positive
-    lateral side of the driving direction, the lane frame of :mod:`mmdopt.predict.base`."""
-    lane = network.get_lane(lane_index)
-    s = float(lane.local_coordinates(np.asarray(position, float))[0])
-    left = right = False
-    for side in network.side_lanes(lane_index):
-        other = network.get_lane(side)
-        if getattr(other, "forbidden", False):  # a lane one may not change into
-            continue
-        lat = float(lane.local_coordinates(other.position(max(s, 0.0), 0.0))[1])
-        left |= lat > 0.5
-        right |= lat < -0.5
-    return left, right, float(lane.width_at(s))
-
-
-def scene_context(
-    network, lane_indices, positions, speeds, idx, times, dt_history: float
-) -> PredictionContext:
-    """The :class:`~mmdopt.predict.PredictionContext` of the vehicles ``idx`` in a scene of
-    ``N`` vehicles at ``positions`` (N, 2), ``speeds`` (N,), on lanes ``lane_indices`` (N
-    highway-env lane indices).
-
-    Neighbours: every other vehicle of the scene, classified by its offset ``d`` in the
-    vehicle's lane frame (own lane ``|d| < w/2``, left ``w/2 ≤ d < 1.5w``, right
-    ``−1.5w < d ≤ −w/2``; the convention of the NGSIM scenes); the gap is the difference of arc
-    lengths (centre to centre), the relative speed the difference of speeds."""
-    positions = np.asarray(positions, np.float64)
-    speeds = np.asarray(speeds, np.float64)
-    idx = np.asarray(idx, dtype=np.int64)
-    if positions.ndim != 2 or positions.shape[1] != 2:
-        raise ValueError(f"positions must have shape (N, 2), got {positions.shape}")
-    N, O = positions.shape[0], len(idx)
-    if speeds.shape != (N,) or len(lane_indices) != N:
-        raise ValueError("speeds and lane_indices must have one entry per position")
-    cl, w = [], np.empty(O)
-    hl, hr = np.zeros(O, bool), np.zeros(O, bool)
-    gaps, rel = np.full((O, 6), GAP_NONE), np.zeros((O, 6))
-    for j, v in enumerate(idx):
-        cl.append(lane_centerline(network, lane_indices[v], positions[v]))
-        hl[j], hr[j], w[j] = _side_flags(network, lane_indices[v], positions[v])
-        others = np.flatnonzero(np.arange(N) != v)
-        if len(others) == 0:
-            continue
-        s, d = cartesian_to_lane(cl[j], positions[others])
-        s0, _ = cartesian_to_lane(cl[j], positions[v][None])
-        gaps[j], rel[j] = neighbour_gaps(s - s0[0], d, speeds[others] - speeds[v], w[j])
-    return PredictionContext(
-        times=np.asarray(times, np.float64),
-        dt_history=dt_history,
-        centerline=np.stack(cl) if cl else np.zeros((0, 2, 2)),
-        lane_width=w,
-        has_left=hl,
-        has_right=hr,
-        gaps=gaps,
-        rel_speed=rel,
-    )
 
 
 # ------------------------------------------------------------------------------ rollouts
@@ -196,7 +89,7 @@ def rollout(
         raise ValueError(f"duration must be > 0 s, got {duration!r}")
     if isinstance(simulation_frequency, bool) or not isinstance(simulation_frequency, int):
         raise ValueError(f"simulation_frequency must be an int (Hz), got {simulation_frequency!r}")
-    gym = _require_highway()
+    gym = require_highway()
     from highway_env.vehicle.behavior import IDMVehicle
 
     e = gym.make(env).unwrapped
@@ -502,8 +395,6 @@ def evaluate_heldout(weights=None, *, episodes: int = 10, duration: float = 20.0
     (``weights``, default: the shipped highway weights) on the held-out seeds ``0 …
     episodes−1`` of every environment of :data:`TRAINING_ENVS` (its factor times more for
     merge-v0), one row per environment and predictor."""
-    from .predictors import ConstantVelocityPredictor, LearnedPredictor
-
     preds = {"cv": ConstantVelocityPredictor, "learned": lambda: LearnedPredictor(weights=weights)}
     rows = []
     for env, extra, factor in TRAINING_ENVS:
@@ -539,7 +430,7 @@ def train_highway(
     from mmdopt.predict.learned import MDNConfig, save_weights
     from mmdopt.predict.train import fit_mdn
 
-    from ..ngsim.cli import TRAIN_WEIGHT_DECAY
+    from ..ngsim.data import TRAIN_WEIGHT_DECAY
 
     t0 = time.perf_counter()
     W = highway_windows(episodes, _planner_times(), duration=duration)

@@ -50,7 +50,7 @@ def default_data_dir() -> Path:
 
 def add_ngsim_parser(bench_subparsers) -> argparse.ArgumentParser:
     """``bench ngsim``: MMD-Opt in recorded US-101 traffic (CommonRoad scenes)."""
-    from mmdopt.baselines import PLAN_METHODS as METHODS
+    import mmdopt.methods
     from mmdopt.predict import PREDICTORS
 
     q = bench_subparsers.add_parser(
@@ -67,7 +67,7 @@ def add_ngsim_parser(bench_subparsers) -> argparse.ArgumentParser:
     q.add_argument("--out", required=True, help="output folder (resumable)")
     q.add_argument(
         "--methods",
-        type=method_list(METHODS),
+        type=method_list(mmdopt.methods.names),
         default=["mmd", "degroot"],
         help="comma-separated planning methods (default: mmd,degroot)",
     )
@@ -279,7 +279,7 @@ def cmd_train(args, parser=None) -> int:
     from mmdopt.predict.train import fit_mdn
 
     from ..inputs import check_out_file
-    from .data import HOLDOUT_MOD, windows
+    from .data import HOLDOUT_MOD, TRAIN_WEIGHT_DECAY, windows
     from .inputs import ScenarioError
 
     data = default_data_dir() if args.data is None else args.data
@@ -323,11 +323,6 @@ def cmd_train(args, parser=None) -> int:
         for r in evaluate_heldout(data, base):
             print(json.dumps(r))
     return 0
-
-
-#: AdamW weight decay of the shipped model (selected on recordings N % 5 == 1 of the training
-#: split; 1e-4 overfitted: validation minADE@20 0.94 m vs 0.87 m)
-TRAIN_WEIGHT_DECAY = 1e-3
 
 
 def cmd_eval(args, parser=None) -> int:

@@ -1,4 +1,5 @@
-"""Training/evaluation windows of the recorded scenes and the train/held-out split.
+"""Training/evaluation windows of the recorded scenes, the train/held-out split and the
+training's weight decay (shared with the highway predictor's training).
 
 Split: whole recordings are held out — the scenes ``USA_US101-N_K_T-1`` with ``N % 5 == 0``
 (N = 5, 10, 15, 20: 10 of the 48 shared files) are the **held-out** split, the rest train.  The
@@ -23,10 +24,14 @@ from .scene import (
     scenario_files,
 )
 
-__all__ = ["HOLDOUT_MOD", "split_files", "scene_windows", "windows"]
+__all__ = ["HOLDOUT_MOD", "TRAIN_WEIGHT_DECAY", "split_files", "scene_windows", "windows"]
 
 #: Recordings N with ``N % HOLDOUT_MOD == 0`` are held out.
 HOLDOUT_MOD = 5
+#: AdamW weight decay of the shipped models (``mmdopt predictor train``, on the US-101 scenes and
+#: on highway-env rollouts alike; selected on recordings N % 5 == 1 of the training split: 1e-4
+#: overfitted)
+TRAIN_WEIGHT_DECAY = 1e-3
 
 
 def split_files(paths) -> tuple[list[Path], list[Path]]:

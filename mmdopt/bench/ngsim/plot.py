@@ -8,17 +8,12 @@ import jax
 import numpy as np
 
 import mmdopt
-from mmdopt.bench.plots import METHOD_COLOURS, METHOD_LABELS, _plt
+from mmdopt.bench.plots import method_colour, method_label, pyplot
+from mmdopt.padding import pad_obstacles
 
+from .inputs import NgsimParams, ngsim_config
 from .metric import rect_corners
-from .runner import (
-    NgsimParams,
-    _pad_ghosts,
-    _predictor,
-    build_task,
-    ngsim_config,
-    task_config,
-)
+from .runner import build_task, cached_predictor, task_config
 from .scene import future_at
 
 __all__ = ["ngsim_scene_figure", "timing_vs_obstacles_figure"]
@@ -36,15 +31,16 @@ def ngsim_scene_figure(
     """Cartesian figure of one task: lanelets (boundaries, grey), every obstacle's recorded
     future (black) and ``n_draw`` predictor samples each (light red), the ego's recorded future
     (dashed) and each method's plan with footprints at 0, 2.5 and 5 s."""
-    plt = _plt()
+    plt = pyplot()
     p = NgsimParams() if params is None else params
     cfg = ngsim_config() if config is None else config
     b = build_task(task, p, cfg)
     cfg = task_config(b, p, cfg)
     sc, v, k, times = b["scene"], b["v"], b["k"], b["times"]
     key = jax.random.PRNGKey(p.seed)
-    samples = _predictor(predictor).sample(b["hist"], b["ctx"], p.n_samples, key)
-    planned = _pad_ghosts(samples, b["road"], b["ego"], p.max_obstacles)
+    samples = cached_predictor(predictor).sample(b["hist"], b["ctx"], p.n_samples, key)
+    m = p.max_obstacles
+    planned = pad_obstacles(samples, m, b["ego"], b["road"], times, bucket=m)
     fig, ax = plt.subplots(figsize=(8, 8))
     _draw_lanelets(ax, task["scenario"], sc)
     for o in range(samples.shape[0]):
@@ -81,8 +77,8 @@ def ngsim_scene_figure(
     pts = [rec]
     for m in methods:
         pl = mmdopt.plan(b["ego"], b["road"], planned, method=m, config=cfg, key=key)
-        col = METHOD_COLOURS.get(m, "tab:blue")
-        ax.plot(pl.x, pl.y, color=col, lw=2.2, label=f"plan: {METHOD_LABELS.get(m, m)}", zorder=5)
+        col = method_colour(m) or "tab:blue"
+        ax.plot(pl.x, pl.y, color=col, lw=2.2, label=f"plan: {method_label(m)}", zorder=5)
         pts.append(pl.xy)
         for t_mark in (0.0, 2.5, 5.0):
             j = int(np.argmin(np.abs(times - t_mark)))
@@ -133,7 +129,7 @@ def _draw_lanelets(ax, scenario_path, sc) -> None:
 def timing_vs_obstacles_figure(rows, path: str | Path) -> Path:
     """Median plan time (s) against the number of obstacles, from
     :func:`~mmdopt.bench.ngsim.runner.timing_vs_obstacles` rows."""
-    plt = _plt()
+    plt = pyplot()
     fig, ax = plt.subplots(figsize=(5, 3.5))
     for m in sorted({r["method"] for r in rows}):
         rr = sorted((r for r in rows if r["method"] == m), key=lambda r: r["n_obstacles"])
@@ -141,8 +137,8 @@ def timing_vs_obstacles_figure(rows, path: str | Path) -> Path:
             [r["n_obstacles"] for r in rr],
             [r["median_s"] for r in rr],
             "o-",
-            color=METHOD_COLOURS.get(m),
-            label=METHOD_LABELS.get(m, m),
+            color=method_colour(m),
+            label=method_label(m),
         )
     ax.axhline(1.0, color="0.5", ls=":", label="1 s")
     ax.set_xlabel("obstacles planned against")

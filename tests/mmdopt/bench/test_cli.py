@@ -1,6 +1,7 @@
 """The ``mmdopt`` command line: demo, the synthetic sweep (contract columns, resume), bad options,
 and a 5-scene smoke run of the whole pipeline with its own bar."""
 
+import argparse
 import csv
 import json
 import os
@@ -274,3 +275,210 @@ def test_qp_backends_takes_its_own_options_first(first, capsys):
     with pytest.raises(SystemExit) as e:
         cli.main(["bench", "timing", "--out", "x", "--bogus"])
     assert e.value.code == 2 and "--bogus" in capsys.readouterr().err
+
+
+# ------------------------------------------------------------------ the parser without the method
+#: modules the parser and ``--help`` / ``--version`` must not import: JAX and the method, the
+#: figures, Ray, pandas, the progress bar, and the experiments
+HEAVY = ("jax", "mmdopt.methods", "mmdopt.algorithm", "mmdopt.bench.frontier",
+         "mmdopt.bench.synthetic", "mmdopt.bench.scenes", "mmdopt.bench.highway",
+         "mmdopt.bench.ngsim", "matplotlib", "ray", "pandas", "tqdm")  # fmt: skip
+
+
+def _python(code: str) -> subprocess.CompletedProcess:
+    return subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=300)
+
+
+def test_the_parser_and_its_help_import_neither_jax_nor_the_method():
+    """With a package ``mmdopt`` that imports nothing (a stand-in for its ``__init__``, which
+    imports the whole method), importing the CLI, building its parser and answering ``--help``
+    (of every level) and ``--version`` leave JAX, the method, matplotlib and Ray unimported."""
+    package = os.path.dirname(os.path.dirname(cli.__file__))
+    code = f"""
+import sys, types
+pkg = types.ModuleType("mmdopt")
+pkg.__path__ = [{package!r}]
+sys.modules["mmdopt"] = pkg
+from mmdopt.bench import cli
+cli.build_parser()
+for argv in (["--help"], ["--version"], ["bench", "--help"], ["demo", "--help"],
+             ["bench", "frontier", "--help"], ["bench", "synthetic", "--help"]):
+    try:
+        cli.main(argv)
+    except SystemExit as e:
+        assert e.code == 0, (argv, e.code)
+print("loaded:", sorted(m for m in {HEAVY!r} if m in sys.modules))
+"""
+    r = _python(code)
+    assert r.returncode == 0, r.stderr[-3000:]
+    assert "loaded: []" in r.stdout, r.stdout[-2000:]
+
+
+def test_the_cli_imports_nothing_heavy_beyond_the_package():
+    """With the real package: ``import mmdopt.bench.cli`` and ``mmdopt --help`` import nothing
+    of :data:`HEAVY` that ``import mmdopt`` did not already import."""
+    code = f"""
+import sys
+import mmdopt
+before = set(sys.modules)
+from mmdopt.bench import cli
+try:
+    cli.main(["--help"])
+except SystemExit:
+    pass
+new = set(sys.modules) - before
+print("loaded:", sorted(m for m in new if m.startswith({HEAVY!r})))
+"""
+    r = _python(code)
+    assert r.returncode == 0, r.stderr[-3000:]
+    assert "loaded: []" in r.stdout, r.stdout[-2000:]
+
+
+def test_the_help_literals_are_their_sources():
+    """The names the parser lists without importing their modules are those modules' own."""
+    import mmdopt.methods
+    from mmdopt.algorithm import PLANNER_BACKEND
+    from mmdopt.bench.frontier import DEFAULT_RISK_GRID
+    from mmdopt.bench.scenes import PRESETS
+
+    assert cli.PLAN_METHODS == tuple(mmdopt.methods.PLAN_METHODS)
+    assert cli.DEFAULT_RISK_GRID == tuple(DEFAULT_RISK_GRID)
+    assert cli.PRESETS == tuple(sorted(PRESETS))
+    assert cli.PLANNER_BACKEND == PLANNER_BACKEND
+
+
+def _help(parser, **names) -> str:
+    return cli.command_parser(parser, argparse.Namespace(**names)).format_help()
+
+
+def test_placeholder_commands_list_their_modules_help_and_build_when_chosen():
+    """``bench highway``, ``bench ngsim`` and ``predictor`` are listed with their modules' help
+    before they are built (the listings do not change when they are), and are the real parsers
+    once chosen."""
+    p = cli.build_parser()
+    before = [_help(p), _help(p, command="bench")]
+    cli.load_all_parsers(p)
+    assert [_help(p), _help(p, command="bench")] == before
+    assert "--episodes" in _help(p, command="bench", experiment="highway")
+    assert "--scenarios" in _help(p, command="bench", experiment="ngsim")
+    assert "--steps" in _help(p, command="predictor", predictor_command="train")
+    args = cli.build_parser().parse_args(["bench", "highway", "--out", "x", "--seed", "4"])
+    assert args.seed == 4 and callable(args.func)
+
+
+@pytest.mark.parametrize(
+    "argv, command, option",
+    [
+        (["bench", "frontier", "--out", "{out}", "--risks", "mmd=0.9"], "bench frontier",
+         "--risks"),
+        (["bench", "frontier", "--out", "{out}", "--scenes", "x"], "bench frontier", "--scenes"),
+        (["bench", "synthetic", "--out", "{out}", "--config", "{cfg}"], "bench synthetic",
+         "--config"),
+        (["bench", "timing", "--out", "{out}", "--samples", "5", "--sizes", "10"],
+         "bench timing", "--samples"),
+        (["bench", "timing", "--out", "{out}", "--bogus"], "bench timing", "--bogus"),
+        (["bench", "reduced-set", "--out", "/proc/mmdopt-no/x"], "bench reduced-set", "--out"),
+        (["predictor", "eval", "--out", "/proc/mmdopt-no/x.json"], "predictor eval", "--out"),
+    ],
+)  # fmt: skip
+def test_a_commands_error_prints_that_commands_usage(argv, command, option, tmp_path, capsys):
+    cfg = tmp_path / "cfg.json"
+    cfg.write_text('{"w_magic": 1}')
+    argv = [a.format(out=tmp_path / "o", cfg=cfg) for a in argv]
+    code, err = _exit_code(argv, capsys)
+    assert code == 2 and option in err
+    assert err.startswith(f"usage: mmdopt {command} "), err
+    assert f"mmdopt {command}: error: " in err, err
+    assert not (tmp_path / "o").exists()
+
+
+@pytest.mark.parametrize("command", [["demo"], ["bench", "synthetic"], ["bench", "frontier"],
+                                     ["bench", "reduced-set"], ["bench", "timing"],
+                                     ["bench", "figure"]])  # fmt: skip
+def test_backend_help_shows_its_default_and_the_installed_backends(command, capsys):
+    import solvers
+
+    with pytest.raises(SystemExit) as e:
+        cli.main([*command, "--help"])
+    assert e.value.code == 0
+    text = " ".join(capsys.readouterr().out.split())  # the help's lines joined
+    assert "--backend NAME projection QP backend (default: admm-fixed)" in text
+    for name in solvers.available_backends():
+        assert name in text
+
+
+def test_config_help_shows_the_nested_form_and_the_example_reads(capsys):
+    with pytest.raises(SystemExit):
+        cli.main(["bench", "frontier", "--help"])
+    text = " ".join(capsys.readouterr().out.split())
+    assert '{"cem": {"iterations": 10}}' in text and "baseline_margin_scale" not in text
+    import warnings
+
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")  # the flat form warns; the nested form does not
+        assert cli.load_planner_config_from_dict({"cem": {"iterations": 10}}).cem.iterations == 10
+
+
+def test_frontier_summary_says_its_counts_are_per_1000(tmp_path, capsys, monkeypatch):
+    """The printed collision-free levels are per 1000 validation futures, and say so."""
+    import mmdopt.bench.frontier as fr
+
+    rows = [dict(method="mmd", risk=0.01, scene=s, collision_free=195, n_validation=200,
+                 progress_m=90.0, plan_time_s=0.1, feasible=True, status="ok", risk_bound=0.01,
+                 n_planning=40) for s in range(2)]  # fmt: skip
+    points = fr.frontier_points(rows)
+    res = dict(
+        points=points,
+        interpolated={"mmd": fr.interpolate_progress(points, "mmd")},
+        at_level={"mmd": fr.progress_at_level(points, "mmd")},
+        at_level_kept={"mmd": fr.progress_at_level(points, "mmd", min_ok_share=0.95)},
+        computed=2,
+        reused=0,
+        wall_s=1.0,
+    )
+    monkeypatch.setattr(fr, "run_frontier", lambda *a, **k: res)
+    monkeypatch.setattr(cli, "_checked_config", lambda *a: (None, None))
+    rc, out = _run(["bench", "frontier", "--out", str(tmp_path / "o"), "--methods", "mmd"],
+                   capsys)  # fmt: skip
+    assert rc == 0
+    assert "collision-free per 1000: mean" in out.out and "975.0" in out.out
+    assert "of 1000" not in out.out
+
+
+def test_frontier_measures_the_compile_apart_and_reads_older_folders(tmp_path, capsys):
+    """``compile_s`` is the last column of ``frontier.csv`` (the contract columns first): the
+    first task of the worker has the compile apart (>= 0), a later task 0.0; a folder whose
+    rows predate the column resumes with NaN there and loads (``load_results``)."""
+    from mmdopt.bench.frontier import FRONTIER_COLUMNS
+    from mmdopt.bench.results import load_results
+    from tests.mmdopt.bench.test_frontier import CONTRACT as FRONTIER_CONTRACT
+    from tests.mmdopt.bench.test_frontier import TINY
+
+    assert FRONTIER_COLUMNS[: len(FRONTIER_CONTRACT)] == FRONTIER_CONTRACT
+    assert FRONTIER_COLUMNS[-1] == "compile_s"
+    small, tiny = tmp_path / "scene.json", tmp_path / "cfg.json"
+    small.write_text(json.dumps({"n_validation": 200, "n_samples": 40}))
+    tiny.write_text(json.dumps(TINY))  # test_frontier's planner: its programs are compiled once
+    out = tmp_path / "f"
+    argv = ["bench", "frontier", "--scenes", "2", "--seed", "3", "--out", str(out),
+            "--methods", "mmd", "--risks", "0.1", "--jobs", "1", "--n-samples", "40",
+            "--scene-params", str(small), "--config", str(tiny), "--no-progress"]  # fmt: skip
+    rc, _ = _run(argv, capsys)
+    assert rc == 0
+    with open(out / "frontier.csv") as f:
+        reader = csv.DictReader(f)
+        rows = sorted(reader, key=lambda r: int(r["scene"]))
+    assert reader.fieldnames[: len(FRONTIER_COLUMNS)] == list(FRONTIER_COLUMNS)
+    assert float(rows[0]["compile_s"]) >= 0.0 and float(rows[1]["compile_s"]) == 0.0
+    assert all(float(r["plan_time_s"]) > 0 for r in rows)
+    # rows written before the column existed
+    for task in (out / "tasks").glob("*.json"):
+        row = json.loads(task.read_text())
+        del row["compile_s"]
+        task.write_text(json.dumps(row))
+    (out / "frontier.csv").unlink()
+    rc, text = _run(argv, capsys)
+    assert rc == 0 and "0 plans computed, 2 reused" in text.out
+    df = load_results(out, "frontier")
+    assert list(df.columns[: len(FRONTIER_COLUMNS)]) == list(FRONTIER_COLUMNS)
+    assert df["compile_s"].isna().all() and len(df) == 2

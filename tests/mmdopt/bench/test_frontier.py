@@ -10,7 +10,7 @@ import pytest
 
 from mmdopt.bench import cli
 from mmdopt.bench.frontier import (
-    DEFAULT_RISKS,
+    DEFAULT_RISK_GRID,
     clopper_pearson_interval,
     frontier_axes,
     frontier_points,
@@ -28,7 +28,7 @@ CONTRACT = ("method", "risk", "scene", "collision_free", "n_validation", "progre
 
 def test_parse_risks_defaults_overrides_and_errors():
     k = parse_risks(None, ["mmd", "saa"])
-    assert k == {"mmd": list(DEFAULT_RISKS["mmd"]), "saa": list(DEFAULT_RISKS["saa"])}
+    assert k == {"mmd": list(DEFAULT_RISK_GRID), "saa": list(DEFAULT_RISK_GRID)}
     k = parse_risks("mmd=0.02,0.001; saa=0.05", ["mmd", "saa"])
     assert k == {"mmd": [0.001, 0.02], "saa": [0.05]}
     assert parse_risks("0.1,0.02,0.005", ["mmd", "saa"]) == {

@@ -356,6 +356,36 @@ def test_bad_runner_arguments_are_rejected(tmp_path):
         hw.HighwaySource(SETTINGS, 0, hw.highway_config(TINY), method="rl")
 
 
+def test_agents_are_drivers_plan_methods_and_predictors():
+    """``--methods`` names agents: the planner with a plan method on the settings' predictor
+    (mmd, degroot) or on its own noise-free constant-velocity mean (cv), or highway-env's IDM
+    driver (idm); the table is read-only and gives the CLI's choices."""
+    A = hw.AGENTS
+    assert hw.METHODS == ("mmd", "degroot", "cv", "idm") == tuple(A)
+    assert [(a.driver, a.plan_method, a.predictor) for a in A.values()] == [
+        ("planner", "mmd", None),
+        ("planner", "degroot", None),
+        ("planner", "scenario_all", "cv-mean"),
+        ("idm", None, None),
+    ]
+    with pytest.raises(TypeError):
+        A["rl"] = A["mmd"]  # type: ignore[index]
+    with pytest.raises(dataclasses.FrozenInstanceError):
+        A["mmd"].plan_method = "saa"  # type: ignore[misc]
+    with pytest.raises(ValueError, match="driver"):
+        hw.Agent("x", "human", None)
+    with pytest.raises(ValueError, match="plan_method"):
+        hw.Agent("x", "idm", "mmd")
+    # the cv agent observes one noise-free sample per car from its own predictor
+    src = _source(seed=5, method="cv")
+    try:
+        assert src.agent is A["cv"] and src.own_predictor.sigma_lat == 0.0
+        obs = src.observe()
+        assert obs.obstacles.shape[1] == 1
+    finally:
+        src.close()
+
+
 def test_cli_parser_and_bad_options(tmp_path, capsys):
     import argparse
 
@@ -389,7 +419,7 @@ def test_merge_env_uses_its_main_road_and_the_exact_clone_rollouts():
     src = hw.HighwaySource(st, 1, hw.highway_config(TINY), method="mmd")
     try:
         assert (src.road.y_lb, src.road.y_ub) == (0.0, 4.0)  # the two main-road lanes
-        assert not hw._straight_parallel(src.env.road.network)  # the ramp: clone mode
+        assert not hw.straight_parallel(src.env.road.network)  # the ramp: clone mode
         obs = src.observe()
         assert obs.obstacles.shape[1:] == (4, len(src.t_grid), 2)
         assert np.all(np.isfinite(obs.obstacles)) and obs.info["predict_s"] > 0

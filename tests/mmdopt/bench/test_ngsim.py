@@ -349,10 +349,10 @@ def test_crawling_ego_does_not_slide_sideways_at_rest(ngsim_dir):
 
 @pytest.mark.slow  # one JIT compile of Algorithm 1
 def test_tasks_plan_through_the_predictor(ngsim_dir):
-    """``bench ngsim`` gives ``plan`` a Forecast: the predictor's draws for the real cars, ghost
-    cars 500 m behind for the rest of the bucket (one compiled shape, as with fixed samples);
-    with "samples" margins no ghosts (they would count in n(ε, O)), and MMD-Opt draws n(ε, O) for
-    the futures it may meet (``risk_hits_for``)."""
+    """``bench ngsim`` gives ``plan`` a Forecast: the predictor's draws for the real cars,
+    phantoms 500 m behind for the rest of the bucket (one compiled shape, as with fixed samples);
+    with "samples" margins no phantoms (they would count in n(ε, O)), and MMD-Opt draws n(ε, O) for
+    the futures it may meet (``PlanMethod.risk_hits``)."""
     import jax
 
     import mmdopt
@@ -372,17 +372,17 @@ def test_tasks_plan_through_the_predictor(ngsim_dir):
     real = inp.predictor.sample(inp.task["hist"], inp.task["ctx"], 20, key)
     np.testing.assert_array_equal(drawn[:O], real)
     ego = inp.task["ego"]
-    s_ghost, _ = inp.task["road"].path.to_frenet(
+    s_phantom, _ = inp.task["road"].path.to_frenet(
         drawn[O:, :, 0, 0].ravel(), drawn[O:, :, 0, 1].ravel()
     )
-    assert np.all(s_ghost < ego.s - 400.0)
+    assert np.all(s_phantom < ego.s - 400.0)
     # the "samples" margins: the real cars only, n(eps, O) futures each (capped)
     cfg = mmdopt.risk.config_for_risk("mmd", 0.1, ngsim_config())
     inp2 = plan_inputs(task, p, cfg, "cv")
     assert inp2.forecast.num_obstacles == O
     tiny = inp2.config.replace(n_samples=40, n_cem=20, n_elite=8, iterations=2, reduced_set_size=5)
     plan = mmdopt.plan(ego, inp2.task["road"], inp2.obstacles, method="mmd", config=tiny, key=key)
-    hits = tiny.risk_hits_for("mmd")
+    hits = mmdopt.methods.get("mmd").risk_hits(tiny)
     assert hits > 0  # MMD-Opt in the "samples" mode may meet some futures under the bound
     n_eps = samples_for_risk(0.1, O, hits=hits)
     assert n_eps > samples_for_risk(0.1, O)

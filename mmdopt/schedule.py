@@ -1,0 +1,589 @@
+"""The risk passes around Algorithm 1: a named, typed schedule.
+
+One :func:`mmdopt.plan` call runs Algorithm 1 once (the *first* pass) and then, in the
+"samples" margin mode (the risk dial), the optional passes its method's record names
+(:attr:`mmdopt.methods.PlanMethod.passes`), in this order:
+
+==============  ==========================================================================
+pass            what it does
+==============  ==========================================================================
+``reselect``    the reduced set plus the ``reselect`` samples in deepest conflict with the
+                first plan, after the ⌊ε·n⌋ deepest (sampling and discarding), warm-started
+``nearest``     against the ``nearest_futures`` futures nearest to the plan so far, with
+                SAA's chance term at the hits the 95 % bound allows; repeated with one hit
+                fewer while its plan's bound exceeds ε (``schedule.nearest_repeats``)
+``ladder``      one pass per rung of ``schedule.margin_ladder`` (looser coverage margins),
+                then one refining tail pass
+``tail``        while no candidate's bound is ≤ ε: the samples the best-bounded candidate
+                meets join the reduced set (at most ``schedule.tail_passes``)
+==============  ==========================================================================
+
+Every pass reads one immutable :class:`PassContext` and returns a :class:`Candidate` (its
+Algorithm 1 state, the obstacle set it planned against, the samples it added); the **final
+check** (:func:`final_check`) scores every candidate against all n planning samples and picks
+one (:class:`ScheduleResult`).  Its random keys come from one :class:`KeyStream`; its constants
+are the fields of :class:`mmdopt.config.ScheduleConfig`; its diagnostics are written into a
+dict that no pass reads.  A change to the passes is a change to this module and that section.
+"""
+
+from __future__ import annotations
+
+import enum
+import functools
+import math
+import time
+from collections.abc import Callable, Mapping
+from dataclasses import dataclass
+from types import MappingProxyType
+from typing import Any
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+
+from . import algorithm as alg
+from .collision import OBSTACLE_FOOTPRINT, circle_centres, collision_free_count, ellipse_values
+from .config import MMDOptConfig
+from .methods import PlanMethod
+from .risk import coverage_margins, hits_for_risk, risk_bound, risk_floor
+from .samples import ReducedSet
+
+__all__ = [
+    "PassName",
+    "KeyStream",
+    "PassContext",
+    "Candidate",
+    "ScheduleResult",
+    "run_schedule",
+    "final_check",
+    "plan_bound",
+    "risk_counts",
+    "obstacle_centres",
+    "samples_met",
+    "coverage",
+]
+
+
+class PassName(enum.StrEnum):
+    """The passes of the schedule (the final check's candidates are named by them)."""
+
+    FIRST = "first"
+    RESELECT = "reselect"
+    NEAREST = "nearest"
+    LADDER = "ladder"
+    REFINE = "refine"
+    TAIL = "tail"
+
+
+#: the folds of the plan's key: every random stream of one plan, named (:class:`KeyStream`)
+KEY_FOLDS: Mapping[str, int] = MappingProxyType(
+    {
+        "forecast": 0x5EED,
+        "pool": 0x9001,
+        "reselect": 1,
+        "nearest": 0x501,
+        "ladder": 0x1AD,
+        "refine": 0x2EF,
+        "tail": 2,
+    }
+)
+
+
+class KeyStream:
+    """The one key stream of a plan: the plan's key split into the selection's and Algorithm
+    1's, and every pass's key a named fold of those (:data:`KEY_FOLDS`), so the same key gives
+    the same plan and no two passes share a stream by accident."""
+
+    def __init__(self, key: Any) -> None:
+        self.key = key
+        self.selection, self.cem = jax.random.split(key)
+
+    def forecast(self) -> Any:
+        """The key of a forecast's draw of the futures."""
+        return jax.random.fold_in(self.key, KEY_FOLDS["forecast"])
+
+    def pool(self) -> Any:
+        """The key of the selection pool's permutation."""
+        return jax.random.fold_in(self.selection, KEY_FOLDS["pool"])
+
+    def reselect(self) -> Any:
+        return jax.random.fold_in(self.cem, KEY_FOLDS["reselect"])
+
+    def nearest(self, repeat: int) -> Any:
+        base = self.cem if repeat == 0 else jax.random.fold_in(self.cem, repeat)
+        return jax.random.fold_in(base, KEY_FOLDS["nearest"])
+
+    def ladder(self, rung: int) -> Any:
+        return jax.random.fold_in(self.cem, KEY_FOLDS["ladder"] + rung)
+
+    def refine(self) -> Any:
+        return jax.random.fold_in(self.cem, KEY_FOLDS["refine"])
+
+    def tail(self, i: int) -> Any:
+        return jax.random.fold_in(self.cem, KEY_FOLDS["tail"] + i)
+
+
+@dataclass(frozen=True, eq=False)
+class PassContext:
+    """What every pass of one plan reads (never written): the workspace, config (after the risk
+    mapping), the method's record, the planning problem, the planning samples in the planning
+    frame, the reduced set, the projector and the key stream.  ``workspace_for(cfg)`` gives the
+    workspace of another config with the same road (the nearest pass's chance level)."""
+
+    workspace: alg.Workspace
+    config: MMDOptConfig
+    method: PlanMethod
+    problem: alg.Problem
+    obs_fr: np.ndarray
+    obs_h: np.ndarray | None
+    rs: ReducedSet
+    projector: str
+    projector_settings: Mapping[str, Any]
+    keys: KeyStream
+    workspace_for: Callable[[MMDOptConfig], alg.Workspace]
+
+    @functools.cached_property
+    def all_centres(self) -> jax.Array:
+        """Footprint circle centres (O, n, C, K, 2) of every planning sample, computed once per
+        plan (every conflict-depth measurement uses them)."""
+        return obstacle_centres(self.obs_fr, self.obs_h)
+
+    def centres(self, idx: np.ndarray) -> jax.Array:
+        """Footprint circle centres (O, J, C, K, 2) of the samples ``idx`` (O, J)."""
+        return obstacle_centres(self.obs_fr, self.obs_h, idx)
+
+    def run(self, obstacles: alg.ObstacleSet, key: Any, warm: alg.CEMState | None,
+            config: MMDOptConfig | None = None) -> alg.CEMState:  # fmt: skip
+        """Algorithm 1 against ``obstacles`` (:func:`mmdopt.algorithm.run`), to completion."""
+        cfg = self.config if config is None else config
+        ws = self.workspace if config is None else self.workspace_for(cfg)
+        out = alg.run(ws, cfg, self.problem, obstacles, key, self.projector, warm_start=warm,
+                      **self.projector_settings)  # fmt: skip
+        return jax.block_until_ready(out)
+
+    def warm(self, state: alg.CEMState) -> alg.CEMState:
+        """``state`` as the warm start of the next pass (re-timed by 0 s)."""
+        return alg.shift(self.config, state, 0.0)
+
+
+@dataclass(frozen=True, eq=False)
+class Candidate:
+    """One pass's outcome: its name, Algorithm 1 state, the obstacle set it planned against,
+    that set's sample indices (O, J), the indices it added to the reduced set (``None``: none)
+    and the coverage level of its margins (``None``: ε)."""
+
+    name: PassName
+    state: alg.CEMState
+    obstacles: alg.ObstacleSet
+    indices: np.ndarray
+    extra: np.ndarray | None = None
+    level: float | None = None
+
+
+@dataclass(frozen=True, eq=False)
+class ScheduleResult:
+    """The schedule's choice: the chosen candidate; the obstacle set of the last pass that
+    changed the reduced set (what :attr:`mmdopt.Plan.mmd` is measured against); ``met``: the
+    chosen plan's ``(cx, cy)`` and the (O, n) planning samples it meets, when the final check
+    counted them (``None`` otherwise)."""
+
+    chosen: Candidate
+    reduced: alg.ObstacleSet
+    met: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None
+
+
+# ------------------------------------------------------------------------------ shared tools
+def obstacle_centres(obs_fr, obs_h, idx=None) -> jax.Array:
+    """Footprint circle centres (O, J, C, K, 2) of the samples ``idx`` (O, J) of ``obs_fr``
+    (all when None), along ``obs_h`` (O, n, K) where given, else along each sample's motion."""
+    sel, h = obs_fr, obs_h
+    if idx is not None:
+        idx = np.asarray(idx)
+        sel = np.take_along_axis(obs_fr, idx[:, :, None, None], axis=1)
+        h = None if obs_h is None else np.take_along_axis(obs_h, idx[:, :, None], axis=1)
+    hj = None if h is None else jnp.asarray(h)
+    return circle_centres(jnp.asarray(sel), OBSTACLE_FOOTPRINT, hj)
+
+
+def coverage(config: MMDOptConfig, obs_fr, idx, level=None, knn: int = 0) -> np.ndarray:
+    """:func:`mmdopt.risk.coverage_margins` of the points ``idx`` among ``obs_fr`` at ``level``
+    (default: the risk level ε) with ``config``'s coverage settings (every pass plans with
+    these)."""
+    return coverage_margins(
+        obs_fr,
+        idx,
+        float(config.safety.risk) if level is None else float(level),
+        lateral_scale=float(config.selection.rs_lateral_scale),
+        prior=float(config.safety.margins.coverage_prior),
+        knn=knn,
+        bandwidth=float(config.safety.margins.coverage_bandwidth),
+    )
+
+
+def risk_counts(config: MMDOptConfig, colliding) -> np.ndarray:
+    """The counts a plan's risk bound is computed from, given the (O, n) planning samples it
+    meets: (1,) the joint futures it meets with any obstacle (``safety.joint_futures``), else
+    (O,) the samples of each obstacle (:func:`mmdopt.risk.risk_bound`)."""
+    hits = np.asarray(colliding, bool)
+    if config.bound_groups(hits.shape[0]) == 1:
+        return hits.any(0).sum(keepdims=True)
+    return hits.sum(-1)
+
+
+def plan_bound(config: MMDOptConfig, colliding) -> float:
+    """The 95 % risk bound of a plan meeting the (O, n) planning samples ``colliding``."""
+    counts = risk_counts(config, colliding)
+    return risk_bound(counts, [np.shape(colliding)[-1]] * counts.size)
+
+
+def _conflict_depth(ctx: PassContext, best) -> np.ndarray:
+    """(O, n) deepest conflict over time of the plan ``best`` with every planning sample: the
+    nominal ellipse ``a, b`` with the geometry and responsibility rules of the config (yaw
+    widening, rear exemption); > 0 where the plan enters a sample's ellipse."""
+    Bs = ctx.workspace.basis
+    cx1 = np.asarray(best.cx, np.float64)
+    cy1 = np.asarray(best.cy, np.float64)
+    s1, d1 = (Bs.P @ cx1)[None], (Bs.P @ cy1)[None]
+    vs1, vd1 = (Bs.Pdot @ cx1)[None], (Bs.Pdot @ cy1)[None]
+    return np.asarray(_depth_values(ctx.config.program(), s1, d1, vs1, vd1, ctx.all_centres))
+
+
+@jax.jit
+def _depth_values(config: MMDOptConfig, s1, d1, vs1, vd1, centres):
+    # one compiled program per shape for _conflict_depth (eagerly: a program per op and shape)
+    b = jnp.asarray(config.safety.footprint.b)
+    if config.safety.footprint.yaw_aware:
+        b = b + alg.yaw_widening(config, vs1, vd1)  # (1, K)
+    rear = float(config.safety.rules.rear_exempt_width) if config.safety.rules.asymmetric else None
+    f = ellipse_values(s1, d1, centres, config.safety.footprint.a, b, rear_exempt_width=rear)
+    return jnp.max(f[0], axis=(2, 3))
+
+
+#: plans are scored against every sample in batches padded to a multiple of this (one compiled
+#: count serves 1–4 plans)
+COUNT_BUCKET = 4
+
+
+def samples_met(config: MMDOptConfig, obs_fr, obs_h, s, d) -> np.ndarray:
+    """(C, O, n) the planning samples each of the C plans (s, d) (C, K) meets, counted as
+    :func:`mmdopt.collision_free_count` counts a collision (any circle pair, any step); the
+    plans are padded to a multiple of :data:`COUNT_BUCKET`."""
+    xy = np.stack([np.asarray(s, np.float64), np.asarray(d, np.float64)], -1)
+    C = xy.shape[0]
+    pad = -(-C // COUNT_BUCKET) * COUNT_BUCKET - C
+    cnt = collision_free_count(
+        np.concatenate([xy, np.repeat(xy[:1], pad, axis=0)]),
+        obs_fr,
+        a=config.safety.footprint.a,
+        b=config.safety.footprint.b,
+        obstacle_heading=obs_h,
+    )
+    return np.asarray(cnt.colliding)[:C]
+
+
+def _bounds_of(ctx: PassContext, cands) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The 95 % risk bound (C,), task cost (C,) and planning samples met (C, O, n) of the
+    candidates' best plans against every planning sample."""
+    config, B = ctx.config, ctx.workspace.basis
+    bests = [c.state.best for c in cands]
+    cx = np.stack([np.asarray(b.cx, np.float64) for b in bests])
+    cy = np.stack([np.asarray(b.cy, np.float64) for b in bests])
+    s, d = cx @ B.P.T, cy @ B.P.T
+    hits = samples_met(config, ctx.obs_fr, ctx.obs_h, s, d)  # (C, O, n)
+    bound = np.array([plan_bound(config, h) for h in hits])
+    vs, as_, ad = cx @ B.Pdot.T, cx @ B.Pddot.T, cy @ B.Pddot.T
+    c = config.cost
+    task = c.w_speed * np.mean((vs - c.v_des) ** 2, -1) + c.w_accel * np.mean(as_**2 + ad**2, -1)
+    ok = np.array([math.isfinite(float(b.cost)) and float(b.res) <= config.projection.res_tol
+                   for b in bests])  # fmt: skip
+    return np.where(ok, bound, np.inf), task, hits
+
+
+def _extended(ctx: PassContext, idx: np.ndarray, extra: np.ndarray, level=None):
+    """The obstacle set of the reduced set ``idx`` plus ``extra`` (O, r) samples of weight 1/n
+    each (the reduced set's weights scaled by 1 − r/n), with coverage margins at ``level``
+    ("samples" mode) or the time-linear ones."""
+    config = ctx.config
+    n = ctx.obs_fr.shape[1]
+    r = extra.shape[1]
+    full = np.concatenate([idx, extra], axis=1)
+    w = np.concatenate(
+        [np.asarray(ctx.rs.weights, np.float64) * (1.0 - r / n),
+         np.full((idx.shape[0], r), 1.0 / n)], 1
+    )  # fmt: skip
+    margins = None
+    if config.safety.margins.margin_mode == "samples":
+        margins = coverage(config, ctx.obs_fr, full, level)
+    obstacles = alg.ObstacleSet.create(
+        config, ctx.centres(full), w, ctx.method.collision, margins=margins
+    )
+    return obstacles, full
+
+
+# ------------------------------------------------------------------------------------ passes
+def reselect_pass(ctx: PassContext, first: Candidate, diag: dict) -> Candidate | None:
+    """The re-selection pass (``safety.reselect`` = r > 0): the reduced set plus the r samples
+    in deepest conflict with the first plan (weight 1/n each) after the ⌊ε·n⌋ deepest (the
+    conflicts a chance constraint at level ε may leave, as in sampling-and-discarding, Campi &
+    Garatti 2011), warm-started from the first pass; ``None`` when no sample is left to add.
+    Conflict is measured on the nominal ellipse with the config's geometry and rules; the
+    margins of the config's margin mode then apply to the added samples."""
+    config = ctx.config
+    O, n = ctx.obs_fr.shape[:2]
+    depth = _conflict_depth(ctx, first.state.best)  # (O, n)
+    idx0 = np.asarray(ctx.rs.indices)
+    k = int(math.floor(float(config.safety.risk) * n))
+    r = min(int(config.safety.reselect), n - idx0.shape[1] - k)
+    if r <= 0:
+        return None
+    d = depth.copy()
+    np.put_along_axis(d, idx0, -np.inf, axis=1)  # already in the reduced set
+    order = np.argsort(-d, axis=1, kind="stable").astype(idx0.dtype)
+    extra = order[:, k : k + r]
+    obstacles, full = _extended(ctx, idx0, extra)
+    diag.update(reselected=extra, discarded=order[:, :k], conflict_depth=depth)
+    state = ctx.run(obstacles, ctx.keys.reselect(), ctx.warm(first.state))
+    return Candidate(PassName.RESELECT, state, obstacles, full, extra)
+
+
+def _nearest_pass(ctx: PassContext, start: Candidate, fewer: int) -> tuple[Candidate, float]:
+    """One nearest-futures pass from ``start``: Algorithm 1 against the M = min(n,
+    ``nearest_futures``) planning futures per obstacle in deepest conflict with its plan (padded
+    to ``nearest_futures``, padding masked out), weight 1/M each, k-NN coverage margins at the
+    loose level min(``nearest_margin_factor`` · ε, ``level_cap``) and SAA's chance term at level
+    (k + ½)/M, k = :func:`mmdopt.risk.hits_for_risk` (ε, n, G) − ``fewer`` (≥ 0); returns the
+    candidate and its chance level."""
+    config, obs_fr, sched = ctx.config, ctx.obs_fr, ctx.config.schedule
+    O, n = obs_fr.shape[:2]
+    P = int(config.safety.nearest_futures)  # one compiled program for every n: pad to P
+    M = min(n, P)
+    if M < n:
+        depth = _conflict_depth(ctx, start.state.best)  # (O, n), as the re-selection pass
+        idx = np.sort(np.argsort(-depth, axis=1, kind="stable")[:, :M], axis=1)
+    else:
+        idx = np.tile(np.arange(n), (O, 1))
+    pad = np.concatenate([idx, np.repeat(idx[:, :1], P - M, axis=1)], axis=1)
+    mask = np.arange(P)[None, :].repeat(O, 0) < M
+    G = config.bound_groups(O)
+    k = max(hits_for_risk(float(config.safety.risk), int(n), G) - int(fewer), 0)
+    k = min(k, M - 1)  # a level below 1 (with as many hits as futures seen, all may be met)
+    cfg = config.replace(saa_eps=(k + 0.5) / M)
+    level = min(float(sched.nearest_margin_factor) * float(config.safety.risk),
+                float(sched.level_cap))  # fmt: skip
+    knn = max(2, n // config.selection.reduced_set_size)
+    obstacles = alg.ObstacleSet.create(
+        cfg, ctx.centres(pad), np.where(mask, 1.0 / M, 0.0), "chance", mask=mask,
+        margins=coverage(config, obs_fr, pad, level=level, knn=knn),
+    )  # fmt: skip
+    state = ctx.run(obstacles, ctx.keys.nearest(fewer), ctx.warm(start.state), config=cfg)
+    return Candidate(PassName.NEAREST, state, obstacles, pad, level=level), (k + 0.5) / M
+
+
+def nearest_passes(ctx: PassContext, start: Candidate, diag: dict) -> list[Candidate]:
+    """MMD-Opt's nearest-futures pass (:func:`_nearest_pass`) from ``start``, then while the last
+    one's plan has a bound against all n futures above ε up to ``schedule.nearest_repeats``
+    more around that plan, each allowing one hit fewer.  The reduced set decides where the plan
+    goes; these passes let it pass as close to the futures that matter as the bound allows."""
+    t0 = time.perf_counter()
+    eps = float(ctx.config.safety.risk)
+    first, level = _nearest_pass(ctx, start, 0)
+    out, levels = [first], [level]
+    for rep in range(1, int(ctx.config.schedule.nearest_repeats) + 1):
+        if _bounds_of(ctx, [out[-1]])[0][0] <= eps:
+            break
+        nxt, level = _nearest_pass(ctx, out[-1], rep)
+        out.append(nxt)
+        levels.append(level)
+    M = min(ctx.obs_fr.shape[1], int(ctx.config.safety.nearest_futures))
+    diag.update(
+        nearest_futures=np.sort(first.indices[:, :M], axis=1),
+        nearest_level=levels[0],
+        nearest_levels=levels,
+        nearest_s=time.perf_counter() - t0,
+    )
+    return out
+
+
+def _rung_level(eps: float, factor: float, cap: float) -> float:
+    return min(factor * eps, cap)
+
+
+def ladder_passes(ctx: PassContext, start: Candidate, base: Candidate) -> list[Candidate]:
+    """The passes of ``schedule.margin_ladder``: Algorithm 1 on ``base``'s obstacle set (the
+    last reduced set) with coverage margins at each rung's level (a rung no looser than the one
+    before is skipped), the first warm-started from ``start``, each next from the one before."""
+    config = ctx.config
+    ladder = config.schedule.margin_ladder
+    if not ladder or base.obstacles.margins is None:
+        return []
+    if base.indices.shape != tuple(base.obstacles.weights.shape):
+        return []
+    eps, cap = float(config.safety.risk), float(config.schedule.level_cap)
+    out: list[Candidate] = []
+    levels = [eps]
+    state = start.state
+    for i, factor in enumerate(ladder):
+        level = _rung_level(eps, factor, cap)
+        if level <= levels[-1]:
+            continue
+        levels.append(level)
+        ob = base.obstacles
+        obstacles = alg.ObstacleSet.create(
+            config, ob.centres, ob.weights, ob.mode, mask=ob.mask,
+            margins=coverage(config, ctx.obs_fr, base.indices, level),
+        )  # fmt: skip
+        state = ctx.run(obstacles, ctx.keys.ladder(i), ctx.warm(state))
+        out.append(Candidate(PassName.LADDER, state, obstacles, base.indices, level=level))
+    return out
+
+
+def tail_pass(
+    ctx: PassContext, start: Candidate, hits, prev_extra, key, name: PassName, level=None
+) -> Candidate | None:
+    """One more pass, warm-started from ``start``, on the reduced set plus r extra points (r =
+    the re-selection size, m/2 where that is off: one compiled program for every such pass):
+    first the planning samples ``hits`` (O, n) that ``start``'s plan meets, then the extra
+    points of the previous pass (``prev_extra``), weight 1/n each; coverage margins at ε, or at
+    ``level``; ``None`` when it meets no sample outside the reduced set."""
+    config = ctx.config
+    O, n = ctx.obs_fr.shape[:2]
+    m = config.selection.reduced_set_size
+    r = ctx.method.reselect(config) or max(1, m // 2)
+    idx0 = np.asarray(ctx.rs.indices)
+    h = np.asarray(hits, bool).copy()
+    np.put_along_axis(h, idx0, False, axis=1)
+    if not h.any():
+        return None
+    extra = np.empty((O, r), idx0.dtype)
+    for o in range(O):  # a handful of obstacles
+        cand = list(np.flatnonzero(h[o]))
+        if prev_extra is not None:
+            cand += [int(i) for i in np.asarray(prev_extra)[o] if not h[o, i]]
+        cand = list(dict.fromkeys(cand)) or [int(idx0[o, 0])]
+        extra[o] = (cand * r)[:r]  # repeats pad an obstacle with fewer (weight split below)
+    full = np.concatenate([idx0, extra], 1)
+    w = np.concatenate(
+        [np.asarray(ctx.rs.weights, np.float64) * (1.0 - r / n), np.full((O, r), 1.0 / n)], 1
+    )
+    obstacles = alg.ObstacleSet.create(
+        config, ctx.centres(full), w, ctx.method.collision,
+        margins=coverage(config, ctx.obs_fr, full, level),
+    )  # fmt: skip
+    state = ctx.run(obstacles, key, ctx.warm(start.state))
+    return Candidate(name, state, obstacles, full, extra, level)
+
+
+# ----------------------------------------------------------------------------- final check
+class _Scored:
+    """The final check's candidates and their bound, task cost and samples met (appended as
+    passes are added)."""
+
+    def __init__(self, ctx: PassContext, cands: list[Candidate]) -> None:
+        self.ctx, self.cands = ctx, list(cands)
+        self.bound, self.task, self.hits = _bounds_of(ctx, self.cands)
+
+    def add(self, cand: Candidate) -> None:
+        b, t, h = _bounds_of(self.ctx, [cand])
+        self.cands.append(cand)
+        self.bound = np.concatenate([self.bound, b])
+        self.task = np.concatenate([self.task, t])
+        self.hits = np.concatenate([self.hits, h])
+
+
+def _refine(ctx: PassContext, sc: _Scored, first_rung: int, eps: float, prev_extra):
+    """One tail pass from the cheapest ladder candidate that meets planning samples (bound > ε)
+    while costing less than every candidate whose bound is ≤ ε: the samples it meets join the
+    reduced set, the margins at its rung's level; returns the added candidate or ``None``."""
+    good = sc.bound <= eps
+    best_good = np.min(sc.task[good]) if good.any() else np.inf
+    cand = [
+        i
+        for i in range(first_rung, len(sc.cands))
+        if np.isfinite(sc.bound[i]) and not good[i] and sc.task[i] < best_good and sc.hits[i].any()
+    ]
+    if not cand:
+        return None
+    j = min(cand, key=lambda i: sc.task[i])
+    nxt = tail_pass(ctx, sc.cands[j], sc.hits[j], prev_extra, ctx.keys.refine(), PassName.REFINE,
+                    level=sc.cands[j].level)  # fmt: skip
+    if nxt is not None:
+        sc.add(nxt)
+    return nxt
+
+
+def final_check(ctx: PassContext, passes: list[Candidate], base: Candidate,
+                diag: dict) -> ScheduleResult:  # fmt: skip
+    """The risk dial's final check ("samples" margin mode): every candidate's best plan is
+    scored against **all** n planning samples and its :func:`mmdopt.risk.risk_bound` computed
+    (with the ladder's candidates, for a method that runs it); while no candidate's bound is ≤ ε
+    (and the method runs tail passes) up to ``schedule.tail_passes`` more passes
+    (:func:`tail_pass`).  ε here is at least the floor of the n samples
+    (:func:`mmdopt.risk.risk_floor`).  The choice: among candidates with bound ≤ ε the one of
+    least task cost (speed tracking and comfort, the terms every pass shares), else the one of
+    least bound (its status then says "risk exceeded").  ``base`` is the last candidate that
+    changed the reduced set (the first or the re-selection pass)."""
+    config, method = ctx.config, ctx.method
+    n = ctx.obs_fr.shape[1]
+    G = config.bound_groups(ctx.obs_fr.shape[0])
+    eps = max(float(config.safety.risk), risk_floor([n] * G) * (1 + 1e-9))
+    ladder = ladder_passes(ctx, passes[-1], base) if method.runs("ladder") else []
+    sc = _Scored(ctx, list(passes) + ladder)
+    reduced, prev_extra = base, base.extra
+    if ladder:
+        nxt = _refine(ctx, sc, len(passes), eps, prev_extra)
+        if nxt is not None:
+            reduced, prev_extra = nxt, nxt.extra
+    tails = 0
+    limit = int(config.schedule.tail_passes) if method.runs("tail") else 0
+    while not np.any(sc.bound <= eps) and tails < limit:
+        j = int(np.argmin(sc.bound))
+        if not np.isfinite(sc.bound[j]) or not sc.hits[j].any():
+            break
+        nxt = tail_pass(ctx, sc.cands[j], sc.hits[j], prev_extra, ctx.keys.tail(tails),
+                        PassName.TAIL)  # fmt: skip
+        if nxt is None:
+            break
+        sc.add(nxt)
+        reduced, prev_extra = nxt, nxt.extra
+        tails += 1
+    good = np.flatnonzero(sc.bound <= eps)
+    j = int(good[np.argmin(sc.task[good])]) if good.size else int(np.argmin(sc.bound))
+    if not np.isfinite(sc.bound[j]):
+        j = len(passes) - 1
+    diag.update(
+        final_check_bounds=sc.bound,
+        final_check_task=sc.task,
+        final_check_choice=j,
+        final_check_passes=[str(c.name) for c in sc.cands],
+        tail_passes=tails,
+    )
+    if prev_extra is not None and reduced.name in (PassName.TAIL, PassName.REFINE):
+        diag["tail_extra"] = prev_extra
+    best = sc.cands[j].state.best
+    met = (np.asarray(best.cx, np.float64), np.asarray(best.cy, np.float64), sc.hits[j])
+    return ScheduleResult(sc.cands[j], reduced.obstacles, met)
+
+
+def run_schedule(ctx: PassContext, first: Candidate, diag: dict) -> ScheduleResult:
+    """The passes after the first (``first``: Algorithm 1 on the method's own selection) that
+    the method's record and the config ask for, then, in the "samples" margin mode, the final
+    check; diagnostics of every pass are written into ``diag``."""
+    config, method = ctx.config, ctx.method
+    passes, base = [first], first
+    if config.safety.reselect > 0 and method.runs("reselect"):
+        nxt = reselect_pass(ctx, first, diag)
+        if nxt is not None:
+            passes.append(nxt)
+            base = nxt
+    if config.safety.margins.margin_mode != "samples":
+        return ScheduleResult(passes[-1], base.obstacles)
+    n, O = ctx.obs_fr.shape[1], ctx.obs_fr.shape[0]
+    # below the floor of the n futures (ε < what they can confirm) there is no allowance for
+    # the pass to use: the margins alone extrapolate the tail the futures do not show
+    if (
+        method.runs("nearest")
+        and config.safety.nearest_futures > 0
+        and risk_floor([n] * config.bound_groups(O)) <= float(config.safety.risk)
+    ):
+        passes += nearest_passes(ctx, passes[-1], diag)
+    return final_check(ctx, passes, base, diag)
