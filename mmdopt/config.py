@@ -973,4 +973,6 @@ def _to_dict(obj: Any) -> Any:
         return {f.name: _to_dict(getattr(obj, f.name)) for f in dataclasses.fields(obj)}
     if isinstance(obj, np.generic):
         return obj.item()
+    if isinstance(obj, tuple):  # JSON has lists (margin_ladder): equal after a round trip
+        return [_to_dict(v) for v in obj]
     return obj

@@ -130,7 +130,7 @@ class PlanStatus(enum.StrEnum):
     ``FALLBACK``       no plan of Algorithm 1 could be used (an initial state beyond the
                        bounds, no sample meeting the constraints, a non-finite cost): a
                        braking or the least-violating plan is returned
-    ``SHIELDED``       the safety shield (:func:`mmdopt.safety.shield`) replaced the plan by a
+    ``SHIELDED``       the safety shield (``mmdopt.safety.shield``) replaced the plan by a
                        checked braking manoeuvre; nothing measured on the replaced plan is
                        kept (its cost, bound, MMD and feasibility are NaN / False)
     =================  ======================================================================

@@ -7,35 +7,53 @@ only ever made *weaker* by the check (never upgraded), and every change says why
 
 Optimality (answers reported ``SOLVED`` or ``SOLVED_INACCURATE``), in float64 on the problem as
 given, with ``eps = max(eps_abs, eps_rel, EPS_FLOOR)`` from the backend's stated tolerance
-(:meth:`~solvers.base.Backend.stated_tolerance`):
+(:meth:`~solvers.base.Backend.stated_tolerance`).  Every test has an absolute floor, in OSQP's
+manner: a residual ``r`` with ``scale`` the largest of the terms it sums passes at ``k·eps`` when
+``r ≤ k·eps + k·eps·scale``, i.e. its *relative residual* ``r / (1 + scale)`` is ``≤ k·eps``.
+Without the floor a point whose terms are all near zero (``x = 0`` on the bounds, multipliers of
+``1e-10``) is held to ``r / scale``, about 1 whatever the accuracy.
 
 * primal, row-normalised: each row ``a_i`` of ``A`` and its bounds are divided by ``‖a_i‖∞``;
-  the violation ``max(0, l̃_i − ã_i x, ã_i x − ũ_i)`` of each row is divided by
-  ``max(1, |l̃_i|, |ũ_i|, |ã_i|·|x|)`` (finite bounds only; ``|ã_i|·|x| ≥ |ã_i x|`` is the size of
-  the terms summed, so a row whose terms cancel is not held to less than their rounding);
-  ``primal`` is the largest.  A row scaled
-  by ``1e-8`` is thus held to the same accuracy as the unscaled row; a residual of ``3e26`` on a
-  row ``= 3e26`` is a relative residual of 1, not "small next to the data".
-* dual: ``‖Px + q + Aᵀy‖∞ / max(‖|P||x|‖∞, ‖q‖∞, ‖|Aᵀ||y|‖∞)`` (the sizes of the terms summed,
-  which bound ``‖Px‖∞`` and ``‖Aᵀy‖∞`` and are not zero where those cancel to rounding, e.g. at
-  Maros–Meszaros TAME's optimum ``Px = 0``), after dropping multipliers of the
+  the violation ``max(0, l̃_i − ã_i x, ã_i x − ũ_i)`` of each row, with ``scale`` the largest of
+  ``|l̃_i|``, ``|ũ_i|`` and ``|ã_i|·|x|`` (finite bounds only; ``|ã_i|·|x| ≥ |ã_i x|`` is the size
+  of the terms summed, so a row whose terms cancel is not held to less than their rounding);
+  ``primal`` is the largest.  A row scaled by ``1e-8`` is thus held to the same accuracy as the
+  unscaled row; a residual of ``3e26`` on a row ``= 3e26`` is a relative residual of 1, not
+  "small next to the data".
+* dual: ``‖Px + q + Aᵀy‖∞`` with ``scale = max(‖|P||x|‖∞, ‖q‖∞, ‖|Aᵀ||y|‖∞)`` (the sizes of the
+  terms summed, which bound ``‖Px‖∞`` and ``‖Aᵀy‖∞`` and are not zero where those cancel to
+  rounding, e.g. at Maros–Meszaros TAME's optimum ``Px = 0``), after dropping multipliers of the
   wrong sign for an infinite side (``y_i > 0`` with ``u_i = +∞``, ``y_i < 0`` with ``l_i = −∞``),
   so a multiplier that cannot exist shows up here.
 * gap: ``|xᵀPx + qᵀx + S(y)|`` (primal minus dual objective, ``S(y) = Σ u_i y_i⁺ + l_i y_i⁻``)
-  divided by the size of its terms,
-  ``|x|ᵀ|P||x| + Σ|q_i x_i| + |x|ᵀ|Aᵀ||y| + Σ|u_i y_i⁺ + l_i y_i⁻|``
-  (the gap is ``xᵀ(Px + q + Aᵀy) + (S(y) − yᵀAx)``: the stationarity and complementarity terms),
   less ``|x|ᵀ|Px + q + Aᵀy|``, the part the dual residual already explains (on a degenerate LP
-  with large ``x``, a dual residual that passes can otherwise fail the gap alone).
+  with large ``x``, a dual residual that passes can otherwise fail the gap alone), with
+  ``scale`` the largest of its terms ``|x|ᵀ|P||x|``, ``Σ|q_i x_i|``, ``|x|ᵀ|Aᵀ||y|`` and
+  ``Σ|u_i y_i⁺ + l_i y_i⁻|`` (the gap is ``xᵀ(Px + q + Aᵀy) + (S(y) − yᵀAx)``).
+* objective gap: ``|f_primal − f_dual| / max(1, |f_primal|)`` with ``f_primal = ½xᵀPx + qᵀx``
+  and ``f_dual = −½xᵀPx − S(y)``: how well the point pins the objective itself, relative to its
+  size (the gap above is relative to the size of its terms, which may cancel).
 
-Dual and gap are checked only where the backend returned finite duals.  With ``worst`` the largest
-of the three divided by ``eps``:
+Dual, gap and objective gap are checked only where the backend returned finite duals.  With
+``worst`` the largest of the three relative residuals:
 
-* ``worst ≤ SOLVED_FACTOR`` (10): the status stands;
-* ``SOLVED_FACTOR < worst`` and every relative residual ≤ ``far = min(FAR_FACTOR·eps,
-  FAR_MAX)`` (``1e3·eps``, at most ``0.1``): ``SOLVED`` becomes ``SOLVED_INACCURATE``;
-* beyond ``far``: ``MAX_ITER`` (the point is an unconverged iterate, kept for inspection);
+* ``worst ≤ SOLVED_FACTOR·eps`` (10) and objective gap ``≤ far = min(FAR_FACTOR·eps,
+  FAR_MAX)`` (``1e3·eps``, at most ``0.1``): the status stands;
+* ``SOLVED_FACTOR·eps < worst ≤ far``: ``SOLVED`` becomes ``SOLVED_INACCURATE``;
+* ``worst`` or the objective gap beyond ``far`` (:data:`OBJECTIVE_GAP_FACTOR` is
+  :data:`FAR_FACTOR`): ``MAX_ITER`` (the point is an unconverged iterate, kept for inspection);
 * non-finite ``x`` or residuals: ``ERROR``.
+
+The objective gap is held to the residuals' ``far``, not to ``10·eps``: an answer that meets its
+tolerance has a gap of about ``eps`` times the largest term of the objective, which may be far
+larger than the objective when the terms cancel.
+
+What no test on ``(x, y)`` can see: an answer whose residuals are all within ``far`` may still sit
+far from the optimum on an ill-conditioned problem.  OSQP at its default 1e-3 on Maros–Meszaros
+QPCBOEI2 stops with a row-normalised primal residual of 0.05 and an objective gap of 1.6e-3, its
+objective 12 % below the optimum; on QBANDM it stops with 0.05 and 1.9e-3, and on Q25FV47 with
+0.1 and 1.6e-3, 1e-4 and 1.5e-3 from the optimum.  All three are ``SOLVED_INACCURATE``; a bound
+that demoted the first would demote the other two, and only tighter settings tell them apart.
 
 Infeasibility (answers reported ``PRIMAL_INFEASIBLE`` or ``DUAL_INFEASIBLE``): a certificate
 must verify on the row-normalised data, normalised so ``‖·‖∞ = 1``, what must vanish to
@@ -55,10 +73,10 @@ certificate in ``extras["prim_inf_cert"]`` / ``extras["dual_inf_cert"]``.
 
 ``extras["check"]`` (one problem) holds ``result`` (``"passed"``, ``"inaccurate"``,
 ``"far"``, ``"non-finite"``, ``"certified"``, ``"refuted"``; ``"skipped"`` for ``MAX_ITER`` /
-``ERROR``), the three relative residuals, ``eps``, ``status_before``, where the status changed
-``reason``, and for a certified claim ``certificate`` (``"backend"`` or ``"computed"``).  For a
-batch the same keys hold arrays over the batch (``reason``: a dict ``{index: text}``;
-``certificate``: ``{index: "backend" | "computed"}``), certificates sit in
+``ERROR``), the three relative residuals and ``objective_gap``, ``eps``, ``status_before``,
+where the status changed ``reason``, and for a certified claim ``certificate`` (``"backend"`` or
+``"computed"``).  For a batch the same keys hold arrays over the batch (``reason``: a dict
+``{index: text}``; ``certificate``: ``{index: "backend" | "computed"}``), certificates sit in
 ``extras["certificates"]`` (``{index: array}``), and ``sols[i]`` carries problem ``i``'s record
 and certificate as a single solve does.
 """
@@ -80,6 +98,7 @@ __all__ = [
     "EPS_FLOOR",
     "FAR_FACTOR",
     "FAR_MAX",
+    "OBJECTIVE_GAP_FACTOR",
     "SOLVED_FACTOR",
     "check_batch_solution",
     "check_solution",
@@ -101,6 +120,13 @@ SOLVED_FACTOR = 10.0
 #: beyond ``min(FAR_FACTOR·eps, FAR_MAX)`` the point is no solution at all: MAX_ITER
 FAR_FACTOR = 1e3
 FAR_MAX = 1e-1
+#: beyond ``min(OBJECTIVE_GAP_FACTOR·eps, FAR_MAX)`` of ``max(1, |f_primal|)`` between the primal
+#: and the dual objective, the objective itself is not known: MAX_ITER.  The same bound as the
+#: residuals' ``far``: an answer within it is inaccurate at worst, and the residual tiers decide.
+#: (100 × would be too tight: ProxQP at its defaults, 1e-5 and no gap test, returns the box QP
+#: ``min ½‖x‖² + x0 − x1`` 1.3e-3 off, objective gap 130 × its tolerance, a usable inaccurate
+#: answer; OSQP at its default 1e-3 is capped at 10 % either way)
+OBJECTIVE_GAP_FACTOR = 1e3
 #: what must vanish in a certificate normalised to ‖·‖∞ = 1 (``Ãᵀỹ``; ``Pd`` relative to
 #: ``‖P‖max``; the excess of ``Ãd`` over the recession cone): rounding level.  A certificate only
 #: approximately in the cone proves nothing (along ``d`` with ``dᵀPd = κ > 0`` the objective is
@@ -109,7 +135,6 @@ FAR_MAX = 1e-1
 CERT_ZERO = 1e-9
 #: the margin a certificate must show (``S̃(ỹ) ≤ −CERT_TOL``, ``qᵀd ≤ −CERT_TOL·‖q‖∞``)
 CERT_TOL = 1e-6
-_TINY = 1e-300
 _SOLVED_LIKE = (STATUS_CODES.SOLVED, STATUS_CODES.SOLVED_INACCURATE)
 _INFEASIBLE = (STATUS_CODES.PRIMAL_INFEASIBLE, STATUS_CODES.DUAL_INFEASIBLE)
 
@@ -168,21 +193,25 @@ def optimality_residuals(
         raise ValueError(f"x has shape {np.shape(x)}, expected {(n,) if single else (B, n)}")
     if Y.shape != (B, m):
         raise ValueError(f"y has shape {np.shape(y)}, expected {(m,) if single else (B, m)}")
-    primal, dual, gap = _residuals(problem.P, problem.A, q, l, u, X, Y)
+    primal, dual, gap, _ = _residuals(problem.P, problem.A, q, l, u, X, Y)
     if single:
         return float(primal[0]), float(dual[0]), float(gap[0])
     return primal, dual, gap
 
 
 def _residuals(P: Any, A: Any, q, l, u, X: np.ndarray, Y: np.ndarray):
-    """:func:`optimality_residuals` on arrays: ``q`` (B, n), ``l, u`` (B, m), ``X``, ``Y``."""
+    """:func:`optimality_residuals` on arrays: ``q`` (B, n), ``l, u`` (B, m), ``X``, ``Y``.
+
+    Returns ``(primal, dual, gap, objective_gap)``, each (B,): the three relative residuals
+    (each ``residual / (1 + scale)``, ``scale`` the largest of the terms summed) and
+    ``|f_primal − f_dual| / max(1, |f_primal|)``."""
     B, m = X.shape[0], l.shape[1]
     xfin = np.all(np.isfinite(X), axis=1)
     yfin = np.all(np.isfinite(Y), axis=1) & xfin
     Xs = np.where(xfin[:, None], X, 0.0)
     Ys = _clean_duals(l, u, np.where(yfin[:, None], Y, 0.0))
     with np.errstate(over="ignore", invalid="ignore"):
-        # primal, row-normalised; scaled per row by the size of the terms of a_i x
+        # primal, row-normalised; scale: the largest of |l̃_i|, |ũ_i|, |ã_i|·|x| per row
         absA = abs(A) if sp.issparse(A) else np.abs(A)
         if m:
             rn = _row_norms(A)
@@ -191,16 +220,16 @@ def _residuals(P: Any, A: Any, q, l, u, X: np.ndarray, Y: np.ndarray):
             ls, us = l / rn, u / rn
             viol = np.maximum(np.maximum(ls - Ax, Ax - us), 0.0)
             scale = np.maximum(
-                np.maximum(1.0, absAx),
+                absAx,
                 np.maximum(
                     np.where(np.isfinite(ls), np.abs(ls), 0.0),
                     np.where(np.isfinite(us), np.abs(us), 0.0),
                 ),
             )
-            primal = np.max(viol / scale, axis=1)
+            primal = np.max(viol / (1.0 + scale), axis=1)
         else:
             primal = np.zeros(B)
-        # dual: relative to the size of the terms summed (their rounding scale)
+        # dual: scale the largest of the terms summed (their rounding scale)
         Px = _rows_times(P, Xs)
         absP = abs(P) if sp.issparse(P) else np.abs(P)
         absPx = _rows_times(absP, np.abs(Xs))
@@ -214,39 +243,49 @@ def _residuals(P: Any, A: Any, q, l, u, X: np.ndarray, Y: np.ndarray):
         d_scale = np.maximum.reduce(
             [np.abs(absPx).max(axis=1), np.abs(q).max(axis=1), np.abs(absATy).max(axis=1)]
         )
-        dual = r / np.maximum(d_scale, _TINY)
-        # gap: relative to the sizes of its terms, written as xᵀ(Px + q + Aᵀy) + (S(y) − yᵀAx)
+        dual = r / (1.0 + d_scale)
+        # gap: written as xᵀ(Px + q + Aᵀy) + (S(y) − yᵀAx); scale the largest of its terms
         uf, lf = np.where(np.isfinite(u), u, 0.0), np.where(np.isfinite(l), l, 0.0)
         s_terms = uf * np.maximum(Ys, 0.0) + lf * np.minimum(Ys, 0.0)
         xPx = np.einsum("bi,bi->b", Xs, Px)
         qx = q * Xs
-        g = np.abs(xPx + qx.sum(axis=1) + s_terms.sum(axis=1))
+        g_raw = np.abs(xPx + qx.sum(axis=1) + s_terms.sum(axis=1))
         # less the part the dual residual explains (|xᵀ(Px + q + Aᵀy)|, held by the dual check)
-        g = np.maximum(g - np.einsum("bi,bi->b", np.abs(Xs), np.abs(rd)), 0.0)
-        g_scale = (
-            np.einsum("bi,bi->b", np.abs(Xs), absPx)
-            + np.abs(qx).sum(axis=1)
-            + np.einsum("bi,bi->b", np.abs(Xs), absATy)
-            + np.abs(s_terms).sum(axis=1)
+        g = np.maximum(g_raw - np.einsum("bi,bi->b", np.abs(Xs), np.abs(rd)), 0.0)
+        g_scale = np.maximum.reduce(
+            [
+                np.einsum("bi,bi->b", np.abs(Xs), absPx),
+                np.abs(qx).sum(axis=1),
+                np.einsum("bi,bi->b", np.abs(Xs), absATy),
+                np.abs(s_terms).sum(axis=1),
+            ]
         )
-        gap = g / np.maximum(g_scale, _TINY)
+        gap = g / (1.0 + g_scale)
+        # the objectives: primal ½xᵀPx + qᵀx minus dual −½xᵀPx − S(y), relative to the objective
+        f_primal = 0.5 * xPx + qx.sum(axis=1)
+        objective_gap = g_raw / np.maximum(1.0, np.abs(f_primal))
     primal = np.where(xfin, primal, np.nan)
     dual = np.where(yfin, dual, np.nan)
     gap = np.where(yfin, gap, np.nan)
-    return primal, dual, gap
+    objective_gap = np.where(yfin, objective_gap, np.nan)
+    return primal, dual, gap, objective_gap
 
 
 def _far(eps: float) -> float:
     return float(min(FAR_FACTOR * eps, FAR_MAX))
 
 
+def _objective_far(eps: float) -> float:
+    return float(min(OBJECTIVE_GAP_FACTOR * eps, FAR_MAX))
+
+
 def _verdict(
-    status: int, primal: float, dual: float, gap: float, eps: float
+    status: int, primal: float, dual: float, gap: float, objective_gap: float, eps: float
 ) -> tuple[int, str, str]:
     """``(new status, result, reason)`` for a SOLVED/SOLVED_INACCURATE answer."""
     res = np.array([primal, dual, gap])
     names = ("primal", "dual", "gap")
-    if not np.isfinite(primal) or np.any(np.isinf(res)):
+    if not np.isfinite(primal) or np.any(np.isinf(res)) or np.isinf(objective_gap):
         return (
             STATUS_CODES.ERROR,
             "non-finite",
@@ -254,17 +293,28 @@ def _verdict(
         )
     known = res[np.isfinite(res)]
     worst = float(known.max(initial=0.0))
-    if worst <= SOLVED_FACTOR * eps:
-        return status, "passed", ""
-    which = names[int(np.nanargmax(res))]
     far = _far(eps)
-    if worst > far:
+    if worst > SOLVED_FACTOR * eps and worst > far:
+        which = names[int(np.nanargmax(res))]
         return (
             STATUS_CODES.MAX_ITER,
             "far",
             f"reported {Status(status).name} but the relative {which} residual is {worst:.3g} "
             f"(> {far:.3g}, far beyond the stated tolerance {eps:.3g}): an unconverged iterate",
         )
+    obj_far = _objective_far(eps)
+    if objective_gap > obj_far:
+        return (
+            STATUS_CODES.MAX_ITER,
+            "far",
+            f"reported {Status(status).name} but the primal and dual objectives differ by "
+            f"{objective_gap:.3g} of the objective (|f_primal − f_dual| / max(1, |f_primal|) > "
+            f"{obj_far:.3g}, {OBJECTIVE_GAP_FACTOR:g} × the stated tolerance {eps:.3g}): the "
+            "objective is not known to that accuracy, an unconverged iterate",
+        )
+    if worst <= SOLVED_FACTOR * eps:
+        return status, "passed", ""
+    which = names[int(np.nanargmax(res))]
     if status == STATUS_CODES.SOLVED:
         return (
             STATUS_CODES.SOLVED_INACCURATE,
@@ -430,9 +480,20 @@ def check_solution(be: Any, qp: QP, sol: Solution) -> Solution:
         # a point of the wrong shape is no point; duals of the wrong shape are no duals
         x = sol.x if np.shape(sol.x) == (qp.n,) else np.full(qp.n, np.nan)
         y = sol.y if np.shape(sol.y) == (qp.m,) else np.full(qp.m, np.nan)
-        p, d, g = optimality_residuals(qp, x, y)
-        info.update(primal=p, dual=d, gap=g)
-        new, result, reason = _verdict(status, p, d, g, eps)
+        p, d, g, og = (
+            float(v[0])
+            for v in _residuals(
+                qp.P,
+                qp.A,
+                qp.q[None],
+                qp.l[None],
+                qp.u[None],
+                np.asarray(x, float)[None],
+                np.asarray(y, float)[None],
+            )
+        )
+        info.update(primal=p, dual=d, gap=g, objective_gap=og)
+        new, result, reason = _verdict(status, p, d, g, og, eps)
         info["result"] = result
         if new != status:
             changes["status"] = Status(new)
@@ -482,23 +543,24 @@ def check_batch_solution(be: Any, batch: QPBatch, sol: BatchSolution) -> BatchSo
     prim = np.array(sol.primal_residual, dtype=np.float64)
     dres = np.array(sol.dual_residual, dtype=np.float64)
     B = len(batch)
-    p, d, g = (np.full(B, np.nan) for _ in range(3))
+    p, d, g, og = (np.full(B, np.nan) for _ in range(4))
     result = np.full(B, "skipped", dtype=object)
     reasons: dict[int, str] = {}
     certs: dict[int, np.ndarray] = {}
     sources: dict[int, str] = {}
     idx = np.flatnonzero(np.isin(before, _SOLVED_LIKE))
     if idx.size:
-        p[idx], d[idx], g[idx] = _residuals(
+        p[idx], d[idx], g[idx], og[idx] = _residuals(
             batch.P, batch.A, batch.q[idx], batch.l[idx], batch.u[idx], x[idx], y[idx]
         )
         with np.errstate(invalid="ignore"):
             worst = np.fmax(np.fmax(p[idx], d[idx]), g[idx])
             ok = np.isfinite(p[idx]) & (worst <= SOLVED_FACTOR * eps)
             ok &= ~np.isinf(d[idx]) & ~np.isinf(g[idx])
+            ok &= ~(og[idx] > _objective_far(eps))
         result[idx[ok]] = "passed"
         for i in idx[~ok]:  # the rest, one by one (the reasons)
-            new, result[i], reason = _verdict(int(before[i]), p[i], d[i], g[i], eps)
+            new, result[i], reason = _verdict(int(before[i]), p[i], d[i], g[i], og[i], eps)
             if new != before[i]:
                 status[i] = new
                 reasons[int(i)] = reason
@@ -525,6 +587,7 @@ def check_batch_solution(be: Any, batch: QPBatch, sol: BatchSolution) -> BatchSo
         "primal": p,
         "dual": d,
         "gap": g,
+        "objective_gap": og,
         "reason": reasons,
         "certificate": sources,
     }

@@ -108,7 +108,9 @@ class IPMSettings:
     ----------
     eps_abs, eps_rel : termination on the unscaled problem: bound violation ≤ ``eps_abs +
         eps_rel·max(‖Ax‖∞, ‖Π(Ax)‖∞)``, ``‖Px + q + Aᵀy‖∞ ≤ eps_abs + eps_rel·max(‖Px‖∞, ‖Aᵀy‖∞,
-        ‖q‖∞)`` and duality gap ≤ ``eps_abs + eps_rel·max(|f_primal|, |f_dual|)``.
+        ‖q‖∞)`` and duality gap ≤ ``eps_abs + eps_rel·min(max(|f_primal|, |f_dual|),
+        max(|xᵀPx|, |qᵀx|, |S(y)|))``: a ``SOLVED`` meets ``Solution.is_optimal(eps_abs,
+        eps_rel)`` (OSQP's scales), and ``is_optimal(eps_abs)`` when ``eps_rel = 0``.
     eps_prim_inf, eps_dual_inf : relative tolerances of the infeasibility certificates.
     max_iter : interior-point iterations per QP.
     step_fraction : fraction of the step to the boundary taken (``α = min(1, τ·α_max)``).
@@ -719,7 +721,10 @@ def _termination(qp: _QP, x, y, Ax, Px, ATy):
     supp = jnp.sum(jnp.where(y > 0, r.uf * y, r.lf * y)) / c  # S(y): support function of [l, u]
     pobj, dobj = 0.5 * xPx + qx, -0.5 * xPx - supp
     gap = jnp.abs(pobj - dobj)
-    eps_g = p.eps_abs + p.eps_rel * jnp.maximum(jnp.abs(pobj), jnp.abs(dobj))
+    # relative to the objectives, and never looser than OSQP's scale (that of
+    # Solution.is_optimal): a SOLVED meets is_optimal(eps_abs, eps_rel)
+    g_osqp = jnp.maximum(jnp.maximum(jnp.abs(xPx), jnp.abs(qx)), jnp.abs(supp))
+    eps_g = p.eps_abs + p.eps_rel * jnp.minimum(jnp.maximum(jnp.abs(pobj), jnp.abs(dobj)), g_osqp)
     solved = (prim <= eps_p) & (dual <= eps_d) & (gap <= eps_g)
     return solved, prim, dual, gap
 

@@ -75,6 +75,25 @@ def _as_matrix(M: Any, name: str, shape: tuple[int, int]) -> np.ndarray | sp.csc
     return M
 
 
+def _square_size(P: Any, name: str = "P") -> int:
+    """``n`` from ``P``, which must be a square 2-D matrix: the size every other argument is
+    checked against (so a ``q`` of the wrong length is reported as ``q``, not as ``P``)."""
+    if P is None:
+        raise ValueError(f"{name} is required, got None")
+    shape = tuple(P.shape) if sp.issparse(P) else real_array(P, name).shape
+    if len(shape) != 2 or shape[0] != shape[1]:
+        raise ValueError(f"{name} has shape {shape}, expected a square (n, n) matrix")
+    if shape[0] == 0:
+        raise ValueError(f"{name} has shape {shape}: a QP needs at least one variable")
+    return int(shape[0])
+
+
+def _check_q_size(q: np.ndarray, n: int, expected: str) -> None:
+    """``q``'s last axis against ``n`` (the size of ``P``); ``expected``: the shapes allowed."""
+    if q.shape[-1] != n:
+        raise ValueError(f"q has shape {q.shape}, expected {expected}: n = {n} is the size of P")
+
+
 def _as_vector(v: Any, name: str, size: int, *, allow_inf: bool, batch: int | None = None):
     if v is None:
         raise ValueError(f"{name} is required, got None")
@@ -89,6 +108,40 @@ def _as_vector(v: Any, name: str, size: int, *, allow_inf: bool, batch: int | No
     return v
 
 
+#: how many offending indices an error message lists
+_SHOWN = 5
+
+
+def _where(bad: np.ndarray) -> str:
+    """Where ``bad`` holds, for an error message: ``"index 3"`` or ``"indices [0, 4]"`` for one
+    problem's vector; ``"index 1 of QP 0"`` or ``"(QP, index) [(0, 1), (2, 1)]"`` for a batch's
+    ``(B, ·)`` array.  Plain ints; at most :data:`_SHOWN` listed, with the total when more."""
+    bad = np.asarray(bad, dtype=bool)
+    if bad.ndim <= 1:
+        hits: list = np.flatnonzero(bad).tolist()
+        one, many = f"index {hits[0]}" if hits else "", "indices"
+    else:
+        hits = [tuple(int(v) for v in row) for row in np.argwhere(bad)]
+        one = f"index {hits[0][1]} of QP {hits[0][0]}" if hits else ""
+        many = "(QP, index)"
+    if len(hits) == 1:
+        return one
+    more = f" (first {_SHOWN} of {len(hits)})" if len(hits) > _SHOWN else ""
+    return f"{many} {hits[:_SHOWN]}{more}"
+
+
+def _values(bad: np.ndarray, **arrays: np.ndarray) -> str:
+    """`` (l = 1, u = 0)``: the offending values when exactly one entry is bad, else ``""``."""
+    bad = np.asarray(bad, dtype=bool)
+    if int(bad.sum()) != 1:
+        return ""
+    parts = []
+    for name, a in arrays.items():
+        v = np.broadcast_to(np.asarray(a), bad.shape)[bad][0]
+        parts.append(f"{name} = {float(v):g}")
+    return f" ({', '.join(parts)})"
+
+
 def _bounds(l: np.ndarray, u: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Apply the 1e20 rule and check ``l ≤ u``; returns the bounds to store.
 
@@ -100,18 +153,16 @@ def _bounds(l: np.ndarray, u: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     eq = l == u
     l = np.where((l <= -BOUND_INF) & ~eq, -np.inf, l)
     u = np.where((u >= BOUND_INF) & ~eq, np.inf, u)
-    for name, bad, what in (
-        ("l", l == np.inf, "+inf (a lower bound of +inf can never be met)"),
-        ("u", u == -np.inf, "-inf (an upper bound of -inf can never be met)"),
+    for name, bad, value, why in (
+        ("l", l == np.inf, "+inf", "a lower bound of +inf can never be met"),
+        ("u", u == -np.inf, "-inf", "an upper bound of -inf can never be met"),
     ):
         if np.any(bad):
-            idx = np.argwhere(bad)[:5].tolist()
             both = " (l == u == ±inf: an equality at infinity)" if np.any(eq & bad) else ""
-            raise ValueError(f"{name} is {what} at index {idx} (first 5 shown){both}")
+            raise ValueError(f"{name} is {value} at {_where(bad)}: {why}{both}")
     bad = l > u
     if np.any(bad):
-        idx = np.argwhere(bad)[:5].tolist()
-        raise ValueError(f"infeasible bounds: l > u at index {idx} (first 5 shown)")
+        raise ValueError(f"infeasible bounds: l > u at {_where(bad)}{_values(bad, l=l, u=u)}")
     return l, u
 
 
@@ -190,11 +241,6 @@ def check_convex(P: Any, name: str = "P") -> None:
     )
 
 
-def _idx(bad: np.ndarray) -> list:
-    """The first 5 indices where ``bad`` holds (ints for 1-D, ``[k, i]`` pairs for a batch)."""
-    return np.flatnonzero(bad)[:5].tolist() if bad.ndim == 1 else np.argwhere(bad)[:5].tolist()
-
-
 def _from_qpsolvers_form(
     P: Any,
     q: Any,
@@ -225,7 +271,12 @@ def _from_qpsolvers_form(
             f"q must have shape (n,) (shared by every QP) or (B, n) (one row per QP) with n ≥ 1, "
             f"got {q.shape}"
         )
-    n = q.shape[-1]
+    if P is None:  # QP(...) says "P is required"
+        n = q.shape[-1]
+    else:  # the size comes from P: q, G, A, lb, ub are checked against it
+        n = _square_size(P, "P")
+        shared = f"({n},) (shared by every QP) or (B, {n}) (one row per QP)"
+        _check_q_size(q, n, shared if batched else f"({n},)")
     sizes: dict[str, int] = {}  # argument -> its leading batch size, for the per-QP ones
     if batched and q.ndim == 2:
         sizes["q"] = q.shape[0]
@@ -274,10 +325,7 @@ def _from_qpsolvers_form(
         if vname == "b" and not np.all(np.isfinite(vv)):
             raise ValueError("b contains inf: an equality at infinity can never be met")
         if vname == "h" and np.any(vv == -np.inf):
-            raise ValueError(
-                f"h is -inf at index {_idx(vv == -np.inf)} (first 5 shown): G x ≤ -inf can "
-                "never be met"
-            )
+            raise ValueError(f"h is -inf at {_where(vv == -np.inf)}: G x ≤ -inf can never be met")
         rows.append(Ms)
         rhs.append((vname, np.full(vv.shape, -np.inf) if vname == "h" else vv, vv))
     if lb is not None or ub is not None:
@@ -289,12 +337,11 @@ def _from_qpsolvers_form(
         ):
             if np.any(v == bad_value):
                 raise ValueError(
-                    f"{name} is {bad_value:+} at index {_idx(v == bad_value)} (first 5 shown): "
-                    f"{what} can never be met"
+                    f"{name} is {bad_value:+} at {_where(v == bad_value)}: {what} can never be met"
                 )
         bad = lbv > ubv
         if np.any(bad):
-            raise ValueError(f"lb > ub at index {_idx(bad)} (first 5 shown)")
+            raise ValueError(f"lb > ub at {_where(bad)}{_values(bad, lb=lbv, ub=ubv)}")
         rows.append(sp.identity(n, format="csc"))
         rhs.append(("lb/ub", lbv, ubv))
     Acat = sp.vstack(rows, format="csc") if rows else sp.csc_matrix((0, n))
@@ -374,7 +421,10 @@ class QP:
     -----
     Every argument is validated on construction: wrong shapes, non-numeric or complex data,
     NaN/inf in the matrices or in ``q``, NaN in the bounds, ``l > u``, ``l = +inf``, ``u = −inf``
-    raise :class:`ValueError` naming the argument.
+    raise :class:`ValueError` naming the argument.  The size ``n`` is ``P``'s (``P`` must be
+    square) and ``m`` is ``A``'s number of rows; ``q``, ``A``'s columns and ``l``, ``u`` are checked
+    against them, so the message names the argument that disagrees with ``P``.  Indices in
+    messages are plain ints (``l > u at index 0 (l = 1, u = 0)``, ``at indices [0, 3]``).
 
     Examples
     --------
@@ -398,9 +448,10 @@ class QP:
         q = real_array(self.q, "q")
         if q.ndim != 1:
             raise ValueError(f"q must be 1-D, got shape {np.shape(q)}")
-        n = q.shape[0]
-        if n == 0:
+        if q.shape[0] == 0:
             raise ValueError("q is empty: a QP needs at least one variable")
+        n = _square_size(self.P, "P")  # the QP's size comes from P; q is checked against it
+        _check_q_size(q, n, f"({n},)")
         if self.A is None:
             raise ValueError("A is required (use np.zeros((0, n)) for no constraints), got None")
         A_shape = np.shape(self.A) if not sp.issparse(self.A) else self.A.shape
@@ -599,7 +650,8 @@ class QPBatch:
     """Many QPs sharing ``P`` (n, n) and ``A`` (m, n); per-problem ``q`` (B, n), ``l``/``u`` (B, m).
 
     Iterating or indexing yields :class:`QP` objects, so any backend can loop over a batch.
-    Validated like :class:`QP` (``check_convex`` included, once for the shared ``P``).  From
+    Validated like :class:`QP` (``n`` from ``P``; ``check_convex`` included, once for the shared
+    ``P``); a bad entry of a per-QP array is located as ``index i of QP k``.  From
     qpsolvers' form (shared ``P``, ``G``, ``A``; per-QP ``q, h, b, lb, ub``):
     :meth:`from_qpsolvers`.
     """
@@ -617,11 +669,13 @@ class QPBatch:
         q = real_array(self.q, "q")
         if q.ndim != 2:
             raise ValueError(f"q must have shape (B, n) with a leading batch axis, got {q.shape}")
-        B, n = q.shape
+        B, n_q = q.shape
         if B == 0:
             raise ValueError("q has an empty batch axis: a batch needs at least one problem")
-        if n == 0:
+        if n_q == 0:
             raise ValueError("q has shape (B, 0): a QP needs at least one variable")
+        n = _square_size(self.P, "P")  # the QPs' size comes from P; q is checked against it
+        _check_q_size(q, n, f"({B}, {n})")
         if self.A is None:
             raise ValueError("A is required (use np.zeros((0, n)) for no constraints), got None")
         A_shape = self.A.shape if sp.issparse(self.A) else np.shape(self.A)

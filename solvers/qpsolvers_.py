@@ -126,8 +126,16 @@ SPECS: dict[str, tuple[dict, frozenset | None, bool, tuple, tuple]] = {
         ("eps_abs", "eps_rel"),
         (1e-8, 1e-9),
     ),
+    # ProxQP tests no duality gap unless asked (check_duality_gap, off by default): at
+    # eps_abs = eps_rel = 1e-6 it said SOLVED with gaps up to 6e-5 on unit-scale random QPs.  The
+    # common tolerances mean primal, dual residual *and* gap, so they also set its gap tolerances
+    # and switch the gap test on (a native check_duality_gap given explicitly wins).
     "proxqp": (
-        {"eps_abs": ("eps_abs",), "eps_rel": ("eps_rel",), "max_iter": ("max_iter",)},
+        {
+            "eps_abs": ("eps_abs", "eps_duality_gap_abs", "check_duality_gap"),
+            "eps_rel": ("eps_rel", "eps_duality_gap_rel", "check_duality_gap"),
+            "max_iter": ("max_iter",),
+        },
         frozenset(
             {
                 "backend",
@@ -261,7 +269,16 @@ def spec_for(solver: str) -> SettingsSpec:
         warm_start=warm,
         tolerance=tol,
         tolerance_defaults=tol_def,
+        convert=_CONVERT.get(solver, {}),
     )
+
+
+def _switch_on(_value: Any) -> bool:
+    return True
+
+
+#: per solver: native keys a common value sets through a conversion (see SettingsSpec.convert)
+_CONVERT: dict[str, dict[str, Any]] = {"proxqp": {"check_duality_gap": _switch_on}}
 
 
 # Solvers whose failure status qpsolvers keeps in `Solution.extras` (so infeasibility can be told).

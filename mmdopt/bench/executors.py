@@ -30,7 +30,6 @@ from pathlib import Path
 from typing import Any
 
 from ._optional import progress_bar
-from .results import write_json
 
 __all__ = [
     "EXECUTORS",
@@ -98,6 +97,8 @@ def check_manifest(
                 "use another --out folder (or delete it) to start a fresh sweep"
             )
     else:
+        from .results import write_json  # numpy: not needed to build the CLI's parser
+
         write_json(path, manifest)
 
 
@@ -193,7 +194,9 @@ def run_tasks(
 
     Stopping: an exception in the caller's thread (KeyboardInterrupt, :class:`Interrupted` from
     :func:`stop_on_signals`, a task's error) cancels the queued tasks and terminates every
-    worker before it propagates.  Raises ``ValueError`` for an unknown executor or ``jobs < 1``.
+    worker before it propagates.  Raises ``ValueError`` for an unknown executor or ``jobs < 1``,
+    and, naming ``--address``, for an ``address`` of another form than
+    :func:`parse_ray_address`'s or where no Ray cluster can be reached.
     """
     if executor not in EXECUTORS:
         raise ValueError(f"executor must be one of {EXECUTORS}, got {executor!r}")

@@ -330,7 +330,7 @@ def demo_figure(
     n = len(plans)
     fig = plt.figure(figsize=(18, max(3.6 * n, 5.0)))
     # the middle column holds the scene panels' legends
-    gs = fig.add_gridspec(n, 3, width_ratios=[3.0, 1.05, 1.25], wspace=0.05, hspace=0.45)
+    gs = fig.add_gridspec(n, 3, width_ratios=[3.0, 1.4, 1.25], wspace=0.05, hspace=0.45)
     if validation_index is None:
         validation_index = _default_validation_index(scene)
     xlim = _scene_xlim(scene, plans, validation_index)

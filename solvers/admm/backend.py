@@ -14,7 +14,10 @@ matrix products (:mod:`solvers.admm.core`), on GPU when JAX has one, on CPU othe
   the last ``δx``/``δy``); a claim that does not hold becomes ``MAX_ITER`` (then the fallback,
   if asked for, gets it).
 * Before any status is reported, a final float64 check on the returned point (never on the
-  float32 iterate): ``SOLVED`` needs OSQP's unscaled test **and** the primal residual within
+  float32 iterate): ``SOLVED`` needs OSQP's unscaled test with its duality gap (OSQP 1.x's
+  ``check_dualgap``; the iterations test the primal and dual residuals only, the float64 check
+  and the polish add the gap: ``SOLVED`` meets ``Solution.is_optimal(eps_abs, eps_rel)``)
+  **and** the primal residual within
   ``eps_abs + eps_rel·max(1, ‖finite l, u‖∞)`` (an absolute floor that the size of a diverging
   iterate cannot loosen); a point with ``‖x‖∞`` beyond :data:`DIVERGED` times the data's scale
   that no certificate explains is ``ERROR`` ("iterates diverged").

@@ -44,13 +44,24 @@ def polish_data(P: np.ndarray, A: np.ndarray, s: ADMMSettings, D, E, c) -> Polis
 
 
 def termination(P, A, q, l, u, x, y, s: ADMMSettings):
-    """Unscaled OSQP test for (x, y) with z = Π(Ax); float64.  Returns (ok, prim, dual)."""
+    """Unscaled OSQP test for (x, y) with z = Π(Ax), duality gap included (OSQP 1.x's
+    ``check_dualgap``: ``|xᵀPx + qᵀx + S(y)| ≤ eps_abs + eps_rel·max(|xᵀPx|, |qᵀx|, |S(y)|)``), in
+    float64: what ``Solution.is_optimal(eps_abs, eps_rel)`` checks.  Returns ``(ok, prim, dual,
+    eps_p, eps_d)``."""
     Ax = x @ A.T
     z = np.clip(Ax, l, u)
     Px = x @ P
     Aty = y @ A
     prim = np.abs(Ax - z).max(axis=1, initial=0.0)
     dual = np.abs(Px + q + Aty).max(axis=1, initial=0.0)
+    supp = np.sum(
+        np.where(np.isfinite(u), u, 0.0) * np.maximum(y, 0.0)
+        + np.where(np.isfinite(l), l, 0.0) * np.minimum(y, 0.0),
+        axis=1,
+    )
+    xPx, qx = np.einsum("bi,bi->b", x, Px), np.einsum("bi,bi->b", q, x)
+    gap = np.abs(xPx + qx + supp)
+    eps_g = s.eps_abs + s.eps_rel * np.maximum.reduce([np.abs(xPx), np.abs(qx), np.abs(supp)])
     eps_p = s.eps_abs + s.eps_rel * np.maximum(
         np.abs(Ax).max(1, initial=0.0), np.abs(z).max(1, initial=0.0)
     )
@@ -61,7 +72,9 @@ def termination(P, A, q, l, u, x, y, s: ADMMSettings):
             np.abs(q).max(1, initial=0.0),
         ]
     )
-    return (prim <= eps_p) & (dual <= eps_d), prim, dual, eps_p, eps_d
+    with np.errstate(invalid="ignore"):
+        ok = (prim <= eps_p) & (dual <= eps_d) & (gap <= eps_g)
+    return ok, prim, dual, eps_p, eps_d
 
 
 def _batched_cholesky(M: np.ndarray) -> tuple[np.ndarray, np.ndarray]:

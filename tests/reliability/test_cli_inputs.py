@@ -366,3 +366,59 @@ def test_ray_client_address_without_the_client_names_the_extra(tmp_path, capsys)
         pytest.skip("Ray's client is installed")
     argv = ["bench", "synthetic", "--out", tmp_path / "o", "--executor", "ray"]
     expect_error([*argv, "--address", "ray://head:10001"], capsys, "--address", "ray[client]")
+
+
+@pytest.mark.parametrize("address", ["bogus", "head:", ":6379", "head:99999", "head:port",
+                                     "http://head:8265", "ray://head", "ray://"])  # fmt: skip
+def test_malformed_address_is_exit_2_at_once_with_the_commands_usage(address, tmp_path, capsys):
+    """A malformed ``--address`` (Ray retries one for half a minute) is refused when the
+    command line is parsed, with the usage of the command, before anything is written."""
+    out = tmp_path / "out"
+    argv = ["bench", "frontier", "--executor", "ray", "--address", address, "--out", out]
+    err = expect_error(argv, capsys, "--address", "auto, ray://HOST:PORT or HOST:PORT")
+    assert err.startswith("usage: mmdopt bench frontier ")
+    assert not out.exists()
+
+
+@pytest.mark.parametrize("address", ["auto", "127.0.0.1:6379", "ray://head:10001", "[::1]:6379"])
+def test_address_forms(address):
+    from mmdopt.bench.executors import parse_ray_address
+
+    assert parse_ray_address(address) in (None, ("127.0.0.1", 6379), ("head", 10001),
+                                          ("::1", 6379))  # fmt: skip
+
+
+def _closed_port() -> int:
+    """A local TCP port where nothing listens (bound, then released)."""
+    import socket
+
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return s.getsockname()[1]
+
+
+def test_address_where_no_cluster_answers_is_exit_2_before_anything_is_written(tmp_path, capsys):
+    out = tmp_path / "out"
+    address = f"127.0.0.1:{_closed_port()}"
+    argv = ["bench", "frontier", "--executor", "ray", "--address", address, "--out", out]
+    expect_error(argv, capsys, "--address", address, "no Ray cluster answers")
+    assert not out.exists()
+
+
+def test_executor_names_the_address_when_ray_cannot_connect(monkeypatch):
+    """``run_tasks`` on an unreachable cluster, and a ``ConnectionError`` of ``ray.init``, are a
+    ``ValueError`` naming ``--address`` (the CLI's exit 2), not Ray's traceback."""
+    ray = pytest.importorskip("ray")
+    from mmdopt.bench.executors import run_tasks
+
+    address = f"127.0.0.1:{_closed_port()}"
+    with pytest.raises(ValueError, match=f"--address.*{address}"):
+        run_tasks(abs, [-1], executor="ray", address=address, progress=False)
+
+    def refuse(**kw):
+        raise ConnectionError("Could not find any running Ray instance.")
+
+    monkeypatch.setattr(ray, "is_initialized", lambda: False)
+    monkeypatch.setattr(ray, "init", refuse)
+    with pytest.raises(ValueError, match="--address 'auto'.*any running Ray instance"):
+        run_tasks(abs, [-1], executor="ray", address="auto", progress=False)

@@ -96,7 +96,14 @@ QP_CASES = [
     raises("A-inf-sparse", lambda: _qp(A=sp.diags([np.inf, 1.0])), ValueError, r"^A contains"),
     raises("l-nan", lambda: _qp(l=np.array([np.nan, 0.0])), ValueError, r"^l contains NaN"),
     raises("u-nan", lambda: _qp(u=np.array([1.0, np.nan])), ValueError, r"^u contains NaN"),
-    raises("P-shape", lambda: _qp(P=np.eye(3)), ValueError, r"^P has shape \(3, 3\)"),
+    raises("P-shape", lambda: _qp(P=np.ones((2, 3))), ValueError, r"^P has shape \(2, 3\), expec"),
+    # n comes from P: a q that disagrees with P is the q's fault, not P's
+    raises(
+        "q-length", lambda: _qp(q=np.ones(3)), ValueError, r"^q has shape \(3,\), expected \(2,\)"
+    ),
+    raises(
+        "P-3x3-q-2", lambda: _qp(P=np.eye(3)), ValueError, r"^q has shape \(2,\), expected \(3,"
+    ),
     raises("P-scalar", lambda: _qp(P=1.0), ValueError, r"^P has shape \(\)"),
     raises("A-shape", lambda: _qp(A=np.ones((2, 3))), ValueError, r"^A has shape \(2, 3\)"),
     raises("A-3d", lambda: _qp(A=np.ones((2, 2, 1))), ValueError, r"^A must be 2-D"),
@@ -112,7 +119,12 @@ QP_CASES = [
     raises(
         "P-asymmetric", lambda: _qp(P=np.array([[1.0, 1.0], [0, 1]])), ValueError, "^P must be sym"
     ),
-    raises("l>u", lambda: _qp(l=np.array([2.0, 0.0])), ValueError, r"^infeasible bounds: l > u"),
+    raises(
+        "l>u",
+        lambda: _qp(l=np.array([2.0, 0.0])),
+        ValueError,
+        r"^infeasible bounds: l > u at index 0 \(",
+    ),
     raises(
         "eq-at-+inf",
         lambda: _qp(l=np.array([np.inf, 0.0]), u=np.array([np.inf, 1.0])),
@@ -202,7 +214,13 @@ BATCH_CASES = [
     ),
     raises("P-indefinite", lambda: _batch(P=INDEFINITE), NonConvexError, r"^P is not positive"),
     raises("P-asymmetric", lambda: _batch(P=np.triu(np.ones((2, 2)))), ValueError, r"^P must be"),
-    raises("P-shape", lambda: _batch(P=np.eye(3)), ValueError, r"^P has shape"),
+    raises("P-shape", lambda: _batch(P=np.ones((2, 3))), ValueError, r"^P has shape \(2, 3\)"),
+    raises(
+        "q-length",
+        lambda: _batch(P=np.eye(3)),
+        ValueError,
+        r"^q has shape \(2, 2\), expected \(2, 3",
+    ),
     raises("A-shape", lambda: _batch(A=np.eye(3)), ValueError, r"^A has shape"),
     raises("A-none", lambda: _batch(A=None), ValueError, r"^A is required"),
 ]
@@ -222,7 +240,19 @@ FROM_QPSOLVERS = [
     ("G-complex", dict(G=[[1j, 1.0]], h=[1.0]), ValueError, r"^G is complex"),
     ("lb-length", dict(lb=[0.0]), ValueError, r"^lb has shape \(1,\)"),
     ("ub-strings", dict(ub=["a", "b"]), ValueError, r"^ub must be numeric"),
-    ("lb>ub", dict(lb=[1.0, 1.0], ub=[0.0, 0.0]), ValueError, r"^lb > ub at index \[0, 1\]"),
+    ("lb>ub", dict(lb=[1.0, 1.0], ub=[0.0, 0.0]), ValueError, r"^lb > ub at indices \[0, 1\]$"),
+    (
+        "lb>ub-one",
+        dict(lb=[1.0, 0.0], ub=[0.0, 1.0]),
+        ValueError,
+        r"^lb > ub at index 0 \(lb = 1, ub",
+    ),
+    (
+        "q-length",
+        dict(q=[1.0, 1.0, 1.0]),
+        ValueError,
+        r"^q has shape \(3,\), expected \(2,\): n = 2 i",
+    ),
     ("q-strings", dict(q=["a", "b"]), ValueError, r"^q must be numeric"),
     ("P-indefinite", dict(P=INDEFINITE), NonConvexError, r"^P is not positive semidefinite"),
 ]
@@ -377,6 +407,26 @@ def _huge_equality_outcome(sol: Solution) -> None:
         assert check["result"] == "failed" or sol.primal_residual <= 100 * check["tolerance"]
 
 
+#: right answers whose terms are all near zero (optimum x = 0): solve_qp as the user calls it
+_ZERO_OPT = dict(q=[1.0, -1.0], G=[[1.0, 1.0]], h=[0.2], A=[[1.0, -1.0]], b=[0.0], lb=[-1, -1])
+_TEXTBOOK = dict(P=[[4.0, 1.0], [1.0, 2.0]], q=[1.0, 1.0], G=[[1.0, 1.0]], h=[1.0], lb=[0, 0])
+#: backends that reach these optima at their defaults (the others may stop early themselves)
+_ZERO_SOLVED = frozenset({"clarabel", "osqp", "ipm", "admm", "cvxpy", "qpsolvers:clarabel"})
+
+
+def _solved_at_zero(be: str) -> Callable[[Any], None]:
+    def check(sol: Any) -> None:
+        sols = [sol] if isinstance(sol, Solution) else [sol[i] for i in range(len(sol))]
+        for one in sols:
+            c = one.extras["check"]
+            near = np.all(np.isfinite(one.x)) and np.max(np.abs(one.x)) <= 1e-4
+            assert not (near and c["result"] == "far"), f"{be}: right answer rejected: {c}"
+            if be in _ZERO_SOLVED:
+                assert one.status is Status.SOLVED and near, f"{be}: {one.status.name} {c}"
+
+    return check
+
+
 def _backend_cases(be: str) -> list[Case]:
     cases: list[Case] = []
     for name, kw, names in BAD_SETTINGS:
@@ -433,6 +483,36 @@ def _backend_cases(be: str) -> list[Case]:
             f"{be}-eq-1e25-not-solved-as-inf",
             lambda: solve(_huge_equality(), be),
             check=_huge_equality_outcome,
+        ),
+        Case(
+            f"{be}-zero-optimum-dense",
+            lambda: solve_qp(I2, **_ZERO_OPT, ub=[1, 1], backend=be),
+            check=_solved_at_zero(be),
+        ),
+        Case(
+            f"{be}-zero-optimum-sparse",
+            lambda: solve_qp(sp.identity(2, format="csc"), **_ZERO_OPT, ub=[1, 1], backend=be),
+            check=_solved_at_zero(be),
+        ),
+        Case(
+            f"{be}-textbook-on-lower-bounds",
+            lambda: solve_qp(**_TEXTBOOK, ub=[1, 1], backend=be),
+            check=_solved_at_zero(be),
+        ),
+        Case(
+            f"{be}-textbook-batch-of-5",
+            lambda: solve_batch(
+                QPBatch.from_qpsolvers(
+                    np.array(_TEXTBOOK["P"]),
+                    np.tile(_TEXTBOOK["q"], (5, 1)),
+                    G=_TEXTBOOK["G"],
+                    h=_TEXTBOOK["h"],
+                    lb=_TEXTBOOK["lb"],
+                    ub=[1, 1],
+                ),
+                be,
+            ),
+            check=_solved_at_zero(be),
         ),
     ]
     return cases

@@ -161,8 +161,8 @@ def test_batch_size_is_inferred_from_any_per_qp_argument():
         ({"b": np.zeros((3, 2))}, r"b has shape \(3, 2\), expected \(1,\) .* or \(B, 1\)"),
         ({"ub": np.zeros(2)}, r"ub has shape \(2,\), expected \(3,\)"),
         ({"G": np.zeros((3, 1, 3))}, "G must be one 2-D matrix shared by every QP"),
-        ({"h": np.array([[-np.inf]] * 3)}, r"h is -inf at index \[\[0, 0\]"),
-        ({"lb": np.full((3, 3), 3.0)}, r"lb > ub at index \[\[0, 0\]"),
+        ({"h": np.array([[-np.inf]] * 3)}, r"h is -inf at \(QP, index\) \[\(0, 0\), \(1, 0\)"),
+        ({"lb": np.full((3, 3), 3.0)}, r"lb > ub at \(QP, index\) \[\(0, 0\), \(0, 1\)"),
         ({"batch_size": 2}, "q has 3 rows .* but batch_size has 2"),
     ],
 )
@@ -176,10 +176,10 @@ def test_bad_batch_arguments_raise_naming_the_users_argument(kw, msg):
 @pytest.mark.parametrize(
     "kw, msg",
     [
-        ({"h": [-np.inf]}, r"h is -inf at index \[0\] .*G x ≤ -inf can never be met"),
-        ({"lb": [np.inf, 0.0, 0.0], "ub": None}, r"lb is \+inf at index \[0\]"),
-        ({"ub": [1.0, -np.inf, 1.0], "lb": None}, r"ub is -inf at index \[1\]"),
-        ({"lb": [3.0, 0.0, 0.0]}, r"lb > ub at index \[0\]"),
+        ({"h": [-np.inf]}, r"h is -inf at index 0: G x ≤ -inf can never be met"),
+        ({"lb": [np.inf, 0.0, 0.0], "ub": None}, r"lb is \+inf at index 0:"),
+        ({"ub": [1.0, -np.inf, 1.0], "lb": None}, r"ub is -inf at index 1:"),
+        ({"lb": [3.0, 0.0, 0.0]}, r"lb > ub at index 0 \(lb = 3, ub = "),
         ({"b": [np.inf]}, "b contains inf"),
         ({"h": [np.nan]}, "h contains NaN"),
     ],
