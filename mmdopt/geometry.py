@@ -98,8 +98,10 @@ class Footprint:
         vals["obstacle_width"] = width if obstacle_width is None else obstacle_width
         for name, v in vals.items():
             least = 0.0 if name == "margin" else None
-            if not _plain_number(v) or not math.isfinite(v) or (
-                v < 0 if least is not None else v <= 0
+            if (
+                not _plain_number(v)
+                or not math.isfinite(v)
+                or (v < 0 if least is not None else v <= 0)
             ):
                 bound = ">= 0" if least is not None else "> 0"
                 raise ValueError(f"{name} must be a finite number {bound} (m), got {v!r}")
