@@ -74,7 +74,7 @@ class Footprint:
         return dataclasses.replace(self, **kw)
 
     @classmethod
-    def from_vehicles(
+    def from_vehicle(
         cls,
         length: float,
         width: float,

@@ -10,9 +10,9 @@ from mmdopt.geometry import OBSTACLE_FOOTPRINT
 
 
 def test_the_footprint_of_two_cars_is_their_half_sizes_plus_the_margin():
-    fp = mmdopt.Footprint.from_vehicles(5.0, 2.0, 0.5)
+    fp = mmdopt.Footprint.from_vehicle(5.0, 2.0, 0.5)
     assert (fp.a, fp.b) == (3.0, 2.5)  # semi-axes: 2.5 + 0 + 0.5 along, 1 + 1 + 0.5 across
-    long = mmdopt.Footprint.from_vehicles(4.8, 1.9, 0.3, obstacle_length=12.0, obstacle_width=2.5)
+    long = mmdopt.Footprint.from_vehicle(4.8, 1.9, 0.3, obstacle_length=12.0, obstacle_width=2.5)
     assert long.a == pytest.approx(2.4 + (6.0 - 2.5) + 0.3) and long.b == pytest.approx(2.5)
 
 
@@ -20,7 +20,7 @@ def test_a_car_in_the_next_lane_is_clear_of_the_footprint_and_one_in_contact_is_
     """The trap of reading a, b as overall sizes: with the paper's semi-axes (4.5, 3.5) a car
     3.5 m to the side is on the boundary; a footprint from the cars' sizes keeps it clear, and
     a car whose body overlaps the ego's is inside."""
-    fp = mmdopt.Footprint.from_vehicles(4.8, 1.9, 0.3)
+    fp = mmdopt.Footprint.from_vehicle(4.8, 1.9, 0.3)
     K = 5
     ego = np.zeros((K, 2))
     beside = np.tile([[0.0, 3.5]], (1, 1, K, 1)).reshape(1, 1, K, 2)
@@ -38,11 +38,11 @@ def test_a_car_in_the_next_lane_is_clear_of_the_footprint_and_one_in_contact_is_
 def test_bad_sizes_are_refused_by_name(kw):
     args = dict(length=4.8, width=1.9, margin=0.5) | kw
     with pytest.raises(ValueError, match=next(iter(kw))):
-        mmdopt.Footprint.from_vehicles(**args)
+        mmdopt.Footprint.from_vehicle(**args)
 
 
 def test_a_footprint_is_set_on_the_config_by_its_section_name():
-    fp = mmdopt.Footprint.from_vehicles(4.8, 1.9, 0.5)
+    fp = mmdopt.Footprint.from_vehicle(4.8, 1.9, 0.5)
     cfg = mmdopt.MMDOptConfig().replace(footprint=fp)
     assert cfg.safety.footprint == fp
     with pytest.raises(ValueError, match="together"):
