@@ -14,6 +14,7 @@ Habits kept from qpsolvers/OSQP::
     print(sol.status)            # SOLVED  (an IntEnum: sol.status == 1 still holds)
     sol.ok                       # True for SOLVED only
     sol.is_optimal(1e-6)         # primal, dual residual and duality gap all ≤ 1e-6
+    sol.is_optimal(1e-6, 1e-6)   # each ≤ 1e-6 + 1e-6·scale: OSQP's test, what SOLVED promises
     sol.duality_gap()
     repr(sol)                    # Solution(SOLVED, objective=-0.75, n=2, m=3, ..., backend='osqp')
     batch = QPBatch.from_qpsolvers(P, qs, G, hs, lb=lb, ub=ub)   # qs (B, n), hs (B, k) or shared

@@ -105,7 +105,8 @@ class Status(IntEnum):
     What each status guarantees (every answer from :func:`solvers.solve` /
     :func:`solvers.solve_batch` is checked first, :mod:`solvers.check`): ``SOLVED``, every
     relative residual within 10 × the stated tolerance (at least 1e-6); ``SOLVED_INACCURATE``,
-    within ``min(1e3·eps, 0.1)``; ``MAX_ITER``, no answer; ``PRIMAL_INFEASIBLE`` /
+    within ``min(1e3·eps, 0.1)``; both with primal and dual objective that close; ``MAX_ITER``,
+    no answer; ``PRIMAL_INFEASIBLE`` /
     ``DUAL_INFEASIBLE``, a verified certificate in ``sol.extras``; ``ERROR``, a failure or an
     unverified infeasibility claim.  The full table is in the docstring of :mod:`solvers.solution`.
 
