@@ -461,14 +461,7 @@ def tail_pass(
             cand += [int(i) for i in np.asarray(prev_extra)[o] if not h[o, i]]
         cand = list(dict.fromkeys(cand)) or [int(idx0[o, 0])]
         extra[o] = (cand * r)[:r]  # repeats pad an obstacle with fewer (weight split below)
-    full = np.concatenate([idx0, extra], 1)
-    w = np.concatenate(
-        [np.asarray(ctx.rs.weights, np.float64) * (1.0 - r / n), np.full((O, r), 1.0 / n)], 1
-    )
-    obstacles = alg.ObstacleSet.create(
-        config, ctx.centres(full), w, ctx.method.collision,
-        margins=coverage(config, ctx.obs_fr, full, level),
-    )  # fmt: skip
+    obstacles, full = _extended(ctx, idx0, extra, level)  # tails run in the "samples" mode
     state = ctx.run(obstacles, key, ctx.warm(start.state))
     return Candidate(name, state, obstacles, full, extra, level)
 
