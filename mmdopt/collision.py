@@ -13,7 +13,8 @@ Everything about *what counts as a collision* lives here, once:
   them from here.
 - **Collision terms of Algorithm 1's cost** (batched over ego samples, Frenet frame):
   :func:`mmd_cost` (eq. l_dist, MMD-Opt), :func:`scenario_cost` (deterministic scenario cost,
-  de Groot / all samples), :func:`saa_cost` (sample-average chance constraint).
+  de Groot / all samples), :func:`saa_cost` (sample-average chance constraint), :func:`cvar_cost`
+  (the journal version's CVaR of the largest violation).
 - **The reference surrogate** :func:`mmd_surrogate` (circles stacked as kernel samples, any frame)
   and the **metric** :func:`collision_free_count` (validation samples avoided, paper §V "Metrics").
 
@@ -67,6 +68,7 @@ __all__ = [
     "mmd_cost",
     "compact_order",
     "scenario_cost",
+    "cvar_cost",
     "saa_cost",
     "taylor_terms",
     "SurrogateConfig",
@@ -257,6 +259,32 @@ def saa_cost(f, mask, eps, temperature):
     cnt = jnp.maximum(jnp.sum(mask, axis=1), 1)
     pi = jnp.sum(jnp.where(mask[None], ind, 0.0), axis=2) / cnt[None]
     return jnp.sum(jnp.maximum(pi - eps, 0.0), axis=1) / eps, pi
+
+
+def cvar_cost(f, mask, alpha):
+    """CVaR_α of each obstacle's largest violation, summed over obstacles, (B,).
+
+    The journal version's CVaR cost (MMD-OPT, ``compute_cvar_obs``): every sample ``j`` of
+    obstacle ``o`` scores its largest violation ``g_j = max_{c,k} f̄_ojck`` (``f̄ = max(0, f)``,
+    eq. coll_constraints), and the cost is the mean of the worst ``(1 − α)`` fraction of the
+    masked samples (the empirical CVaR, Rockafellar–Uryasev):
+    ``CVaR_α = (Σ_{i<⌊q⌋} g_(i) + (q − ⌊q⌋) g_(⌊q⌋)) / q`` with ``q = (1 − α)·n_o`` and
+    ``g_(0) ≥ g_(1) ≥ …``; with ``q < 1`` it is the largest ``g`` (the scenario's worst case).
+
+    Per obstacle, not the journal's maximum over obstacles: the ``j``-th futures of two
+    obstacles are independent draws, so their joint maximum has no meaning; a sum of
+    per-obstacle terms is also exactly 0 for an obstacle no candidate reaches, which lets
+    :func:`collision_cost` skip it.  ``f`` (B, O, J, C, K), ``mask`` (O, J), ``alpha`` in [0, 1).
+    """
+    g = jnp.max(jnp.maximum(f, 0.0), axis=(3, 4))  # (B, O, J)
+    g = jnp.where(mask[None], g, -jnp.inf)
+    g = -jnp.sort(-g, axis=-1)  # descending; the masked samples last
+    g = jnp.where(jnp.isfinite(g), g, 0.0)
+    cnt = jnp.sum(mask, axis=1).astype(g.dtype)  # (O,)
+    q = jnp.maximum((1.0 - jnp.asarray(alpha, g.dtype)) * cnt, jnp.minimum(cnt, 1.0))
+    rank = jnp.arange(g.shape[-1], dtype=g.dtype)
+    w = jnp.clip(q[:, None] - rank[None, :], 0.0, 1.0)  # (O, J): 1 … 1, the fraction, 0 …
+    return jnp.sum(jnp.sum(g * w[None], axis=-1) / jnp.maximum(q, 1e-12)[None], axis=1)
 
 
 def taylor_terms(max_ratio: float, rel_tol: float = 1e-9) -> int:
@@ -703,10 +731,13 @@ def collision_free_count(
 # --------------------------------------------------------- the collision term, obstacle by obstacle
 #: the collision terms: "embedding" (the MMD of the constraint-violation distribution to a
 #: Dirac at 0, l_dist, eq. l_dist), "scenario" (deterministic scenario cost), "chance" (SAA's
-#: sample-average chance constraint)
-COLLISION_TERMS = ("embedding", "scenario", "chance")
+#: sample-average chance constraint), "tail" (the CVaR_α of the largest violation: the mean of its
+#: worst tail, the journal version's third cost)
+COLLISION_TERMS = ("embedding", "scenario", "chance", "tail")
 #: former names of the collision terms, still accepted (they were the plan methods' names)
-COLLISION_TERM_ALIASES: Mapping[str, str] = MappingProxyType({"mmd": "embedding", "saa": "chance"})
+COLLISION_TERM_ALIASES: Mapping[str, str] = MappingProxyType(
+    {"mmd": "embedding", "saa": "chance", "cvar": "tail"}
+)
 
 
 def collision_term(mode: str) -> str:
@@ -718,11 +749,14 @@ def collision_term(mode: str) -> str:
     return term
 
 
-def _term(mode, f, weights, mask, bandwidth, f_scale, n_terms, saa_eps, saa_temperature):
+def _term(mode, f, weights, mask, bandwidth, f_scale, n_terms, saa_eps, saa_temperature,
+          cvar_alpha):  # fmt: skip
     if mode == "embedding":
         return mmd_cost(f, weights, bandwidth, f_scale, n_terms)
     if mode == "scenario":
         return scenario_cost(f, mask)
+    if mode == "tail":
+        return cvar_cost(f, mask, cvar_alpha)
     return saa_cost(f, mask, saa_eps, saa_temperature)[0]
 
 
@@ -741,11 +775,12 @@ def collision_cost(
     n_terms: int = 0,
     saa_eps=0.02,
     saa_temperature=0.05,
+    cvar_alpha=0.98,
     a_behind=None,
     rear_exempt_width=None,
     headway_lane: float = 0.0,
 ) -> jax.Array:
-    """A method's collision term (eq. l_dist / scenario / SAA) summed over obstacles, (B,).
+    """A method's collision term (eq. l_dist / scenario / SAA / CVaR) summed over obstacles, (B,).
 
     ``s, d`` (B, K) ego Frenet positions; ``centres`` (O, J, C, K, 2); ``weights``, ``mask``
     (O, J); ``a`` the longitudinal semi-axis (scalar or (K,)), ``b`` the lateral one;
@@ -755,15 +790,15 @@ def collision_cost(
     ``rear_exempt_width`` see :func:`rear_exempt`.
 
     Every term is a sum of per-obstacle terms that are exactly 0 when no ego point of the batch
-    enters the obstacle's ellipses (MMD and scenario: every f̄ = 0; SAA: every sample's smoothed
-    indicator below ε, so the hinge is 0).  With several obstacles the terms are evaluated one
-    obstacle at a time (``lax.map``), and the expensive part (the MMD's Taylor features, the
-    hinge) only for obstacles that some candidate reaches (``lax.cond``); whether one can is
-    first bounded from the per-step intervals of ego and obstacle positions, so far traffic
-    costs O(B·K) and the cost grows with the number of *interacting* obstacles.
+    enters the obstacle's ellipses (MMD, scenario and CVaR: every f̄ = 0; SAA: every sample's
+    smoothed indicator below ε, so the hinge is 0).  With several obstacles the terms are
+    evaluated one obstacle at a time (``lax.map``), and the expensive part (the MMD's Taylor
+    features, the hinge) only for obstacles that some candidate reaches (``lax.cond``); whether
+    one can is first bounded from the per-step intervals of ego and obstacle positions, so far
+    traffic costs O(B·K) and the cost grows with the number of *interacting* obstacles.
     """
     mode = collision_term(mode)
-    kw = (bandwidth, f_scale, n_terms, saa_eps, saa_temperature)
+    kw = (bandwidth, f_scale, n_terms, saa_eps, saa_temperature, cvar_alpha)
     if centres.shape[0] == 1:
         return _term(
             mode,

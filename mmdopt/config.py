@@ -18,7 +18,7 @@ section                what it holds
 ``SafetyConfig``       the risk level and the safety model: ``Footprint`` (the one collision
                        ellipse, in ``mmdopt.geometry``), ``MarginConfig``, ``RoadRules``
 ``SelectionConfig``    the reduced set: its size m and the selector's CEM
-``BaselineConfig``     fields only the baselines read (de Groot, SAA, all samples)
+``BaselineConfig``     fields only the baselines read (de Groot, SAA, CVaR, all samples)
 ``ScheduleConfig``     the constants of the risk passes around Algorithm 1 (``mmdopt.schedule``)
 =====================  =======================================================================
 
@@ -29,7 +29,7 @@ The static fields that only the host-side steps of :func:`mmdopt.plan` read (``m
 programs see :meth:`MMDOptConfig.program`, with those fields at their defaults.
 Every field name is unique across the sections, so ``replace(name=value)`` reaches any of them.
 "Automatic" is spelled ``None`` everywhere (``reselect``, ``coverage_knn``, ``project_chunk``,
-``admm_rho``, ``saa_eps``).
+``admm_rho``, ``saa_eps``, ``cvar_alpha``).
 """
 
 from __future__ import annotations
@@ -68,6 +68,9 @@ __all__ = [
 
 #: SAA's chance level in the "linear" margin mode when ``BaselineConfig.saa_eps`` is ``None``
 SAA_EPS_LINEAR = 0.02
+#: CVaR's level α in the "linear" margin mode when ``BaselineConfig.cvar_alpha`` is ``None``
+#: (the journal version's ``alpha_quant``)
+CVAR_ALPHA_LINEAR = 0.98
 #: weight of the coverage term of the MMD cost in the "samples" margin mode (the default)
 W_COVER = 100.0
 #: the planning futures (joint draws of every obstacle, ``SafetyConfig.joint_futures``) an
@@ -522,6 +525,10 @@ class BaselineConfig(_Section):
         mode, :data:`SAA_EPS_LINEAR` in the "linear" one);  saa_temperature : its smoothing
     baseline_margin_scale : the scenario baselines plan with this × the linear margins (0: the
         nominal ellipse, as de Groot et al. and the reference code plan)
+    w_cvar : weight of the CVaR cost (``cvar``)
+    cvar_alpha : its level α (``None``: automatic — ``1 − ε`` in the "samples" margin mode, so
+        that the CVaR averages the worst ε-fraction of the futures, the tail the risk level
+        speaks of; :data:`CVAR_ALPHA_LINEAR` in the "linear" one)
     """
 
     w_coll: float = 100.0
@@ -529,15 +536,20 @@ class BaselineConfig(_Section):
     saa_eps: float | None = None
     saa_temperature: float = 0.05
     baseline_margin_scale: float = 0.0
+    w_cvar: float = 100.0
+    cvar_alpha: float | None = None
 
     _positive = ("saa_temperature",)
-    _nonneg = ("w_coll", "w_saa", "baseline_margin_scale")
+    _nonneg = ("w_coll", "w_saa", "baseline_margin_scale", "w_cvar")
 
     def __post_init__(self) -> None:
         self._check()
         v = self.saa_eps
         if v is not None and _plain(v) and not 0 < float(v) < 1:
             raise ValueError(f"BaselineConfig.saa_eps must be in (0, 1) or None, got {v!r}")
+        v = self.cvar_alpha
+        if v is not None and _plain(v) and not 0 <= float(v) < 1:
+            raise ValueError(f"BaselineConfig.cvar_alpha must be in [0, 1) or None, got {v!r}")
 
 
 @jax.tree_util.register_dataclass
@@ -845,6 +857,16 @@ class MMDOptConfig:
         if self.safety.margins.margin_mode == "samples":
             return self.safety.risk
         return SAA_EPS_LINEAR
+
+    @property
+    def cvar_level(self):
+        """CVaR's level α: ``baselines.cvar_alpha``, or when that is ``None`` ``1 − ε`` in the
+        "samples" margin mode and :data:`CVAR_ALPHA_LINEAR` in the "linear" one."""
+        if self.baselines.cvar_alpha is not None:
+            return self.baselines.cvar_alpha
+        if self.safety.margins.margin_mode == "samples":
+            return 1.0 - self.safety.risk
+        return CVAR_ALPHA_LINEAR
 
     def bound_groups(self, obstacles: int) -> int:
         """How many counts the plan's risk bound sums over (:func:`mmdopt.risk.risk_bound`,

@@ -11,6 +11,7 @@ import jax.numpy as jnp
 
 from .collision import (
     collision_cost,
+    cvar_cost,
     lane_lateral,
     mmd_cost,
     rear_exempt,
@@ -80,6 +81,8 @@ def obstacle_cost(cfg: MMDOptConfig, ws: Any, s, dd, obstacles: ObstacleSet, dt,
             return cfg.cost.w_mmd * coll + cfg.cost.w_cover * cover, jnp.asarray(1.0, dt)
         if mode == "scenario":
             return scenario_cost(f, obstacles.mask), cfg.baselines.w_coll
+        if mode == "tail":
+            return cvar_cost(f, obstacles.mask, cfg.cvar_level), cfg.baselines.w_cvar
         coll, _ = saa_cost(f, obstacles.mask, cfg.saa_level, cfg.baselines.saa_temperature)
         return coll, cfg.baselines.w_saa
     scale = 1.0 if mode == "embedding" else cfg.baselines.baseline_margin_scale
@@ -108,9 +111,10 @@ def obstacle_cost(cfg: MMDOptConfig, ws: Any, s, dd, obstacles: ObstacleSet, dt,
         n_terms=obstacles.n_terms,
         saa_eps=cfg.saa_level,
         saa_temperature=cfg.baselines.saa_temperature,
+        cvar_alpha=cfg.cvar_level,
     )
     w = {"embedding": cfg.cost.w_mmd, "scenario": cfg.baselines.w_coll,
-         "chance": cfg.baselines.w_saa}[mode]  # fmt: skip
+         "chance": cfg.baselines.w_saa, "tail": cfg.baselines.w_cvar}[mode]  # fmt: skip
     return coll, w
 
 

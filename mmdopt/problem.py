@@ -138,8 +138,9 @@ class ObstacleSet:
     centres : (O, J, C, K, 2) obstacle circle centres in the planning (Frenet) frame, J samples
     per obstacle (a reduced set, or all samples);  weights : (O, J) ᾱ;  mask : (O, J) bool;
     mode : static, the collision term — "embedding" (eq. l_dist), "scenario" (deterministic
-    scenario cost) or "chance" (sample-average chance constraint), :mod:`mmdopt.collision`
-    (:data:`~mmdopt.collision.COLLISION_TERMS`; the former names "mmd" and "saa" are
+    scenario cost), "chance" (sample-average chance constraint) or "tail" (CVaR),
+    :mod:`mmdopt.collision`
+    (:data:`~mmdopt.collision.COLLISION_TERMS`; the method names "mmd", "saa" and "cvar" are
     accepted);  n_terms : static, Taylor features of the MMD cost (:func:`n_taylor_terms`).
     """
 

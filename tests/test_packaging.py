@@ -12,6 +12,8 @@ import sys
 import textwrap
 from pathlib import Path
 
+import pytest
+
 ROOT = Path(__file__).resolve().parents[1]
 OPTIONAL = ("matplotlib", "tqdm", "pandas")
 
@@ -42,6 +44,7 @@ def _run(code: str) -> subprocess.CompletedProcess:
     )
 
 
+@pytest.mark.slow
 def test_core_imports_and_plans_without_optional_packages():
     r = _run(
         """

@@ -60,13 +60,14 @@ REDUCED_SET_METHODS = ("mmd", "herding", "degroot", "random")
 
 #: the built-in planning methods, :data:`mmdopt.methods.PLAN_METHODS` (the default of ``bench
 #: frontier --methods``), written out so that the parser need not import the method
-PLAN_METHODS = ("mmd", "degroot", "random", "saa", "scenario_all")
+PLAN_METHODS = ("mmd", "degroot", "random", "saa", "cvar", "scenario_all")
 #: the planner's own projection backend, :data:`mmdopt.algorithm.PLANNER_BACKEND`
 PLANNER_BACKEND = "admm-fixed"
 #: the default risk grid of ``bench frontier``, :data:`mmdopt.bench.frontier.DEFAULT_RISK_GRID`
 DEFAULT_RISK_GRID = (1e-5, 1e-4, 0.001, 0.005, 0.02, 0.1)
 #: the scene presets, the names of :data:`mmdopt.bench.scenes.PRESETS` (sorted)
-PRESETS = ("lanechange", "paper100", "reference36")
+PRESETS = ("cutin-high", "cutin-low", "lanechange", "paper100", "reference36", "static-bimodal",
+           "static-gaussian", "static-trimodal")  # fmt: skip
 
 
 # ---------------------------------------------------------------------------------------------
@@ -195,6 +196,17 @@ def _add_no_progress(q: argparse.ArgumentParser) -> None:
     q.add_argument("--no-progress", action="store_true", help="no progress bar")
 
 
+def _obstacle_count(text: str) -> int:
+    n = positive_int(text)
+    if n > 5:
+        raise argparse.ArgumentTypeError(f"must be 1 … 5, got {n}")
+    return n
+
+
+def _add_obstacles(q: argparse.ArgumentParser, default: int | None, text: str) -> None:
+    q.add_argument("--obstacles", type=_obstacle_count, default=default, metavar="N", help=text)
+
+
 def _add_sweep_options(q: argparse.ArgumentParser, scenes_default: int | None) -> None:
     """The options every scene sweep shares: scenes, seed, preset, scene parameters, backend,
     planner config, jobs, progress and executor; then its resumable ``--out``."""
@@ -218,6 +230,8 @@ def _add_sweep_options(q: argparse.ArgumentParser, scenes_default: int | None) -
         metavar="FILE.json",
         help="JSON object overriding scene-generator parameters (see README)",
     )
+    _add_obstacles(q, None, "obstacles per scene, 1-5 (default: the preset's: 1 in the "
+                   "paper's, 2 in the journal's families)")  # fmt: skip
     _add_backend(q)
     q.add_argument(
         "--config",
@@ -257,6 +271,8 @@ def _add_demo_parser(sub) -> None:
         help="risk levels ε (target collision probability, each in (0, 0.5)) each method plans "
         f"at (default: {','.join(f'{r:g}' for r in DEMO_RISKS)})",
     )
+    _add_obstacles(d, 1, "obstacles in the scene, 1-5 (default 1: the built-in scene; more add "
+                   "cars of the same generator ahead)")  # fmt: skip
     _add_backend(d)
 
 
@@ -522,7 +538,12 @@ def _scene_params(args, parser):
             base = load_scene_params(args.scene_params, base)
     except ValueError as e:
         parser.error(f"argument --scene-params: {e}")
-    # options that override single scene parameters (``bench frontier``)
+    # options that override single scene parameters (``bench frontier``, ``--obstacles``)
+    if getattr(args, "obstacles", None) is not None:
+        try:
+            base = base.replace(num_obstacles=args.obstacles)
+        except ValueError as e:
+            parser.error(f"argument --obstacles: {e}")
     for key in ("n_validation", "n_samples"):
         value = getattr(args, key, None)
         if value is not None:
@@ -635,6 +656,7 @@ def _print_summary(summary: dict, n_validation: int | str = "N") -> None:
 #: printed headers (with units) of the demo table and the timing table
 DEMO_HEADERS = {
     "risk": "risk ε",
+    "risk_bound": "risk bound",
     "progress_m": "progress (m)",
     "mean_speed": "mean speed (m/s)",
     "plan_s": "plan_s (s)",
@@ -700,12 +722,15 @@ def cmd_demo(args, parser) -> int:
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
     t0 = time.perf_counter()
-    scene = demo_scene()
+    scene = demo_scene(args.obstacles)
     risks = list(args.risks)
+    lay = scene.layout
+    cars = "; ".join(
+        f"a car at x0 = {x:.0f} m, y0 = {y:.1f} m ends in the ego lane with P = {pr[0]:.2f}"
+        for x, y, pr in zip(lay.x0, lay.y0, scene.obstacle_intent_probs, strict=True)
+    )
     print(
-        f"scene: obstacle at x0 = {scene.x0:.0f} m, y0 = {scene.y0:.1f} m; "
-        f"P(ends in ego lane) = {scene.intent_probs[0]:.2f}, P(left lane) = "
-        f"{scene.intent_probs[1]:.2f}; {scene.obstacles.shape[1]} planning samples, "
+        f"scene: {cars}, else in the left lane; {scene.obstacles.shape[1]} planning samples, "
         f"{scene.validation.shape[1]} validation samples"
     )
     print(
@@ -738,7 +763,8 @@ def cmd_demo(args, parser) -> int:
         for r in risks:
             plan_ = plan(m, r, scene.key())
             row = evaluate_plan(plan_, scene, road)
-            row.update(method=m, risk=r, plan_s=float(plan_.plan_time_s), backend=args.backend)
+            row.update(method=m, risk=r, plan_s=float(plan_.plan_time_s), backend=args.backend,
+                       status=str(plan_.status), status_text=str(plan_.status_text))  # fmt: skip
             mrows.append(row)
             if r == shown:
                 plans[m] = plan_
@@ -747,13 +773,18 @@ def cmd_demo(args, parser) -> int:
             row["compile_s"] = compile_s
         rows += mrows
     nv = rows[0]["n_validation"] if rows else "N"
-    cols = ["method", "risk", "collision_free", "progress_m", "mean_speed", "feasible"]
+    cols = ["method", "risk", "status", "risk_bound", "collision_free", "progress_m", "mean_speed",
+            "feasible"]  # fmt: skip
     headers = dict(DEMO_HEADERS, collision_free=f"collision-free of {nv}")
     print(_table(rows, [*cols, "plan_s", "compile_s"], headers))
     print(
         "How to read it: a lower ε is a safer plan that drives less far, so compare methods at "
         "matched safety (progress at equal collision-free counts) or at matched progress, not "
-        "row by row; compile_s is the one-off JIT compile (first call), plan_s the plan itself."
+        "row by row; compile_s is the one-off JIT compile (first call), plan_s the plan itself. "
+        "status says whether the plan keeps its ε: risk bound is the 95 % upper bound on its "
+        "collision probability that the planning futures prove, and 'risk floor' means those "
+        "futures are too few to prove ε (a predictor, the Forecast path, draws as many as ε "
+        "needs)."
     )
     line = _matched(rows, list(args.methods))
     if line:

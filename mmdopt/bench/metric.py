@@ -105,8 +105,9 @@ def kinematic_violation(plan, road=None, *, y_lb=None, y_ub=None) -> float:
 def evaluate_plan(plan, scene: Scene, road=None) -> dict[str, Any]:
     """Metric row of one plan on one scene (without the ``method``/timing columns)."""
     xy = np.stack([np.asarray(plan.x), np.asarray(plan.y)], axis=-1)
-    cf_val = collision_free(xy, scene.validation)
-    cf_plan = collision_free(xy, scene.obstacles)
+    a, b = scene.params.footprint or (ELLIPSE_A, ELLIPSE_B)  # the family's ellipse, if any
+    cf_val = collision_free(xy, scene.validation, a=a, b=b)
+    cf_plan = collision_free(xy, scene.obstacles, a=a, b=b)
     viol = kinematic_violation(plan, road, y_lb=scene.params.ego_y_lb, y_ub=scene.params.ego_y_ub)
     speed = np.asarray(getattr(plan, "speed", np.hypot(plan.vs, plan.vd)), dtype=np.float64)
     planner_feasible = bool(getattr(plan, "feasible", True))
@@ -131,6 +132,7 @@ def evaluate_plan(plan, scene: Scene, road=None) -> dict[str, Any]:
         x0=scene.x0,
         y0=scene.y0,
         p=scene.p,
+        obstacles=scene.num_obstacles,
         seed=scene.seed,
     )
 

@@ -47,9 +47,14 @@ __all__ = [
 
 
 def scene_config(scene: Scene, config: mmdopt.MMDOptConfig | None = None) -> mmdopt.MMDOptConfig:
-    """``config`` (default ``MMDOptConfig()``) with the scene's desired speed."""
+    """``config`` (default ``MMDOptConfig()``) with the scene's desired speed, and the scene
+    family's collision ellipse where it has one (``SceneParams.footprint``)."""
     cfg = mmdopt.MMDOptConfig() if config is None else config
-    return cfg.replace(v_des=scene.params.desired_speed)
+    cfg = cfg.replace(v_des=scene.params.desired_speed)
+    if scene.params.footprint is not None:
+        a, b = scene.params.footprint
+        cfg = cfg.replace(footprint=dataclasses.replace(cfg.safety.footprint, a=a, b=b))
+    return cfg
 
 
 def plan_scene(

@@ -47,6 +47,7 @@ def _samples(prob: ProjectionProblem, num: int = 1, seed: int = 0):
     return np.array(cxs), np.array(cys)
 
 
+@pytest.mark.slow
 def test_projection_matches_clarabel():
     prob = _problem()
     cx, cy = _samples(prob, 3)
@@ -64,6 +65,7 @@ def test_projection_matches_clarabel():
         np.testing.assert_allclose(one.cy, ref.cy[1], atol=1e-6)
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("method", ["ipm", "admm"])
 def test_gradients_agree_with_finite_differences(method):
     prob = _problem()
@@ -109,6 +111,7 @@ def test_gradients_agree_with_finite_differences(method):
             assert fd(3, jnp.asarray(ew)) == pytest.approx(g, rel=1e-5, abs=1e-8)
 
 
+@pytest.mark.slow
 def test_vmap_over_a_batch_equals_one_by_one():
     prob = _problem()
     cx, cy = _samples(prob, 4, seed=1)

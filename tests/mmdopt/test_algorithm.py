@@ -39,6 +39,7 @@ def certain_plan(road):
     return obs, mmdopt.plan(EGO, road, obs, config=SMALL, key=jax.random.PRNGKey(0))
 
 
+@pytest.mark.slow
 def test_certain_obstacle_is_avoided_while_making_progress(certain_plan):
     obs, p = certain_plan
     assert p.feasible and not p.fallback

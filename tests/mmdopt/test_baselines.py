@@ -27,6 +27,7 @@ def scene():
     return np.concatenate([a, b], axis=1)
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("method", mmdopt.PLAN_METHODS)
 def test_every_method_returns_a_feasible_plan(scene, method):
     p = mmdopt.plan(
@@ -80,6 +81,39 @@ def test_saa_counts_the_fraction_of_colliding_samples():
     assert float(pen[0]) == pytest.approx((0.3 - 0.1) / 0.1, abs=1e-2)
 
 
+def test_cvar_is_the_mean_of_the_worst_tail_of_the_largest_violations():
+    """CVaR_α over the masked samples (the journal's ``compute_cvar_obs``): the worst
+    (1 − α)·n samples' largest violations averaged, a fractional sample weighted by its
+    fraction; the largest violation when fewer than one sample is in the tail; 0 far away."""
+    g = jnp.array([0.9, 0.1, 0.5, 0.0, 0.3, 0.7, 0.0, 0.2, 0.4, 0.6])  # (J,) = 10 samples
+    f = jnp.stack([g - 0.05, g], axis=-1)[None, None, :, None, :]  # (1, 1, 10, 1, 2): max = g
+    mask = jnp.ones((1, 10), bool)
+    cost = lambda a, m=mask: float(baselines.cvar_cost(f, m, a)[0])  # noqa: E731
+    assert cost(0.8) == pytest.approx((0.9 + 0.7) / 2)
+    assert cost(0.75) == pytest.approx((0.9 + 0.7 + 0.5 * 0.6) / 2.5)
+    assert cost(0.99) == pytest.approx(0.9)  # q = 0.1 < 1 sample: the worst one
+    assert cost(0.0) == pytest.approx(float(jnp.mean(g)))
+    # masked samples are not futures: the worst one masked away, the tail of the other 9
+    m = mask.at[0, 0].set(False)
+    assert cost(1 - 2 / 9, m) == pytest.approx((0.7 + 0.6) / 2)
+    # negative f (outside every ellipse) is no violation
+    assert float(baselines.cvar_cost(-jnp.ones((2, 1, 5, 3, 4)), mask[:, :5], 0.9)[0]) == 0.0
+
+
+def test_cvar_sits_on_the_risk_dial():
+    """α = 1 − ε in the "samples" margin mode (the CVaR averages the ε-tail the chance
+    constraint speaks of), the journal's 0.98 in the "linear" mode, a set α where given."""
+    cfg = mmdopt.config_for_risk("cvar", 0.01)
+    assert cfg.cvar_level == pytest.approx(0.99)
+    assert mmdopt.MMDOptConfig().replace(margin_mode="linear").cvar_level == 0.98
+    assert cfg.replace(cvar_alpha=0.9).cvar_level == 0.9
+    with pytest.raises(ValueError, match="cvar_alpha"):
+        mmdopt.MMDOptConfig().replace(cvar_alpha=1.0)
+    rec = mmdopt.methods.get("cvar")
+    assert rec.all_samples and rec.collision == "tail"
+
+
+@pytest.mark.slow
 def test_baseline_margin_scale_inflates_only_the_baselines_ellipse(scene):
     """``baseline_margin_scale`` (default 0: the nominal ellipse, as de Groot et al.) scales the
     planning margins of the scenario baselines; at 1 de Groot keeps the margins MMD-Opt plans

@@ -34,6 +34,7 @@ def _forecast(**kw) -> Forecast:
 EGO = frenet.EgoState(vs=10.0)
 
 
+@pytest.mark.slow
 def test_plan_draws_the_futures_the_risk_level_needs_and_confirms_it():
     key = jax.random.PRNGKey(0)
     fc = _forecast(min_samples=10)

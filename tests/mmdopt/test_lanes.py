@@ -96,6 +96,7 @@ def test_lane_commit_holds_the_first_setpoint_only_between_lanes():
         CFG.replace(lane_commit=-0.1)
 
 
+@pytest.mark.slow
 def test_a_plan_begun_between_lanes_reaches_a_lane_centre_within_the_horizon():
     """With lane_commit, a plan from 1.8 m (a lane change under way, a slower car ahead in the
     lane it left) follows one lateral set-point throughout and is at that lane centre within

@@ -71,6 +71,7 @@ def test_a_toy_method_runs_through_plan_with_its_own_record(toy):
     np.testing.assert_array_equal(p.x, again.x)  # the same seed, the same plan
 
 
+@pytest.mark.slow
 def test_a_toy_method_runs_through_bench_frontier_and_its_csv(toy, tmp_path):
     from mmdopt.bench import cli
 

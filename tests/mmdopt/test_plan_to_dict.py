@@ -5,6 +5,7 @@ from __future__ import annotations
 import json
 
 import numpy as np
+import pytest
 
 import frenet
 import mmdopt
@@ -23,6 +24,7 @@ def _plan(**kw):
     return mmdopt.plan(ego, road, obs, config=cfg, **kw)
 
 
+@pytest.mark.slow
 def test_to_dict_is_json_and_round_trips_the_trajectory_and_reduced_set():
     p = _plan()
     d = p.to_dict()

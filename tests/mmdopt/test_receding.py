@@ -95,6 +95,7 @@ def test_scene_source_satisfies_the_protocol():
     assert isinstance(TwoLaneScene(), SceneSource)
 
 
+@pytest.mark.slow
 def test_loop_replans_every_delta_until_the_source_is_done(run):
     src, res = run
     assert res.done and not res.crashed
@@ -310,6 +311,7 @@ class ForecastScene(TwoLaneScene):
         return Observation(ego=self.ego, road=self.road, obstacles=fc, time=self.t)
 
 
+@pytest.mark.slow
 def test_a_forecast_is_drawn_as_plan_draws_it_and_the_callback_sees_the_futures():
     seen = []
     key = jax.random.PRNGKey(5)
@@ -340,6 +342,7 @@ def test_a_forecast_is_drawn_as_plan_draws_it_and_the_callback_sees_the_futures(
     np.testing.assert_allclose(p.d, direct.d, atol=1e-6)
 
 
+@pytest.mark.slow
 def test_a_forecast_in_the_samples_mode_draws_what_the_risk_level_needs():
     from mmdopt.risk import samples_for_risk
 

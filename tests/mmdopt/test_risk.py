@@ -246,6 +246,7 @@ def test_reselection_leaves_the_eps_n_deepest_conflicts_to_the_chance_level():
             assert depth[dropped[0]].min() >= depth[extra[0]].max()
 
 
+@pytest.mark.slow
 def test_reselection_pass_also_runs_with_the_time_linear_margins():
     """``reselect`` > 0 with ``margin_mode = "linear"``: the samples in deepest conflict with
     the first plan join the reduced set (none of them already in it) and the plan that comes

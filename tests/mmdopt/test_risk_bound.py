@@ -160,6 +160,7 @@ def test_a_plan_that_meets_more_samples_than_asked_says_so():
     assert p.risk_bound > 0.2 and "meets 8 planning sample(s)" in p.message
 
 
+@pytest.mark.slow
 def test_several_obstacles_met_in_the_same_futures_count_once():
     # two cars whose futures 0..7 both sit on the ego's start: every plan meets those 8 joint
     # futures, 8 of each car's; the bound counts the 8 draws once (joint futures, the default)

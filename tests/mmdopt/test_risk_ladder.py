@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import jax
 import numpy as np
+import pytest
 
 import frenet
 import mmdopt
@@ -34,6 +35,7 @@ def _plan(obs, config=TINY, **kw):
                               key=jax.random.PRNGKey(5), risk=EPS, method="mmd", **kw)  # fmt: skip
 
 
+@pytest.mark.slow
 def test_the_ladder_only_adds_candidates_and_keeps_the_promise():
     obs = _slow_car_ahead(samples_for_risk(EPS, 1))
     assert TINY.schedule.margin_ladder == ()  # off by default

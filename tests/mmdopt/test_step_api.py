@@ -66,6 +66,7 @@ np.savez(sys.argv[1], cost_trace=np.asarray(ran.cost_trace), d=np.asarray(ran.be
 """
 
 
+@pytest.mark.slow
 def test_the_suites_compile_flags_leave_algorithm_1_unchanged(tmp_path):
     """The suite compiles with XLA's CPU fusion emitters off and LLVM at optimisation level 1
     (``tests/conftest.py``: compile speed settings); users run XLA's defaults.  Algorithm 1
@@ -103,6 +104,7 @@ def test_the_suites_compile_flags_leave_algorithm_1_unchanged(tmp_path):
     __import__("platform").machine().lower() not in ("x86_64", "amd64"),
     reason="XLA's --xla_cpu_max_isa flag names x86 instruction sets",
 )
+@pytest.mark.slow
 def test_init_update_loop_equals_run_under_another_xla_cpu_isa():
     """The comparison above, compiled for AVX2 instead of the CPU's widest vector ISA (XLA
     vectorises reductions at the ISA's width, which reassociates float32 sums): the derived
@@ -200,6 +202,7 @@ def test_plan_warm_start_and_state_round_trip():
         mmdopt.plan(EGO, road, obs, config=SMALL, warm_start="no")
 
 
+@pytest.mark.slow
 def test_plan_with_a_given_reduced_set_uses_it_and_validates_it():
     road = mmdopt.Road()
     obs = _obstacle(jitter=0.5)

@@ -616,6 +616,7 @@ def test_shift_rejects_bad_dt(state, dt):
     check(lambda: alg.shift(TINY, state[0], dt), ValueError, r"\bdt\b")
 
 
+@pytest.mark.slow
 def test_update_rejects_a_used_up_state(state):
     s, obs = state
     planner = mmdopt.Planner(TINY)
@@ -654,6 +655,7 @@ def _status_ok(p):
     return p.status_text
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("method", ["mmd", "degroot", "saa"])
 def test_obstacle_on_top_of_the_ego_is_unsafe_not_ok(method):
     # an obstacle that stays on the ego for the whole horizon: every plan collides

@@ -78,6 +78,7 @@ COMPILED_PER_SHAPE = ("admm", "ipm")
 IPM_ALSO = ("CVXQP1_S", "PRIMALC1", "QSC205")
 
 
+@pytest.mark.slow
 @pytest.mark.skipif(not _mm_names(), reason=f"Maros–Meszaros data not found at {MM}")
 @pytest.mark.parametrize("backend", BACKENDS)
 def test_maros_meszaros_at_defaults_no_unflagged_wrong_solved(backend):

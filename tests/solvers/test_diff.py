@@ -96,6 +96,7 @@ def _assert_close(an: float, fd: float, what: str) -> None:
 
 
 # ------------------------------------------------------------------------------- JAX layer
+@pytest.mark.slow
 @pytest.mark.parametrize("method", ["ipm", "admm"])
 def test_jax_gradient_matches_finite_differences(method):
     P, q, A, l, u, xs, ys = make_qp(0)
@@ -131,6 +132,7 @@ def test_jax_gradient_matches_finite_differences(method):
         np.testing.assert_allclose(grads[0], grads[0].T, atol=1e-12)
 
 
+@pytest.mark.slow
 def test_jax_jacfwd_equals_jacrev():
     P, q, A, l, u, *_ = make_qp(3)
     with jax.enable_x64(True):
@@ -300,6 +302,7 @@ def test_weakly_active_row_gives_the_one_sided_derivative():
         assert grad.u[0] == 0.0, name
 
 
+@pytest.mark.slow
 def test_admm_in_float32_without_x64():
     if jax.config.jax_enable_x64:
         pytest.skip("x64 is on globally in this process")
@@ -316,6 +319,7 @@ def test_admm_in_float32_without_x64():
 
 
 # ------------------------------------------------------------------------- Maros–Meszaros
+@pytest.mark.slow
 def test_maros_meszaros_hs35_jax_host_and_finite_differences_agree():
     path = MM_DIR / "HS35.mat"
     if not path.is_file():
@@ -374,6 +378,7 @@ def _lane_projection():
     return Bm.T @ Bm, -Bm.T @ target, A, l, -l
 
 
+@pytest.mark.slow
 def test_rows_approaching_their_bound_do_not_make_the_gradient_wrong():
     P, q, A, l, u = _lane_projection()
     d = np.random.default_rng(0).standard_normal(q.size)
@@ -401,6 +406,7 @@ def test_rows_approaching_their_bound_do_not_make_the_gradient_wrong():
         assert g @ d == pytest.approx(fd, rel=1e-3)
 
 
+@pytest.mark.slow
 def test_dependent_active_rows_give_a_finite_gradient():
     """A row repeated (the same constraint twice, both active): the reduced KKT system is
     singular; the derivative of ``x`` still exists and is finite, and matches finite

@@ -57,6 +57,7 @@ def _assert_matches(batch: QPBatch, sol, ref) -> None:
     assert np.max(batch.constraint_violation(sol.x)) <= 1e-8
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("shuffle", [False, True], ids=["ordered", "shuffled columns"])
 def test_band_assembly_from_slots_matches_dense_and_clarabel(shuffle):
     batch = _banded_batch(1, shuffle)

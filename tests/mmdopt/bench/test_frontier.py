@@ -90,6 +90,7 @@ def test_progress_at_level_over_the_levels_that_kept_their_request():
         progress_at_level(pts, "a", (999.0,), min_ok_share=1.5)
 
 
+@pytest.mark.slow
 def test_frontier_cli_contract_and_resume(tmp_path, capsys):
     small = tmp_path / "scene.json"
     small.write_text(json.dumps({"n_validation": 200, "n_samples": 40}))
@@ -194,6 +195,7 @@ def test_frontier_figure_has_a_log_frontier_and_a_calibration_panel():
         plt.close(fig)
 
 
+@pytest.mark.slow
 def test_frontier_cli_sample_options_reach_the_scenes_and_the_manifest(tmp_path, capsys):
     tiny = tmp_path / "cfg.json"
     tiny.write_text(json.dumps(TINY))

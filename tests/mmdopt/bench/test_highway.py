@@ -101,6 +101,7 @@ def _one_plan(src):
     )
 
 
+@pytest.mark.slow
 def test_exact_ego_model_follows_the_plan_exactly():
     import jax
 

@@ -137,6 +137,7 @@ def test_constant_velocity_futures_follow_the_curved_lanes():
         src.close()
 
 
+@pytest.mark.slow
 def test_short_racetrack_episode_stays_on_the_road_and_its_video_shows_the_plan(tmp_path):
     import imageio.v2 as imageio
 

@@ -189,3 +189,77 @@ def test_params_round_trip_through_dict():
     p = SceneParams(intent_probs=(0.3, 0.7), n_validation=10)
     assert SceneParams.from_dict(p.to_dict()) == p
     json.dumps(p.to_dict())
+
+
+# ------------------------------------------------------------------ the journal version's families
+@pytest.mark.parametrize("name", scenarios.JOURNAL_FAMILIES)
+def test_journal_families_draw_distinct_starts_from_their_grids(name):
+    params = scenarios.preset(name).replace(num_obstacles=3, n_samples=30, n_validation=60)
+    s = make_scene(4, seed=11, params=params)
+    assert s.obstacles.shape == (3, 30, 100, 2) and s.validation.shape == (3, 60, 100, 2)
+    lay = s.layout
+    assert len(set(lay.x0)) == 3 and set(lay.x0) <= set(params.x0_choices)
+    assert set(lay.y0) <= {0.0, 3.5} and s.params.footprint == (4.25, 2.75)
+    np.testing.assert_array_equal(make_scene(4, seed=11, params=params).validation, s.validation)
+    if params.motion == "static":
+        # standing still: every sample keeps its (noisy) start over the horizon
+        np.testing.assert_array_equal(s.validation[:, :, 0], s.validation[:, :, -1])
+        assert np.all(lay.speed == 0)
+    else:
+        assert len(set(lay.speed)) == 3 and set(lay.speed) <= set(params.obstacle_speed_choices)
+        assert len(set(lay.p)) == 3 and set(lay.p) <= set(params.p_choices)
+        # every future starts at its obstacle's start and ends in one of the two lanes
+        np.testing.assert_allclose(s.validation[:, :, 0, 0], np.repeat(lay.x0[:, None], 60, 1))
+        assert np.all(np.min(np.abs(s.validation[..., -1, 1, None] - [0.0, 3.5]), -1) < 0.05)
+
+
+def test_static_noise_modes_and_dynamic_speed_modes_have_their_weights():
+    bim = scenarios.preset("static-bimodal").replace(num_obstacles=1, n_validation=20000)
+    s = make_scene(0, seed=2, params=bim)
+    dx = s.validation[0, :, 0, 0] - s.layout.x0[0]
+    # the modes are centred at −1 m (p = 0.8, std 0.5) and +1 m (p = 0.2, std 0.1)
+    assert _binomial_ok(int(np.sum(dx > 0.5)), dx.size, 0.2)
+    cut = scenarios.preset("cutin-low").replace(num_obstacles=1, n_validation=20000)
+    s = make_scene(0, seed=2, params=cut)
+    v = s.validation_speed_setpoints
+    from scipy.stats import norm
+
+    # P(|v − 7| < 0.4) under the three modes (0.4 / 0.2 / 0.4 at 5 / 7 / 3 m/s, std 1.5 / 0.1 / 3)
+    p7 = sum(w * (norm.cdf((7.4 - m) / sd) - norm.cdf((6.6 - m) / sd))
+             for w, m, sd in cut.speed_modes)  # fmt: skip
+    assert _binomial_ok(int(np.sum(np.abs(v - 7.0) < 0.4)), v.size, p7)
+    # the lane intent: the ego lane with the scene's p
+    assert _binomial_ok(int(np.sum(s.validation_intents == 0)), v.size, s.p)
+
+
+def test_a_family_forecast_draws_every_obstacle_from_the_scenes_model():
+    import jax
+
+    params = scenarios.preset("cutin-high").replace(num_obstacles=3, n_samples=20)
+    s = make_scene(1, seed=3, params=params)
+    fc = s.forecast()
+    out = fc.predictor.sample(fc.history, fc.context, 400, jax.random.PRNGKey(0))
+    assert out.shape == (3, 400, 100, 2)
+    np.testing.assert_allclose(out[:, :, 0], s.validation[:, :400, 0], atol=1e-9)
+    # intents as in the validation futures, from an independent stream
+    assert not np.array_equal(out[:, :20], s.obstacles)
+    ego_lane = np.abs(out[..., -1, 1]) < 0.05
+    for o in range(3):
+        assert _binomial_ok(int(ego_lane[o].sum()), 400, s.layout.p[o])
+
+
+@pytest.mark.parametrize(
+    "change, match",
+    [
+        ({"num_obstacles": 6}, "num_obstacles"),
+        ({"num_obstacles": 3, "p_choices": [0.1, 0.2]}, "p_choices has 2 values"),
+        ({"speed_modes": [[0.5, 5.0, 1.0], [0.4, 3.0, 1.0]]}, "sum to 1"),
+        ({"position_modes": [[1.0, 0.0, 0.0, -1.0, 0.1]]}, "standard deviations"),
+        ({"footprint": [4.0]}, "footprint"),
+    ],
+)
+def test_bad_family_parameters_name_the_field(change, match):
+    with pytest.raises(ValueError, match=match):
+        scenarios.preset("cutin-low").update(change)
+    with pytest.raises(ValueError, match="grid layout has one obstacle"):
+        make_scene(0, params=scenarios.preset("reference36").replace(num_obstacles=2))

@@ -14,6 +14,7 @@ from mmdopt.bench.timing import time_plan, time_reduced_set
 from .test_figures import assert_readable
 
 
+@pytest.mark.slow
 def test_bench_timing_tables_figure_and_algorithm1_inside_plan(tmp_path, capsys, monkeypatch):
     """One small ``mmdopt bench timing`` run (one reduced-set size at 100 and 50 samples, and
     ``--obstacles 3``; the paper's Algorithm 1 compiles once per shape, so one run checks all):
