@@ -326,6 +326,9 @@ class Planner:
         forecast_diag: dict[str, Any] = {}
         if isinstance(obstacles, Forecast):
             obstacles, forecast_diag = draw_forecast(obstacles, config, rec, key)
+            # the predictor's draw is timed apart (Plan.predict_time_s): plan_time_s is the
+            # planner's own part
+            t0 += forecast_diag["forecast_s"]
         name = "obstacles_frenet" if frenet_frame else "obstacles"
         arr = check_obstacles(obstacles, config, rec, name, allow_empty=True)
         empty = arr.shape[0] == 0

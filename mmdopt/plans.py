@@ -173,7 +173,8 @@ class Plan:
     ``feasible``: ``residual ≤ config.projection.res_tol``; ``fallback``/``status``: see
     :func:`plan`;
     ``reduced_set``: the obstacle samples used by the cost (a :class:`ReducedSet` with leading
-    axis O; all n samples for "saa"/"scenario_all"); ``plan_time_s``: wall time of the call;
+    axis O; all n samples for "saa"/"scenario_all"); ``plan_time_s``: wall time of the call, less a
+    predictor's draw (:attr:`predict_time_s`);
     ``diagnostics``: timings, per-iteration traces, the behavioural input ``d``, collision term,
     progress, residual groups, collision-free count against the planning samples; ``state``: the
     final :class:`mmdopt.algorithm.CEMState` (``None`` for a braking fallback), to warm-start the
@@ -239,6 +240,13 @@ class Plan:
     def status_text(self) -> str:
         """The status and its message as one line: ``"ok"``, ``"fallback: why"``, …"""
         return str(self.status) if not self.message else f"{self.status}: {self.message}"
+
+    @property
+    def predict_time_s(self) -> float:
+        """Seconds the predictor took to draw this plan's futures (a
+        :class:`~mmdopt.predict.Forecast`; 0 for fixed samples).  :attr:`plan_time_s` leaves it
+        out: it is the planner's own time."""
+        return float((self.diagnostics or {}).get("forecast_s", 0.0))
 
     @property
     def progress(self) -> float:

@@ -47,7 +47,7 @@ _share_jax_compiles()
 #: the XLA flags the suite compiles with (``_compile_faster``), by option name
 SUITE_XLA_FLAGS = {
     "xla_cpu_use_fusion_emitters": "--xla_cpu_use_fusion_emitters=false",
-    "xla_backend_optimization_level": "--xla_backend_optimization_level=1",
+    "xla_backend_optimization_level": "--xla_backend_optimization_level=0",
 }
 
 
@@ -102,10 +102,3 @@ def x64():
 
     with jax.enable_x64(True):
         yield
-
-
-def pytest_collection_modifyitems(config, items):
-    """The tests marked ``slow`` first (a stable sort: each file's order is kept).  With
-    ``pytest -n 2`` the workers take the tests in this order, so a long test no longer starts
-    last on one worker while the other has nothing left to do."""
-    items.sort(key=lambda item: item.get_closest_marker("slow") is None)

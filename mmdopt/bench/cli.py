@@ -40,7 +40,7 @@ import json
 import os
 import sys
 import time
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from pathlib import Path
 
 __all__ = ["main", "build_parser"]
@@ -310,6 +310,78 @@ def _add_synthetic_parser(bs) -> None:
     _add_n_samples(s)
 
 
+def _add_receding_parser(bs) -> None:
+    r = bs.add_parser(
+        "receding", help="the journal's receding-horizon runs through a scene family's scenes"
+    )
+    r.add_argument("--preset", choices=PRESETS, default="cutin-high",
+                   help="scene family (default cutin-high)")  # fmt: skip
+    _add_obstacles(r, None, "obstacles per scene, 1-5 (default: the preset's)")
+    r.add_argument("--scenes", type=positive_int, default=5, help="episodes (default 5)")
+    r.add_argument("--seed", type=nonneg_int, default=0, help="sweep seed (default 0)")
+    r.add_argument("--scene-params", type=existing_file, default=None, metavar="FILE.json",
+                   help="JSON object overriding scene-generator parameters")  # fmt: skip
+    _add_methods(r, _method_names, ["mmd", "cvar", "saa"],
+                 "comma-separated methods (default: mmd,cvar,saa)")  # fmt: skip
+    r.add_argument(
+        "--risk",
+        type=_risk_list,
+        default=[0.005],
+        metavar="EPS[,EPS...]",
+        help="risk level(s) ε every replan is asked to keep (default 0.005)",
+    )
+    r.add_argument(
+        "--replan-dt",
+        type=_positive_float,
+        default=0.5,
+        metavar="S",
+        help="seconds of each plan executed before replanning (default 0.5)",
+    )
+    r.add_argument(
+        "--duration",
+        type=_positive_float,
+        default=10.0,
+        metavar="S",
+        help="episode length in seconds, at most 15 (default 10)",
+    )
+    r.add_argument(
+        "--budget",
+        type=_positive_float,
+        default=0.1,
+        metavar="S",
+        help="per-replan plan-time budget reported against (default 0.1 s: 10 Hz)",
+    )
+    r.add_argument(
+        "--config",
+        type=existing_file,
+        default=None,
+        metavar="FILE.json",
+        help="JSON object overriding MMDOptConfig fields, nested by section",
+    )
+    r.add_argument("--jobs", type=positive_int, default=os.cpu_count() or 1,
+                   help="parallel worker processes (default: number of cores)")  # fmt: skip
+    _add_no_progress(r)
+    add_executor(r)
+    r.add_argument("--out", required=True, help="output folder")
+
+
+def _budget_list(text: str) -> list[float]:
+    out = [_positive_float(x) for x in text.split(",") if x.strip()]
+    if not out:
+        raise argparse.ArgumentTypeError("give at least one budget, e.g. 0.1,0.25,1")
+    return sorted(set(out))
+
+
+def _positive_float(text: str) -> float:
+    try:
+        v = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"must be a number, got {text!r}") from None
+    if not (v > 0 and v < float("inf")):
+        raise argparse.ArgumentTypeError(f"must be a positive number, got {text!r}")
+    return v
+
+
 def _add_n_samples(p) -> None:
     p.add_argument(
         "--n-samples",
@@ -339,6 +411,15 @@ def _add_frontier_parser(bs) -> None:
         f"(default: {','.join(f'{r:g}' for r in DEFAULT_RISK_GRID)} for every method)",
     )
     fr.add_argument("--knobs", dest="risks", action=_DeprecatedRisks, help=argparse.SUPPRESS)
+    fr.add_argument(
+        "--budgets",
+        type=_budget_list,
+        default=[0.1, 0.25, 1.0],
+        metavar="S,S,...",
+        help="plan-time budgets (s) of the matched-compute readout: progress at 990/995/999 "
+        "using only the risk levels whose median plan_time_s is within each budget (default: "
+        "0.1,0.25,1)",
+    )
     fr.add_argument(
         "--n-validation",
         type=positive_int,
@@ -458,6 +539,55 @@ def _add_predictor(sub) -> None:
     add_train_parser(sub)
 
 
+#: where the CLI keeps JAX's compiled programs (``--no-compile-cache``), as its help says it
+COMPILE_CACHE_HELP = "$XDG_CACHE_HOME/mmdopt/jax (default ~/.cache/mmdopt/jax)"
+#: the most the compile cache may hold (bytes; JAX evicts the least recently used entries)
+COMPILE_CACHE_MAX_BYTES = 2 * 1024**3
+
+
+def compile_cache_dir(env: Mapping[str, str] | None = None) -> Path | None:
+    """The folder of the CLI's persistent JAX compilation cache: ``MMDOPT_COMPILE_CACHE`` when
+    set (``0``: none), else ``$XDG_CACHE_HOME/mmdopt/jax``, else ``~/.cache/mmdopt/jax``."""
+    env = os.environ if env is None else env
+    own = env.get("MMDOPT_COMPILE_CACHE")
+    if own is not None:
+        return None if own.strip() in ("", "0") else Path(own).expanduser()
+    base = env.get("XDG_CACHE_HOME") or str(Path.home() / ".cache")
+    return Path(base) / "mmdopt" / "jax"
+
+
+def enable_compile_cache(args) -> Path | None:
+    """Turn on JAX's persistent compilation cache for this run (unless ``--no-compile-cache``
+    or ``MMDOPT_COMPILE_CACHE=0``; a ``JAX_COMPILATION_CACHE_DIR`` the caller set is used as
+    is): a first plan in a new process then loads Algorithm 1's programs instead of compiling
+    them.  Every program is kept, however quick its compile (a plan calls a few hundred small
+    ones), up to :data:`COMPILE_CACHE_MAX_BYTES`.  Returns the folder, or ``None``."""
+    if getattr(args, "no_compile_cache", False):
+        return None
+    if "JAX_COMPILATION_CACHE_DIR" in os.environ:
+        return Path(os.environ["JAX_COMPILATION_CACHE_DIR"])
+    path = compile_cache_dir()
+    if path is None:
+        return None
+    try:
+        path.mkdir(parents=True, exist_ok=True)
+    except OSError:  # a read-only home: run without it
+        return None
+    settings = {
+        "JAX_COMPILATION_CACHE_DIR": str(path),
+        "JAX_PERSISTENT_CACHE_MIN_COMPILE_TIME_SECS": "0",
+        "JAX_COMPILATION_CACHE_MAX_SIZE": str(COMPILE_CACHE_MAX_BYTES),
+    }
+    os.environ.update(settings)  # worker processes inherit it
+    if "jax" in sys.modules:  # imported already (a caller in-process): set it there too
+        import jax
+
+        jax.config.update("jax_compilation_cache_dir", str(path))
+        jax.config.update("jax_persistent_cache_min_compile_time_secs", 0.0)
+        jax.config.update("jax_compilation_cache_max_size", COMPILE_CACHE_MAX_BYTES)
+    return path
+
+
 def build_parser() -> argparse.ArgumentParser:
     """The ``mmdopt`` argument parser: ``demo``, ``bench <experiment>`` and ``predictor``.
 
@@ -469,6 +599,13 @@ def build_parser() -> argparse.ArgumentParser:
         "the paper's experiments.",
     )
     p.add_argument("--version", action="version", version=f"%(prog)s {version()}")
+    p.add_argument(
+        "--no-compile-cache",
+        action="store_true",
+        help="do not keep JAX's compiled programs between runs (by default they are kept in "
+        f"{COMPILE_CACHE_HELP}, so a second run's first plan does not compile again; "
+        "MMDOPT_COMPILE_CACHE=0 does the same, MMDOPT_COMPILE_CACHE=DIR moves it)",
+    )
     sub = p.add_subparsers(
         dest="command", required=True, metavar="{demo,bench,predictor}", action=_LazySubParsers
     )
@@ -477,12 +614,13 @@ def build_parser() -> argparse.ArgumentParser:
     bs = b.add_subparsers(
         dest="experiment",
         required=True,
-        metavar="{synthetic,frontier,reduced-set,timing,figure,qp-backends,highway,ngsim}",
+        metavar="{synthetic,frontier,receding,reduced-set,timing,figure,qp-backends,highway,ngsim}",
         action=_LazySubParsers,
     )
     for add in (
         _add_synthetic_parser,
         _add_frontier_parser,
+        _add_receding_parser,
         _add_reduced_set_parser,
         _add_timing_parser,
         _add_figure_parser,
@@ -796,6 +934,50 @@ def cmd_demo(args, parser) -> int:
     return 0
 
 
+def _receding_task(task):
+    """One episode (a module-level function: the executors pickle it)."""
+    from .loop import run_episode
+    from .scenes import make_scene
+
+    params, config, index, seed, method, risk, kw = task
+    row = run_episode(make_scene(index, seed, params), method, risk, config=config, **kw)
+    return row
+
+
+def cmd_receding(args, parser) -> int:
+    from .executors import WithMethods, run_tasks
+    from .loop import LOOP_COLUMNS, summarise_episodes
+    from .results import write_json, write_results
+
+    params = _scene_params(args, parser)
+    config = _planner_config(args, parser)
+    if args.duration > 15.0:
+        parser.error("argument --duration: at most 15 s (the scenes' horizon)")
+    out = Path(args.out)
+    out.mkdir(parents=True, exist_ok=True)
+    kw = dict(dt=args.replan_dt, duration_s=args.duration, budget_s=args.budget)
+    tasks = [(params, config, i, args.seed, m, r, kw)
+             for m in args.methods for r in args.risk for i in range(args.scenes)]  # fmt: skip
+    t0 = time.perf_counter()
+    rows = run_tasks(
+        WithMethods.wrap(_receding_task), tasks, jobs=args.jobs, executor=args.executor,
+        address=args.address, progress=not args.no_progress, desc="episodes", unit="episode",
+        isolate=True,
+    )  # fmt: skip
+    for r in rows:
+        r["preset"] = args.preset
+    rows.sort(key=lambda r: (list(args.methods).index(r["method"]), -r["risk"], r["scene"]))
+    write_results(rows, out / "receding.csv", LOOP_COLUMNS)
+    summary = summarise_episodes(rows)
+    write_json(out / "receding_summary.json", dict(preset=args.preset, seed=args.seed,
+               obstacles=params.num_obstacles, summary=summary))  # fmt: skip
+    print(_table(summary, ["method", "risk", "episodes", "crashes", "progress_m", "mean_speed",
+                           "median_plan_s", "ok_share"]))  # fmt: skip
+    print(f"{len(rows)} episodes in {time.perf_counter() - t0:.1f} s; wrote "
+          f"{out / 'receding.csv'}, {out / 'receding_summary.json'}")  # fmt: skip
+    return 0
+
+
 def cmd_synthetic(args, parser) -> int:
     from . import plots
     from .synthetic import run_synthetic
@@ -861,6 +1043,7 @@ def cmd_frontier(args, parser) -> int:
             address=args.address,
             isolate=True,
             forecast=args.n_samples is None,
+            budgets=args.budgets,
         )
     except ValueError as e:
         parser.error(str(e))
@@ -892,6 +1075,11 @@ def cmd_frontier(args, parser) -> int:
         print(title)
         rows = [{"method": m, **{f"progress_m@{k}": v[k] for k in lv}} for m, v in res[key].items()]
         print(_table(rows, ["method", *[f"progress_m@{k}" for k in lv]]))
+    print("matched compute: the same (measured points) over the risk levels whose median "
+          "plan_time_s is within each budget; nan: not reached within it")  # fmt: skip
+    rows = [{"budget_s": b, "method": m, **{f"progress_m@{k}": v[k] for k in lv}}
+            for b, per in res["at_budget"].items() for m, v in per.items()]  # fmt: skip
+    print(_table(rows, ["budget_s", "method", *[f"progress_m@{k}" for k in lv]]))
     out = Path(args.out)
     print(
         f"{res['computed']} plans computed, {res['reused']} reused, {res['wall_s']:.1f} s; wrote "
@@ -1082,6 +1270,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     # argparse's REMAINDER does not take an argument list that starts with an option
     args, extra = parser.parse_known_args(argv)
     own = command_parser(parser, args)
+    enable_compile_cache(args)
     if extra:
         if getattr(args, "experiment", None) != "qp-backends":
             own.error(f"unrecognized arguments: {' '.join(extra)}")
@@ -1097,6 +1286,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         cmd = {
             "synthetic": cmd_synthetic,
             "frontier": cmd_frontier,
+            "receding": cmd_receding,
             "reduced-set": cmd_reduced_set,
             "timing": cmd_timing,
             "figure": cmd_figure,

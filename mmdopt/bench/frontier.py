@@ -15,7 +15,8 @@ to the new one, and rows written before ``compile_s`` existed get NaN there (not
 (the plan's shapes: the number of futures n(ε) and the config depend on them, not on the scene)
 is preceded by an untimed warm-up plan of the same scene with another key, which compiles the
 programs; ``compile_s`` is how much longer that first call took than the timed plan (as
-``mmdopt demo`` measures it), 0.0 in the rows of later tasks.
+``mmdopt demo`` measures it), 0.0 in the rows of later tasks.  ``predict_time_s`` is the
+predictor's draw of the plan's futures, which ``plan_time_s`` leaves out.
 """
 
 from __future__ import annotations
@@ -47,8 +48,12 @@ __all__ = [
     "parse_risks",
     "run_frontier",
     "frontier_points",
+    "summarise_frontier",
     "interpolate_progress",
     "progress_at_level",
+    "progress_within_budget",
+    "DEFAULT_BUDGETS",
+    "check_budget",
     "clopper_pearson_interval",
     "frontier_axes",
     "frontier_figure",
@@ -57,6 +62,8 @@ __all__ = [
 #: the default risk grid (target collision probability ε) of every method: down to 1e-5, so that
 #: the printed target levels 995 and 999 lie inside the swept range (docs/experiments/frontier.md)
 DEFAULT_RISK_GRID: tuple[float, ...] = (1e-5, 1e-4, 0.001, 0.005, 0.02, 0.1)
+#: the plan-time budgets (s) of the matched-compute readout (``bench frontier --budgets``)
+DEFAULT_BUDGETS: tuple[float, ...] = (0.1, 0.25, 1.0)
 
 
 def default_risks(methods: Sequence[str]) -> dict[str, list[float]]:
@@ -82,6 +89,7 @@ FRONTIER_COLUMNS = (
     "risk_bound",
     "n_planning",
     "compile_s",
+    "predict_time_s",
 )
 #: target collision-free levels (of 1000) at which progress is interpolated
 TARGET_LEVELS = (990.0, 995.0, 999.0)
@@ -223,6 +231,7 @@ def run_frontier(
     levels: Sequence[float] = TARGET_LEVELS,
     isolate: bool = False,
     forecast: bool = False,
+    budgets: Sequence[float] = DEFAULT_BUDGETS,
 ) -> dict[str, Any]:
     """Sweep every method's risk level on the scenes; resumable (existing task files are reused;
     ``risks``: the grid per method, default :data:`DEFAULT_RISK_GRID`).  ``forecast=True`` plans
@@ -235,10 +244,16 @@ def run_frontier(
     process with one XLA thread, so the rows do not depend on ``jobs`` or the executor; the
     manifest records where results were computed and a folder refuses a mix.
 
-    Returns ``{"rows", "points", "interpolated", "at_level", "at_level_kept", "computed",
-    "reused", "wall_s"}`` (``at_level``: :func:`progress_at_level`, the measured points only;
-    ``at_level_kept``: the same over the risk levels whose plans kept the request).
+    ``budgets`` (s): the plan-time budgets of the matched-compute readout ``at_budget``
+    (:func:`progress_within_budget`).
+
+    Returns ``{"rows", "points", "interpolated", "at_level", "at_level_kept", "at_budget",
+    "computed", "reused", "wall_s"}`` (``at_level``: :func:`progress_at_level`, the measured
+    points only; ``at_level_kept``: the same over the risk levels whose plans kept the request;
+    ``at_budget``: per budget, the same over the risk levels whose median plan time is within
+    it).
     """
+    budgets = [check_budget(b) for b in budgets]
     params = SceneParams() if params is None else params
     n = num_scenes(params, scenes)
     methods = list(dict.fromkeys(methods))
@@ -298,32 +313,41 @@ def run_frontier(
         for m, k in pairs:
             rows.append(_read_task(_task_path(out, i, m, k)))
     write_results(rows, out / "frontier.csv", FRONTIER_COLUMNS)
-    points = frontier_points(rows)
-    interp = {m: interpolate_progress(points, m, levels) for m in methods}
-    reached = {m: progress_at_level(points, m, levels) for m in methods}
-    kept = {m: progress_at_level(points, m, levels, KEPT_SHARE) for m in methods}
+    summary = summarise_frontier(rows, methods, levels, budgets)
     write_json(
         out / "frontier_summary.json",
-        dict(
-            points=points,
-            interpolated=interp,
-            at_level=reached,
-            at_level_kept=kept,
-            scenes=n,
-            seed=seed,
-            params=params.to_dict(),
-        ),
+        dict(summary, scenes=n, seed=seed, params=params.to_dict()),
     )
-    frontier_figure(points, out / "frontier.png", title=f"{n} scenes, seed {seed}")
+    frontier_figure(summary["points"], out / "frontier.png", title=f"{n} scenes, seed {seed}")
     return dict(
         rows=rows,
-        points=points,
-        interpolated=interp,
-        at_level=reached,
-        at_level_kept=kept,
+        **summary,
         computed=int(sum(done)),
         reused=reused,
         wall_s=wall,
+    )
+
+
+def summarise_frontier(
+    rows: Sequence[Mapping[str, Any]],
+    methods: Sequence[str],
+    levels: Sequence[float] = TARGET_LEVELS,
+    budgets: Sequence[float] = DEFAULT_BUDGETS,
+) -> dict[str, Any]:
+    """The readouts of a frontier's rows: ``points`` (:func:`frontier_points`), progress at each
+    target level ``interpolated`` along the frontier, ``at_level`` (measured points only),
+    ``at_level_kept`` (over the risk levels whose plans kept the request) and ``at_budget`` (per
+    plan-time budget, over the risk levels within it: :func:`progress_within_budget`)."""
+    points = frontier_points(rows)
+    return dict(
+        points=points,
+        interpolated={m: interpolate_progress(points, m, levels) for m in methods},
+        at_level={m: progress_at_level(points, m, levels) for m in methods},
+        at_level_kept={m: progress_at_level(points, m, levels, KEPT_SHARE) for m in methods},
+        at_budget={
+            f"{b:g}": {m: progress_within_budget(points, m, b, levels) for m in methods}
+            for b in budgets
+        },  # fmt: skip
     )
 
 
@@ -463,6 +487,28 @@ def progress_at_level(
     return res
 
 
+def check_budget(b: Any) -> float:
+    """A plan-time budget: a positive finite number of seconds (``ValueError`` otherwise)."""
+    if isinstance(b, bool) or not isinstance(b, int | float) or not 0 < b < math.inf:
+        raise ValueError(f"a budget must be a positive number of seconds, got {b!r}")
+    return float(b)
+
+
+def progress_within_budget(
+    points: Sequence[Mapping[str, Any]],
+    method: str,
+    budget: float,
+    levels: Sequence[float] = TARGET_LEVELS,
+) -> dict[str, float]:
+    """Progress at matched compute: :func:`progress_at_level` over only those of ``method``'s
+    risk levels whose median plan time (``plan_time_s``, without the compile and the
+    predictor's draw) is within ``budget`` seconds; NaN where none within the budget reaches the
+    level."""
+    budget = check_budget(budget)
+    within = [p for p in points if p["method"] == method and float(p["plan_time_s"]) <= budget]
+    return progress_at_level(within, method, levels)
+
+
 #: markers per method (in order of appearance) of :func:`frontier_axes`
 _MARKERS = ("o", "s", "^", "D", "v", "P", "X")
 
@@ -489,11 +535,12 @@ def _PlainLogFormatter(**kw):
 
 def frontier_axes(points: Sequence[Mapping[str, Any]], title: str = ""):
     """The frontier figure of :func:`frontier_points` ``points`` as an open matplotlib figure
-    with two axes.  Left: collisions per 1000 validation futures (``1000 − mean``, log axis;
-    a zero is drawn at a floor named in the axis label) against mean progress, one line per
-    method through its risk points (ε named at both ends of each line).  Right: calibration,
-    the requested ε against the measured collision rate pooled over scenes, with its 95 %
-    Clopper–Pearson interval and the line measured = requested."""
+    with three axes (the third: progress at 995 and 999 within a plan-time budget,
+    :func:`progress_within_budget`).  Left: collisions per 1000 validation futures
+    (``1000 − mean``, log axis; a zero is drawn at a floor named in the axis label) against
+    mean progress, one line per method through its risk points (ε named at both ends of each
+    line).  Middle: calibration, the requested ε against the measured collision rate pooled over
+    scenes, with its 95 % Clopper–Pearson interval and the line measured = requested."""
     from .plots import method_colour
     from .plots import method_label as _label
     from .plots import pyplot as _plt
@@ -501,7 +548,7 @@ def frontier_axes(points: Sequence[Mapping[str, Any]], title: str = ""):
     if not points:
         raise ValueError("points must not be empty")
     plt = _plt()
-    fig, (ax, cal) = plt.subplots(1, 2, figsize=(12, 4.8))
+    fig, (ax, cal, cmp) = plt.subplots(1, 3, figsize=(17, 4.8))
     methods = list(dict.fromkeys(p["method"] for p in points))
     per = {m: sorted((p for p in points if p["method"] == m), key=lambda p: p["risk"])
            for m in methods}  # fmt: skip
@@ -567,10 +614,42 @@ def frontier_axes(points: Sequence[Mapping[str, Any]], title: str = ""):
     cal.grid(alpha=0.3)
     (diag,) = [h for h in cal.lines if h.get_label() == "measured = requested"]
     cal.legend(handles=[diag], fontsize=7, loc="upper left")
+    _budget_axes(cmp, points, methods)
     if title:
         fig.suptitle(title, fontsize=10)
     fig.tight_layout()
     return fig
+
+
+def _budget_axes(ax, points: Sequence[Mapping[str, Any]], methods: Sequence[str]) -> None:
+    """Matched compute: per method, the most progress that reaches 995 (solid) and 999 (dashed)
+    collision-free per 1000 within a plan-time budget, as the budget grows (a step at each of its
+    risk levels' median plan times)."""
+    from .plots import method_colour
+    from .plots import method_label as _label
+
+    times = sorted({float(p["plan_time_s"]) for p in points if float(p["plan_time_s"]) > 0})
+    if not times:
+        ax.set_axis_off()
+        return
+    grid = np.geomspace(times[0] / 1.5, times[-1] * 1.5, 200)
+    drawn = False
+    for m in methods:
+        for lv, ls in ((995.0, "-"), (999.0, "--")):
+            y = [progress_within_budget(points, m, b, (lv,))[f"{lv:g}"] for b in grid]
+            if all(math.isnan(v) for v in y):
+                continue
+            ax.step(grid, y, where="post", ls=ls, color=method_colour(m),
+                    label=f"{_label(m)}, {lv:g}")  # fmt: skip
+            drawn = True
+    ax.set_xscale("log")
+    ax.set_xlabel("plan-time budget: median plan_time_s (s, log)")
+    ax.set_ylabel("mean progress at the level (m)")
+    ax.set_title("matched compute: progress at 995 (solid) and 999 (dashed)\nwithin a budget",
+                 fontsize=10)  # fmt: skip
+    ax.grid(alpha=0.3, which="both")
+    if drawn:
+        ax.legend(fontsize=6, loc="best", framealpha=0.85)
 
 
 def frontier_figure(points: Sequence[Mapping[str, Any]], path: str | Path, title: str = "") -> Path:

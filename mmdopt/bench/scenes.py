@@ -84,6 +84,8 @@ __all__ = [
     "Layout",
     "sample_obstacle",
     "sample_obstacles",
+    "scene_rngs",
+    "STREAMS_PER_OBSTACLE",
     "JOURNAL_FAMILIES",
     "STATIC_NOISE",
     "demo_scene",
@@ -570,7 +572,8 @@ class ScenePredictor:
     ROLE_FORECAST])``: deterministic for a given JAX key, and independent of the scene's planning
     (``role`` 1) and validation (``role`` 2) streams.  ``x0``, ``y0``, ``probs``: the first
     obstacle's (a one-obstacle scene needs nothing else); ``layout`` and ``obstacle_probs``:
-    every obstacle's.
+    every obstacle's; ``states``: optional (O, 6) current states ``(x, y, vx, vy, ax, ay)`` the
+    futures of moving obstacles start from (:mod:`mmdopt.bench.loop`).
     """
 
     params: SceneParams
@@ -580,6 +583,7 @@ class ScenePredictor:
     name: str = "scene model"
     layout: Layout | None = None
     obstacle_probs: np.ndarray | None = None
+    states: np.ndarray | None = None
 
     def _layout(self) -> tuple[Layout, np.ndarray]:
         if self.layout is not None:
@@ -613,8 +617,8 @@ class ScenePredictor:
             k = jax.random.key_data(k)
         data = np.asarray(k, np.uint32).ravel()
         ss = np.random.SeedSequence([*data.tolist(), ROLE_FORECAST])
-        rngs = tuple(np.random.default_rng(c) for c in ss.spawn(_STREAMS * O))
-        xy, _, _ = sample_obstacles(rngs, self.params, lay, probs, n)
+        rngs = tuple(np.random.default_rng(c) for c in ss.spawn(STREAMS_PER_OBSTACLE * O))
+        xy, _, _ = sample_obstacles(rngs, self.params, lay, probs, n, self.states)
         return xy
 
 
@@ -638,7 +642,7 @@ def _rng(seed: int, index: int, role: int) -> np.random.Generator:
     return np.random.default_rng(np.random.SeedSequence([int(seed), int(index), int(role)]))
 
 
-def _rngs(seed: int, index: int, role: int, k: int) -> list[np.random.Generator]:
+def scene_rngs(seed: int, index: int, role: int, k: int) -> list[np.random.Generator]:
     """``k`` independent generators of one role (one per drawn quantity, so that the first
     ``n`` samples do not depend on how many are drawn)."""
     ss = np.random.SeedSequence([int(seed), int(index), int(role)])
@@ -712,7 +716,7 @@ def _intent_probs(params: SceneParams, p: float) -> np.ndarray:
 
 #: independent generators per obstacle: its intents (or noise modes), its speed set-points (or
 #: position noise), and the modes of a speed mixture
-_STREAMS = 3
+STREAMS_PER_OBSTACLE = 3
 
 
 def _mixture(rng_mode, rng_value, rows, n: int, dims: int) -> np.ndarray:
@@ -733,13 +737,15 @@ def sample_obstacle(
     probs: np.ndarray,
     n: int,
     speed: float | None = None,
+    state: np.ndarray | None = None,
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """``n`` futures of one obstacle ``(n, K, 2)``, their intent indices ``(n,)`` and speed
     set-points ``(n,)`` (a static obstacle: its noise modes and 0).
 
     ``rngs``: generators of the intents and of the speed set-points (and of a speed mixture's
     modes, a third one, needed only with ``params.speed_modes``); ``speed``: the obstacle's
-    initial speed (``None``: ``params.obstacle_speed``).
+    initial speed (``None``: ``params.obstacle_speed``); ``state``: instead, its whole initial
+    state ``(x, y, vx, vy, ax, ay)`` (a moving obstacle in the receding loop, from now on).
     """
     K = NUM_STEPS
     if params.motion == "static":  # the journal's static scenes: a noisy position, no motion
@@ -759,8 +765,9 @@ def sample_obstacle(
     vd = np.clip(vd, params.speed_min, params.speed_max)
     yd = np.asarray(params.intent_offsets)[intents]
     planner = _obstacle_planner()
-    v0 = params.obstacle_speed if speed is None else float(speed)
-    state = np.array([x0, y0, v0, 0.0, 0.0, 0.0])
+    if state is None:
+        v0 = params.obstacle_speed if speed is None else float(speed)
+        state = np.array([x0, y0, v0, 0.0, 0.0, 0.0])
     cx, cy = planner.closed_form(np.stack([vd, yd], axis=1), state)
     P = planner.basis.P
     xy = np.stack([np.asarray(cx) @ P.T, np.asarray(cy) @ P.T], axis=-1)
@@ -773,20 +780,24 @@ def sample_obstacles(
     lay: Layout,
     probs: np.ndarray,
     n: int,
+    states: np.ndarray | None = None,
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """``n`` futures of every obstacle of a scene, (N, n, K, 2), with their intents and set-points
     (N, n): obstacle ``o`` draws from ``rngs[3o : 3o + 3]`` (:func:`sample_obstacle`), so the
-    first obstacle's futures are those of a one-obstacle scene."""
+    first obstacle's futures are those of a one-obstacle scene.  ``states``: optional (N, 6)
+    current states ``(x, y, vx, vy, ax, ay)`` of moving obstacles (their futures start there)."""
+    k = STREAMS_PER_OBSTACLE
     outs = [
         sample_obstacle(
-            rngs[_STREAMS * o : _STREAMS * (o + 1)],
+            rngs[k * o : k * (o + 1)],
             params,
             float(lay.x0[o]),
             float(lay.y0[o]),
             probs[o],
             n,
             float(lay.speed[o]),
-        )  # fmt: skip
+            None if states is None else np.asarray(states[o], dtype=float),
+        )
         for o in range(len(lay.x0))
     ]
     return tuple(np.stack(a) for a in zip(*outs, strict=True))
@@ -798,12 +809,12 @@ def make_scene(index: int, seed: int = 0, params: SceneParams | str = "paper100"
     lay = scene_layout(params, seed, index)
     N = len(lay.x0)
     probs = np.stack([_intent_probs(params, float(p)) for p in lay.p])
-    k = _STREAMS * N
+    k = STREAMS_PER_OBSTACLE * N
     obs, intents, vd = sample_obstacles(
-        _rngs(seed, index, ROLE_PLANNING, k), params, lay, probs, params.n_samples
+        scene_rngs(seed, index, ROLE_PLANNING, k), params, lay, probs, params.n_samples
     )
     val, vintents, vvd = sample_obstacles(
-        _rngs(seed, index, ROLE_VALIDATION, k), params, lay, probs, params.n_validation
+        scene_rngs(seed, index, ROLE_VALIDATION, k), params, lay, probs, params.n_validation
     )
     planner_seed = int(
         np.random.SeedSequence([int(seed), int(index), ROLE_PLANNER_KEY]).generate_state(1)[0]

@@ -134,6 +134,7 @@ def run_scene(
         method=method,
         n_planning=n_plan,
         plan_time_s=_float(getattr(plan, "plan_time_s", wall)),
+        predict_time_s=_float(getattr(plan, "predict_time_s", 0.0)),
         wall_s=wall,
         backend=backend,
     )

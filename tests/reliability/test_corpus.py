@@ -541,7 +541,7 @@ WS = mmdopt.Planner(TINY).workspace(ROAD.bounds())
 STEP = [
     (
         "ObstacleSet mode",
-        lambda: alg.ObstacleSet.create(TINY, _centres(), np.full((1, 4), 0.25), "cvar"),
+        lambda: alg.ObstacleSet.create(TINY, _centres(), np.full((1, 4), 0.25), "bogus"),
         "mode",
     ),
     (

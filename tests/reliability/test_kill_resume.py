@@ -38,7 +38,7 @@ CONFIG = {
 }
 SCENE_PARAMS = {"n_samples": 20, "n_validation": 50}
 SCENES = 6
-TIMING = ("plan_time_s", "wall_s")
+TIMING = ("plan_time_s", "wall_s", "predict_time_s")
 
 
 def _cmd(out: Path, files: Path, jobs: int) -> list[str]:
@@ -46,7 +46,7 @@ def _cmd(out: Path, files: Path, jobs: int) -> list[str]:
         sys.executable, "-m", "mmdopt", "bench", "synthetic",
         "--scenes", str(SCENES), "--jobs", str(jobs), "--methods", "mmd",
         "--config", str(files / "cfg.json"), "--scene-params", str(files / "sp.json"),
-        "--out", str(out), "--no-progress",
+        "--n-samples", "20", "--out", str(out), "--no-progress",
     ]  # fmt: skip
 
 

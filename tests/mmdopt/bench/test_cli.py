@@ -183,7 +183,7 @@ def test_synthetic_two_scenes_contract_and_resume(tmp_path, capsys, monkeypatch)
 
     saved = _record_figures(monkeypatch)
     small = tmp_path / "small.json"
-    small.write_text(json.dumps({"n_validation": 300, "n_samples": 60}))
+    small.write_text(json.dumps({"n_validation": 300}))
     tiny = tmp_path / "tiny.json"  # the contract, not the planner: test_frontier's small one
     tiny.write_text(json.dumps(TINY))
     argv = [
@@ -191,6 +191,8 @@ def test_synthetic_two_scenes_contract_and_resume(tmp_path, capsys, monkeypatch)
         "synthetic",
         "--config",
         str(tiny),
+        "--n-samples",  # fixed samples (the forecast path has tests of its own)
+        "60",
         "--scenes",
         "2",
         "--seed",
@@ -381,16 +383,7 @@ def test_frontier_summary_says_its_counts_are_per_1000(tmp_path, capsys, monkeyp
     rows = [dict(method="mmd", risk=0.01, scene=s, collision_free=195, n_validation=200,
                  progress_m=90.0, plan_time_s=0.1, feasible=True, status="ok", risk_bound=0.01,
                  n_planning=40) for s in range(2)]  # fmt: skip
-    points = fr.frontier_points(rows)
-    res = dict(
-        points=points,
-        interpolated={"mmd": fr.interpolate_progress(points, "mmd")},
-        at_level={"mmd": fr.progress_at_level(points, "mmd")},
-        at_level_kept={"mmd": fr.progress_at_level(points, "mmd", min_ok_share=0.95)},
-        computed=2,
-        reused=0,
-        wall_s=1.0,
-    )
+    res = dict(fr.summarise_frontier(rows, ["mmd"]), computed=2, reused=0, wall_s=1.0)
     monkeypatch.setattr(fr, "run_frontier", lambda *a, **k: res)
     monkeypatch.setattr(cli, "_checked_config", lambda *a: (None, None))
     rc, out = _run(["bench", "frontier", "--out", str(tmp_path / "o"), "--methods", "mmd"],
@@ -398,6 +391,7 @@ def test_frontier_summary_says_its_counts_are_per_1000(tmp_path, capsys, monkeyp
     assert rc == 0
     assert "collision-free per 1000: mean" in out.out and "975.0" in out.out
     assert "of 1000" not in out.out
+    assert "matched compute" in out.out  # the --budgets readout
 
 
 @pytest.mark.slow

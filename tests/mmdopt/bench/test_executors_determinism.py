@@ -19,7 +19,7 @@ from . import test_frontier
 #: tests/conftest.py)
 TINY = test_frontier.TINY
 #: columns that measure time, not results
-TIMING = {"plan_time_s", "wall_s", "compile_s"}
+TIMING = {"plan_time_s", "wall_s", "compile_s", "predict_time_s"}
 
 
 def _rows(path):

@@ -22,7 +22,7 @@ from tests.reliability.test_kill_resume import CONFIG as TINY  # noqa: E402
 
 SCENE_PARAMS = {"n_samples": 20, "n_validation": 50}
 #: columns that measure time, not results
-TIMING = {"plan_time_s", "wall_s"}
+TIMING = {"plan_time_s", "wall_s", "predict_time_s"}
 
 
 def _rows(path):

@@ -28,7 +28,7 @@ pytest.importorskip("ray", reason="the Ray executor needs Ray (pip install 'mmdo
 
 REPO = Path(__file__).resolve().parents[3]
 #: columns that measure time, not results
-TIMING = {"plan_time_s", "wall_s", "compile_s"}
+TIMING = {"plan_time_s", "wall_s", "compile_s", "predict_time_s"}
 
 
 def _free_ports(n: int) -> list[int]:

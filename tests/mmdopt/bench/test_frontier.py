@@ -179,7 +179,7 @@ def test_frontier_figure_has_a_log_frontier_and_a_calibration_panel():
                 rows.append(_row(m, k, s, 1000 - c, 40.0 + 100 * k + scale))
     fig = frontier_axes(frontier_points(rows), "test")
     try:
-        front, cal = fig.axes
+        front, cal, budget = fig.axes
         assert front.get_yscale() == "log" and front.get_xscale() == "linear"
         assert cal.get_xscale() == "log" and cal.get_yscale() == "log"
         assert "collisions per 1000" in front.get_ylabel() and "0 drawn at" in front.get_ylabel()
@@ -189,6 +189,8 @@ def test_frontier_figure_has_a_log_frontier_and_a_calibration_panel():
         assert any(line.get_label() == "measured = requested" for line in cal.lines)
         # ε is named in the title, not at every point
         assert len(front.texts) == 0 and "0.001 … 0.1" in front.get_title()
+        # matched compute: progress at 995 / 999 within a plan-time budget, log time axis
+        assert budget.get_xscale() == "log" and "within a budget" in budget.get_title()
     finally:
         import matplotlib.pyplot as plt
 
@@ -243,3 +245,25 @@ def test_frontier_cli_sample_options_reach_the_scenes_and_the_manifest(tmp_path,
         assert e.value.code == 2 and "different settings" in err and key in err
     assert cli.main(run) == 0
     assert "0 plans computed, 2 reused" in capsys.readouterr().out
+
+
+def test_progress_within_a_budget_uses_only_the_risk_levels_that_fit_in_it():
+    """Matched compute (``--budgets``): the most progress reaching a level among the risk
+    levels whose median plan time is within the budget; NaN where none within it reaches it."""
+    from mmdopt.bench.frontier import check_budget, progress_within_budget, summarise_frontier
+
+    def rows(m, risk, cf, prog, t):
+        return [dict(method=m, risk=risk, scene=s, collision_free=cf, n_validation=1000,
+                     progress_m=prog, plan_time_s=t, feasible=True, status="ok",
+                     risk_bound=risk) for s in range(2)]  # fmt: skip
+
+    rs = rows("mmd", 0.001, 999, 80.0, 0.5) + rows("mmd", 0.02, 992, 95.0, 0.05)
+    rs += rows("saa", 0.001, 999, 70.0, 0.2)
+    summary = summarise_frontier(rs, ["mmd", "saa"], budgets=(0.1, 1.0))
+    fast, slow = summary["at_budget"]["0.1"], summary["at_budget"]["1"]
+    assert fast["mmd"]["990"] == 95.0 and math.isnan(fast["mmd"]["995"])
+    assert slow["mmd"] == {"990": 95.0, "995": 80.0, "999": 80.0}
+    assert math.isnan(fast["saa"]["990"]) and slow["saa"]["999"] == 70.0
+    assert progress_within_budget(summary["points"], "mmd", 0.5)["999"] == 80.0
+    with pytest.raises(ValueError, match="budget"):
+        check_budget(0)
