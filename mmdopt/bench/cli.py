@@ -614,7 +614,7 @@ def build_parser() -> argparse.ArgumentParser:
     bs = b.add_subparsers(
         dest="experiment",
         required=True,
-        metavar="{synthetic,frontier,receding,reduced-set,timing,figure,qp-backends,highway,ngsim}",
+        metavar="{synthetic,frontier,reduced-set,timing,figure,qp-backends,receding,highway,ngsim}",
         action=_LazySubParsers,
     )
     for add in (

@@ -88,8 +88,8 @@ FRONTIER_COLUMNS = (
     "seed",
     "risk_bound",
     "n_planning",
-    "compile_s",
     "predict_time_s",
+    "compile_s",
 )
 #: target collision-free levels (of 1000) at which progress is interpolated
 TARGET_LEVELS = (990.0, 995.0, 999.0)

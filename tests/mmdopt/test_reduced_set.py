@@ -322,6 +322,11 @@ def test_pivoted_cholesky_reproduces_a_low_rank_gram_and_reports_its_residual():
     assert np.abs(R).max() <= float(resid3) * (1 + 1e-9)  # every entry of a PSD R ≤ max diag
 
 
+#: float32 rounding of the CEM's weights, accumulated over its iterations (two separately
+#: compiled programs of the same arithmetic agree to it, not bit for bit)
+ROUNDING = 1e-4
+
+
 def test_low_rank_gram_selects_as_well_as_the_full_gram():
     """Above 256 samples the CEM ranks its population by ‖(α − 1/n)L‖² with a pivoted-Cholesky
     factor L of K (smooth trajectories: the Gaussian Gram is numerically low rank).  It is the
@@ -333,25 +338,27 @@ def test_low_rank_gram_selects_as_well_as_the_full_gram():
 
 def test_low_rank_gram_falls_back_to_the_full_gram_when_k_is_not_low_rank():
     """White-noise samples with a small bandwidth: K ≈ I has full rank, the factor's residual
-    stays far above ``gram_tol`` and the CEM uses the full K: the same set as ``gram="full"``."""
+    stays far above ``gram_tol`` and the CEM uses the full K: the same set as ``gram="full"``
+    (the weights to float32 rounding: the two are separately compiled programs, and XLA may order
+    a sum differently in each)."""
     X = np.random.default_rng(1).normal(size=(300, 4, 2))
     cfg = ReducedSetConfig(bandwidth=0.5, iterations=5)
     a = select_reduced_set(jax.random.key(0), X, 10, "mmd", cfg.replace(gram="lowrank"))
     b = select_reduced_set(jax.random.key(0), X, 10, "mmd", cfg.replace(gram="full"))
     np.testing.assert_array_equal(np.asarray(a.indices), np.asarray(b.indices))
-    np.testing.assert_array_equal(np.asarray(a.alpha), np.asarray(b.alpha))
+    np.testing.assert_allclose(np.asarray(a.alpha), np.asarray(b.alpha), rtol=ROUNDING)
     # (the factor alone would be a different objective: accepted at any residual, it differs)
     c = select_reduced_set(
         jax.random.key(0), X, 10, "mmd", cfg.replace(gram="lowrank", gram_tol=1e9)
     )
-    assert not np.array_equal(np.asarray(c.alpha), np.asarray(b.alpha))
+    assert not np.allclose(np.asarray(c.alpha), np.asarray(b.alpha), rtol=ROUNDING)
 
 
 def test_batched_selection_takes_the_low_rank_form_only_when_every_obstacle_allows_it():
     """``select_reduced_sets`` decides once for the batch (a collective over the vmapped axis):
-    one obstacle whose Gram is not low rank sends the whole batch to the full K, bit for bit the
-    ``gram="full"`` result; a batch of smooth obstacles uses the (here deliberately coarse)
-    factor, which gives a different, valid result."""
+    one obstacle whose Gram is not low rank sends the whole batch to the full K, the
+    ``gram="full"`` result (to float32 rounding); a batch of smooth obstacles uses the (here
+    deliberately coarse) factor, which gives a different, valid result."""
     # a deliberately coarse factor that tells the two apart: rank 8 leaves a residual of 0.24
     # for the smooth samples (accepted by gram_tol = 0.3: a visibly different objective) and 0.50
     # for white noise (K ≈ 0.6 + 0.4·I, rejected)
@@ -363,14 +370,15 @@ def test_batched_selection_takes_the_low_rank_form_only_when_every_obstacle_allo
     pair = np.stack([smooth, smooth[::-1]])  # both accept the factor: the batch uses it
     a = select_reduced_sets(key, pair, 10, "mmd", lo)
     b = select_reduced_sets(key, pair, 10, "mmd", full)
-    assert not np.array_equal(np.asarray(a.alpha), np.asarray(b.alpha))
+    assert not np.allclose(np.asarray(a.alpha), np.asarray(b.alpha), rtol=ROUNDING)
     for o in range(2):
         idx = np.asarray(a.indices[o])
         assert len(set(idx.tolist())) == 10 and idx.max() < 300
     mixed = np.stack([smooth, noise])  # (the same shapes: no new compilation)
     a = select_reduced_sets(key, mixed, 10, "mmd", lo)
     b = select_reduced_sets(key, mixed, 10, "mmd", full)
-    np.testing.assert_array_equal(np.asarray(a.alpha), np.asarray(b.alpha))
+    np.testing.assert_array_equal(np.asarray(a.indices), np.asarray(b.indices))
+    np.testing.assert_allclose(np.asarray(a.alpha), np.asarray(b.alpha), rtol=ROUNDING)
 
 
 def test_gram_mode_is_validated():

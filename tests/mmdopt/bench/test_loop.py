@@ -15,7 +15,8 @@ from mmdopt.bench.scenes import make_scene, preset
 
 #: a small planner: the loop, not the planner, is under test
 TINY = {"cem": {"n_samples": 40, "n_cem": 20, "n_elite": 8, "iterations": 2, "n_brake": 2},
-        "selection": {"reduced_set_size": 5}}  # fmt: skip
+        "selection": {"reduced_set_size": 5},
+        "safety": {"risk_hits": 0, "reselect": 0}}  # fmt: skip
 
 
 def _scene(name="cutin-high", obstacles=2, index=0):
@@ -54,22 +55,23 @@ def test_a_static_family_keeps_its_noise_around_the_nominal_start():
 
 def test_an_episode_drives_reports_its_collisions_and_keeps_the_plan_times():
     cfg = mmdopt.MMDOptConfig.from_dict(TINY)
-    row = run_episode(_scene(), "mmd", 0.02, config=cfg, dt=1.0, duration_s=3.0)
+    row = run_episode(_scene(), "mmd", 0.05, config=cfg, dt=1.0, duration_s=3.0)
     assert set(row) == set(LOOP_COLUMNS)
     assert row["steps"] == 3 and row["obstacles"] == 2 and row["progress_m"] > 0
     assert row["crashed"] in (True, False) and 0 <= row["ok_share"] <= 1
     assert row["median_plan_s"] > 0 and row["compile_s"] >= 0
     # a car standing on the ego's path cannot be avoided: the episode reports the crash
+    # (two obstacles, as above: the same compiled programs)
     sc = make_scene(0, 3, preset("static-gaussian").replace(
-        num_obstacles=1, x0_choices=(6.0,), y0_choices=(0.0,), n_samples=40))  # fmt: skip
-    crash = run_episode(sc, "mmd", 0.02, config=cfg, dt=1.0, duration_s=3.0)
+        num_obstacles=2, x0_choices=(6.0, 7.0), y0_choices=(0.0,), n_samples=40))  # fmt: skip
+    crash = run_episode(sc, "mmd", 0.05, config=cfg, dt=1.0, duration_s=3.0)
     assert crash["crashed"] and crash["crash_time_s"] <= 2.0
 
 
 def test_bench_receding_writes_its_table(tmp_path, capsys):
     (tmp_path / "tiny.json").write_text(json.dumps(TINY))
     rc = cli.main(["bench", "receding", "--preset", "cutin-low", "--obstacles", "2",
-                   "--scenes", "2", "--methods", "mmd,cvar", "--risk", "0.02",
+                   "--scenes", "2", "--methods", "mmd,cvar", "--risk", "0.05",
                    "--replan-dt", "1", "--duration", "2", "--config", str(tmp_path / "tiny.json"),
                    "--jobs", "1", "--no-progress", "--out", str(tmp_path / "r")])  # fmt: skip
     assert rc == 0
