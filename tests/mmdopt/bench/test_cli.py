@@ -432,3 +432,19 @@ def test_frontier_measures_the_compile_apart_and_reads_older_folders(tmp_path, c
     df = load_results(out, "frontier")
     assert list(df.columns[: len(FRONTIER_COLUMNS)]) == list(FRONTIER_COLUMNS)
     assert df["compile_s"].isna().all() and len(df) == 2
+
+
+def test_the_cli_keeps_compiled_programs_in_a_user_cache_unless_told_not_to(tmp_path, monkeypatch):
+    """``mmdopt`` turns on JAX's persistent compilation cache in the user cache folder
+    (``$XDG_CACHE_HOME/mmdopt/jax``); ``MMDOPT_COMPILE_CACHE`` moves it or (``0``) turns it
+    off, as ``--no-compile-cache`` does; a ``JAX_COMPILATION_CACHE_DIR`` already set is kept."""
+    import argparse
+
+    assert cli.compile_cache_dir({"XDG_CACHE_HOME": str(tmp_path)}) == tmp_path / "mmdopt" / "jax"
+    assert cli.compile_cache_dir({"MMDOPT_COMPILE_CACHE": "0"}) is None
+    assert cli.compile_cache_dir({"MMDOPT_COMPILE_CACHE": str(tmp_path / "c")}) == tmp_path / "c"
+    assert cli.enable_compile_cache(argparse.Namespace(no_compile_cache=True)) is None
+    kept = tmp_path / "kept"
+    monkeypatch.setenv("JAX_COMPILATION_CACHE_DIR", str(kept))
+    assert cli.enable_compile_cache(argparse.Namespace(no_compile_cache=False)) == kept
+    assert cli.build_parser().parse_args(["--no-compile-cache", "demo"]).no_compile_cache
