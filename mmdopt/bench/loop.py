@@ -39,6 +39,7 @@ from .scenes import (
     STREAMS_PER_OBSTACLE,
     Scene,
     ScenePredictor,
+    forecast_inputs,
     sample_obstacles,
     scene_rngs,
 )
@@ -96,7 +97,7 @@ class SceneLoop:
 
     # ------------------------------------------------------------------ the SceneSource protocol
     def observe(self):
-        from mmdopt.predict import Forecast, PredictionContext
+        from mmdopt.predict import Forecast
         from mmdopt.receding import Observation
 
         sc = self.scene
@@ -108,19 +109,8 @@ class SceneLoop:
             sc.params, sc.x0, sc.y0, sc.intent_probs, layout=sc.layout,
             obstacle_probs=sc.obstacle_intent_probs, states=None if static else now,
         )  # fmt: skip
-        back = 0.1 * np.arange(9, -1, -1)
-        hist = now[:, None, :2] - back[None, :, None] * now[:, None, 2:4]
-        lines = np.stack([np.array([[x - 100.0, 0.0], [x + 2000.0, 0.0]]) for x in now[:, 0]])
-        ctx = PredictionContext(
-            times=self.t,
-            dt_history=0.1,
-            centerline=lines,
-            lane_width=np.full(O, 3.5),
-            has_left=np.full(O, len(sc.params.intent_offsets) > 1),
-            has_right=np.zeros(O, bool),
-            gaps=np.full((O, 6), 100.0),
-            rel_speed=np.zeros((O, 6)),
-        )
+        hist, ctx = forecast_inputs(now[:, :2], now[:, 2:4], self.t,
+                                    len(sc.params.intent_offsets) > 1)  # fmt: skip
         fc = Forecast(pred, hist, ctx, self.min_samples, self.max_samples)
         return Observation(ego=self.ego, road=sc.road(), obstacles=fc, time=self.time)
 

@@ -85,6 +85,7 @@ __all__ = [
     "sample_obstacle",
     "sample_obstacles",
     "scene_rngs",
+    "forecast_inputs",
     "STREAMS_PER_OBSTACLE",
     "JOURNAL_FAMILIES",
     "STATIC_NOISE",
@@ -534,28 +535,12 @@ class Scene:
         ``min_samples`` … ``max_samples`` (the history: ``HISTORY_ROWS`` positions of each
         obstacle at its initial speed along the road, ``HISTORY_DT`` s apart; the context: the
         scene's straight road on the planner's grid)."""
-        from mmdopt.predict import Forecast, PredictionContext
+        from mmdopt.predict import Forecast
 
-        p, lay = self.params, self.layout
-        O = len(lay.x0)
-        back = HISTORY_DT * np.arange(HISTORY_ROWS - 1, -1, -1)
-        hist = np.stack(
-            [
-                np.stack([x - v * back, np.full(HISTORY_ROWS, y)], -1)
-                for x, y, v in zip(lay.x0, lay.y0, lay.speed, strict=True)
-            ]
-        )
-        lines = np.stack([np.array([[x - 100.0, 0.0], [x + 2000.0, 0.0]]) for x in lay.x0])
-        ctx = PredictionContext(
-            times=self.t,
-            dt_history=HISTORY_DT,
-            centerline=lines,
-            lane_width=np.full(O, 3.5),
-            has_left=np.full(O, len(p.intent_offsets) > 1),
-            has_right=np.zeros(O, bool),
-            gaps=np.full((O, 6), 100.0),
-            rel_speed=np.zeros((O, 6)),
-        )
+        lay = self.layout
+        pos = np.stack([lay.x0, lay.y0], -1)
+        vel = np.stack([lay.speed, np.zeros_like(lay.speed)], -1)
+        hist, ctx = forecast_inputs(pos, vel, self.t, len(self.params.intent_offsets) > 1)
         return Forecast(self.predictor(), hist, ctx, min_samples, max_samples)
 
 
@@ -620,6 +605,30 @@ class ScenePredictor:
         rngs = tuple(np.random.default_rng(c) for c in ss.spawn(STREAMS_PER_OBSTACLE * O))
         xy, _, _ = sample_obstacles(rngs, self.params, lay, probs, n, self.states)
         return xy
+
+
+def forecast_inputs(pos: np.ndarray, vel: np.ndarray, t: np.ndarray, has_left: bool):
+    """The history and context of a :class:`mmdopt.predict.Forecast` of obstacles on the scenes'
+    straight road: ``HISTORY_ROWS`` positions ``HISTORY_DT`` s apart ending at ``pos`` (O, 2)
+    and moving at ``vel`` (O, 2) m/s, each on a centre line along +x through its start, on the
+    planner's grid ``t``; ``has_left``: whether a lane change is possible."""
+    from mmdopt.predict import PredictionContext
+
+    O = pos.shape[0]
+    back = HISTORY_DT * np.arange(HISTORY_ROWS - 1, -1, -1)
+    hist = pos[:, None, :] - back[None, :, None] * vel[:, None, :]
+    lines = np.stack([np.array([[x - 100.0, 0.0], [x + 2000.0, 0.0]]) for x in pos[:, 0]])
+    ctx = PredictionContext(
+        times=t,
+        dt_history=HISTORY_DT,
+        centerline=lines,
+        lane_width=np.full(O, 3.5),
+        has_left=np.full(O, bool(has_left)),
+        has_right=np.zeros(O, bool),
+        gaps=np.full((O, 6), 100.0),
+        rel_speed=np.zeros((O, 6)),
+    )
+    return hist, ctx
 
 
 @functools.lru_cache(maxsize=1)
