@@ -728,14 +728,17 @@ def _intent_probs(params: SceneParams, p: float) -> np.ndarray:
 STREAMS_PER_OBSTACLE = 3
 
 
-def _mixture(rng_mode, rng_value, rows, n: int, dims: int) -> np.ndarray:
+def _mixture(
+    rng_mode, rng_value, rows, n: int, dims: int, offset=0.0
+) -> tuple[np.ndarray, np.ndarray]:
     """``n`` draws of a Gaussian mixture of ``rows`` ``(probability, means…, stds…)`` with
-    ``dims`` coordinates, (n, dims): a mode per draw from ``rng_mode``, a standard normal per
-    draw and coordinate from ``rng_value`` (so the first draws do not depend on ``n``)."""
+    ``dims`` coordinates, (n, dims), and their modes (n,): a mode per draw from ``rng_mode``, a
+    standard normal per draw and coordinate from ``rng_value`` (so the first draws do not depend
+    on ``n``); ``offset`` (dims,) is added to the means (a static obstacle's start)."""
     rows = np.asarray(rows, dtype=float)
     xi = rng_value.standard_normal((n, dims))
     mode = rng_mode.choice(len(rows), size=n, p=rows[:, 0]) if len(rows) > 1 else np.zeros(n, int)
-    return rows[mode, 1 : 1 + dims] + rows[mode, 1 + dims :] * xi
+    return offset + rows[mode, 1 : 1 + dims] + rows[mode, 1 + dims :] * xi, mode
 
 
 def sample_obstacle(
@@ -758,19 +761,14 @@ def sample_obstacle(
     """
     K = NUM_STEPS
     if params.motion == "static":  # the journal's static scenes: a noisy position, no motion
-        rows = np.asarray(params.position_modes, dtype=float)
-        mode = (
-            rngs[0].choice(len(rows), size=n, p=rows[:, 0]) if len(rows) > 1 else np.zeros(n, int)
-        )
-        xi = rngs[1].standard_normal((n, 2))
-        pos = np.array([x0, y0]) + rows[mode, 1:3] + rows[mode, 3:5] * xi
+        pos, mode = _mixture(rngs[0], rngs[1], params.position_modes, n, 2, np.array([x0, y0]))
         return np.repeat(pos[:, None, :], K, axis=1), mode, np.zeros(n)
     intents = rngs[0].choice(len(probs), size=n, p=probs)
     if params.speed_modes is None:
         xi = rngs[1].standard_normal(n)
         vd = params.speed_mean + np.sqrt(params.speed_var) * xi
     else:
-        vd = _mixture(rngs[2], rngs[1], params.speed_modes, n, 1)[:, 0]
+        vd = _mixture(rngs[2], rngs[1], params.speed_modes, n, 1)[0][:, 0]
     vd = np.clip(vd, params.speed_min, params.speed_max)
     yd = np.asarray(params.intent_offsets)[intents]
     planner = _obstacle_planner()
