@@ -1,4 +1,5 @@
-"""A frontier on an existing Ray cluster (``ray start``) gives exactly the local executor's rows.
+"""A sweep and a frontier on an existing Ray cluster (``ray start``) give exactly the local
+executor's rows.
 
 A cluster's workers are started by ``ray start``, not by the driver: the one-thread environment of
 the local pool reaches them through the driver's ``runtime_env`` (``executors._run_ray``)."""
@@ -22,7 +23,10 @@ from pathlib import Path
 import pytest
 
 from mmdopt.bench import cli
+from mmdopt.bench.scenes import SceneParams
+from mmdopt.bench.synthetic import run_synthetic
 from tests.mmdopt.bench.test_frontier import TINY
+from tests.reliability.test_kill_resume import CONFIG as SWEEP_CONFIG
 
 pytest.importorskip("ray", reason="the Ray executor needs Ray (pip install 'mmdopt[ray]')")
 
@@ -84,10 +88,21 @@ def _rows(path: Path) -> list[dict[str, str]]:
 
 
 @pytest.mark.slow
-def test_frontier_on_a_ray_cluster_equals_the_local_executor(tmp_path, capsys):
-    """1 scene, 1 method, 1 risk of the tiny planner, locally and on a ``ray start`` cluster
-    (``--executor ray --address 127.0.0.1:PORT``, the CLI in a subprocess as a user runs it):
-    the same ``frontier.csv`` rows, timing columns apart."""
+def test_sweep_and_frontier_on_a_ray_cluster_equal_the_local_executor(tmp_path, capsys):
+    """One ``ray start`` cluster (one start-up for both checks):
+
+    - a 4-scene ``bench synthetic`` sweep with two Ray tasks at a time (``run_synthetic``,
+      in-process driver) writes the local process pool's rows, row by row, and its folder
+      resumes under the local executor with nothing recomputed;
+    - 1 scene, 1 method, 1 risk of the tiny planner through the CLI in a subprocess, as a user
+      runs it (``--executor ray --address 127.0.0.1:PORT``): the same ``frontier.csv`` rows.
+
+    Timing columns apart.  The local runs go first: the cluster's workers then load their
+    programs from the compilation cache."""
+    sweep_cfg = cli.load_planner_config_from_dict(SWEEP_CONFIG)
+    sweep = dict(scenes=4, seed=5, params=SceneParams(n_samples=20, n_validation=50),
+                 methods=("mmd",), config=sweep_cfg, progress=False)  # fmt: skip
+    run_synthetic(tmp_path / "sweep_local", executor="local", jobs=1, isolate=True, **sweep)
     small, tiny = tmp_path / "scene.json", tmp_path / "cfg.json"
     small.write_text(json.dumps({"n_validation": 200, "n_samples": 40}))
     tiny.write_text(json.dumps(TINY))  # test_frontier's planner: its programs are compiled once
@@ -112,11 +127,22 @@ def test_frontier_on_a_ray_cluster_equals_the_local_executor(tmp_path, capsys):
         assert env.returncode == 0, env.stderr[-3000:]
         got = ast.literal_eval(env.stdout.strip().splitlines()[-1])
         assert sorted(x.split()[-1] for x in got) == sorted(v.split()[-1] for v in want)
+        # the driver disconnects when the sweep ends; the cluster stays up for the CLI
+        run_synthetic(tmp_path / "sweep_ray", executor="ray", address=address, jobs=2, **sweep)
         r = subprocess.run(
             [sys.executable, "-m", "mmdopt", *argv, "--out", str(tmp_path / "ray"),
              "--executor", "ray", "--address", address],
             capture_output=True, text=True, cwd=REPO, timeout=600,
         )  # fmt: skip
+    a = _rows(tmp_path / "sweep_local" / "results.csv")
+    b = _rows(tmp_path / "sweep_ray" / "results.csv")
+    assert len(a) == len(b) == 4
+    for x, y in zip(a, b, strict=True):
+        assert x == y, {k: (x[k], y[k]) for k in x if x[k] != y.get(k)}
+    # interchangeable caches: the Ray folder resumes under the local executor
+    res = run_synthetic(tmp_path / "sweep_ray", executor="local", jobs=2, **sweep)
+    assert res["computed"] == 0 and res["reused"] == 4
+    assert json.loads((tmp_path / "sweep_ray" / "run.json").read_text())["seed"] == 5
     assert r.returncode == 0, r.stderr[-3000:]
     assert "1 plans computed" in r.stdout
     a, b = _rows(tmp_path / "local" / "frontier.csv"), _rows(tmp_path / "ray" / "frontier.csv")
