@@ -23,7 +23,7 @@ import numpy as np
 
 from .base import Backend, residual_check
 from .cache import BoundedCache
-from .check import check_batch_solution, check_solution
+from .check import check_batch_solution, check_solution, confirm_inaccurate
 from .errors import BackendUnavailableError, UnknownBackendError
 from .problem import QP, QPBatch
 from .settings import IGNORED, as_warm_start
@@ -263,8 +263,22 @@ def solve(
     _record_warm_start(sol.settings, ws is not None, be)
     residual_check(be, qp, sol)
     sol = check_solution(be, qp, sol)
+    sol = confirm_inaccurate(be, qp, sol, settings, _checked_solve(be))
     _attach(sol, qp)
     return sol
+
+
+def _checked_solve(be: Backend) -> Callable[..., Solution]:
+    """``be``'s solve followed by the answer check (the confirming solve of an inaccurate
+    answer: :func:`solvers.check.confirm_inaccurate`)."""
+
+    def run(qp: QP, *, warm_start: Any, **settings: Any) -> Solution:
+        ws = as_warm_start(warm_start, qp.n, qp.m)
+        sol = be.solve(qp, warm_start=ws, **settings)
+        residual_check(be, qp, sol)
+        return check_solution(be, qp, sol)
+
+    return run
 
 
 def solve_batch(

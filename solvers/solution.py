@@ -25,12 +25,14 @@ SOLVED              the backend converged and the check passed: row-normalised p
                     :meth:`Solution.is_optimal`'s terms)
 SOLVED_INACCURATE   every residual ≤ ``min(1e3·eps, 0.1)·(1 + scale)``, objectives as for
                     SOLVED; the backend said "inaccurate", or said SOLVED and the check found a
-                    residual above ``10·eps``.  The objective may still be off by more than
-                    the residuals suggest on an ill-conditioned problem (OSQP at 1e-3 on
-                    Maros–Meszaros QPCBOEI2: 12 %)
+                    residual above ``10·eps``; and (backends that honour warm starts, via
+                    :func:`solvers.solve`) a solve from it at a tenth of the tolerances
+                    confirmed it or left its objective where it was
+                    (:func:`solvers.check.confirm_inaccurate`)
 MAX_ITER            no answer: the iteration or time budget ran out, or a SOLVED /
                     SOLVED_INACCURATE whose residuals or objective gap exceed
-                    ``min(1e3·eps, 0.1)``; ``x`` is the last iterate (for inspection only) or
+                    ``min(1e3·eps, 0.1)``, or an inaccurate answer the tighter solve could
+                    not confirm and moved; ``x`` is the last iterate (for inspection only) or
                     NaN
 PRIMAL_INFEASIBLE   a Farkas certificate ``y`` verified by the check is in
                     ``extras["prim_inf_cert"]``; ``x``, ``y``, objective and residuals are NaN

@@ -12,6 +12,7 @@ from __future__ import annotations
 import json
 from functools import cache
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 import pytest
@@ -70,3 +71,34 @@ def test_every_tolerance_row_names_real_problems(shared_data):
     for backend, row in TOLERANCES.items():
         unknown = (set(row.mm_fails) | set(row.mm_skip)) - names
         assert not unknown, f"{backend}: unknown problems {unknown}"
+
+
+def _osqp_error(name: str, root: Path, **settings) -> tuple[Any, float]:
+    qp, r = load_mm(root / f"{name}.mat")
+    sol = solve(qp, "osqp", **settings)
+    f_star = _optima(root)[name]
+    return sol, abs(sol.objective + r - f_star) / max(1.0, abs(f_star))
+
+
+def test_an_inaccurate_answer_a_tighter_solve_cannot_confirm_is_not_an_answer(shared_data):
+    """OSQP stops QSC205 at 25 iterations ``SOLVED_INACCURATE``, 1.2 % off the published
+    optimum.  Solved again from it at a tenth of the tolerances, OSQP cannot confirm it and the
+    objective moves by half its size: the answer is ``MAX_ITER``, its iterate kept."""
+    root = shared_data / "maros_meszaros"
+    sol, err = _osqp_error("QSC205", root, max_iter=25)
+    c = sol.extras["confirm"]
+    assert c["result"] == "not confirmed" and c["eps_abs"] == pytest.approx(1e-4)
+    assert err > 1e-2 and sol.status is Status.MAX_ITER, (sol.status, err)
+    assert "could not confirm" in sol.extras["message"]
+    assert sol.iterations == 50 and np.all(np.isfinite(sol.x))
+
+
+def test_an_inaccurate_answer_a_tighter_solve_confirms_is_returned_improved(shared_data):
+    """CVXQP2_S at 50 iterations is inaccurate (4e-3 off); the confirming solve, started from
+    it at a tenth of the tolerances, reaches OSQP's ``SOLVED``: that answer is returned, with
+    the caller's settings and both runs' iterations."""
+    root = shared_data / "maros_meszaros"
+    sol, err = _osqp_error("CVXQP2_S", root, max_iter=50)
+    assert sol.extras["confirm"]["result"] == "confirmed"
+    assert sol.status is Status.SOLVED and err < 1e-3, (sol.status, err)
+    assert sol.settings["eps_abs"] == pytest.approx(1e-3) and sol.iterations == 100
