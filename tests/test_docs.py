@@ -1,9 +1,10 @@
 """The documentation runs: its code and its site.
 
 1. Every ```python block of ``README.md`` and of ``docs/**/*.md`` executes: a file's blocks run in
-   order, in one fresh namespace, in a subprocess (``MPLBACKEND=Agg``, a temporary working
-   directory), and a failure names the file and the line of the block.  Shell blocks
-   (```bash, ```console) are not run.
+   order, in one fresh namespace and a working directory of its own (``MPLBACKEND=Agg``), and a
+   failure names the file and the line of the block.  The files run in :data:`DOC_GROUPS`
+   subprocesses, one after another in each (a program one file compiles, the next reuses, as
+   in a user's session).  Shell blocks (```bash, ```console) are not run.
 2. The site builds: ``mkdocs build --strict`` with the four tutorials executed at build time and
    rendered with their outputs and plots, and the API reference generated from the docstrings of
    ``solvers``, ``frenet``, ``mmdopt`` and ``mmdopt.bench``.  A broken cross-reference, a
@@ -26,7 +27,9 @@ import pytest
 
 REPO = Path(__file__).resolve().parents[1]
 SITE_MODULES = ("mkdocs", "material", "mkdocstrings_handlers.python", "mkdocs_jupyter", "ipykernel")
-BLOCK_TIMEOUT_S = 900  # one file's blocks: a few first-call compilations on a loaded 2-core machine
+BLOCK_TIMEOUT_S = 1800  # one group's files: first-call compilations on a loaded 2-core machine
+#: the subprocesses the documentation's files are shared among (one per test worker)
+DOC_GROUPS = 2
 
 
 # ---------------------------------------------------------------- 1. the Python blocks run
@@ -54,29 +57,44 @@ def _doc_files() -> list[Path]:
     return [f for f in files if python_blocks(f)]
 
 
-#: runs in the subprocess: every block of one file in one namespace, each compiled under the name
-#: ``FILE:LINE`` so that a traceback points at the block
+#: runs in the subprocess: file after file, every block of one file in one namespace and in a
+#: folder of its own, each block compiled under the name ``FILE:LINE`` so that a traceback points
+#: at the block
 _RUNNER = """
-import json, sys, traceback
-name, blocks = json.load(open(sys.argv[1], encoding="utf-8"))
-ns = {"__name__": "__main__"}
-for line, source in blocks:
-    try:
-        exec(compile(source, f"{name}:{line}", "exec"), ns)
-    except BaseException:
-        traceback.print_exc()
-        print(f"DOCS-BLOCK-FAILED {name}, the block at line {line}", file=sys.stderr)
-        sys.exit(1)
+import json, os, sys, traceback
+root = os.getcwd()
+for i, (name, blocks) in enumerate(json.load(open(sys.argv[1], encoding="utf-8"))):
+    os.chdir(os.path.join(root, f"file{i}"))
+    ns = {"__name__": "__main__"}
+    for line, source in blocks:
+        try:
+            exec(compile(source, f"{name}:{line}", "exec"), ns)
+        except BaseException:
+            traceback.print_exc()
+            print(f"DOCS-BLOCK-FAILED {name}, the block at line {line}", file=sys.stderr)
+            sys.exit(1)
+    if "matplotlib.pyplot" in sys.modules:
+        sys.modules["matplotlib.pyplot"].close("all")
 """
+
+
+def _doc_group(i: int) -> list[Path]:
+    return _doc_files()[i::DOC_GROUPS]
 
 
 @pytest.mark.slow
 @pytest.mark.parametrize(
-    "path", _doc_files(), ids=lambda p: str(p.relative_to(REPO)).replace(os.sep, "/")
+    "group",
+    range(DOC_GROUPS),
+    ids=lambda i: "+".join(p.stem for p in _doc_group(i)),
 )
-def test_every_python_block_of_the_file_runs(path, tmp_path):
-    name = str(path.relative_to(REPO)).replace(os.sep, "/")
-    (tmp_path / "_blocks.json").write_text(json.dumps([name, python_blocks(path)]), "utf-8")
+def test_every_python_block_of_the_docs_runs(group, tmp_path):
+    files = _doc_group(group)
+    todo = []
+    for i, path in enumerate(files):
+        (tmp_path / f"file{i}").mkdir()
+        todo.append([str(path.relative_to(REPO)).replace(os.sep, "/"), python_blocks(path)])
+    (tmp_path / "_blocks.json").write_text(json.dumps(todo), "utf-8")
     (tmp_path / "_run_blocks.py").write_text(_RUNNER, "utf-8")
     env = dict(os.environ, MPLBACKEND="Agg")
     env["PYTHONPATH"] = str(REPO) + (os.pathsep + env["PYTHONPATH"] if "PYTHONPATH" in env else "")
@@ -89,8 +107,13 @@ def test_every_python_block_of_the_file_runs(path, tmp_path):
         timeout=BLOCK_TIMEOUT_S,
     )
     failed = re.search(r"DOCS-BLOCK-FAILED (.*)", proc.stderr)
-    where = failed[1] if failed else name
+    where = failed[1] if failed else ", ".join(name for name, _ in todo)
     assert proc.returncode == 0, f"{where} failed:\n{proc.stderr[-6000:]}"
+
+
+def test_every_documentation_file_with_python_is_in_a_group():
+    groups = [p for i in range(DOC_GROUPS) for p in _doc_group(i)]
+    assert sorted(groups) == sorted(_doc_files()) and len(groups) == len(set(groups))
 
 
 def test_readme_and_docs_blocks_are_found():
