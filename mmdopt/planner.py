@@ -34,7 +34,7 @@ from .collision import headings
 from .padding import pad_obstacles
 from .plans import Plan, PlanStatus, Road
 from .predict.base import Forecast
-from .risk import config_for_risk, samples_for_risk
+from .risk import config_for_risk, coverage_data, samples_for_risk
 from .samples import ReducedSet
 from .schedule import (
     Candidate,
@@ -388,15 +388,16 @@ class Planner:
             rs = _select(rec, config, obs_fr, ego, ws, keys)
         diag["reduced_set_s"] = time.perf_counter() - t1
         idx0 = np.asarray(rs.indices)
-        margins = None
+        margins = cdata = None
         if config.safety.margins.margin_mode == "samples":
             t3 = time.perf_counter()
+            cdata = coverage_data(obs_fr, float(config.selection.rs_lateral_scale))
             knn = 0
             if rec.all_samples:
                 knn = config.safety.margins.coverage_knn
                 if knn is None:  # automatic: the samples a reduced-set point stands for
                     knn = max(2, n // config.selection.reduced_set_size)
-            margins = coverage(config, obs_fr, idx0, knn=knn)
+            margins = coverage(config, obs_fr, idx0, knn=knn, data=cdata)
             diag["margins_s"] = time.perf_counter() - t3
         obstacles = alg.ObstacleSet.create(
             config, obstacle_centres(obs_fr, obs_h, rs.indices), np.asarray(rs.weights, np.float64),
@@ -412,7 +413,7 @@ class Planner:
         problem = alg.Problem.create(config, ego, road.bounds(), lanes=road.lane_centres)
         ctx = PassContext(
             ws, config, rec, problem, obs_fr, obs_h, rs, projector, projector_settings, keys,
-            lambda cfg: self.workspace(road.bounds(), cfg),
+            lambda cfg: self.workspace(road.bounds(), cfg), cdata,
         )  # fmt: skip
         first = Candidate(PassName.FIRST, ctx.run(obstacles, keys.cem, warm_start), obstacles, idx0)
         result = run_schedule(ctx, first, diag)

@@ -52,9 +52,11 @@ for the same quantity: ≈ 1 σ of the speed spread integrated over time.
 from __future__ import annotations
 
 import math
+from dataclasses import dataclass
 from statistics import NormalDist
 
 import numpy as np
+import scipy.sparse as sp
 
 from . import methods as registry
 from .config import MMDOptConfig
@@ -63,6 +65,8 @@ __all__ = [
     "RISK_CONFIDENCE",
     "config_for_risk",
     "coverage_margins",
+    "coverage_data",
+    "CoverageData",
     "risk_z",
     "check_risk",
     "clopper_pearson_upper",
@@ -124,15 +128,64 @@ def _margins_from_moments(c, mu_e, mu_u, v_e, v_u, z, prior, h_e=0.0):
     return np.stack([behind, ahead, lat])
 
 
-def _cluster_margins(flat, idx, M, z, prior, h_e=0.0):
-    """Margins (3, J, K) of the clusters given by the (J, n) membership matrix ``M`` over the
-    centred positions ``flat`` (n, 2K: s and d interleaved) of the samples; ``idx`` (J,) the
-    points.  The members' count, sum and sum of squares are two products with ``M``."""
-    c = np.maximum(M.sum(1), 1.0)[:, None]
+def _cluster_margins(flat, idx, M, z, prior, h_e=0.0, flat2=None):
+    """Margins (3, J, K) of the clusters given by the (J, n) 0/1 membership matrix ``M``
+    (``scipy.sparse``: a sample belongs to one cluster, or to ``knn`` of them) over the centred
+    positions ``flat`` (n, 2K: s and d interleaved) of the samples; ``idx`` (J,) the points.
+    The members' count, sum and sum of squares are two sparse products with ``M``: work in the
+    members, not in J·n."""
+    c = np.maximum(np.asarray(M.sum(1)).reshape(-1), 1.0)[:, None]
     mean = (M @ flat) / c
     mu = mean - flat[idx]  # mean deviation from the anchor
-    v = np.maximum((M @ (flat * flat)) / c - mean * mean, 0.0)  # variance is shift-invariant
+    sq = M @ (flat * flat if flat2 is None else flat2)
+    v = np.maximum(sq / c - mean * mean, 0.0)  # variance is shift-invariant
     return _margins_from_moments(c, mu[:, 0::2], mu[:, 1::2], v[:, 0::2], v[:, 1::2], z, prior, h_e)
+
+
+@dataclass(frozen=True, eq=False)
+class CoverageData:
+    """What :func:`coverage_margins` computes from all n samples before it looks at the points,
+    per obstacle, for one ``lateral_scale``: the centred positions ``flat`` (n, 2K), their
+    scaled copy ``F``, its squared norms ``FF`` (n,), ``flat²`` and the spread of the arc length
+    per step (K,).  A planner that asks for the margins of several point sets among the same
+    samples builds it once (:func:`coverage_data`); the margins are the same bit for bit."""
+
+    shape: tuple[int, int, int, int]
+    lateral_scale: float
+    flat: tuple[np.ndarray, ...]
+    F: tuple[np.ndarray, ...]
+    FF: tuple[np.ndarray, ...]
+    flat2: tuple[np.ndarray, ...]
+    std_s: tuple[np.ndarray, ...]
+
+
+def _check_frenet(obstacles_frenet) -> np.ndarray:
+    X = np.asarray(obstacles_frenet, np.float64)
+    if X.ndim != 4 or X.shape[-1] != 2 or X.shape[1] == 0:
+        raise ValueError(f"obstacles_frenet must have shape (O, n, K, 2), n >= 1, got {X.shape}")
+    if not np.all(np.isfinite(X)):
+        raise ValueError("obstacles_frenet contains NaN or inf")
+    return X
+
+
+def coverage_data(obstacles_frenet: np.ndarray, lateral_scale: float = 1.0) -> CoverageData:
+    """:class:`CoverageData` of the (O, n, K, 2) planning samples for ``lateral_scale``."""
+    X = _check_frenet(obstacles_frenet)
+    O, n, K, _ = X.shape
+    scale = np.array([1.0, float(lateral_scale)])
+    flat, F, FF, flat2, std_s = [], [], [], [], []
+    for o in range(O):
+        # centred (n, 2K) positions: the expanded distances and sums of squares keep their
+        # precision far from the origin
+        f = X[o].reshape(n, -1)
+        f = f - f.mean(axis=0)
+        g = f * np.tile(scale, K)
+        flat.append(f)
+        F.append(g)
+        FF.append((g * g).sum(1))
+        flat2.append(f * f)
+        std_s.append(X[o][:, :, 0].std(axis=0))
+    return CoverageData(X.shape, float(lateral_scale), *map(tuple, (flat, F, FF, flat2, std_s)))
 
 
 def coverage_margins(
@@ -144,6 +197,7 @@ def coverage_margins(
     prior: float = 2.0,
     knn: int = 0,
     bandwidth: float = 0.0,
+    data: CoverageData | None = None,
 ) -> np.ndarray:
     """Sample-driven planning margins (m), shape (3, O, J, K): behind, ahead, lateral.
 
@@ -157,15 +211,21 @@ def coverage_margins(
     longitudinal spread: the Gaussian of each cluster convolved with the kernel of a density
     estimate, so the margin of the extreme points extends past the extreme samples (a cluster of
     a few samples of a rare intent understates that intent's tail; docs/experiments/frontier.md).
-    Pure NumPy, O(O·J·n·K) (O·n·knn·K with ``knn``).
+    NumPy: the distances are O(O·J·n·K) (one matrix product), the cluster sums O(O·n·K)
+    (O·J·knn·K with ``knn``: sparse membership).  ``data``: :func:`coverage_data` of these
+    samples for this ``lateral_scale``, when already computed (the result is the same).
     """
-    X = np.asarray(obstacles_frenet, np.float64)
+    if data is None:
+        data = coverage_data(obstacles_frenet, lateral_scale)
+    elif not isinstance(data, CoverageData):
+        raise ValueError(f"data must be a CoverageData, got {type(data).__name__}")
+    elif data.lateral_scale != float(lateral_scale) or data.shape != np.shape(obstacles_frenet):
+        raise ValueError(
+            f"data was computed for samples of shape {data.shape} and lateral_scale "
+            f"{data.lateral_scale:g}, not {np.shape(obstacles_frenet)} and {float(lateral_scale):g}"
+        )
     idx = np.asarray(indices)
-    if X.ndim != 4 or X.shape[-1] != 2 or X.shape[1] == 0:
-        raise ValueError(f"obstacles_frenet must have shape (O, n, K, 2), n >= 1, got {X.shape}")
-    if not np.all(np.isfinite(X)):
-        raise ValueError("obstacles_frenet contains NaN or inf")
-    O, n, K, _ = X.shape
+    O, n, K, _ = data.shape
     if idx.ndim != 2 or idx.shape[0] != O or idx.shape[1] == 0:
         raise ValueError(f"indices must have shape (O, J) = ({O}, J >= 1), got {idx.shape}")
     if not np.issubdtype(idx.dtype, np.integer) or idx.min() < 0 or idx.max() >= n:
@@ -179,32 +239,29 @@ def coverage_margins(
     bandwidth = float(bandwidth)
     if not (math.isfinite(bandwidth) and bandwidth >= 0):
         raise ValueError(f"bandwidth must be finite and >= 0, got {bandwidth}")
-    scale = np.array([1.0, float(lateral_scale)])
     J = idx.shape[1]
     out = np.empty((3, O, J, K))
     for o in range(O):  # O is a handful of obstacles; everything inside is vectorised
-        # centred (n, 2K) positions: the expanded distances and sums of squares keep their
-        # precision far from the origin
-        flat = X[o].reshape(n, -1)
-        flat = flat - flat.mean(axis=0)
-        F = flat * np.tile(scale, K)
+        flat, F = data.flat[o], data.F[o]
         A = F[idx[o]]
-        sq = (A * A).sum(1)[:, None] + (F * F).sum(1)[None, :] - 2.0 * A @ F.T  # (J, n)
+        sq = (A * A).sum(1)[:, None] + data.FF[o][None, :] - 2.0 * A @ F.T  # (J, n)
         h_e = 0.0
         if bandwidth > 0:  # kernel-density smoothing of the tail (Silverman's rule, per step)
-            h_e = bandwidth * 1.06 * X[o][:, :, 0].std(axis=0) * n**-0.2  # (K,)
-        M = np.zeros((J, n))  # cluster membership
+            h_e = bandwidth * 1.06 * data.std_s[o] * n**-0.2  # (K,)
         if knn == 0:
             # nearest point of every sample (a repeated point's samples go to its first copy),
             # and every point belongs to its own cluster
             _, first = np.unique(idx[o], return_index=True)
-            M[first[np.argmin(sq[first], axis=0)], np.arange(n)] = 1.0
-            M[np.arange(J), idx[o]] = 1.0
+            rows = np.concatenate([first[np.argmin(sq[first], axis=0)], np.arange(J)])
+            cols = np.concatenate([np.arange(n), idx[o]])
         else:
             k = min(int(knn), n)
             nb = np.argpartition(sq, k - 1, axis=1)[:, :k]  # (J, k) incl. the point itself
-            np.put_along_axis(M, nb, 1.0, axis=1)
-        out[:, o] = _cluster_margins(flat, idx[o], M, z, prior, h_e)
+            rows, cols = np.repeat(np.arange(J), k), nb.reshape(-1)
+        # cluster membership, 0/1 (a pair named twice, a point in its own cluster, counts once)
+        M = sp.coo_matrix((np.ones(rows.size), (rows, cols)), shape=(J, n)).tocsr()
+        M.data[:] = 1.0
+        out[:, o] = _cluster_margins(flat, idx[o], M, z, prior, h_e, data.flat2[o])
     return out
 
 

@@ -40,12 +40,26 @@ from typing import Any
 import jax
 import jax.numpy as jnp
 import numpy as np
+from jax import lax
 
 from . import algorithm as alg
-from .collision import OBSTACLE_FOOTPRINT, circle_centres, collision_free_count, ellipse_values
+from .collision import (
+    OBSTACLE_FOOTPRINT,
+    circle_centres,
+    collision_free_count,
+    ellipse_f,
+    ellipse_values,
+)
 from .config import MMDOptConfig
 from .methods import PlanMethod
-from .risk import coverage_margins, hits_for_risk, risk_bound, risk_floor
+from .risk import (
+    CoverageData,
+    coverage_data,
+    coverage_margins,
+    hits_for_risk,
+    risk_bound,
+    risk_floor,
+)
 from .samples import ReducedSet
 
 __all__ = [
@@ -141,12 +155,21 @@ class PassContext:
     projector_settings: Mapping[str, Any]
     keys: KeyStream
     workspace_for: Callable[[MMDOptConfig], alg.Workspace]
+    prepared_coverage: CoverageData | None = None
 
     @functools.cached_property
     def all_centres(self) -> jax.Array:
         """Footprint circle centres (O, n, C, K, 2) of every planning sample, computed once per
         plan (every conflict-depth measurement uses them)."""
         return obstacle_centres(self.obs_fr, self.obs_h)
+
+    @functools.cached_property
+    def coverage_data(self) -> CoverageData:
+        """:func:`mmdopt.risk.coverage_data` of the planning samples (every coverage margin of
+        the plan reads it): ``prepared_coverage`` when the planner built it already."""
+        if self.prepared_coverage is not None:
+            return self.prepared_coverage
+        return coverage_data(self.obs_fr, float(self.config.selection.rs_lateral_scale))
 
     def centres(self, idx: np.ndarray) -> jax.Array:
         """Footprint circle centres (O, J, C, K, 2) of the samples ``idx`` (O, J)."""
@@ -205,10 +228,12 @@ def obstacle_centres(obs_fr, obs_h, idx=None) -> jax.Array:
     return circle_centres(jnp.asarray(sel), OBSTACLE_FOOTPRINT, hj)
 
 
-def coverage(config: MMDOptConfig, obs_fr, idx, level=None, knn: int = 0) -> np.ndarray:
+def coverage(
+    config: MMDOptConfig, obs_fr, idx, level=None, knn: int = 0, data: CoverageData | None = None
+) -> np.ndarray:
     """:func:`mmdopt.risk.coverage_margins` of the points ``idx`` among ``obs_fr`` at ``level``
     (default: the risk level ε) with ``config``'s coverage settings (every pass plans with
-    these)."""
+    these); ``data``: the samples' :class:`~mmdopt.risk.CoverageData` (the pass context's)."""
     return coverage_margins(
         obs_fr,
         idx,
@@ -217,6 +242,7 @@ def coverage(config: MMDOptConfig, obs_fr, idx, level=None, knn: int = 0) -> np.
         prior=float(config.safety.margins.coverage_prior),
         knn=knn,
         bandwidth=float(config.safety.margins.coverage_bandwidth),
+        data=data,
     )
 
 
@@ -264,13 +290,33 @@ def _depth_values(config: MMDOptConfig, s1, d1, vs1, vd1, centres):
 COUNT_BUCKET = 4
 
 
-def samples_met(config: MMDOptConfig, obs_fr, obs_h, s, d) -> np.ndarray:
+@jax.jit
+def _met_from_centres(s, d, centres, a, b):
+    # eq. (coll_constraints) as collision_free_count evaluates it (the ego's one circle is its
+    # reference point), one plan at a time: the (O, n, C, K) values of a plan are reduced as
+    # they are formed instead of materialising those of every plan
+    def one(sd):
+        ego = jnp.stack(sd, -1)  # (K, 2)
+        return jnp.any(ellipse_f(ego, centres, a, b) > 0.0, axis=(2, 3))
+
+    return lax.map(one, (s, d))
+
+
+def samples_met(config: MMDOptConfig, obs_fr, obs_h, s, d, centres=None) -> np.ndarray:
     """(C, O, n) the planning samples each of the C plans (s, d) (C, K) meets, counted as
     :func:`mmdopt.collision_free_count` counts a collision (any circle pair, any step); the
-    plans are padded to a multiple of :data:`COUNT_BUCKET`."""
+    plans are padded to a multiple of :data:`COUNT_BUCKET`.  ``centres``: the samples' footprint
+    circle centres (O, n, C, K, 2) when already computed (:attr:`PassContext.all_centres`):
+    the count then reads them instead of forming them again from ``obs_fr`` and ``obs_h``."""
     xy = np.stack([np.asarray(s, np.float64), np.asarray(d, np.float64)], -1)
     C = xy.shape[0]
     pad = -(-C // COUNT_BUCKET) * COUNT_BUCKET - C
+    if centres is not None:
+        xy = np.concatenate([xy, np.repeat(xy[:1], pad, axis=0)])
+        a, b = float(config.safety.footprint.a), float(config.safety.footprint.b)
+        met = _met_from_centres(jnp.asarray(xy[..., 0]), jnp.asarray(xy[..., 1]), centres,
+                                a, b)  # fmt: skip
+        return np.asarray(met)[:C]
     cnt = collision_free_count(
         np.concatenate([xy, np.repeat(xy[:1], pad, axis=0)]),
         obs_fr,
@@ -289,7 +335,7 @@ def _bounds_of(ctx: PassContext, cands) -> tuple[np.ndarray, np.ndarray, np.ndar
     cx = np.stack([np.asarray(b.cx, np.float64) for b in bests])
     cy = np.stack([np.asarray(b.cy, np.float64) for b in bests])
     s, d = cx @ B.P.T, cy @ B.P.T
-    hits = samples_met(config, ctx.obs_fr, ctx.obs_h, s, d)  # (C, O, n)
+    hits = samples_met(config, ctx.obs_fr, ctx.obs_h, s, d, ctx.all_centres)  # (C, O, n)
     bound = np.array([plan_bound(config, h) for h in hits])
     vs, as_, ad = cx @ B.Pdot.T, cx @ B.Pddot.T, cy @ B.Pddot.T
     c = config.cost
@@ -313,7 +359,7 @@ def _extended(ctx: PassContext, idx: np.ndarray, extra: np.ndarray, level=None):
     )  # fmt: skip
     margins = None
     if config.safety.margins.margin_mode == "samples":
-        margins = coverage(config, ctx.obs_fr, full, level)
+        margins = coverage(config, ctx.obs_fr, full, level, data=ctx.coverage_data)
     obstacles = alg.ObstacleSet.create(
         config, ctx.centres(full), w, ctx.method.collision, margins=margins
     )
@@ -373,7 +419,7 @@ def _nearest_pass(ctx: PassContext, start: Candidate, fewer: int) -> tuple[Candi
     knn = max(2, n // config.selection.reduced_set_size)
     obstacles = alg.ObstacleSet.create(
         cfg, ctx.centres(pad), np.where(mask, 1.0 / M, 0.0), "chance", mask=mask,
-        margins=coverage(config, obs_fr, pad, level=level, knn=knn),
+        margins=coverage(config, obs_fr, pad, level=level, knn=knn, data=ctx.coverage_data),
     )  # fmt: skip
     state = ctx.run(obstacles, ctx.keys.nearest(fewer), ctx.warm(start.state), config=cfg)
     return Candidate(PassName.NEAREST, state, obstacles, pad, level=level), (k + 0.5) / M
@@ -430,7 +476,7 @@ def ladder_passes(ctx: PassContext, start: Candidate, base: Candidate) -> list[C
         ob = base.obstacles
         obstacles = alg.ObstacleSet.create(
             config, ob.centres, ob.weights, ob.mode, mask=ob.mask,
-            margins=coverage(config, ctx.obs_fr, base.indices, level),
+            margins=coverage(config, ctx.obs_fr, base.indices, level, data=ctx.coverage_data),
         )  # fmt: skip
         state = ctx.run(obstacles, ctx.keys.ladder(i), ctx.warm(state))
         out.append(Candidate(PassName.LADDER, state, obstacles, base.indices, level=level))

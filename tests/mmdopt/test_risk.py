@@ -268,3 +268,25 @@ def test_reselection_pass_also_runs_with_the_time_linear_margins():
     assert depth[extra[0]].min() >= np.sort(depth[others])[-3]  # the three deepest
     free = two.diagnostics["collision_free_planning"]
     assert np.all(free >= one.diagnostics["collision_free_planning"] - 1)
+
+
+def test_coverage_data_built_once_gives_the_same_margins_bit_for_bit():
+    """A planner builds the samples' CoverageData once and asks for the margins of several point
+    sets (nearest-point clusters, k-NN clusters, with the kernel smoothing): each equals the
+    margins computed from the samples alone, bit for bit; data of other samples is refused."""
+    from mmdopt.risk import coverage_data
+
+    rng = np.random.default_rng(3)
+    X = rng.normal(size=(2, 300, 12, 2)) * [4.0, 1.0] + [50.0, 0.0]
+    data = coverage_data(X, lateral_scale=10.0)
+    for J, knn, bw in ((8, 0, 0.0), (8, 0, 0.5), (20, 30, 0.0)):
+        idx = np.stack([rng.choice(300, J, replace=False) for _ in range(2)])
+        idx[:, -1] = idx[:, 0]  # a repeated point
+        kw = dict(lateral_scale=10.0, knn=knn, bandwidth=bw)
+        a = coverage_margins(X, idx, 0.01, **kw)
+        b = coverage_margins(X, idx, 0.01, data=data, **kw)
+        assert np.array_equal(a, b)
+    with pytest.raises(ValueError, match="lateral_scale"):
+        coverage_margins(X, idx, 0.01, lateral_scale=1.0, data=data)
+    with pytest.raises(ValueError, match="data"):
+        coverage_margins(X, idx, 0.01, data="cached")
