@@ -19,6 +19,20 @@ user's projection would be:
     ``|Δx_k ± Δy_k| ≤ v Δt``, per-axis acceleration ``|Δ²·|`` and jerk ``|Δ³·|`` bounds,
     progress rows ``x_k ≥ s_k`` (finite at one step in five, free elsewhere) and six
     initial-state equalities.
+``blocks``
+    ``[x…, y…]`` order (the two axes in blocks), ``N = 100``, ``n = 200``, ``m = 598``.  ``P``
+    tracks a target (unequal axis weights) plus a second-difference smoother.  Rows: two-sided
+    bounds on every ``x_k``, ``y_k``, velocity ``Δx_k``, ``Δy_k`` and acceleration ``Δ²x_k``,
+    ``Δ²y_k`` rows, four initial-state equalities (position and velocity of each axis).
+``blocks-coupled``
+    The same blocks, ``N = 80``, ``n = 160``, ``m = 730``: velocity and acceleration rows, the
+    coupled ``Δ²x_k ± Δ²y_k``, jerk ``Δ³x_k``, ``Δ³y_k`` (tight), two halfspaces
+    ``±n_k·(x_k, y_k) ≤ c_k`` on 50 of the steps (a corridor whose walls turn with the road) and
+    six initial-state equalities.
+
+``--dense`` passes ``P`` and ``A`` of the two ``blocks`` families as dense NumPy arrays, as a
+user building them with ``np.vstack`` would; ``--shuffle`` permutes the variables and the rows
+of every family (seeded by ``--seed``) before solving, the same QPs numbered differently.
 
 Every QP of a family shares ``P`` and ``A`` (``scipy.sparse``, as a user with this structure
 passes them: the sparse solvers then see only the nonzeros); ``q``, ``l``, ``u`` differ
@@ -33,6 +47,7 @@ same run).
 
     python -m benchmarks.qp_families                               # both, 1000 QPs each
     python -m benchmarks.qp_families --family positions --batch 200 --backends ipm
+    python -m benchmarks.qp_families --family blocks --backends admm,osqp --shuffle
 """
 
 from __future__ import annotations
@@ -46,7 +61,15 @@ import scipy.sparse as sp
 from mmdopt.bench.qp_backends import PEER, SETTINGS, run_family
 from solvers import QPBatch
 
-__all__ = ["positions_batch", "coupled_batch", "FAMILIES", "main"]
+__all__ = [
+    "positions_batch",
+    "coupled_batch",
+    "blocks_batch",
+    "blocks_coupled_batch",
+    "shuffled",
+    "FAMILIES",
+    "main",
+]
 
 
 def _diff(n: int, order: int) -> np.ndarray:
@@ -173,7 +196,133 @@ def coupled_batch(batch_size: int = 1000, horizon: int = 80, *, seed: int = 0) -
     return QPBatch(sp.csc_matrix(P), sp.csc_matrix(A), np.array(qs), np.array(ls), np.array(us))
 
 
-FAMILIES = {"positions": positions_batch, "coupled": coupled_batch}
+def _blocks_reference(rng: np.random.Generator, t: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """A smooth random drive: longitudinal ``x`` at a speed with a small acceleration, lateral
+    ``y`` a slow lane change."""
+    v0, acc = rng.uniform(4.0, 10.0), rng.uniform(-0.5, 0.5)
+    rx = v0 * t + 0.5 * acc * t**2
+    T = t[-1]
+    ry = rng.uniform(-1.5, 1.5) * (1 - np.cos(np.pi * t / T)) / 2 + 0.2 * np.sin(
+        rng.uniform(0.5, 1.5) * t + rng.uniform(0.0, np.pi)
+    )
+    return rx, ry
+
+
+def _as_input(P: np.ndarray, A: np.ndarray, dense: bool):
+    """``P, A`` as a user passes them: dense arrays, or ``scipy.sparse`` (CSC)."""
+    if dense:
+        return np.array(P), np.array(A)
+    return sp.csc_matrix(P), sp.csc_matrix(A)
+
+
+def blocks_batch(
+    batch_size: int = 1000, horizon: int = 100, *, seed: int = 0, dense: bool = False
+) -> QPBatch:
+    """The ``blocks`` family (module docstring): ``n = 2N``, ``m = 6N − 2``."""
+    if batch_size < 1 or horizon < 8:
+        raise ValueError("batch_size must be ≥ 1 and horizon ≥ 8")
+    N, dt = horizon, 0.1
+    rng = np.random.default_rng(seed)
+    I, Z = np.eye(N), np.zeros((N, N))
+    X, Y = np.hstack([I, Z]), np.hstack([Z, I])
+    D1, D2 = _diff(N, 1), _diff(N, 2)
+    A = np.vstack(
+        [X, Y, D1 @ X, D1 @ Y, D2 @ X, D2 @ Y] + [X[:1], Y[:1], (D1 @ X)[:1], (D1 @ Y)[:1]]
+    )
+    W = np.diag(np.concatenate([np.full(N, 1.0), np.full(N, 3.0)]))
+    P = W + 0.5 * ((D2 @ X).T @ (D2 @ X) + (D2 @ Y).T @ (D2 @ Y))
+    t = np.arange(N) * dt
+    qs, ls, us = [], [], []
+    for _ in range(batch_size):
+        rx, ry = _blocks_reference(rng, t)
+        ref = np.concatenate([rx, ry])
+        Ar = A @ ref
+        lb, ub = _rows_between(Ar[: 2 * N], rng, 0.5, 2.0, 0.3)
+        lv, uv = _rows_between(Ar[2 * N : 4 * N - 2], rng, 0.5, 2.0, 0.05)
+        la, ua = _rows_between(Ar[4 * N - 2 : 6 * N - 6], rng, 0.5, 2.0, 0.01)
+        eq = Ar[6 * N - 6 :]
+        target = ref + np.concatenate([_wiggle(rng, t, 1.5, 0.2), _wiggle(rng, t, 1.0, 0.1)])
+        target[:N] += rng.uniform(-0.5, 0.5) * t * 5.0
+        qs.append(-W @ target)
+        ls.append(np.concatenate([lb, lv, la, eq]))
+        us.append(np.concatenate([ub, uv, ua, eq]))
+    Pi, Ai = _as_input(P, A, dense)
+    return QPBatch(Pi, Ai, np.array(qs), np.array(ls), np.array(us))
+
+
+def blocks_coupled_batch(
+    batch_size: int = 1000, horizon: int = 80, *, seed: int = 0, dense: bool = False
+) -> QPBatch:
+    """The ``blocks-coupled`` family (module docstring): ``n = 2N``, ``m = 730`` at ``N = 80``."""
+    if batch_size < 1 or horizon < 8:
+        raise ValueError("batch_size must be ≥ 1 and horizon ≥ 8")
+    N, dt = horizon, 0.1
+    rng = np.random.default_rng(seed)
+    I, Z = np.eye(N), np.zeros((N, N))
+    X, Y = np.hstack([I, Z]), np.hstack([Z, I])
+    D1, D2, D3 = _diff(N, 1), _diff(N, 2), _diff(N, 3)
+    t = np.arange(N) * dt
+    # halfspaces n_k·(x_k, y_k) ≤ c_k: a corridor whose walls turn with a curving road, one
+    # wall per step on each side over the steps ks (the obstacle stretch)
+    ks = np.arange(N // 8, N // 8 + 5 * N // 8)
+    heading = 0.2 * t[ks]
+    nx, ny = -np.sin(heading), np.cos(heading)
+    Hk = nx[:, None] * X[ks] + ny[:, None] * Y[ks]
+    A = np.vstack(
+        [D1 @ X, D1 @ Y, D2 @ X, D2 @ Y, D2 @ X + D2 @ Y, D2 @ X - D2 @ Y]
+        + [D3 @ X, D3 @ Y, Hk, -Hk]
+        + [X[:1], Y[:1], (D1 @ X)[:1], (D1 @ Y)[:1], (D2 @ X)[:1], (D2 @ Y)[:1]]
+    )
+    W = np.diag(np.concatenate([np.full(N, 1.0), np.full(N, 2.0)]))
+    P = W + 1.0 * ((D2 @ X).T @ (D2 @ X) + (D2 @ Y).T @ (D2 @ Y))
+    inf = np.inf
+    nh = len(ks)
+    qs, ls, us = [], [], []
+    for _ in range(batch_size):
+        rx, ry = _blocks_reference(rng, t)
+        ref = np.concatenate([rx, ry])
+        Ar = A @ ref
+        o = 0
+        lv, uv = _rows_between(Ar[o : o + 2 * N - 2], rng, 0.5, 2.0, 0.05)
+        o += 2 * N - 2
+        la, ua = _rows_between(Ar[o : o + 4 * N - 8], rng, 0.5, 2.0, 0.01)
+        o += 4 * N - 8
+        lj, uj = _rows_between(Ar[o : o + 2 * N - 6], rng, 0.5, 2.0, 0.002)
+        o += 2 * N - 6
+        half = rng.uniform(0.3, 1.0)
+        uh = Ar[o : o + 2 * nh] + half
+        lh = np.full(2 * nh, -inf)
+        o += 2 * nh
+        eq = Ar[o:]
+        target = ref + np.concatenate([_wiggle(rng, t, 1.0, 0.1), _wiggle(rng, t, 1.5, 0.1)])
+        target[:N] += rng.uniform(-0.5, 0.5) * t * 5.0
+        qs.append(-W @ target)
+        ls.append(np.concatenate([lv, la, lj, lh, eq]))
+        us.append(np.concatenate([uv, ua, uj, uh, eq]))
+    Pi, Ai = _as_input(P, A, dense)
+    return QPBatch(Pi, Ai, np.array(qs), np.array(ls), np.array(us))
+
+
+def shuffled(batch: QPBatch, seed: int = 0) -> QPBatch:
+    """``batch`` with its variables and rows in a random (seeded) order, ``P`` and ``A`` in the
+    format they came in: the same QPs, numbered differently."""
+    rng = np.random.default_rng(seed)
+    pv, pr = rng.permutation(batch.n), rng.permutation(batch.m)
+    if sp.issparse(batch.P):
+        P = sp.csc_matrix(sp.csr_matrix(batch.P)[pv][:, pv])
+        A = sp.csc_matrix(sp.csr_matrix(batch.A)[pr][:, pv])
+    else:
+        P = np.asarray(batch.P)[np.ix_(pv, pv)]
+        A = np.asarray(batch.A)[np.ix_(pr, pv)]
+    return QPBatch(P, A, batch.q[:, pv], batch.l[:, pr], batch.u[:, pr])
+
+
+FAMILIES = {
+    "positions": positions_batch,
+    "coupled": coupled_batch,
+    "blocks": blocks_batch,
+    "blocks-coupled": blocks_coupled_batch,
+}
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -184,6 +333,12 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--backends", default="ipm,qpsolvers:piqp,clarabel", help="comma-separated")
     ap.add_argument("--repeats", type=int, default=1, help="warm runs per backend (min is shown)")
     ap.add_argument("--seed", type=int, default=0)
+    ap.add_argument(
+        "--shuffle", action="store_true", help="permute variables and rows (seeded) first"
+    )
+    ap.add_argument(
+        "--dense", action="store_true", help="pass P, A of the blocks families as dense arrays"
+    )
     args = ap.parse_args(argv)
     if args.batch < 1 or args.repeats < 1:
         ap.error("--batch and --repeats must be ≥ 1")
@@ -196,9 +351,21 @@ def main(argv: list[str] | None = None) -> int:
         names.append(PEER)
     print(f"load average at start: {os.getloadavg()[0]:.1f} on {os.cpu_count()} CPUs")
     for fam in families:
-        batch = FAMILIES[fam](args.batch, seed=args.seed)
+        make = FAMILIES[fam]
+        if fam.startswith("blocks"):
+            batch = make(args.batch, seed=args.seed, dense=args.dense)
+        else:
+            batch = make(args.batch, seed=args.seed)
+        if args.shuffle:
+            batch = shuffled(batch, seed=args.seed)
         free = np.mean(np.isinf(batch.l) & np.isinf(batch.u))
-        print(f"\n## {fam}: n = {batch.n}, m = {batch.m}, {len(batch)} QPs, {free:.0%} free rows")
+        how = ("dense" if not sp.issparse(batch.A) else "sparse") + (
+            ", shuffled" if args.shuffle else ""
+        )
+        print(
+            f"\n## {fam}: n = {batch.n}, m = {batch.m}, {len(batch)} QPs, {free:.0%} free rows "
+            f"({how} P, A)"
+        )
         rows = run_family(fam, batch, names, args.repeats)
         peer = next((r for r in rows if r["name"] == PEER), None)
         print(
