@@ -792,7 +792,7 @@ def _max_step(v, dv, mask):
 
 def _starting_point(qp: _QP) -> _Carry:
     """Minimise ½xᵀPx + qᵀx + ½Σ d₀(Ax − t)² (t: the middle of each row); slacks and
-    multipliers from it."""
+    multipliers from it by Mehrotra's shifts."""
     r, la, f64 = qp.rows, qp.la, jnp.float64
     fl, fu, fe, lf, uf, fin_l, fin_u = r.fl, r.fu, r.fe, r.lf, r.uf, r.fin_l, r.fin_u
     d0 = fl + fu - fl * fu + fe / qp.prm.delta
@@ -803,19 +803,33 @@ def _starting_point(qp: _QP) -> _Carry:
     )
     x0 = la.msolve(la.factor(d0), -qp.q + la.ATmul(d0 * t))
     Ax0 = la.Amul(x0)
-    # slacks: the distance to each finite bound, floored at min(1, half the row's width);
-    # multipliers: the penalty's estimate d₀(Ax₀ − t) split by sign, shifted as in Mehrotra (1992)
-    width = jnp.where(fin_l & fin_u, uf - lf, jnp.inf)
-    floor = jnp.minimum(1.0, 0.5 * width)
-    sl0 = fl * jnp.maximum(Ax0 - lf, floor) + (1 - fl)
-    su0 = fu * jnp.maximum(uf - Ax0, floor) + (1 - fu)
+    # Mehrotra's (1992) heuristic: the slacks Ax₀ − l, u − Ax₀ and the penalty's multiplier
+    # estimate ±d₀(Ax₀ − t) each shifted uniformly until positive (1.5 × the most negative entry),
+    # then shifted again to balance their complementarity products.  A uniform shift keeps the
+    # start scale-free: a per-row floor leaves tight rows (narrow [l, u]) at the boundary with
+    # tiny multipliers, and the first steps are then short.
+    big = jnp.asarray(1e300, f64)
+    sl_t, su_t = fl * (Ax0 - lf), fu * (uf - Ax0)
     ypen = d0 * (Ax0 - t)
-    zl_t, zu_t = fl * jnp.maximum(-ypen, 0.0), fu * jnp.maximum(ypen, 0.0)
-    sz = jnp.sum(fl * sl0 * zl_t) + jnp.sum(fu * su0 * zu_t)
-    ssum = jnp.sum(fl * sl0) + jnp.sum(fu * su0)
-    dz = 0.5 * sz / jnp.maximum(ssum, 1e-300)
-    zl0 = fl * jnp.maximum(zl_t + dz, 1e-8)
-    zu0 = fu * jnp.maximum(zu_t + dz, 1e-8)
+    zl_t, zu_t = -fl * ypen, fu * ypen
+
+    def shift(vl, vu):  # 1.5 × the most negative entry on the inequality sides, or 0
+        lo = jnp.minimum(
+            jnp.min(jnp.where(fl > 0, vl, big), initial=big),
+            jnp.min(jnp.where(fu > 0, vu, big), initial=big),
+        )
+        return jnp.maximum(-1.5 * lo, 0.0)
+
+    ds, dz = shift(sl_t, su_t), shift(zl_t, zu_t)
+    sl_t, su_t = fl * (sl_t + ds), fu * (su_t + ds)
+    zl_t, zu_t = fl * (zl_t + dz), fu * (zu_t + dz)
+    sz = jnp.sum(sl_t * zl_t) + jnp.sum(su_t * zu_t)
+    ds2 = 0.5 * sz / jnp.maximum(jnp.sum(zl_t) + jnp.sum(zu_t), 1e-300)
+    dz2 = 0.5 * sz / jnp.maximum(jnp.sum(sl_t) + jnp.sum(su_t), 1e-300)
+    sl0 = fl * jnp.maximum(sl_t + ds2, 1e-8) + (1 - fl)
+    su0 = fu * jnp.maximum(su_t + ds2, 1e-8) + (1 - fu)
+    zl0 = fl * jnp.maximum(zl_t + dz2, 1e-8)
+    zu0 = fu * jnp.maximum(zu_t + dz2, 1e-8)
     ye0 = jnp.zeros(qp.m, f64)
     y0 = zu0 - zl0
     Px0, ATy0 = la.Pmul(x0), la.ATmul(y0)
