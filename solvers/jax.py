@@ -25,7 +25,8 @@ Solvers
 * ``method="ipm"``: the interior-point iteration of :mod:`solvers.ipm` (dense linear algebra, no
   variable reordering) on one QP.  Needs JAX's x64 mode (``with jax.enable_x64(True):`` around the
   trace and the call); settings are those of :class:`solvers.ipm.IPMSettings` except
-  ``linear_solver`` and ``chunk_size``.
+  ``linear_solver`` and ``chunk_size``, with ``shifted_start=False`` unless given (the floored
+  start: its final iterate suits the active-set rule below on weakly active rows).
 * ``method="admm"``: the ADMM iteration of :mod:`solvers.admm` followed, when ``polish=True``
   (default), by an active-set polish done in JAX (the reduced KKT system below, solved with the
   active set read from ADMM's multipliers and kept only where it is primal feasible and its
@@ -356,7 +357,11 @@ def _settings(method: str, settings: dict[str, Any]):
                 raise ValueError(
                     f"{bad} is not a setting of solvers.jax.solve_qp (one dense QP per call)"
                 )
-        return IPMSettings.from_kwargs(**settings).replace(chunk_size=None), False
+        # the floored start unless asked otherwise: on a weakly active row (its multiplier
+        # tending to 0 at its bound) the shifted start's final iterate at the default tolerance
+        # can leave the multiplier above the activity threshold of the derivative
+        kw = {"shifted_start": False, **settings}
+        return IPMSettings.from_kwargs(**kw).replace(chunk_size=None), False
     from .admm.core import ADMMSettings
 
     for bad in ("stage_iter", "fallback"):
