@@ -149,12 +149,7 @@ def positions_batch(batch_size: int = 1000, horizon: int = 100, *, seed: int = 0
 
 def coupled_batch(batch_size: int = 1000, horizon: int = 80, *, seed: int = 0) -> QPBatch:
     """The ``coupled`` family (module docstring): ``n = 2N``, ``m = 9N − 6``."""
-    if batch_size < 1 or horizon < 8:
-        raise ValueError("batch_size must be ≥ 1 and horizon ≥ 8")
-    N, dt = horizon, 0.1
-    rng = np.random.default_rng(seed)
-    I, Z = np.eye(N), np.zeros((N, N))
-    X, Y = np.hstack([I, Z]), np.hstack([Z, I])
+    N, dt, rng, X, Y = _two_axes(batch_size, horizon, seed)
     D1, D2, D3 = _diff(N, 1), _diff(N, 2), _diff(N, 3)
     t = np.arange(N) * dt
     # corridor along a road of constant curvature: unit normals rotate with the heading
@@ -215,16 +210,20 @@ def _as_input(P: np.ndarray, A: np.ndarray, dense: bool):
     return sp.csc_matrix(P), sp.csc_matrix(A)
 
 
+def _two_axes(batch_size: int, horizon: int, seed: int):
+    """The families' common set-up: ``(N, dt, rng, X, Y)``, ``X`` and ``Y`` the
+    selectors of the two axes in the ``[x…, y…]`` order."""
+    if batch_size < 1 or horizon < 8:
+        raise ValueError("batch_size must be ≥ 1 and horizon ≥ 8")
+    I, Z = np.eye(horizon), np.zeros((horizon, horizon))
+    return horizon, 0.1, np.random.default_rng(seed), np.hstack([I, Z]), np.hstack([Z, I])
+
+
 def blocks_batch(
     batch_size: int = 1000, horizon: int = 100, *, seed: int = 0, dense: bool = False
 ) -> QPBatch:
     """The ``blocks`` family (module docstring): ``n = 2N``, ``m = 6N − 2``."""
-    if batch_size < 1 or horizon < 8:
-        raise ValueError("batch_size must be ≥ 1 and horizon ≥ 8")
-    N, dt = horizon, 0.1
-    rng = np.random.default_rng(seed)
-    I, Z = np.eye(N), np.zeros((N, N))
-    X, Y = np.hstack([I, Z]), np.hstack([Z, I])
+    N, dt, rng, X, Y = _two_axes(batch_size, horizon, seed)
     D1, D2 = _diff(N, 1), _diff(N, 2)
     A = np.vstack(
         [X, Y, D1 @ X, D1 @ Y, D2 @ X, D2 @ Y] + [X[:1], Y[:1], (D1 @ X)[:1], (D1 @ Y)[:1]]
@@ -254,12 +253,7 @@ def blocks_coupled_batch(
     batch_size: int = 1000, horizon: int = 80, *, seed: int = 0, dense: bool = False
 ) -> QPBatch:
     """The ``blocks-coupled`` family (module docstring): ``n = 2N``, ``m = 730`` at ``N = 80``."""
-    if batch_size < 1 or horizon < 8:
-        raise ValueError("batch_size must be ≥ 1 and horizon ≥ 8")
-    N, dt = horizon, 0.1
-    rng = np.random.default_rng(seed)
-    I, Z = np.eye(N), np.zeros((N, N))
-    X, Y = np.hstack([I, Z]), np.hstack([Z, I])
+    N, dt, rng, X, Y = _two_axes(batch_size, horizon, seed)
     D1, D2, D3 = _diff(N, 1), _diff(N, 2), _diff(N, 3)
     t = np.arange(N) * dt
     # halfspaces n_k·(x_k, y_k) ≤ c_k: a corridor whose walls turn with a curving road, one
