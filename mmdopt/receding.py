@@ -206,8 +206,8 @@ class StepRecord:
     the observation's, ``timings`` the plan's own (``reduced_set_s``, ``cem_s``, ...);
     ``intervened``: the safety shield replaced the plan by its braking fallback, ``shield`` why
     and how hard it brakes, and whether even that braking fails the check (empty without a shield
-    or when the plan passed).  ``cost``, ``feasible``, ``fallback`` and
-    ``status`` are the planner's, before the shield."""
+    or when the plan passed).  ``cost``, ``feasible``, ``fallback``, ``status`` and
+    ``risk_bound`` (:attr:`mmdopt.Plan.risk_bound`) are the planner's, before the shield."""
 
     time: float
     plan_time_s: float
@@ -225,6 +225,7 @@ class StepRecord:
     timings: dict = field(default_factory=dict)
     intervened: bool = False
     shield: str = ""
+    risk_bound: float = float("nan")
 
 
 @dataclass
@@ -472,6 +473,7 @@ def run_receding(
                 },
                 intervened=bool(shield_rec is not None and shield_rec.intervened),
                 shield=p.message if shield_rec is not None and shield_rec.intervened else "",
+                risk_bound=float(getattr(planned, "risk_bound", float("nan"))),
             )
         )
         if callback is not None:

@@ -59,7 +59,16 @@ from .predictors import (
     make_predictor,
     straight_parallel,
 )
-from .runner import CSV_COLUMNS, run_episode, run_highway, summarize, write_csv, write_video
+from .runner import (
+    CSV_COLUMNS,
+    config_for_method,
+    risk_overrides,
+    run_episode,
+    run_highway,
+    summarize,
+    write_csv,
+    write_video,
+)
 from .settings import (
     AGENTS,
     EGO_MODELS,
@@ -98,6 +107,8 @@ __all__ = [
     "highway_available",
     "run_episode",
     "run_highway",
+    "risk_overrides",
+    "config_for_method",
     "summarize",
     "write_csv",
     "write_video",

@@ -66,6 +66,16 @@ def add_highway_parser(bench_subparsers):
     )
     h.add_argument("--samples", type=positive_int, default=20, help="predictor samples per car")
     h.add_argument(
+        "--risk",
+        type=float,
+        default=None,
+        metavar="EPS",
+        help="plan in the risk mode at collision probability EPS in (0, 0.5): the preset with "
+        "sample-driven margins, each method's mapping of EPS, n(EPS) futures per car drawn "
+        "from the predictor each replan (at most 5000) and a risk bound per replan "
+        "(default: the preset's time-linear margins)",
+    )
+    h.add_argument(
         "--ego-model",
         choices=EGO_MODELS,
         default="bicycle",
@@ -171,6 +181,13 @@ def cmd_highway(args, parser=None) -> int:
         env_config = _load_env_config(getattr(args, "env_config", None), args.env)
     except ValueError as e:
         return _fail(parser, str(e))
+    if getattr(args, "risk", None) is not None:
+        from mmdopt.risk import check_risk
+
+        try:
+            check_risk(args.risk, "argument --risk")
+        except ValueError as e:
+            return _fail(parser, str(e))
     try:
         settings = HighwaySettings(
             env=args.env,
@@ -198,6 +215,7 @@ def cmd_highway(args, parser=None) -> int:
             address=args.address,
             progress=not args.no_progress,
             isolate=True,
+            risk=getattr(args, "risk", None),
         )
     except ValueError as e:
         return _fail(parser, str(e))

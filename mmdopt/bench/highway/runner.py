@@ -16,11 +16,19 @@ import numpy as np
 import mmdopt
 from mmdopt.planner import PLANNERS
 from mmdopt.receding import RecedingConfig, run_receding, warm_up
+from mmdopt.risk import check_risk, config_for_risk
 
 from ..executors import EXECUTORS, MISSING, check_manifest, run_tasks, worker_layout
 from ..results import write_json
 from .adapter import HighwaySource, bicycle_limits
-from .settings import METHODS, SHIELD, HighwaySettings, check_env_config, highway_config
+from .settings import (
+    AGENTS,
+    METHODS,
+    SHIELD,
+    HighwaySettings,
+    check_env_config,
+    highway_config,
+)
 
 CSV_COLUMNS = (
     "episode",
@@ -46,6 +54,8 @@ CSV_COLUMNS = (
     "between_lanes_s",
     "interventions",
     "off_road",
+    "risk",
+    "mean_risk_bound",
 )
 
 
@@ -114,6 +124,9 @@ def run_episode(
         interventions = sum(r.intervened for r in res.steps)
         shield_reasons = [f"t={r.time:.1f} s: {r.shield}" for r in res.steps if r.intervened]
         rec["plan_d"] = [r.d for r in res.steps]  # lateral offset at each replan (m)
+        bounds = np.array([r.risk_bound for r in res.steps], float)
+        bounds = bounds[np.isfinite(bounds)]
+        rec["mean_risk_bound"] = float(bounds.mean()) if bounds.size else None
         for name in ("reduced_set_s", "cem_s"):
             rec[name] = [r.timings.get(name, float("nan")) for r in res.steps]
     pt = np.array(plan_times) if plan_times else np.array([np.nan])
@@ -123,6 +136,9 @@ def run_episode(
     errors = getattr(src.ego, "tracking_errors", None)
     limits = np.array(src.plan_limits).reshape(-1, 2)
     rec.update(
+        risk=float(config.safety.risk)
+        if agent.driver != "idm" and config.safety.margins.margin_mode == "samples"
+        else None,
         crashed=bool(crashed),
         mean_speed=float(speeds.mean()),
         distance_m=src.distance(),
@@ -182,11 +198,38 @@ def _manifest(settings: HighwaySettings, config_overrides: dict, seed: int) -> d
     )
 
 
+def risk_overrides(overrides: dict | None, risk: float | None) -> dict:
+    """``overrides`` with the risk mode at ε = ``risk`` (``--risk``): sample-driven margins
+    (``margin_mode = "samples"``) and ``safety.risk = ε``, nested as the config file's sections;
+    ``risk = None``: ``overrides`` unchanged."""
+    out = json.loads(json.dumps(overrides or {}))
+    if risk is None:
+        return out
+    eps = check_risk(risk, "risk")
+    safety = out.setdefault("safety", {})
+    if not isinstance(safety, dict):
+        raise ValueError("config section 'safety' must be an object to add --risk to it")
+    safety["risk"] = eps
+    safety.setdefault("margins", {})["margin_mode"] = "samples"
+    return out
+
+
+def config_for_method(method: str, config: mmdopt.MMDOptConfig) -> mmdopt.MMDOptConfig:
+    """The planner of ``method`` (an agent of :data:`METHODS`) in an episode: in the risk mode
+    (``margin_mode = "samples"``) the method's own mapping of ``safety.risk``
+    (:func:`mmdopt.risk.config_for_risk`: its margins, weights and re-selection); otherwise
+    ``config`` as it is."""
+    plan_method = AGENTS[method].plan_method if method in AGENTS else None
+    if plan_method is None or config.safety.margins.margin_mode != "samples":
+        return config
+    return config_for_risk(plan_method, float(config.safety.risk), config)
+
+
 def _task(args) -> str:
     episode, seed, method, settings_d, overrides, out, progress = args
     settings = HighwaySettings(**settings_d)
     config = highway_config(overrides)
-    rec = run_episode(episode, seed, method, settings, config)
+    rec = run_episode(episode, seed, method, settings, config_for_method(method, config))
     write_json(_episode_path(Path(out), episode, method), rec)
     line = _progress_line(rec)
     if progress:
@@ -251,14 +294,19 @@ def run_highway(
     address: str | None = None,
     progress: bool = True,
     isolate: bool = False,
+    risk: float | None = None,
 ) -> list[dict]:
     """Resumable benchmark: episode ``i`` uses seed ``seed + i``; each finished (episode, method)
     is ``OUT/episodes/episode_XXXX__METHOD.json`` and never recomputed; ``OUT/episodes.csv`` is
     rebuilt from them.  Reusing ``out`` with other settings is refused (``ValueError``).  The
     environment id is checked (:func:`~.settings.check_env`) before anything is written;
-    ``isolate`` as in :func:`~mmdopt.bench.executors.run_tasks` (recorded in the manifest)."""
+    ``isolate`` as in :func:`~mmdopt.bench.executors.run_tasks` (recorded in the manifest).
+    ``risk`` ε: the planners in the risk mode at ε (:func:`risk_overrides`, recorded in the
+    manifest's config; each method's own mapping of ε, :func:`config_for_method`); with a
+    forecast (the default) each replan draws n(ε) futures per car, at most
+    :data:`~.adapter.MAX_FORECAST_SAMPLES`."""
     settings = HighwaySettings() if settings is None else settings
-    overrides = dict(config_overrides or {})
+    overrides = risk_overrides(config_overrides, risk)
     highway_config(overrides)  # validate before starting
     if isinstance(episodes, bool) or not isinstance(episodes, int) or episodes < 1:
         raise ValueError(f"episodes must be an int >= 1, got {episodes!r}")

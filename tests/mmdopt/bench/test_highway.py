@@ -301,6 +301,34 @@ def test_short_episode_writes_every_csv_column_and_resumes(tmp_path):
         )  # fmt: skip
 
 
+def test_risk_mode_episode_states_its_level_and_each_replans_bound(tmp_path, capsys):
+    """``--risk EPS``: the preset in the risk mode (sample-driven margins, safety.risk = ε,
+    recorded in run.json's config), futures drawn from the predictor's forecast at each replan,
+    and episodes.csv's ``risk`` and ``mean_risk_bound``; a level outside (0, 0.5) is refused
+    naming ``--risk``."""
+    settings = hw.HighwaySettings(duration=1.0, dt=0.5, n_samples=6, max_obstacles=3)
+    (row,) = hw.run_highway(
+        tmp_path / "r", episodes=1, seed=3, methods=["mmd"], settings=settings,
+        config_overrides=TINY, progress=False, risk=0.1,
+    )  # fmt: skip
+    assert row["risk"] == 0.1 and row["steps"] == 2
+    assert 0.0 <= row["mean_risk_bound"] <= 1.0
+    man = json.loads((tmp_path / "r" / "run.json").read_text())
+    assert man["config"]["safety"] == {"risk": 0.1, "margins": {"margin_mode": "samples"}}
+    assert man["planner"]["safety"]["margins"]["margin_mode"] == "samples"
+    with open(tmp_path / "r" / "episodes.csv") as f:
+        (csv_row,) = list(csv.DictReader(f))
+    assert float(csv_row["risk"]) == 0.1 and csv_row["mean_risk_bound"] != ""
+    # the preset's own mode: no level, no bound column value
+    assert hw.risk_overrides(TINY, None) == TINY
+    from mmdopt.bench import cli
+
+    with pytest.raises(SystemExit) as e:
+        cli.main(["bench", "highway", "--episodes", "1", "--risk", "0.7",
+                  "--out", str(tmp_path / "x")])  # fmt: skip
+    assert e.value.code == 2 and "--risk" in capsys.readouterr().err
+
+
 def _strip_timings(rec):
     # wall-clock fields differ run to run; everything else must be identical
     drop = {"plan_times", "predict_times"}
