@@ -80,6 +80,15 @@ def add_ngsim_parser(bench_subparsers) -> argparse.ArgumentParser:
         help="MMDOptConfig fields over the benchmark's defaults; a 'bench' sub-object sets "
         "NgsimParams (egos per time, range, samples, ...)",
     )
+    q.add_argument(
+        "--risk",
+        type=float,
+        default=None,
+        metavar="EPS",
+        help="plan in the risk mode at collision probability EPS in (0, 0.5): sample-driven "
+        "margins, each method's mapping of EPS, the futures EPS needs drawn from the "
+        "predictor, a risk column beside risk_bound (default: the preset's margins)",
+    )
     add_executor(q)
     q.add_argument("--jobs", type=positive_int, default=1)
     q.add_argument("--max-tasks", type=positive_int, default=None, help="first N tasks only")
@@ -142,6 +151,13 @@ def cmd_ngsim(args, parser=None) -> int:
         cfg, params = load_ngsim_config(args.config)
     except ValueError as e:
         return _refuse(parser, "--config", e)
+    if getattr(args, "risk", None) is not None:
+        from mmdopt.risk import check_risk
+
+        try:
+            check_risk(args.risk, "EPS")
+        except ValueError as e:
+            return _refuse(parser, "--risk", e)
     if args.export is not None:
         from .crcheck import available
 
@@ -162,6 +178,7 @@ def cmd_ngsim(args, parser=None) -> int:
             progress=True,
             isolate=True,
             export=args.export,
+            risk=getattr(args, "risk", None),
         )
     except ScenarioError as e:
         return _refuse(parser, "--scenarios", e)

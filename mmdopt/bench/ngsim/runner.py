@@ -41,6 +41,7 @@ import mmdopt
 from mmdopt.algorithm import PLANNER_BACKEND
 from mmdopt.padding import pad_obstacles, padded_count
 from mmdopt.predict import PREDICTORS, Forecast, make_predictor
+from mmdopt.risk import check_risk
 from solvers.cache import BoundedCache
 
 from .inputs import NgsimParams, ScenarioError, load_ngsim_config, ngsim_config
@@ -112,6 +113,8 @@ RESULT_COLUMNS = (
     "cr_feasible",
     "risk_bound",
     "n_planning",
+    # the risk level the plan was asked for (``--risk``; empty with the preset's margins)
+    "risk",
 )
 
 
@@ -438,11 +441,13 @@ def run_task(
     config,
     backend: str = PLANNER_BACKEND,
     export: str | Path | None = None,
+    risk: float | None = None,
 ) -> list[dict]:
     """Plan one task with every method; one result row per method.  With CommonRoad's checkers
     installed each row also has their verdicts (:data:`.crcheck.CR_COLUMNS`); ``export``: a
     folder to write each plan to as a CommonRoad solution file (:func:`.crcheck.write_solution`,
-    named like the task's JSON)."""
+    named like the task's JSON).  ``risk`` ε: every method plans with its own mapping of ε
+    (``mmdopt.plan(..., risk=ε)``) on a config in the risk mode (:func:`risk_config`)."""
     from . import crcheck
 
     check = crcheck.available() is None
@@ -455,7 +460,7 @@ def run_task(
     for m in methods:
         plan = mmdopt.plan(
             b["ego"], b["road"], inp.obstacles, method=m, config=cfg, projector=backend,
-            key=k_plan,
+            key=k_plan, risk=risk,
         )  # fmt: skip
         score = _score_recorded(b, plan, params)
         # the paper's metric (§IV-A): validation draws clear of every obstacle
@@ -482,6 +487,7 @@ def run_task(
                 fallback=bool(plan.fallback),
                 status=plan.status_text,
                 risk_bound=float(plan.risk_bound),
+                risk=risk,
                 cem_s=float(plan.diagnostics.get("cem_s", np.nan)),
                 predict_s=float(plan.diagnostics.get("forecast_s", inp.predict_s)),
                 n_planning=int(plan.diagnostics.get("forecast_samples", params.n_samples)),
@@ -585,6 +591,7 @@ def _json_default(o):
 def _group_job(args) -> list[dict]:
     task, methods, predictor, params, config, out, *rest = args
     export = rest[0] if rest else None
+    risk = rest[1] if len(rest) > 1 else None
     todo = [
         m
         for m in methods
@@ -593,7 +600,7 @@ def _group_job(args) -> list[dict]:
     if not todo:
         return []
     try:
-        rows = run_task(task, todo, predictor, params, config, export=export)
+        rows = run_task(task, todo, predictor, params, config, export=export, risk=risk)
     except Exception as exc:  # a bad scene is reported, never crashes the sweep
         rows = [
             dict(
@@ -640,6 +647,14 @@ def _as_config(config) -> tuple[mmdopt.MMDOptConfig, NgsimParams]:
     return load_ngsim_config(config)
 
 
+def risk_config(config: mmdopt.MMDOptConfig, risk: float | None) -> mmdopt.MMDOptConfig:
+    """``config`` in the risk mode at ε = ``risk`` (``--risk``): sample-driven margins
+    (``margin_mode = "samples"``) and ``safety.risk = ε``; ``None``: ``config`` as it is."""
+    if risk is None:
+        return config
+    return config.replace(margin_mode="samples", risk=check_risk(risk, "risk"))
+
+
 def run_ngsim(
     scenarios,
     out,
@@ -654,6 +669,7 @@ def run_ngsim(
     progress: bool = False,
     isolate: bool = False,
     export: str | Path | None = None,
+    risk: float | None = None,
 ) -> list[dict]:
     """Run the benchmark on the scenario files/folders ``scenarios``; write ``OUT/results.csv``.
 
@@ -670,11 +686,17 @@ def run_ngsim(
     (a ``ValueError``) saying why (:func:`~mmdopt.bench.ngsim.inputs.explain_no_tasks`).
     ``export``: a folder for each plan computed in this run as a CommonRoad solution file
     (:func:`.crcheck.write_solution`; resumed tasks are not planned again, so not exported).
+    ``risk`` ε: the planner in the risk mode at ε (:func:`risk_config`, recorded in the
+    manifest's config), each method with its own mapping of ε, through the predictor's
+    forecast (``params.forecast``) so that each plan draws the futures ε needs; the rows'
+    ``risk`` column.
     """
     from mmdopt.bench.executors import MISSING, check_manifest, run_tasks, worker_layout
 
     cfg, p = _as_config(config)
     p = params if params is not None else p
+    cfg = risk_config(cfg, risk)
+    risk = None if risk is None else float(risk)
     methods = tuple(methods)
     if not methods:
         raise ValueError("methods is empty")
@@ -709,7 +731,7 @@ def run_ngsim(
         aliases={"workers": [MISSING]},  # folders written before the manifest recorded it
     )
     args = [
-        (t, methods, predictor, p, cfg, out, None if export is None else Path(export))
+        (t, methods, predictor, p, cfg, out, None if export is None else Path(export), risk)
         for t in tasks
         if not all(
             (out / "tasks" / (_task_name(t, m, predictor) + ".json")).exists() for m in methods

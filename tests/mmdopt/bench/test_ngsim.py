@@ -4,6 +4,7 @@ a 2-scenario smoke run (skipped with a reason where ../shared/data is absent).""
 from __future__ import annotations
 
 import csv
+import json
 
 import numpy as np
 import pytest
@@ -170,6 +171,14 @@ def test_two_scenario_smoke_run_writes_the_csv_and_resumes(ngsim_dir, tmp_path):
     mtimes = sorted(p_.stat().st_mtime_ns for p_ in (tmp_path / "tasks").glob("*.json"))
     run_ngsim(files, tmp_path, methods=("mmd",), predictor="cv", config=cfg, params=p)
     assert sorted(p_.stat().st_mtime_ns for p_ in (tmp_path / "tasks").glob("*.json")) == mtimes
+    assert all(r["risk"] == "" for r in table)  # the preset's margins: no level asked
+    # --risk: the risk mode at ε, each plan's level beside its bound, recorded in run.json
+    (row,) = run_ngsim(files[:1], tmp_path / "risk", methods=("mmd",), predictor="cv",
+                       config=cfg, params=p, risk=0.1)  # fmt: skip
+    assert row["risk"] == 0.1 and 0.0 <= row["risk_bound"] <= 1.0
+    assert not str(row["status"]).startswith("error"), row["status"]
+    man = json.loads((tmp_path / "risk" / "run.json").read_text())
+    assert "samples" in json.dumps(man["config"]) and "0.1" in json.dumps(man["config"])
 
 
 @pytest.mark.parametrize(
@@ -182,6 +191,7 @@ def test_two_scenario_smoke_run_writes_the_csv_and_resumes(ngsim_dir, tmp_path):
         ),
         (["bench", "ngsim", "--scenarios", ".", "--out", "x", "--methods", "mpc"], "--methods"),
         (["bench", "ngsim", "--scenarios", ".", "--out", "x", "--jobs", "0"], "--jobs"),
+        (["bench", "ngsim", "--scenarios", ".", "--out", "x", "--risk", "0.7"], "--risk"),
         (["predictor", "train", "--steps", "-1"], "--steps"),
     ],
 )
