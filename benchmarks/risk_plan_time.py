@@ -4,7 +4,7 @@ predictor, against the same planner on 100 fixed samples at ε = 0.1, in the sam
 Plans ``--scenes`` scenes of ``--preset`` (seed ``--seed``; the first plan of each variant is
 its compile and is left out) and prints, per variant, the median ``plan_time_s`` (the
 predictor's draw apart), the futures per obstacle, the median of each stage from
-``Plan.diagnostics`` and the ratio of the medians: the real-time issue's bar is ≤ 3 at
+``Plan.diagnostics`` and the ratio of the medians: the real-time bar is ≤ 3 at
 ε = 10⁻³.
 
     python -m benchmarks.risk_plan_time --risk 0.001 --scenes 9
