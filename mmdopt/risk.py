@@ -128,17 +128,17 @@ def _margins_from_moments(c, mu_e, mu_u, v_e, v_u, z, prior, h_e=0.0):
     return np.stack([behind, ahead, lat])
 
 
-def _cluster_margins(flat, idx, M, z, prior, h_e=0.0, flat2=None):
+def _cluster_margins(flat, flat2, idx, M, z, prior, h_e=0.0):
     """Margins (3, J, K) of the clusters given by the (J, n) 0/1 membership matrix ``M``
     (``scipy.sparse``: a sample belongs to one cluster, or to ``knn`` of them) over the centred
-    positions ``flat`` (n, 2K: s and d interleaved) of the samples; ``idx`` (J,) the points.
+    positions ``flat`` (n, 2K: s and d interleaved) of the samples and their squares ``flat2``;
+    ``idx`` (J,) the points.
     The members' count, sum and sum of squares are two sparse products with ``M``: work in the
     members, not in J·n."""
     c = np.maximum(np.asarray(M.sum(1)).reshape(-1), 1.0)[:, None]
     mean = (M @ flat) / c
     mu = mean - flat[idx]  # mean deviation from the anchor
-    sq = M @ (flat * flat if flat2 is None else flat2)
-    v = np.maximum(sq / c - mean * mean, 0.0)  # variance is shift-invariant
+    v = np.maximum((M @ flat2) / c - mean * mean, 0.0)  # variance is shift-invariant
     return _margins_from_moments(c, mu[:, 0::2], mu[:, 1::2], v[:, 0::2], v[:, 1::2], z, prior, h_e)
 
 
@@ -261,7 +261,7 @@ def coverage_margins(
         # cluster membership, 0/1 (a pair named twice, a point in its own cluster, counts once)
         M = sp.coo_matrix((np.ones(rows.size), (rows, cols)), shape=(J, n)).tocsr()
         M.data[:] = 1.0
-        out[:, o] = _cluster_margins(flat, idx[o], M, z, prior, h_e, data.flat2[o])
+        out[:, o] = _cluster_margins(flat, data.flat2[o], idx[o], M, z, prior, h_e)
     return out
 
 

@@ -54,7 +54,6 @@ from .config import MMDOptConfig
 from .methods import PlanMethod
 from .risk import (
     CoverageData,
-    coverage_data,
     coverage_margins,
     hits_for_risk,
     risk_bound,
@@ -155,21 +154,15 @@ class PassContext:
     projector_settings: Mapping[str, Any]
     keys: KeyStream
     workspace_for: Callable[[MMDOptConfig], alg.Workspace]
-    prepared_coverage: CoverageData | None = None
+    #: the planning samples' :class:`~mmdopt.risk.CoverageData` (built once by the planner in
+    #: the "samples" margin mode; every coverage margin of the plan reads it)
+    coverage_data: CoverageData | None = None
 
     @functools.cached_property
     def all_centres(self) -> jax.Array:
         """Footprint circle centres (O, n, C, K, 2) of every planning sample, computed once per
         plan (every conflict-depth measurement uses them)."""
         return obstacle_centres(self.obs_fr, self.obs_h)
-
-    @functools.cached_property
-    def coverage_data(self) -> CoverageData:
-        """:func:`mmdopt.risk.coverage_data` of the planning samples (every coverage margin of
-        the plan reads it): ``prepared_coverage`` when the planner built it already."""
-        if self.prepared_coverage is not None:
-            return self.prepared_coverage
-        return coverage_data(self.obs_fr, float(self.config.selection.rs_lateral_scale))
 
     def centres(self, idx: np.ndarray) -> jax.Array:
         """Footprint circle centres (O, J, C, K, 2) of the samples ``idx`` (O, J)."""

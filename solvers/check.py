@@ -519,7 +519,6 @@ def confirm_inaccurate(
         info["result"] = "confirmed"
         return dataclasses.replace(
             nxt,
-            status=Status.SOLVED if nxt.status is Status.SOLVED else Status.SOLVED_INACCURATE,
             iterations=int(sol.iterations) + int(nxt.iterations),
             solve_time=float(sol.solve_time) + float(nxt.solve_time),
             settings=sol.settings,

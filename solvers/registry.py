@@ -14,6 +14,7 @@ whose own ``solver=`` setting picks cvxpy's solver (``solve(qp, "cvxpy", solver=
 
 from __future__ import annotations
 
+import functools
 import importlib
 import importlib.util
 from collections.abc import Callable
@@ -258,27 +259,22 @@ def solve(
         raise TypeError(f"qp must be a solvers.QP, got {type(qp).__name__}")
     _check_qp(qp, check_convex)
     be = get_backend(_resolve_backend(backend, solver, "clarabel", settings))
-    ws = as_warm_start(warm_start, qp.n, qp.m)
-    sol = be.solve(qp, warm_start=ws, **settings)
-    _record_warm_start(sol.settings, ws is not None, be)
-    residual_check(be, qp, sol)
-    sol = check_solution(be, qp, sol)
-    sol = confirm_inaccurate(be, qp, sol, settings, _checked_solve(be))
+    sol = _checked_solve(be, qp, warm_start=warm_start, **settings)
+    # the confirming solve of an inaccurate answer goes through the same path
+    sol = confirm_inaccurate(be, qp, sol, settings, functools.partial(_checked_solve, be))
     _attach(sol, qp)
     return sol
 
 
-def _checked_solve(be: Backend) -> Callable[..., Solution]:
-    """``be``'s solve followed by the answer check (the confirming solve of an inaccurate
-    answer: :func:`solvers.check.confirm_inaccurate`)."""
-
-    def run(qp: QP, *, warm_start: Any, **settings: Any) -> Solution:
-        ws = as_warm_start(warm_start, qp.n, qp.m)
-        sol = be.solve(qp, warm_start=ws, **settings)
-        residual_check(be, qp, sol)
-        return check_solution(be, qp, sol)
-
-    return run
+def _checked_solve(be: Backend, qp: QP, *, warm_start: Any = None, **settings: Any) -> Solution:
+    """``be``'s answer to ``qp`` after the residual flag and the answer check of
+    :mod:`solvers.check` (what :func:`solve` returns, before the confirmation of an inaccurate
+    answer)."""
+    ws = as_warm_start(warm_start, qp.n, qp.m)
+    sol = be.solve(qp, warm_start=ws, **settings)
+    _record_warm_start(sol.settings, ws is not None, be)
+    residual_check(be, qp, sol)
+    return check_solution(be, qp, sol)
 
 
 def solve_batch(
