@@ -94,6 +94,11 @@ class Observation:
         order of ``obstacles``: passed to :func:`mmdopt.plan` (``obstacle_headings``), so a car
         at rest is planned against along its real axis (phantoms added by the loop get the
         path's direction)
+    crossings : optional ``(C, 3)`` conflict areas of crossing routes for the safety shield,
+        in ``road.path``'s frame: ``(s_in, s_out, t_arrive)``, the interval of the ego's arc
+        length (centre positions, inflated by both cars' half lengths) where another car's
+        predicted route crosses the ego's path and the earliest time (s from now) that car could
+        reach it (:func:`mmdopt.safety.check_crossings`).  ``None``: no crossing rule
     """
 
     ego: frenet.EgoState
@@ -104,6 +109,7 @@ class Observation:
     obstacle_states: np.ndarray | None = None
     frame_changed: bool = False
     obstacle_headings: np.ndarray | None = None
+    crossings: np.ndarray | None = None
 
 
 @dataclass(frozen=True)
@@ -156,7 +162,10 @@ class RecedingConfig:
         O keeps the jitted planner from recompiling for every new number of neighbours.
     shield : :class:`mmdopt.safety.RSSConfig` to check every plan against RSS's longitudinal safe
         distance before it runs and brake (a checked fallback) when it fails
-        (:func:`mmdopt.safety.shield`); ``None`` (default): plans run unchecked
+        (:func:`mmdopt.safety.shield`); also against the crossings of
+        :attr:`Observation.crossings` when given, and with ``RSSConfig.lateral`` RSS's lateral
+        distance to the cars of :attr:`Observation.obstacle_states`; ``None`` (default): plans
+        run unchecked
     """
 
     dt: float = 0.5
@@ -330,14 +339,26 @@ def _shifted(p: Plan, dt: float):
 
 def _shielded(p: Plan, obs: Observation, rc: RecedingConfig, t_grid: np.ndarray):
     """``rc.shield`` applied to ``p``: the obstacles' current Frenet states from
-    ``obs.obstacle_states`` when given, else from the prediction samples."""
+    ``obs.obstacle_states`` when given, else from the prediction samples; the crossing rule on
+    ``obs.crossings`` when given; with ``rc.shield.lateral`` and ``obs.obstacle_states``, the
+    lateral rule on those cars' lateral states too."""
     path = obs.road.path
+    lateral_states = None
     if obs.obstacle_states is not None:
         states = obstacle_states_from_cartesian(path, obs.obstacle_states)
+        if rc.shield.lateral:
+            lateral_states = obstacle_states_from_cartesian(path, obs.obstacle_states, lateral=True)
     else:
         states = obstacle_states_from_samples(path, obs.obstacles, t_grid)
     return rss_shield(
-        p, path, states, rc.shield, executed=rc.dt, lane_centres=obs.road.lane_centres
+        p,
+        path,
+        states,
+        rc.shield,
+        executed=rc.dt,
+        lane_centres=obs.road.lane_centres,
+        crossings=obs.crossings,
+        lateral_states=lateral_states,
     )
 
 

@@ -8,7 +8,7 @@ executed, with a braking fallback that is itself checked.
     from mmdopt.safety import RSSConfig, shield
 
     plan, record = shield(plan, road.path, obstacles, RSSConfig(), executed=0.5)
-    record.intervened, record.reason
+    record.intervened, record.reason, record.rule
 
 **The rule.**  A front car at speed ``v_f`` may brake at up to ``b_max``; the ego (the rear car)
 reacts after a response time ρ, accelerating at up to ``a_max`` meanwhile, and then brakes at
@@ -43,7 +43,17 @@ braking fallback (the continuation the check assumed) passes again, by induction
 an obstacle that cuts into the corridor closer than the safe distance (RSS assigns that to the
 car cutting in), obstacles behind or beside the ego (including a faster car behind in a lane the
 ego changes into, which RSS would make the ego responsible for), obstacles braking harder than
-``b_max`` (a crashed car), and lateral safety (RSS's lateral distance is not checked).
+``b_max`` (a crashed car), and lateral safety unless the lateral rule below is on.
+
+**Two more rules**, each checked only when its inputs are given, on the plan and on every
+fallback alike.  *Lateral* (``RSSConfig.lateral`` and the cars' lateral states): RSS's lateral
+safe distance (Definition 4, :func:`rss_lateral_safe_distance`) between the ego and each car
+beside it, over the part of the plan that runs (:func:`check_lateral`).  *Crossing* (the conflict
+areas of crossing routes at a junction, :func:`check_crossings`): where another car may reach
+the area before the ego, braking at ``b_min`` after the step, could have stopped, the ego must
+be able to stop before it, unless it is already too close to stop even at ``b_emergency`` (then
+RSS's response is to clear the area).  :attr:`ShieldRecord.rule` says which rule a replaced plan
+failed first.
 """
 
 from __future__ import annotations
@@ -63,9 +73,12 @@ __all__ = [
     "PlanCheck",
     "ShieldRecord",
     "rss_safe_distance",
+    "rss_lateral_safe_distance",
     "obstacle_states_from_samples",
     "obstacle_states_from_cartesian",
     "check_plan",
+    "check_lateral",
+    "check_crossings",
     "braking_plan",
     "lane_braking_plan",
     "shield",
@@ -94,6 +107,14 @@ class RSSConfig:
         Below ``b_min`` a fallback keeps the plan's lateral profile, brakes at the level tried
         and is checked exactly as a plan is (``executed`` seconds of it, then ``b_min``), so it
         carries the same guarantee; ``b_gentle = b_min`` turns these levels off
+    lateral : check RSS's lateral safe distance (:func:`check_lateral`) to the cars beside the
+        ego as well, when the shield is given their lateral states (``False`` by default)
+    lat_response_time : ρ_lat of :func:`rss_lateral_safe_distance` (s)
+    lat_a_max : the largest lateral acceleration of either car towards the other during ρ_lat
+        (m/s²)
+    lat_b_min : the least lateral braking of either car after ρ_lat (m/s², > 0)
+    lat_mu : the lateral fluctuation margin μ of Definition 4 (m)
+    width : a car's width: the lateral centre-to-centre distance at which two cars touch (m)
     """
 
     response_time: float = 0.5
@@ -106,13 +127,23 @@ class RSSConfig:
     lateral_overlap: float = 2.5
     lateral_accel: float = 0.0
     b_gentle: float = 1.0
+    lateral: bool = False
+    lat_response_time: float = 0.5
+    lat_a_max: float = 1.0
+    lat_b_min: float = 1.5
+    lat_mu: float = 0.3
+    width: float = 2.0
 
     def __post_init__(self) -> None:
-        for name in ("response_time", "a_max", "margin", "lateral_accel"):
+        if not isinstance(self.lateral, bool):
+            raise ValueError(f"RSSConfig.lateral must be a bool, got {self.lateral!r}")
+        nonneg = ("response_time", "a_max", "margin", "lateral_accel")
+        for name in (*nonneg, "lat_response_time", "lat_a_max", "lat_mu"):
             v = getattr(self, name)
             if not (isinstance(v, int | float) and math.isfinite(v) and v >= 0):
                 raise ValueError(f"RSSConfig.{name} must be a finite number >= 0, got {v!r}")
-        for name in ("b_min", "b_max", "b_emergency", "contact", "lateral_overlap", "b_gentle"):
+        positive = ("b_min", "b_max", "b_emergency", "contact", "lateral_overlap", "b_gentle")
+        for name in (*positive, "lat_b_min", "width"):
             v = getattr(self, name)
             if not (isinstance(v, int | float) and math.isfinite(v) and v > 0):
                 raise ValueError(f"RSSConfig.{name} must be a finite number > 0, got {v!r}")
@@ -128,7 +159,8 @@ class RSSConfig:
 
 @dataclass(frozen=True)
 class PlanCheck:
-    """The result of :func:`check_plan`.
+    """The result of :func:`check_plan` (and of :func:`check_lateral` and
+    :func:`check_crossings`, which say what their fields mean for their rules).
 
     safe : every obstacle in the corridor keeps the required gap
     margin : the least (gap − contact − margin) over the checked obstacles and times (m; +inf
@@ -151,11 +183,16 @@ class ShieldRecord:
 
     intervened : the plan was replaced by a braking fallback
     reason : why (empty when the plan passed)
-    plan_margin : :attr:`PlanCheck.margin` of the planner's plan (m)
+    plan_margin : :attr:`PlanCheck.margin` of the planner's plan (m): of the rule that failed
+        when intervened, else the least over the rules checked
     fallback_decel : the fallback's braking (m/s²; 0 when not intervened)
     fallback_safe : the fallback passed the check (``False``: even ``b_emergency`` does not; the
         hardest braking is used)
-    n_checked : obstacles in the corridor ahead
+    n_checked : :attr:`PlanCheck.n_checked` of the rule that failed when intervened, else of
+        the longitudinal rule (obstacles in the corridor ahead)
+    rule : the rule the plan failed first: ``"longitudinal"`` (:func:`check_plan`),
+        ``"lateral"`` (:func:`check_lateral`) or ``"crossing"`` (:func:`check_crossings`);
+        ``""`` when the plan passed
     """
 
     intervened: bool
@@ -164,6 +201,7 @@ class ShieldRecord:
     fallback_decel: float
     fallback_safe: bool
     n_checked: int
+    rule: str = ""
 
 
 # ------------------------------------------------------------------------------------ the rule
@@ -192,6 +230,41 @@ def rss_safe_distance(v_rear, v_front, config: RSSConfig | None = None):
     return float(out) if out.ndim == 0 else out
 
 
+def rss_lateral_safe_distance(v_left, v_right, config: RSSConfig | None = None):
+    """RSS's lateral safe distance (m) between a car on the left and a car on the right,
+    Definition 4 of Shalev-Shwartz et al. (2017).  The lateral velocities ``v_left`` and
+    ``v_right`` (m/s; arrays broadcast) are both measured along one direction, pointing from
+    the left car towards the right car: a positive ``v_left`` closes the gap, a positive
+    ``v_right`` opens it.  In the worst case each car accelerates towards the other at
+    ``lat_a_max`` for ρ = ``lat_response_time`` and then brakes laterally at ``lat_b_min`` to a
+    lateral stop; with ``v1ρ = v_left + ρ a`` and ``v2ρ = v_right − ρ a``,
+
+        d = μ + [(v_left + v1ρ)/2·ρ + v1ρ|v1ρ|/(2 b) − ((v_right + v2ρ)/2·ρ + v2ρ|v2ρ|/(2 b))]₊ .
+
+    Each bracketed part is the signed lateral distance a car covers until it stops moving
+    sideways.  The paper writes the braking terms as ``+v1ρ²/(2b)`` and ``−v2ρ²/(2b)``, which
+    hold while each car moves towards the other (``v1ρ ≥ 0``, ``v2ρ ≤ 0``); ``v|v|`` keeps the
+    sign otherwise, so a car moving away counts as moving away rather than closer.  The result
+    is symmetric: swapping the cars and reversing the direction,
+    ``d(v_left, v_right) = d(−v_right, −v_left)``.  The gap is between the cars' sides (the
+    centre-to-centre lateral distance minus ``width``).  ``μ`` = ``lat_mu``."""
+    c = RSSConfig() if config is None else config
+    if not isinstance(c, RSSConfig):
+        raise ValueError(f"config must be an RSSConfig, got {type(c).__name__}")
+    v1 = np.asarray(v_left, dtype=np.float64)
+    v2 = np.asarray(v_right, dtype=np.float64)
+    if not np.all(np.isfinite(v1)):
+        raise ValueError("v_left must be finite")
+    if not np.all(np.isfinite(v2)):
+        raise ValueError("v_right must be finite")
+    rho, a, b = c.lat_response_time, c.lat_a_max, c.lat_b_min
+    v1r, v2r = v1 + rho * a, v2 - rho * a
+    left = 0.5 * (v1 + v1r) * rho + v1r * np.abs(v1r) / (2.0 * b)
+    right = 0.5 * (v2 + v2r) * rho + v2r * np.abs(v2r) / (2.0 * b)
+    out = c.lat_mu + np.maximum(left - right, 0.0)
+    return float(out) if out.ndim == 0 else out
+
+
 # ------------------------------------------------------------------------- obstacles' states
 def obstacle_states_from_samples(path: frenet.ReferencePath, obstacles, t) -> np.ndarray:
     """Current Frenet states ``(O, 3)`` = ``(s, d, ṡ)`` of obstacles from prediction samples
@@ -212,19 +285,29 @@ def obstacle_states_from_samples(path: frenet.ReferencePath, obstacles, t) -> np
     return np.stack([s0.mean(axis=1), d0.mean(axis=1), np.maximum(v, 0.0)], axis=-1)
 
 
-def obstacle_states_from_cartesian(path: frenet.ReferencePath, states) -> np.ndarray:
+def obstacle_states_from_cartesian(
+    path: frenet.ReferencePath, states, *, lateral: bool = False
+) -> np.ndarray:
     """Frenet states ``(O, 3)`` = ``(s, d, ṡ)`` from Cartesian ``(O, 4)`` = ``(x, y, vx, vy)``
-    (the velocity projected on the path's tangent, ``ṡ = v·t̂ / (1 − dκ)``, clipped at 0)."""
+    (the velocity projected on the path's tangent, ``ṡ = v·t̂ / (1 − dκ)``, clipped at 0).
+    With ``lateral=True``: ``(O, 4)`` = ``(s, d, ṡ, ḋ)``, adding the lateral velocity
+    ``ḋ = v·n̂`` on the path's left normal ``n̂`` (not clipped; > 0 moving left), the input of
+    :func:`check_lateral`."""
+    if not isinstance(lateral, bool):
+        raise ValueError(f"lateral must be a bool, got {lateral!r}")
     st = np.asarray(states, dtype=np.float64)
     if st.ndim != 2 or st.shape[1] != 4 or not np.all(np.isfinite(st)):
         raise ValueError(f"states must be a finite (O, 4) array (x, y, vx, vy), got {st.shape}")
     if st.shape[0] == 0:
-        return np.zeros((0, 3))
+        return np.zeros((0, 4 if lateral else 3))
     s, d = path.to_frenet(st[:, 0], st[:, 1])
     th = path.heading(s)
     one = np.maximum(1.0 - d * path.curvature(s), 1e-6)
     vs = (st[:, 2] * np.cos(th) + st[:, 3] * np.sin(th)) / one
-    return np.stack([s, d, np.maximum(vs, 0.0)], axis=-1)
+    if not lateral:
+        return np.stack([s, d, np.maximum(vs, 0.0)], axis=-1)
+    vd = -st[:, 2] * np.sin(th) + st[:, 3] * np.cos(th)
+    return np.stack([s, d, np.maximum(vs, 0.0), vd], axis=-1)
 
 
 # ----------------------------------------------------------------------------------- the check
@@ -294,6 +377,186 @@ def check_plan(
     i, k = np.unravel_index(int(np.argmin(gap)), gap.shape)
     least = float(gap[i, k])
     return PlanCheck(least >= 0.0, least, int(idx[i]), float(tc[k]), int(idx.size))
+
+
+def _config(config) -> RSSConfig:
+    """``config`` (``None``: the defaults) as an :class:`RSSConfig`, or a ValueError."""
+    c = RSSConfig() if config is None else config
+    if not isinstance(c, RSSConfig):
+        raise ValueError(f"config must be an RSSConfig, got {type(c).__name__}")
+    return c
+
+
+def _profile(names: str, *arrays) -> tuple[np.ndarray, ...]:
+    """``arrays`` as float (K,) arrays of one length K ≥ 2, finite, or a ValueError naming
+    them (``names``: "t, s, d, vd")."""
+    out = tuple(np.asarray(a, dtype=np.float64) for a in arrays)
+    t = out[0]
+    if t.ndim != 1 or t.shape[0] < 2 or any(a.shape != t.shape for a in out):
+        raise ValueError(f"{names} must be (K,) arrays of one length K >= 2")
+    if not all(np.all(np.isfinite(a)) for a in out):
+        raise ValueError(f"{names} must be finite")
+    if not np.all(np.diff(t) > 0):
+        raise ValueError("t must be increasing")
+    return out
+
+
+def _executed(executed, tp: np.ndarray) -> float:
+    """``executed`` as seconds in ``[0, tp[-1]]``, or a ValueError naming it."""
+    ex = float(executed)
+    if not (math.isfinite(ex) and 0.0 <= ex <= tp[-1]):
+        raise ValueError(f"executed must be in [0, {tp[-1]:g}] s, got {executed!r}")
+    return ex
+
+
+def _lateral_states(obstacles, name: str) -> np.ndarray:
+    """``obstacles`` as a finite ``(O, 4)`` array, or a ValueError naming it ``name``."""
+    ob = np.asarray(obstacles, dtype=np.float64)
+    if ob.size == 0:
+        return np.zeros((0, 4))
+    if ob.ndim != 2 or ob.shape[1] != 4 or not np.all(np.isfinite(ob)):
+        raise ValueError(
+            f"{name} must be a finite (O, 4) array of (s, d, vs, vd), got shape {ob.shape}"
+        )
+    return ob
+
+
+def check_lateral(
+    t,
+    s,
+    d,
+    vd,
+    obstacles: np.ndarray,
+    config: RSSConfig | None = None,
+    *,
+    executed: float,
+) -> PlanCheck:
+    """Check a plan ``(t, s, d, ḋ)`` (K,) in the Frenet frame against RSS's lateral rule
+    (Shalev-Shwartz et al. 2017, Definition 4: :func:`rss_lateral_safe_distance`) for the cars
+    beside the ego.
+
+    ``obstacles`` ``(O, 4)`` = current ``(s, d, ṡ, ḋ)``
+    (:func:`obstacle_states_from_cartesian` with ``lateral=True``); each is assumed to keep
+    ``ṡ`` and ``ḋ`` over the check.  A car is *beside* the ego when it overlaps the ego
+    longitudinally (centre-to-centre distance along the path below ``contact``, or the two
+    passing each other) at some time in ``[0, executed]``, and is not in the ego's
+    longitudinal corridor now (``|d_ob − d(0)| ≥ lateral_overlap``: the cars ahead in the
+    corridor are :func:`check_plan`'s).  For each car beside, at each plan time in
+    ``[0, executed]`` (the plan's grid, plus ``executed`` interpolated), the gap between the
+    cars' sides, ``|d_ob(τ) − d(τ)| − width``, must be at least the lateral safe distance with
+    both lateral velocities oriented from the car on the left (+d) to the one on the right.
+    This is checked at all those times, also when the car is longitudinally clear at some of
+    them (a cautious reading of "beside").  The lateral velocity the plan reaches is covered by
+    the rule itself: it assumes each car may go on towards the other for ρ_lat and then brake
+    sideways.  A fallback is checked with ``executed`` its whole horizon.
+
+    ``margin``: the least (gap − required) over the cars beside and the times (m; +inf when no
+    car is beside), ``obstacle``/``time``: where it occurs, ``n_checked``: the cars beside; safe
+    when ``margin ≥ 0``.
+    """
+    c = _config(config)
+    t, s, d, vd = _profile("t, s, d, vd", t, s, d, vd)
+    ob = _lateral_states(obstacles, "obstacles")
+    tp = t - t[0]
+    ex = _executed(executed, tp)
+    tc = np.unique(np.append(tp[tp <= ex], ex))
+    s_e, d_e, vd_e = (np.interp(tc, tp, a) for a in (s, d, vd))
+    if ob.shape[0] == 0:
+        return PlanCheck(True, math.inf, -1, 0.0, 0)
+    rel = ob[:, 0][:, None] + ob[:, 2][:, None] * tc[None, :] - s_e[None, :]  # (O, T)
+    passing = np.any(np.sign(rel[:, 1:]) * np.sign(rel[:, :-1]) < 0, axis=1)
+    overlap = np.any(np.abs(rel) < c.contact, axis=1) | passing
+    outside = np.abs(ob[:, 1] - d[0]) >= c.lateral_overlap
+    idx = np.flatnonzero(overlap & outside)
+    if idx.size == 0:
+        return PlanCheck(True, math.inf, -1, 0.0, 0)
+    d_ob = ob[idx, 1][:, None] + ob[idx, 3][:, None] * tc[None, :]  # (n, T)
+    vd_ob = np.broadcast_to(ob[idx, 3][:, None], d_ob.shape)
+    vd_ego = np.broadcast_to(vd_e[None, :], d_ob.shape)
+    ob_left = d_ob >= d_e[None, :]
+    # the direction from the left car to the right one is −d: velocities along it are −ḋ
+    v_left = -np.where(ob_left, vd_ob, vd_ego)
+    v_right = -np.where(ob_left, vd_ego, vd_ob)
+    gap = np.abs(d_ob - d_e[None, :]) - c.width
+    slack = gap - rss_lateral_safe_distance(v_left, v_right, c)
+    i, k = np.unravel_index(int(np.argmin(slack)), slack.shape)
+    least = float(slack[i, k])
+    return PlanCheck(least >= 0.0, least, int(idx[i]), float(tc[k]), int(idx.size))
+
+
+def _crossings(crossings) -> np.ndarray:
+    """``crossings`` as a finite ``(C, 3)`` array of ``(s_in, s_out, t_arrive)`` with
+    ``s_out ≥ s_in`` and ``t_arrive ≥ 0``, or a ValueError naming it."""
+    cr = np.asarray(crossings, dtype=np.float64)
+    if cr.size == 0:
+        return np.zeros((0, 3))
+    if cr.ndim != 2 or cr.shape[1] != 3 or not np.all(np.isfinite(cr)):
+        raise ValueError(
+            f"crossings must be a finite (C, 3) array of (s_in, s_out, t_arrive), got shape "
+            f"{cr.shape}"
+        )
+    if not np.all(cr[:, 1] >= cr[:, 0]):
+        raise ValueError("crossings must have s_out >= s_in in every row")
+    if not np.all(cr[:, 2] >= 0):
+        raise ValueError("crossings must have t_arrive >= 0 (s from now) in every row")
+    return cr
+
+
+def check_crossings(
+    t,
+    s,
+    vs,
+    crossings: np.ndarray,
+    config: RSSConfig | None = None,
+    *,
+    executed: float,
+) -> PlanCheck:
+    """Check a plan ``(t, s, ṡ)`` (K,) against the conflict areas of crossing paths (a
+    junction), after RSS's treatment of routes of different geometry (Shalev-Shwartz et al.
+    2017): a car that may meet another in a conflict area must be able to stop before it.
+
+    ``crossings`` ``(C, 3)`` = ``(s_in, s_out, t_arrive)``: an interval ``[s_in, s_out]`` of arc
+    length along the ego's path (positions of the ego's centre, already inflated by both cars'
+    half lengths) where another car's predicted route crosses it, and the earliest time
+    ``t_arrive`` (s from now) that car could reach it.  The ego follows the plan for
+    ``executed`` seconds and then brakes at ``b_min``: it stops at
+    ``t_stop = executed + v_ex/b_min``, at ``s_stop = s_ex + v_ex²/(2 b_min)``.  A crossing
+    *applies* when the other car may be there before the ego has stopped
+    (``t_arrive ≤ t_stop``), it is not behind the ego (``s_out > s(0)``), and the ego is not
+    already committed to it: braking from now even at ``b_emergency`` ends past
+    ``s_in − margin``.  A committed ego could only stop inside the conflict area; RSS's proper
+    response there is to clear it, not to brake, so the rule does not apply (and so the braking
+    fallback of :func:`shield` at ``b_emergency`` passes it whenever it stops within the
+    plan's horizon: it stops before every crossing that applies).  For every crossing that
+    applies the ego must stop before it: ``s_stop ≤ s_in − margin``.  Not covered: a car
+    arriving after ``t_stop`` at an area the ego would stop in, and a car arriving earlier than
+    ``t_arrive`` says.
+
+    ``margin``: the least ``s_in − margin − s_stop`` over the crossings that apply (m; +inf:
+    none), ``obstacle``: that crossing's row, ``time``: its ``t_arrive``, ``n_checked``: the
+    crossings that apply; safe when ``margin ≥ 0``.  A fallback is checked with ``executed``
+    its whole horizon.
+    """
+    c = _config(config)
+    t, s, vs = _profile("t, s, vs", t, s, vs)
+    cr = _crossings(crossings)
+    tp = t - t[0]
+    ex = _executed(executed, tp)
+    if cr.shape[0] == 0:
+        return PlanCheck(True, math.inf, -1, 0.0, 0)
+    s_ex, v_ex = float(np.interp(ex, tp, s)), max(float(np.interp(ex, tp, vs)), 0.0)
+    t_stop = ex + v_ex / c.b_min
+    s_stop = s_ex + v_ex**2 / (2.0 * c.b_min)
+    v0 = max(float(vs[0]), 0.0)
+    s_in = cr[:, 0] - c.margin
+    committed = s[0] + v0**2 / (2.0 * c.b_emergency) > s_in
+    idx = np.flatnonzero((cr[:, 2] <= t_stop) & (cr[:, 1] > s[0]) & ~committed)
+    if idx.size == 0:
+        return PlanCheck(True, math.inf, -1, 0.0, 0)
+    slack = s_in[idx] - s_stop
+    i = int(np.argmin(slack))
+    least = float(slack[i])
+    return PlanCheck(least >= 0.0, least, int(idx[i]), float(cr[idx[i], 2]), int(idx.size))
 
 
 # -------------------------------------------------------------------------------- the fallback
@@ -400,6 +663,8 @@ def shield(
     *,
     executed: float,
     lane_centres=(),
+    crossings=None,
+    lateral_states=None,
 ) -> tuple[Plan, ShieldRecord]:
     """Check ``plan`` with :func:`check_plan` (``executed`` seconds of it run before the next
     check) against ``obstacles`` ``(O, 3)`` = current ``(s, d, ṡ)`` in ``path``'s frame; return
@@ -412,8 +677,22 @@ def shield(
     (:func:`lane_braking_plan`), is tried before the one that holds the offset: a plan replaced
     mid-lane-change does not leave the ego between two lanes.  Each fallback from ``b_min`` on
     is checked along its own profile, every car ahead that its lateral path comes near
-    included."""
+    included.
+
+    Two more rules apply when their inputs are given: ``crossings`` ``(C, 3)`` =
+    ``(s_in, s_out, t_arrive)`` in ``path``'s frame, the conflict areas of crossing routes
+    (:func:`check_crossings`), and, with ``config.lateral``, ``lateral_states`` ``(O', 4)`` =
+    current ``(s, d, ṡ, ḋ)`` of the cars around (:func:`obstacle_states_from_cartesian` with
+    ``lateral=True``; RSS's lateral distance to the cars beside, :func:`check_lateral`).  The
+    plan passes when every rule that applies passes, in the order longitudinal, lateral,
+    crossing; the first it fails is :attr:`ShieldRecord.rule` and names itself in the reason.
+    Each fallback must then pass the same rules along its own profile (``executed`` seconds of
+    it for the gentle levels, its whole horizon from ``b_min`` on; a fallback that holds the
+    offset has ``ḋ = 0``).  Without ``crossings`` and ``lateral_states`` the shield is the
+    longitudinal one alone."""
     c = RSSConfig() if config is None else config
+    if not isinstance(c, RSSConfig):
+        raise ValueError(f"config must be an RSSConfig, got {type(c).__name__}")
     if not isinstance(plan, Plan):
         raise ValueError(f"plan must be an mmdopt.Plan, got {type(plan).__name__}")
     try:
@@ -422,20 +701,62 @@ def shield(
         centres = np.array([np.nan])
     if not np.all(np.isfinite(centres)):
         raise ValueError(f"lane_centres must be finite lateral offsets (m), got {lane_centres!r}")
-    chk = check_plan(plan.t, plan.s, plan.d, plan.vs, obstacles, c, executed=executed)
-    if chk.safe:
-        return plan, ShieldRecord(False, "", chk.margin, 0.0, True, chk.n_checked)
-    ob = np.asarray(obstacles, dtype=np.float64).reshape(-1, 3)[chk.obstacle]
-    why = (
-        f"the plan closes to {chk.margin + c.contact + c.margin:.2f} m (needs "
-        f"{c.contact + c.margin:.2f} m) at t = {chk.time:.2f} s on obstacle {chk.obstacle}, "
-        f"{ob[0] - plan.s[0]:.1f} m ahead at {ob[2]:.1f} m/s, in the RSS worst case"
-    )
+    cross = None if crossings is None else _crossings(crossings)
+    lat = None if lateral_states is None else _lateral_states(lateral_states, "lateral_states")
+    if lat is not None and not c.lateral:
+        lat = None  # the lateral rule is checked only with RSSConfig.lateral
+
+    def rules(t, s, d, vs, vd, ex: float) -> list[tuple[str, PlanCheck]]:
+        """The rules that apply, checked on one profile, in the order they are reported."""
+        out = [("longitudinal", check_plan(t, s, d, vs, obstacles, c, executed=ex))]
+        if lat is not None:
+            out.append(("lateral", check_lateral(t, s, d, vd, lat, c, executed=ex)))
+        if cross is not None:
+            out.append(("crossing", check_crossings(t, s, vs, cross, c, executed=ex)))
+        return out
+
+    def passes(t, s, d, vs, vd, ex: float) -> bool:
+        return all(chk.safe for _, chk in rules(t, s, d, vs, vd, ex))
+
+    checks = rules(plan.t, plan.s, plan.d, plan.vs, plan.vd, executed)
+    failed = [(name, chk) for name, chk in checks if not chk.safe]
+    if not failed:
+        least = min(chk.margin for _, chk in checks)
+        return plan, ShieldRecord(False, "", least, 0.0, True, checks[0][1].n_checked)
+    rule, chk = failed[0]
+    if rule == "longitudinal":
+        ob = np.asarray(obstacles, dtype=np.float64).reshape(-1, 3)[chk.obstacle]
+        why = (
+            f"the plan closes to {chk.margin + c.contact + c.margin:.2f} m (needs "
+            f"{c.contact + c.margin:.2f} m) at t = {chk.time:.2f} s on obstacle {chk.obstacle}, "
+            f"{ob[0] - plan.s[0]:.1f} m ahead at {ob[2]:.1f} m/s, in the RSS longitudinal "
+            "worst case"
+        )
+    elif rule == "lateral":
+        ob = lat[chk.obstacle]
+        why = (
+            f"the plan's side gap to obstacle {chk.obstacle} ({ob[1] - plan.d[0]:+.1f} m "
+            f"lateral, {ob[0] - plan.s[0]:+.1f} m along, at {ob[3]:+.2f} m/s sideways) falls "
+            f"{-chk.margin:.2f} m short of the RSS lateral safe distance at t = {chk.time:.2f} s"
+        )
+    else:
+        cr = cross[chk.obstacle]
+        why = (
+            f"crossing {chk.obstacle}: a car may reach the conflict area at "
+            f"{cr[0] - plan.s[0]:.1f} m ahead by t = {chk.time:.2f} s, and braking at b_min "
+            f"after the plan stops {-chk.margin:.2f} m too late to stay "
+            f"{c.margin:.2f} m short of it"
+        )
+
+    def record(decel: float, safe: bool) -> ShieldRecord:
+        return ShieldRecord(True, why, chk.margin, decel, safe, chk.n_checked, rule)
+
     decels = np.unique(np.linspace(c.b_min, c.b_emergency, 5))
     tp = np.asarray(plan.t, dtype=np.float64) - float(plan.t[0])
     horizon = float(tp[-1])
     s0, v0 = float(plan.s[0]), max(float(plan.vs[0]), 0.0)
     d0 = np.full_like(tp, float(plan.d[0]))
+    vd_hold = np.zeros_like(tp)
     targets: list[float] = []
     dd0, vd0 = float(plan.d[0]), float(plan.vd[0])
     if c.lateral_accel > 0 and centres.size:
@@ -452,16 +773,17 @@ def shield(
     if c.b_gentle < c.b_min:
         gentle = np.linspace(c.b_gentle, c.b_min, GENTLE_LEVELS + 1)[:-1]
     d_plan = np.asarray(plan.d, np.float64)
+    vd_plan = np.asarray(plan.vd, np.float64)
     for b_try in gentle:  # the profiles checked before one plan is built
         vs = np.maximum(v0 - b_try * tp, 0.0)
         prof = _braking(s0, v0, float(b_try), tp)
-        if check_plan(tp, prof, d_plan, vs, obstacles, c, executed=executed).safe:
+        if passes(tp, prof, d_plan, vs, vd_plan, executed):
             reason = f"{why}; braking at {b_try:.3g} m/s² along the plan's lateral path"
             fb = _fallback(
-                plan, path, float(b_try), d_plan, np.asarray(plan.vd, np.float64),
+                plan, path, float(b_try), d_plan, vd_plan,
                 np.asarray(plan.ad, np.float64), reason, PlanStatus.SHIELDED,
             )  # fmt: skip
-            return fb, ShieldRecord(True, why, chk.margin, float(b_try), True, chk.n_checked)
+            return fb, record(float(b_try), True)
     for b_try in decels:  # each fallback checked along its own profile (executed: all of it)
         for cen in targets:
             fb = lane_braking_plan(
@@ -473,20 +795,17 @@ def shield(
                 reason=f"{why}; braking at {b_try:g} m/s² into the lane at {cen:g} m",
                 status=PlanStatus.SHIELDED,
             )
-            if (
-                fb is not None
-                and check_plan(fb.t, fb.s, fb.d, fb.vs, obstacles, c, executed=horizon).safe
-            ):
-                return fb, ShieldRecord(True, why, chk.margin, float(b_try), True, chk.n_checked)
+            if fb is not None and passes(fb.t, fb.s, fb.d, fb.vs, fb.vd, horizon):
+                return fb, record(float(b_try), True)
         vs = np.maximum(v0 - b_try * tp, 0.0)
         prof = _braking(s0, v0, float(b_try), tp)
-        if check_plan(tp, prof, d0, vs, obstacles, c, executed=horizon).safe:
+        if passes(tp, prof, d0, vs, vd_hold, horizon):
             reason = f"{why}; braking at {b_try:g} m/s²"
             fb = braking_plan(plan, path, float(b_try), reason=reason, status=PlanStatus.SHIELDED)
-            return fb, ShieldRecord(True, why, chk.margin, float(b_try), True, chk.n_checked)
+            return fb, record(float(b_try), True)
     b = float(decels[-1])
     fb = braking_plan(
         plan, path, b, reason=f"{why}; braking at {b:g} m/s²", status=PlanStatus.SHIELDED
     )
     fb = dataclasses.replace(fb, message=fb.message + " (no braking passes the check)")
-    return fb, ShieldRecord(True, why, chk.margin, b, False, chk.n_checked)
+    return fb, record(b, False)

@@ -12,14 +12,17 @@ import pytest
 
 import frenet
 from mmdopt import Plan, PlanStatus
-from mmdopt.receding import RecedingConfig
+from mmdopt.receding import Observation, RecedingConfig
 from mmdopt.safety import (
     RSSConfig,
     braking_plan,
+    check_crossings,
+    check_lateral,
     check_plan,
     lane_braking_plan,
     obstacle_states_from_cartesian,
     obstacle_states_from_samples,
+    rss_lateral_safe_distance,
     rss_safe_distance,
     shield,
 )
@@ -262,3 +265,248 @@ def test_the_shields_plan_has_its_own_status_and_no_stale_fields():
     assert not out.feasible and out.state is None
     assert out.diagnostics["replaced_status"] == str(p.status)
     assert out.status_text.startswith("shielded: ")
+
+
+# ------------------------------------------------------------------- the lateral rule (Def. 4)
+def test_lateral_safe_distance_at_rest_is_mu_plus_both_cars_response_and_braking():
+    c = RSSConfig(lat_response_time=0.5, lat_a_max=1.0, lat_b_min=1.5, lat_mu=0.3)
+    # each car, at rest, may accelerate at a towards the other for ρ (½ a ρ² = 0.125 m) and
+    # then brakes from ρ a = 0.5 m/s (0.25 / 3 m): μ + 2 (0.125 + 0.08333…)
+    assert rss_lateral_safe_distance(0.0, 0.0, c) == pytest.approx(0.3 + 2 * (0.125 + 0.25 / 3))
+    # both moving towards each other: the paper's formula term by term
+    v1, v2, rho, a, b = 1.0, -0.4, 0.5, 1.0, 1.5
+    v1r, v2r = v1 + rho * a, v2 - rho * a
+    paper = (
+        0.3 + (v1 + v1r) / 2 * rho + v1r**2 / (2 * b) - ((v2 + v2r) / 2 * rho - v2r**2 / (2 * b))
+    )
+    assert rss_lateral_safe_distance(v1, v2, c) == pytest.approx(paper)
+
+
+def test_lateral_safe_distance_grows_as_the_cars_close_and_is_mu_when_they_part():
+    c = RSSConfig()
+    v = np.linspace(-3.0, 3.0, 61)
+    closing_left = rss_lateral_safe_distance(v, 0.0, c)  # the left car moving right faster
+    assert np.all(np.diff(closing_left) >= 0) and closing_left[-1] > closing_left[30]
+    closing_right = rss_lateral_safe_distance(0.0, -v, c)  # the right car moving left faster
+    assert np.all(np.diff(closing_right) >= 0)
+    # a car moving away fast: only the margin μ is left, never less
+    assert rss_lateral_safe_distance(-5.0, 0.0, c) == pytest.approx(c.lat_mu)
+    assert rss_lateral_safe_distance(0.0, 5.0, c) == pytest.approx(c.lat_mu)
+    assert np.all(rss_lateral_safe_distance(v[:, None], v[None, :], c) >= c.lat_mu)
+
+
+def test_lateral_safe_distance_is_symmetric_under_swapping_the_cars():
+    # the right car seen as the left one, with the direction reversed
+    c = RSSConfig(lat_a_max=0.7, lat_b_min=2.0)
+    v1, v2 = np.meshgrid(np.linspace(-2.0, 2.0, 9), np.linspace(-2.0, 2.0, 9))
+    assert np.allclose(rss_lateral_safe_distance(v1, v2, c), rss_lateral_safe_distance(-v2, -v1, c))
+
+
+def test_lateral_parameters_and_inputs_are_checked():
+    for bad in ({"lat_b_min": 0.0}, {"width": -1.0}, {"lat_mu": -0.1}, {"lat_a_max": math.inf}):
+        with pytest.raises(ValueError, match=next(iter(bad))):
+            RSSConfig(**bad)
+    with pytest.raises(ValueError, match="lateral"):
+        RSSConfig(lateral=1)
+    with pytest.raises(ValueError, match="v_left"):
+        rss_lateral_safe_distance(float("nan"), 0.0)
+    with pytest.raises(ValueError, match="v_right"):
+        rss_lateral_safe_distance(0.0, [0.0, math.inf])
+    p = _plan(20.0)
+    with pytest.raises(ValueError, match="obstacles"):
+        check_lateral(p.t, p.s, p.d, p.vd, np.zeros((1, 3)), executed=0.5)
+    with pytest.raises(ValueError, match="executed"):
+        check_lateral(p.t, p.s, p.d, p.vd, np.zeros((1, 4)), executed=-1.0)
+    with pytest.raises(ValueError, match="t, s, d, vd"):
+        check_lateral(p.t, p.s[:-1], p.d, p.vd, np.zeros((1, 4)), executed=0.5)
+    with pytest.raises(ValueError, match="lateral_states"):
+        shield(p, PATH, np.zeros((0, 3)), executed=0.5, lateral_states=np.zeros((2, 3)))
+
+
+def _swerving(v0: float = 20.0) -> Plan:
+    """A plan that moves left from the lane centre at 1 m/s, at constant speed."""
+    p = _plan(v0)
+    return dataclasses.replace(p, d=np.minimum(1.0 * T, 3.5), vd=np.where(T < 3.5, 1.0, 0.0))
+
+
+BESIDE = np.array([[102.0, 3.5, 20.0, 0.0]])  # in the left lane, level with the ego, same speed
+
+
+def test_a_plan_swerving_into_a_car_beside_fails_and_holding_the_lane_passes():
+    c = RSSConfig(lateral=True)
+    hold = _plan(20.0)
+    ok = check_lateral(hold.t, hold.s, hold.d, hold.vd, BESIDE, c, executed=0.5)
+    # 1.5 m between the sides; both at rest sideways need μ + 2 (½ a ρ² + (ρ a)²/(2 b))
+    need = rss_lateral_safe_distance(0.0, 0.0, c)
+    assert ok.safe and ok.n_checked == 1 and ok.margin == pytest.approx(1.5 - need)
+    sw = _swerving()
+    bad = check_lateral(sw.t, sw.s, sw.d, sw.vd, BESIDE, c, executed=0.5)
+    assert not bad.safe and bad.obstacle == 0 and bad.n_checked == 1
+    # the least slack is at the end of the step, the ego 0.5 m closer and moving at 1 m/s
+    closing = rss_lateral_safe_distance(0.0, -1.0, c)  # the car is left: the ego's ḋ closes
+    assert bad.time == pytest.approx(0.5) and bad.margin == pytest.approx(1.0 - closing)
+    # the same car far ahead, or a car moving away sideways fast enough, is no concern
+    far = BESIDE + np.array([60.0, 0.0, 0.0, 0.0])
+    assert check_lateral(sw.t, sw.s, sw.d, sw.vd, far, c, executed=0.5).n_checked == 0
+    away = BESIDE + np.array([0.0, 0.0, 0.0, 3.0])
+    assert check_lateral(sw.t, sw.s, sw.d, sw.vd, away, c, executed=0.5).safe
+
+
+def test_a_car_passing_the_ego_between_grid_times_is_beside_it():
+    # 30 m/s faster, from 11.5 m behind: on the 0.1 s grid it is 2.5 m behind, then 0.5 m
+    # ahead, never within contact = 0.4 m of the ego, but it passes the ego in the step
+    c = RSSConfig(lateral=True, contact=0.4)
+    p = _swerving()
+    fast = np.array([[88.5, 3.5, 50.0, 0.0]])
+    assert check_lateral(p.t, p.s, p.d, p.vd, fast, c, executed=0.5).n_checked == 1
+    assert check_lateral(p.t, p.s, p.d, p.vd, fast, c, executed=0.3).n_checked == 0
+
+
+def test_a_car_ahead_in_the_corridor_is_the_longitudinal_rules_not_the_lateral_one():
+    c = RSSConfig(lateral=True)
+    sw = _swerving()
+    ahead = np.array([[104.0, 0.5, 20.0, 0.0], [140.0, 0.0, 15.0, 0.0]])
+    chk = check_lateral(sw.t, sw.s, sw.d, sw.vd, ahead, c, executed=0.5)
+    assert chk.safe and chk.n_checked == 0 and chk.margin == math.inf
+
+
+def test_the_shield_replaces_a_swerve_into_a_car_beside_by_braking_in_lane():
+    c = RSSConfig(lateral=True)
+    sw = _swerving()
+    out, rec = shield(sw, PATH, np.zeros((0, 3)), c, executed=0.5, lateral_states=BESIDE)
+    assert rec.intervened and rec.rule == "lateral" and rec.fallback_safe
+    assert "lateral" in rec.reason and "obstacle 0" in rec.reason and rec.plan_margin < 0
+    # the gentle levels keep the swerve and fail: the fallback holds the offset, ḋ = 0
+    assert out.status is PlanStatus.SHIELDED and rec.fallback_decel == c.b_min
+    assert np.allclose(out.d, 0.0) and np.allclose(out.vd, 0.0)
+    assert check_lateral(out.t, out.s, out.d, out.vd, BESIDE, c, executed=5.0).safe
+    # the lateral rule is off by default, and without the states
+    same, rec0 = shield(sw, PATH, np.zeros((0, 3)), executed=0.5, lateral_states=BESIDE)
+    assert same is sw and not rec0.intervened and rec0.rule == ""
+    same, _ = shield(sw, PATH, np.zeros((0, 3)), c, executed=0.5)
+    assert same is sw
+
+
+def test_lateral_obstacle_states_from_cartesian():
+    st = np.array([[50.0, 3.5, 20.0, -1.0]])  # 150 m along, 3.5 m left, drifting right
+    assert obstacle_states_from_cartesian(PATH, st).shape == (1, 3)
+    assert obstacle_states_from_cartesian(PATH, st, lateral=True)[0] == pytest.approx(
+        [150.0, 3.5, 20.0, -1.0]
+    )
+    # a road heading north: the left normal points west, so moving west is +ḋ
+    north = frenet.ReferencePath.straight(500.0, heading=math.pi / 2)
+    lat = obstacle_states_from_cartesian(north, np.array([[-2.0, 100.0, -0.5, 15.0]]), lateral=True)
+    assert lat[0] == pytest.approx([100.0, 2.0, 15.0, 0.5])
+    assert obstacle_states_from_cartesian(PATH, np.zeros((0, 4)), lateral=True).shape == (0, 4)
+    with pytest.raises(ValueError, match="lateral"):
+        obstacle_states_from_cartesian(PATH, st, lateral="yes")
+
+
+# ---------------------------------------------------------------------- the crossing rule
+# the ego at s = 100 m, 20 m/s: after 0.5 s at 20 m/s and braking at b_min = 6 it stops at
+# 110 + 400/12 = 143.33 m at t = 0.5 + 20/6 = 3.83 s; braking at 8 m/s² now, at 125 m
+CROSS = np.array([140.0, 150.0, 1.0])  # a conflict area 40 m ahead, reachable by t = 1 s
+
+
+def test_a_car_that_can_reach_the_area_first_forbids_driving_through():
+    c = RSSConfig()
+    p = _plan(20.0)
+    late = [140.0, 150.0, 10.0]  # arrives long after the ego could have stopped
+    chk = check_crossings(p.t, p.s, p.vs, np.array([late, CROSS]), c, executed=0.5)
+    assert not chk.safe and chk.obstacle == 1 and chk.n_checked == 1 and chk.time == 1.0
+    assert chk.margin == pytest.approx(140.0 - c.margin - (110.0 + 400.0 / 12.0))
+    assert check_crossings(p.t, p.s, p.vs, np.array([late]), c, executed=0.5).safe
+    # a plan slowing at 4 m/s² passes: 0.5 s of it, then b_min, 109.5 + 18²/12 = 136.5 m;
+    # at 1 m/s² it does not: 109.875 + 19.5²/12 = 141.56 m
+    slow = _plan(20.0, accel=-4.0)
+    chk = check_crossings(slow.t, slow.s, slow.vs, [CROSS], c, executed=0.5)
+    assert chk.safe and chk.margin == pytest.approx(139.0 - 136.5)
+    slow = _plan(20.0, accel=-1.0)
+    assert not check_crossings(slow.t, slow.s, slow.vs, [CROSS], c, executed=0.5).safe
+    stop = braking_plan(p, PATH, 5.0)  # 100 + 40 = 140 m > 139 m: not quite
+    assert not check_crossings(stop.t, stop.s, stop.vs, [CROSS], c, executed=5.0).safe
+    stop = braking_plan(p, PATH, 6.0)  # 133.3 m
+    assert check_crossings(stop.t, stop.s, stop.vs, [CROSS], c, executed=5.0).safe
+
+
+def test_the_shield_stops_the_ego_before_a_conflict_area_it_cannot_clear():
+    c = RSSConfig(b_gentle=6.0)  # the fallback brakes to a stop from now
+    p = _plan(20.0)
+    out, rec = shield(p, PATH, np.zeros((0, 3)), c, executed=0.5, crossings=[CROSS])
+    assert rec.intervened and rec.rule == "crossing" and "crossing 0" in rec.reason
+    assert out.status is PlanStatus.SHIELDED and rec.fallback_safe
+    assert out.vs[-1] == 0.0 and out.s[-1] <= CROSS[0] - c.margin
+    # with the gentle levels, the gentlest braking whose continuation stops in time is used
+    out, rec = shield(p, PATH, np.zeros((0, 3)), RSSConfig(), executed=0.5, crossings=[CROSS])
+    assert rec.fallback_decel == pytest.approx(3.0) and out.status is PlanStatus.SHIELDED
+    assert check_crossings(out.t, out.s, out.vs, [CROSS], executed=0.5).safe
+    # 0.5 s at 3 m/s², then b_min: 109.625 + 18.5²/12 = 138.15 m, within 139 m
+    k = int(np.searchsorted(T, 0.5))
+    assert out.s[k] + out.vs[k] ** 2 / 12.0 <= CROSS[0] - 1.0
+
+
+def test_a_committed_ego_and_areas_behind_it_are_not_checked():
+    c = RSSConfig()
+    p = _plan(20.0)
+    # 15 m ahead: even 8 m/s² from now stops at 125 m, inside it: RSS says clear it
+    near = [115.0, 125.0, 0.5]
+    behind = [80.0, 95.0, 0.0]
+    chk = check_crossings(p.t, p.s, p.vs, [near, behind], c, executed=0.5)
+    assert chk.safe and chk.n_checked == 0 and chk.margin == math.inf
+    same, rec = shield(p, PATH, np.zeros((0, 3)), c, executed=0.5, crossings=[near, behind])
+    assert same is p and not rec.intervened
+    # an ego that could still just stop at 8 m/s² (area from 127 m): the rule applies
+    assert check_crossings(p.t, p.s, p.vs, [[127.0, 135.0, 0.5]], c, executed=0.5).n_checked == 1
+
+
+def test_crossings_are_checked():
+    p = _plan(20.0)
+    for bad, word in (
+        (np.zeros(3), "crossings"),
+        (np.zeros((2, 2)), "crossings"),
+        ([[150.0, 140.0, 1.0]], "s_out"),
+        ([[140.0, 150.0, -1.0]], "t_arrive"),
+        ([[140.0, math.nan, 1.0]], "crossings"),
+    ):
+        with pytest.raises(ValueError, match=word):
+            check_crossings(p.t, p.s, p.vs, bad, executed=0.5)
+        with pytest.raises(ValueError, match=word):
+            shield(p, PATH, np.zeros((0, 3)), executed=0.5, crossings=bad)
+    with pytest.raises(ValueError, match="t, s, vs"):
+        check_crossings(p.t, p.s, p.vs[:3], [CROSS], executed=0.5)
+    with pytest.raises(ValueError, match="config"):
+        check_crossings(p.t, p.s, p.vs, [CROSS], "rss", executed=0.5)
+
+
+def test_without_the_new_inputs_the_shield_is_the_longitudinal_one():
+    c = RSSConfig()
+    p = _plan(25.0, accel=2.0, d=0.3)
+    lead = np.array([[150.0, 0.0, 15.0]])
+    a, ra = shield(p, PATH, lead, c, executed=0.5)
+    b, rb = shield(p, PATH, lead, c, executed=0.5, crossings=np.zeros((0, 3)))
+    assert ra == rb and ra.rule == "longitudinal" and "longitudinal" in ra.reason
+    assert np.array_equal(a.s, b.s) and np.array_equal(a.d, b.d) and a.message == b.message
+    # positional records of before still build, with no rule
+    assert dataclasses.replace(ra, rule="").rule == "" and len(dataclasses.fields(ra)) == 7
+
+
+def test_the_receding_loop_passes_crossings_and_lateral_states_to_the_shield():
+    from mmdopt import Road
+    from mmdopt.receding import _shielded
+
+    road = Road(path=PATH, y_lb=-0.3, y_ub=3.8, v_max=30.0)
+    sw = _swerving()
+    x, y = PATH.to_cartesian(np.array([102.0]), np.array([3.5]))
+    states = np.array([[x[0], y[0], 20.0, 0.0]])
+    obs = Observation(
+        ego=frenet.EgoState(s=100.0, d=0.0, vs=20.0), road=road,
+        obstacles=np.zeros((0, 2, len(T), 2)), obstacle_states=states,
+    )  # fmt: skip
+    rc = RecedingConfig(dt=0.5, shield=RSSConfig(lateral=True))
+    _, rec = _shielded(sw, obs, rc, T)
+    assert rec.intervened and rec.rule == "lateral"
+    _, rec = _shielded(sw, obs, dataclasses.replace(rc, shield=RSSConfig()), T)
+    assert not rec.intervened
+    crossing = dataclasses.replace(obs, crossings=np.array([CROSS]))
+    _, rec = _shielded(_plan(20.0), crossing, dataclasses.replace(rc, shield=RSSConfig()), T)
+    assert rec.intervened and rec.rule == "crossing"
