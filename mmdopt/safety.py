@@ -421,6 +421,12 @@ def _lateral_states(obstacles, name: str) -> np.ndarray:
     return ob
 
 
+#: a car moving sideways faster than this times its speed along the ego's path (a heading more
+#: than 27° off the path) crosses the path rather than running beside it: not
+#: :func:`check_lateral`'s (a junction's crossing traffic, :func:`check_crossings`)
+PARALLEL = 0.5
+
+
 def check_lateral(
     t,
     s,
@@ -441,10 +447,12 @@ def check_lateral(
     longitudinally (centre-to-centre distance along the path below ``contact``, or the two
     passing each other) at some time in ``[0, executed]``, and is not in the ego's
     longitudinal corridor now (``|d_ob − d(0)| ≥ lateral_overlap``: the cars ahead in the
-    corridor are :func:`check_plan`'s).  For each car beside, at each plan time in
-    ``[0, executed]`` (the plan's grid, plus ``executed`` interpolated), the gap between the
-    cars' sides, ``|d_ob(τ) − d(τ)| − width``, must be at least the lateral safe distance with
-    both lateral velocities oriented from the car on the left (+d) to the one on the right.
+    corridor are :func:`check_plan`'s) and runs along the ego's path (``|ḋ| ≤``
+    :data:`PARALLEL` ``· max(ṡ, 1 m/s)``: a car crossing it is :func:`check_crossings`'s).  For
+    each car beside, at each plan time in ``[0, executed]`` (the plan's grid, plus
+    ``executed`` interpolated), the gap between the cars' sides, ``|d_ob(τ) − d(τ)| −
+    width``, must be at least the lateral safe distance with both lateral velocities oriented
+    from the car on the left (+d) to the one on the right.
     This is checked at all those times, also when the car is longitudinally clear at some of
     them (a cautious reading of "beside").  The lateral velocity the plan reaches is covered by
     the rule itself: it assumes each car may go on towards the other for ρ_lat and then brake
@@ -467,7 +475,10 @@ def check_lateral(
     passing = np.any(np.sign(rel[:, 1:]) * np.sign(rel[:, :-1]) < 0, axis=1)
     overlap = np.any(np.abs(rel) < c.contact, axis=1) | passing
     outside = np.abs(ob[:, 1] - d[0]) >= c.lateral_overlap
-    idx = np.flatnonzero(overlap & outside)
+    # RSS's lateral rule is for cars on parallel paths: a car crossing the ego's path (at a
+    # junction: moving across it faster than PARALLEL times along it) is the crossing rule's
+    parallel = np.abs(ob[:, 3]) <= PARALLEL * np.maximum(ob[:, 2], 1.0)
+    idx = np.flatnonzero(overlap & outside & parallel)
     if idx.size == 0:
         return PlanCheck(True, math.inf, -1, 0.0, 0)
     d_ob = ob[idx, 1][:, None] + ob[idx, 3][:, None] * tc[None, :]  # (n, T)
@@ -521,16 +532,20 @@ def check_crossings(
     ``t_arrive`` (s from now) that car could reach it.  The ego follows the plan for
     ``executed`` seconds and then brakes at ``b_min``: it stops at
     ``t_stop = executed + v_ex/b_min``, at ``s_stop = s_ex + v_ex²/(2 b_min)``.  A crossing
-    *applies* when the other car may be there before the ego has stopped
-    (``t_arrive ≤ t_stop``), it is not behind the ego (``s_out > s(0)``), and the ego is not
-    already committed to it: braking from now even at ``b_emergency`` ends past
-    ``s_in − margin``.  A committed ego could only stop inside the conflict area; RSS's proper
-    response there is to clear it, not to brake, so the rule does not apply (and so the braking
-    fallback of :func:`shield` at ``b_emergency`` passes it whenever it stops within the
-    plan's horizon: it stops before every crossing that applies).  For every crossing that
-    applies the ego must stop before it: ``s_stop ≤ s_in − margin``.  Not covered: a car
-    arriving after ``t_stop`` at an area the ego would stop in, and a car arriving earlier than
-    ``t_arrive`` says.
+    *applies* when it is not behind the ego (``s_out > s(0)``) and the ego is not already
+    committed to it: braking from now even at ``b_emergency`` ends past ``s_in − margin``.  A
+    committed ego could only stop inside the conflict area; RSS's proper response there is to
+    clear it, not to brake, so the rule does not apply (and so the braking fallback of
+    :func:`shield` at ``b_emergency`` passes it whenever it stops within the plan's horizon).
+    For every crossing that applies, the plan either stops before it (``s_stop ≤ s_in −
+    margin``: it may yield) or clears it ahead of the other car: the plan's centre passes
+    ``s_out`` at least ``response_time`` before ``t_arrive`` (it may go first).  A plan that
+    would enter the area with neither is refused before the ego is committed to it, so the ego
+    never stands in a conflict area a car may reach first: the rule carries by induction from
+    replan to replan (a plan that goes first stays ahead of ``t_arrive``, which only comes
+    nearer by the time that has passed).  Not covered: a car arriving earlier than
+    ``t_arrive`` says (faster than its earliest arrival) and one the ego is committed to when
+    it first appears.
 
     ``margin``: the least ``s_in − margin − s_stop`` over the crossings that apply (m; +inf:
     none), ``obstacle``: that crossing's row, ``time``: its ``t_arrive``, ``n_checked``: the
@@ -545,12 +560,19 @@ def check_crossings(
     if cr.shape[0] == 0:
         return PlanCheck(True, math.inf, -1, 0.0, 0)
     s_ex, v_ex = float(np.interp(ex, tp, s)), max(float(np.interp(ex, tp, vs)), 0.0)
-    t_stop = ex + v_ex / c.b_min
     s_stop = s_ex + v_ex**2 / (2.0 * c.b_min)
     v0 = max(float(vs[0]), 0.0)
     s_in = cr[:, 0] - c.margin
     committed = s[0] + v0**2 / (2.0 * c.b_emergency) > s_in
-    idx = np.flatnonzero((cr[:, 2] <= t_stop) & (cr[:, 1] > s[0]) & ~committed)
+    idx = np.flatnonzero((cr[:, 1] > s[0]) & ~committed)
+    if idx.size == 0:
+        return PlanCheck(True, math.inf, -1, 0.0, 0)
+    # going first: the time the plan's centre passes s_out (inf when it does not in the horizon)
+    s_mono = np.maximum.accumulate(s)
+    passed = s_mono[None, :] >= cr[idx, 1][:, None]
+    t_clear = np.where(passed.any(axis=1), tp[np.argmax(passed, axis=1)], np.inf)
+    first = t_clear <= cr[idx, 2] - c.response_time
+    idx = idx[~first]
     if idx.size == 0:
         return PlanCheck(True, math.inf, -1, 0.0, 0)
     slack = s_in[idx] - s_stop

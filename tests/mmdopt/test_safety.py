@@ -510,3 +510,24 @@ def test_the_receding_loop_passes_crossings_and_lateral_states_to_the_shield():
     crossing = dataclasses.replace(obs, crossings=np.array([CROSS]))
     _, rec = _shielded(_plan(20.0), crossing, dataclasses.replace(rc, shield=RSSConfig()), T)
     assert rec.intervened and rec.rule == "crossing"
+
+
+def test_the_ego_may_go_first_only_if_it_clears_the_area_ahead_of_the_car():
+    c = RSSConfig()
+    fast = _plan(20.0)  # s = 100 + 20 t: its centre passes s_out = 150 m at t = 2.5 s
+    # the car can be there at 3.5 s: the plan clears the area a response time before it
+    assert check_crossings(fast.t, fast.s, fast.vs, [[140.0, 150.0, 3.5]], c, executed=0.5).safe
+    # at 2.8 s it cannot: within 40 m it can still stop, so it must
+    chk = check_crossings(fast.t, fast.s, fast.vs, [[140.0, 150.0, 2.8]], c, executed=0.5)
+    assert not chk.safe and chk.obstacle == 0
+    # a slow plan that would creep into the area and stand there while a car may come is refused
+    # however late that car, while the ego can still stop before the area
+    creep = _plan(4.0)  # 4 m from the area at 4 m/s, never clear of it in the horizon
+    far = [[104.0, 124.0, 30.0]]
+    chk = check_crossings(creep.t, creep.s, creep.vs, far, c, executed=0.5)
+    assert not chk.safe
+    fb, rec = shield(creep, PATH, np.zeros((0, 3)), c, executed=0.5, crossings=np.array(far))
+    assert rec.intervened and rec.rule == "crossing"
+    assert fb.status == PlanStatus.SHIELDED
+    # it slows so that braking after the next replan period stops short of the area
+    assert check_crossings(fb.t, fb.s, fb.vs, far, c, executed=0.5).safe

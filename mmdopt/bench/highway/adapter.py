@@ -14,8 +14,9 @@ import mmdopt
 from mmdopt.receding import Observation, StepOutcome
 
 from .context import scene_context
+from .junction import RoutePredictor, crossings
 from .predictors import make_predictor
-from .roads import build_road, on_road, reanchor
+from .roads import arrived, build_road, on_road, reanchor, route_of
 from .settings import AGENTS, EGO_MODELS, METHODS, HighwaySettings, require_highway
 
 
@@ -267,6 +268,14 @@ def _settle(v: float, lo: float, hi: float, slack: float) -> float:
     return float(v)
 
 
+def _note_modes(predictor, info: dict | None) -> None:
+    """Record in ``info`` the route (mode) of each sample the route predictor just drew
+    (``modes``, for the videos' colours by route)."""
+    modes = getattr(predictor, "last_modes", None)
+    if info is not None and modes is not None:
+        info["modes"] = np.array(modes)
+
+
 # ------------------------------------------------------------------------------ the scene source
 #: the most futures per obstacle a forecast gives the planner (n(ε) beyond it: ``risk floor``)
 MAX_FORECAST_SAMPLES = 5000
@@ -290,6 +299,7 @@ class HighwayDraw:
     t_grid: np.ndarray
     seed: tuple
     times: list
+    info: dict | None = None
 
     def sample(self, history, context, n, key) -> np.ndarray:
         if np.shape(history)[0] != len(self.targets):
@@ -299,6 +309,7 @@ class HighwayDraw:
         rng = np.random.default_rng(list(self.seed))
         out = self.predictor(self.road, self.ego, list(self.targets), self.t_grid, int(n), rng)
         self.times.append(float(self.predictor.last_time_s))
+        _note_modes(self.predictor, self.info)
         return out
 
 
@@ -341,6 +352,10 @@ class HighwaySource:
         self.render = render
         road = self.env.road
         old = self.env.vehicle
+        #: the ego's route to its destination (highway-env's list of lane indices, from the
+        #: env's configured destination: intersection-v2, roundabout-v1), None on roads without
+        #: one (highway-v0, merge-v0, racetrack-v0: the ego drives on)
+        self.route = route_of(old)
         # the Frenet path and lane bounds from the lane network at the ego (roads.build_road)
         self.road_model = self._build_road(old.lane_index, old.position)
         self._frame_changed = False  # the path was rebuilt on another lane since the last plan
@@ -350,8 +365,16 @@ class HighwaySource:
         if self.agent.driver == "idm":
             from highway_env.vehicle.behavior import IDMVehicle
 
+            v_des = float(config.cost.v_des)
+            if self.route is not None:  # at a junction: the lane's speed limit, as the env's own
+                v_des = min(v_des, float(road.network.get_lane(old.lane_index).speed_limit))
             ego = IDMVehicle(
-                road, old.position.copy(), old.heading, old.speed, target_speed=config.cost.v_des
+                road,
+                old.position.copy(),
+                old.heading,
+                old.speed,
+                target_speed=v_des,
+                route=None if self.route is None else list(self.route),
             )
         else:
             ego = PlanFollower(
@@ -368,6 +391,11 @@ class HighwaySource:
         self.ego = ego
         self.t_grid = frenet.TimeGrid(config.trajectory.horizon, config.trajectory.num_steps).t
         self.predictor = make_predictor(settings.predictor)
+        #: the routes of the cars at a junction (the route predictor's, whatever the planner
+        #: predicts with), for the shield's crossing rule
+        self._routes = (
+            self.predictor if isinstance(self.predictor, RoutePredictor) else RoutePredictor()
+        )
         #: the agent's own predictor (planned on with one sample per car), else None
         self.own_predictor = (
             None if self.agent.predictor is None else make_predictor(self.agent.predictor)
@@ -379,6 +407,12 @@ class HighwaySource:
         self.crash_kind = ""
         self.between_lanes_s = 0.0  # time the ego's centre is > 1 m from every lane centre
         self.plan_limits: list[tuple[float, float]] = []  # (max |κ|, max |ψ̇|) of each plan
+        #: the ego reached its destination (:func:`~.roads.arrived`); None without a route
+        self.arrived: bool | None = None if self.route is None else False
+        # the env's own traffic between steps (intersection-v2 spawns cars at its entries and
+        # removes those that have left, once per step of its default policy period)
+        self._spawn_period = 1.0 / float(type(self.env).default_config()["policy_frequency"])
+        self._spawned = 0
         if render:
             self._render()
 
@@ -391,6 +425,16 @@ class HighwaySource:
         self.frame_views.append((np.array(surf.origin, dtype=float), float(surf.scaling)))
 
     # -- the road
+    def _route_from(self, lane_index):
+        """The rest of the ego's route from the road of ``lane_index`` (None: no route, or that
+        road is not on it)."""
+        if self.route is None:
+            return None
+        roads = [tuple(r[:2]) for r in self.route]
+        if tuple(lane_index[:2]) not in roads:
+            return None
+        return self.route[roads.index(tuple(lane_index[:2])) :]
+
     def _build_road(self, lane_index, position):
         st = self.settings
         return build_road(
@@ -403,6 +447,7 @@ class HighwaySource:
             back=st.behind + 10.0,
             ahead=st.ahead,
             horizon=self.config.trajectory.horizon,
+            route=self._route_from(lane_index),
         )
 
     @property
@@ -533,15 +578,25 @@ class HighwaySource:
             obstacles = own(self.env.road, self.ego, targets, self.t_grid, 1, rng)
             pred_s = own.last_time_s
         elif self.settings.forecast and targets:
-            obstacles, pred_s = self._forecast(targets), None
+            obstacles, pred_s = self._forecast(targets, info), None
         else:
             obstacles = self.predictor(
                 self.env.road, self.ego, targets, self.t_grid, self.settings.n_samples, rng
             )
             pred_s = self.predictor.last_time_s
+            _note_modes(self.predictor, info)
+        if self.route is not None and self.render:
+            s_ego = float(self.path.to_frenet(*self.ego.position)[0])
+            ss = np.arange(max(s_ego - 10.0, 0.0), min(s_ego + 100.0, self.path.length), 1.0)
+            rx, ry = self.path.to_cartesian(ss, np.zeros_like(ss))
+            info["route_xy"] = np.column_stack([rx, ry])
         if pred_s is not None:  # a forecast's draw records its own time
             self.predict_times.append(pred_s)
             info["predict_s"] = pred_s
+        extra = {}
+        if self.route is not None and self.settings.shield:
+            extra["crossings"] = self._crossings()
+            info["n_crossings"] = int(extra["crossings"].shape[0])
         return Observation(
             ego=self.ego_state(),
             road=self.road,
@@ -551,9 +606,27 @@ class HighwaySource:
             obstacle_states=self._obstacle_states(),
             frame_changed=self._frame_changed,
             obstacle_headings=np.array([float(v.heading) for v in targets], float),
+            **extra,
         )
 
-    def _forecast(self, targets) -> mmdopt.predict.Forecast:
+    def _crossings(self) -> np.ndarray:
+        """At a junction, the conflict areas ``(C, 3)`` of the cars within ``ahead`` m of the
+        ego whose routes cross its path (:func:`~.junction.crossings`), for the shield's
+        crossing rule (:func:`mmdopt.safety.check_crossings`)."""
+        ego = self.ego
+        cars = [
+            v
+            for v in self.env.road.vehicles
+            if v is not ego
+            and float(np.linalg.norm(v.position - ego.position)) < self.settings.ahead
+        ]
+        s_ego = float(self.path.to_frenet(*ego.position)[0])
+        return crossings(
+            self._routes, self.env.road, self.path, s_ego, cars,
+            ahead=self.settings.ahead, horizon=self.config.trajectory.horizon,
+        )  # fmt: skip
+
+    def _forecast(self, targets, info: dict | None = None) -> mmdopt.predict.Forecast:
         """The targets as a :class:`mmdopt.predict.Forecast` of this replan's
         :class:`HighwayDraw`: histories of two rows (0.1 s ago at the current velocity, now),
         the lane context of :func:`~.context.scene_context`, ``n_samples`` futures with the
@@ -575,7 +648,7 @@ class HighwaySource:
         )
         draw = HighwayDraw(
             self.predictor, road, self.ego, tuple(targets), self.t_grid,
-            (self.seed, self.step_index), self.predict_times,
+            (self.seed, self.step_index), self.predict_times, info,
         )  # fmt: skip
         n = self.settings.n_samples
         return mmdopt.predict.Forecast(
@@ -589,6 +662,8 @@ class HighwaySource:
             env.road.act()
             env.road.step(1.0 / self.settings.simulation_frequency)
             self.predictor.record(env.road, 1.0 / self.settings.simulation_frequency)
+            if self._routes is not self.predictor:
+                self._routes.record(env.road, 1.0 / self.settings.simulation_frequency)
             if self.own_predictor is not None:
                 self.own_predictor.record(env.road, 1.0 / self.settings.simulation_frequency)
             env.steps += 1
@@ -598,15 +673,33 @@ class HighwaySource:
             self._note_off_road()
             if self.render:
                 self._render()
+            if self.arrived is False and arrived(env, self.ego, self.route):
+                self.arrived = True
             if self.ego.crashed:
                 break
         env.time += self.settings.dt
         self.step_index += 1
+        self._env_traffic()
         crashed = bool(self.ego.crashed)
         if crashed and not self.crash_kind:
             self.crash_kind = self._crash_kind()
-        done = crashed or env.time >= self.settings.duration - 1e-9
+        done = crashed or bool(self.arrived) or env.time >= self.settings.duration - 1e-9
         return StepOutcome(done=done, crashed=crashed, info={"time": float(env.time)})
+
+    def _env_traffic(self) -> None:
+        """The env's own traffic rules between its steps, which ``env.step`` would run and the
+        benchmark's own stepping does not: cars that have left removed (``_clear_vehicles``)
+        and new ones spawned at the entries (``_spawn_vehicle`` at the env's
+        ``spawn_probability``) once per step of the env's default policy period, so the traffic
+        is the env's whatever the replan period."""
+        env = self.env
+        if hasattr(env, "_clear_vehicles"):
+            env._clear_vehicles()
+        if "spawn_probability" in env.config and hasattr(env, "_spawn_vehicle"):
+            due = int(math.floor(env.time / self._spawn_period + 1e-9))
+            while self._spawned < due:
+                env._spawn_vehicle(spawn_probability=env.config["spawn_probability"])
+                self._spawned += 1
 
     def step(self, trajectory: mmdopt.Plan, dt: float) -> StepOutcome:
         if abs(dt - self.settings.dt) > 1e-9:

@@ -52,8 +52,9 @@ def add_highway_parser(bench_subparsers):
         choices=PREDICTORS,
         default="learned",
         help="sim: the simulator oracle (rollouts of highway-env's own driver models); cv: "
-        "constant velocity; learned: the MDN trained on highway-env rollouts of seeds >= 100000 "
-        "(default learned)",
+        "constant velocity; learned: the MDN trained on highway-env rollouts of seeds >= 100000; "
+        "route: one mode per route a car can take from its lane through a junction, uniform "
+        "weights (default learned)",
     )
     h.add_argument(
         "--config",

@@ -839,7 +839,8 @@ class ConstantVelocityPredictor:
 
 def make_predictor(name: str, weights: str | Path | None = None):
     """The predictor ``name`` (:data:`~.settings.PREDICTORS`): ``"sim"`` (the simulator oracle),
-    ``"cv"`` or ``"learned"`` (``weights``: a path other than the shipped highway weights); or
+    ``"cv"``, ``"route"`` (one mode per route through a junction, :mod:`.junction`) or
+    ``"learned"`` (``weights``: a path other than the shipped highway weights); or
     :data:`~.settings.CV_MEAN`, the noise-free constant-velocity extrapolation of the ``cv``
     agent (:data:`~.settings.AGENTS`)."""
     if name == "sim":
@@ -848,6 +849,10 @@ def make_predictor(name: str, weights: str | Path | None = None):
         return ConstantVelocityPredictor()
     if name == "learned":
         return LearnedPredictor(weights=weights)
+    if name == "route":
+        from .junction import RoutePredictor
+
+        return RoutePredictor()
     if name == CV_MEAN:
         return ConstantVelocityPredictor(sigma_long=0.0, sigma_lat=0.0, name=CV_MEAN)
     raise ValueError(f"predictor must be one of {(*PREDICTORS, CV_MEAN)}, got {name!r}")

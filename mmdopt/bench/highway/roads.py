@@ -48,17 +48,63 @@ def _successor(network, index):
         return abs(math.remainder(h - end_heading, 2 * math.pi))
 
     road = min(nxt, key=turn)
+    if turn(road) > 0.5 * math.pi:  # only a way back (an exit's end meets its entry): a dead end
+        return None
     return (_to, road, min(int(_id), len(nxt[road]) - 1))
 
 
-def chain_indices(network, index, length: float | None = None, *, start_s: float = 0.0):
+def _route_successor(network, index, route):
+    """The lane after ``index`` on ``route`` (highway-env's list of ``(from, to, id | None)``):
+    the route's next road, its lane whose start lies nearest the end of ``index`` (the
+    continuous one); ``None`` when ``index``'s road is not on the route or is its last."""
+    roads = [tuple(r[:2]) for r in route]
+    here = tuple(index[:2])
+    if here not in roads:
+        return None
+    k = roads.index(here)
+    if k + 1 >= len(roads):
+        return None
+    _from, _to = roads[k + 1]
+    if _from != index[1] or _to not in network.graph.get(_from, {}):
+        return None
+    end = network.get_lane(index).position(network.get_lane(index).length, 0.0)
+    lanes = network.graph[_from][_to]
+    ids = range(len(lanes))
+    want = route[k + 1][2]
+    if want is not None and 0 <= int(want) < len(lanes):
+        ids = [int(want)]
+    best = min(ids, key=lambda i: float(np.linalg.norm(lanes[i].position(0.0, 0.0) - end)))
+    return (_from, _to, int(best))
+
+
+def check_route(network, route) -> list:
+    """``route`` as a list of lane indices ``(from, to, id | None)`` of ``network``, each road
+    following the one before; ``ValueError`` naming the first road that is not there."""
+    if route is None:
+        return []
+    out = []
+    for k, r in enumerate(route):
+        if len(r) != 3 or r[1] not in network.graph.get(r[0], {}):
+            raise ValueError(f"route[{k}] = {r!r} is not a road of the network")
+        if k and r[0] != out[-1][1]:
+            raise ValueError(f"route[{k}] = {r!r} does not start where route[{k - 1}] ends")
+        out.append((r[0], r[1], None if r[2] is None else int(r[2])))
+    return out
+
+
+def chain_indices(network, index, length: float | None = None, *, start_s: float = 0.0, route=None):
     """``(indices, closed)``: the lanes of the chain from ``index`` (see :meth:`LaneChain.follow`)
-    without sampling them."""
+    without sampling them.  With ``route`` (highway-env's route of a vehicle: road after road to
+    its destination), the chain follows it where it can and the straightest successors after
+    its end."""
+    route = check_route(network, route)
     lanes, idx, total, closed = [], tuple(index), 0.0, False
     for _ in range(10_000):
         lanes.append(idx)
         total += network.get_lane(idx).length
-        nxt = _successor(network, idx)
+        nxt = _route_successor(network, idx, route) if route else None
+        if nxt is None:
+            nxt = _successor(network, idx)
         if nxt is None:
             break
         if nxt[:2] == tuple(index)[:2]:
@@ -88,28 +134,50 @@ class LaneChain:
     length: float
 
     @classmethod
-    def follow(cls, network, index, length: float | None = None, *, start_s: float = 0.0):
+    def follow(
+        cls,
+        network,
+        index,
+        length: float | None = None,
+        *,
+        start_s: float = 0.0,
+        route=None,
+    ):
         """The chain from lane ``index`` of highway-env's ``network``: until it returns to its
         first road (closed), reaches a dead end, or covers ``length`` metres past ``start_s``
-        (the longitudinal position on the first lane where the chain begins)."""
+        (the longitudinal position on the first lane where the chain begins); along ``route``
+        (road after road, :func:`chain_indices`) where one is given."""
         if length is not None and not (math.isfinite(length) and length > 0):
             raise ValueError(f"length must be > 0 m, got {length!r}")
-        lanes, closed = chain_indices(network, index, length, start_s=start_s)
+        lanes, closed = chain_indices(network, index, length, start_s=start_s, route=route)
+        objs = [network.get_lane(li) for li in lanes]
+        kinks = _kinks(objs, closed)
+        lo = [0.0] * len(objs)
+        hi = [float(lane.length) for lane in objs]
+        for k, cut in kinks.items():
+            hi[k] = float(objs[k].length) - cut
+            lo[(k + 1) % len(objs)] = cut
         pts, nrm, lane_no, s_lane = [], [], [], []
-        for k, li in enumerate(lanes):
-            lane = network.get_lane(li)
-            last = k == len(lanes) - 1 and not closed
-            n = max(2, int(math.ceil(lane.length / SPACING)) + 1)
-            ss = np.linspace(0.0, lane.length, n)[: (None if last else -1)]
+        for k, lane in enumerate(objs):
+            last = k == len(objs) - 1 and not closed
+            n = max(2, int(math.ceil((hi[k] - lo[k]) / SPACING)) + 1)
+            ss = np.linspace(lo[k], hi[k], n)[: (None if last or k in kinks else -1)]
             for s in ss:
                 pts.append(lane.position(float(s), 0.0))
                 h = lane.heading_at(float(s))
                 nrm.append((-math.sin(h), math.cos(h)))
             lane_no += [k] * len(ss)
             s_lane += list(ss)
+            if k in kinks:  # the smooth join to the next lane (lane number -1: not blended)
+                nxt = objs[(k + 1) % len(objs)]
+                jp, jn = _hermite_join(lane, hi[k], nxt, lo[(k + 1) % len(objs)])
+                pts += list(jp)
+                nrm += list(jn)
+                lane_no += [-1] * len(jp)
+                s_lane += [0.0] * len(jp)
         xy, normal = np.array(pts, float), np.array(nrm, float)
         lane_no, s_lane = np.array(lane_no), np.array(s_lane)
-        _blend_jumps(xy, lanes, lane_no, s_lane, network, closed)
+        _blend_jumps(xy, lanes, lane_no, s_lane, network, closed, skip=set(kinks))
         seg = np.linalg.norm(np.diff(xy, axis=0), axis=1)
         keep = np.concatenate([[True], seg > 1e-6])
         xy, normal = xy[keep], normal[keep]
@@ -165,13 +233,59 @@ class LaneChain:
         return pts[np.concatenate([[True], step > 0.05])]
 
 
-def _blend_jumps(xy, lanes, lane_no, s_lane, network, closed) -> None:
+#: a join between consecutive lanes whose headings differ by more than this (rad) is a kink
+#: (``roundabout-v1``'s entries and exits meet the ring at 47°): the chain joins them smoothly
+KINK = 0.1
+#: metres of each lane replaced by the smooth join at a kink (at most 40 % of a lane)
+JOIN = 6.0
+
+
+def _kinks(lanes, closed) -> dict[int, float]:
+    """``{k: cut}``: the joins ``k → k + 1`` of ``lanes`` (highway-env lane objects) whose
+    headings differ by more than :data:`KINK`, with the metres cut from either lane there."""
+    out = {}
+    n = len(lanes)
+    for k in range(n if closed else n - 1):
+        a, b = lanes[k], lanes[(k + 1) % n]
+        dh = math.remainder(b.heading_at(0.0) - a.heading_at(a.length), 2 * math.pi)
+        if abs(dh) > KINK:
+            out[k] = min(JOIN, 0.4 * float(a.length), 0.4 * float(b.length))
+    return out
+
+
+def _hermite_join(a, s_a: float, b, s_b: float):
+    """Points and left normals strictly between lane ``a`` at ``s_a`` and lane ``b`` at ``s_b``
+    on the cubic Hermite curve that leaves ``a`` along its heading and meets ``b`` along its own
+    (tangent lengths the chord's): continuous position and heading where two lanes meet at an
+    angle."""
+    p0, p1 = np.asarray(a.position(s_a, 0.0), float), np.asarray(b.position(s_b, 0.0), float)
+    h0, h1 = float(a.heading_at(s_a)), float(b.heading_at(s_b))
+    m = float(np.linalg.norm(p1 - p0))
+    t0 = m * np.array([math.cos(h0), math.sin(h0)])
+    t1 = m * np.array([math.cos(h1), math.sin(h1)])
+    n = max(2, int(math.ceil(1.3 * m / SPACING)))
+    u = np.linspace(0.0, 1.0, n + 1)[1:-1, None]
+    pts = (
+        (2 * u**3 - 3 * u**2 + 1) * p0
+        + (u**3 - 2 * u**2 + u) * t0
+        + (-2 * u**3 + 3 * u**2) * p1
+        + (u**3 - u**2) * t1
+    )
+    der = (6 * u**2 - 6 * u) * p0 + (3 * u**2 - 4 * u + 1) * t0
+    der = der + (-6 * u**2 + 6 * u) * p1 + (3 * u**2 - 2 * u) * t1
+    der = der / np.linalg.norm(der, axis=1, keepdims=True)
+    return pts, np.stack([-der[:, 1], der[:, 0]], axis=1)
+
+
+def _blend_jumps(xy, lanes, lane_no, s_lane, network, closed, skip=frozenset()) -> None:
     """Spread each jump between the end of a lane and the start of the next (highway-env's lanes
     need not meet exactly: up to 2.6 m on ``racetrack-v0``) linearly over ``BLEND`` metres on
     either side, in place, so the centre line is continuous; points farther from a junction are
-    unchanged."""
+    unchanged.  The joins in ``skip`` (kinks, already joined smoothly) are left alone."""
     n_lanes = len(lanes)
     for k in range(n_lanes if closed else n_lanes - 1):
+        if k in skip:
+            continue
         a = network.get_lane(lanes[k])
         b = network.get_lane(lanes[(k + 1) % n_lanes])
         gap = b.position(0.0, 0.0) - a.position(a.length, 0.0)
@@ -243,6 +357,7 @@ def build_road(
     back: float = 40.0,
     ahead: float = 80.0,
     horizon: float = 5.0,
+    route=None,
 ) -> RoadModel:
     """The :class:`RoadModel` of a vehicle at ``position`` on lane ``lane_index`` of highway-env's
     ``network`` (see the module docstring).
@@ -258,7 +373,8 @@ def build_road(
     :func:`reanchor`).  On a curved road the path is the centre line of the vehicle's own lane;
     the benchmark rebuilds it when the ego has moved into another lane
     (:meth:`~.adapter.HighwaySource.observe`), so the ego plans near ``d = 0`` where arc length
-    and distance driven agree.
+    and distance driven agree.  ``route`` (the vehicle's route to its destination, highway-env's
+    list of lane indices): the path follows it through a junction (:func:`chain_indices`).
     """
     for name, v in (("back", back), ("ahead", ahead), ("horizon", horizon)):
         if not (isinstance(v, int | float) and math.isfinite(v) and v > 0):
@@ -270,12 +386,12 @@ def build_road(
     lane = network.get_lane(lane_index)
     s_lane = float(lane.local_coordinates(position)[0])
     need = back + ahead + float(limits["v_max"]) * horizon + 410.0
-    indices, _ = chain_indices(network, lane_index, need, start_s=s_lane)
+    indices, _ = chain_indices(network, lane_index, need, start_s=s_lane, route=route)
     if straight_along_x(network, [li for c in indices for li in network.all_side_lanes(c)]):
         path = frenet.ReferencePath.straight(20_000.0, start=(-5000.0, 0.0))
         ys = [float(network.get_lane(i).position(s_lane, 0.0)[1]) for i in side]
         return RoadModel(_make_road(path, sorted(ys), limits), tuple(sorted(ys)))
-    chain = LaneChain.follow(network, lane_index, need, start_s=s_lane)
+    chain = LaneChain.follow(network, lane_index, need, start_s=s_lane, route=route)
     limits = dict(limits)
     if lane.speed_limit is not None:
         limits["v_max"] = min(float(limits["v_max"]), float(lane.speed_limit))
@@ -359,3 +475,40 @@ def follow_lanes(network, vehicles, t, v_long, v_lat) -> np.ndarray:
         d = d0 + v_lat[o][:, None] * t[None, :]
         out[o] = chain.position(s, d)
     return out
+
+
+# ------------------------------------------------------------------------------ route and arrival
+def route_of(vehicle) -> list | None:
+    """The route of a highway-env vehicle to its destination (its ``route``, a list of lane
+    indices) when it has one through more than one road (``plan_route_to`` of the env's
+    configured destination), else None: on a road without destination the ego drives on."""
+    route = getattr(vehicle, "route", None)
+    if not route or len({tuple(r[:2]) for r in route}) < 2:
+        return None
+    return [tuple(r) for r in route]
+
+
+#: how far (m) along the last road of its route a vehicle has arrived (intersection-v2's own
+#: ``has_arrived`` distance on its exit lanes)
+ARRIVAL_DISTANCE = 25.0
+
+
+def arrived(env, vehicle, route) -> bool:
+    """Whether ``vehicle`` has reached the end of ``route``: the env's own ``has_arrived`` where
+    it has one (intersection-v2: on an exit lane, 25 m along it), else on the route's last road
+    at least ``min(ARRIVAL_DISTANCE, half its length)`` along it, or on a road that starts
+    where the route ends (past it).  False without a route."""
+    if not route or getattr(vehicle, "lane_index", None) is None:
+        return False
+    if hasattr(env, "has_arrived"):
+        return bool(env.has_arrived(vehicle))
+    net = env.road.network
+    here = tuple(vehicle.lane_index[:2])
+    last = tuple(route[-1][:2])
+    if here[0] == last[1]:
+        return True
+    if here != last:
+        return False
+    lane = net.get_lane(vehicle.lane_index)
+    s = float(lane.local_coordinates(np.asarray(vehicle.position, float))[0])
+    return s >= min(ARRIVAL_DISTANCE, 0.5 * float(lane.length))

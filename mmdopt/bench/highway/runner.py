@@ -23,6 +23,7 @@ from ..results import write_json
 from .adapter import HighwaySource, bicycle_limits
 from .settings import (
     AGENTS,
+    JUNCTION_SHIELD,
     METHODS,
     SHIELD,
     HighwaySettings,
@@ -56,6 +57,7 @@ CSV_COLUMNS = (
     "off_road",
     "risk",
     "mean_risk_bound",
+    "arrived",
 )
 
 
@@ -105,7 +107,7 @@ def run_episode(
             method=agent.plan_method,
             max_obstacles=settings.max_obstacles,
             max_steps=int(math.ceil(settings.duration / settings.dt)) + 1,
-            shield=SHIELD if settings.shield else None,
+            shield=(SHIELD if src.route is None else JUNCTION_SHIELD) if settings.shield else None,
         )
         # compile once on the first scene (shapes are fixed by max_obstacles), untimed by the loop
         obs0 = src.observe()
@@ -163,6 +165,7 @@ def run_episode(
         between_lanes_s=float(src.between_lanes_s),
         interventions=int(interventions),
         off_road=bool(src.off_road),
+        arrived=src.arrived,
         shield=shield_reasons[:20],
         ego_model=settings.ego_model,
         max_plan_curvature=float(np.max(limits[:, 0])) if limits.size else None,
@@ -185,10 +188,15 @@ def _manifest(settings: HighwaySettings, config_overrides: dict, seed: int) -> d
     """What a folder's episodes were made with: the settings, the overrides, the seed and the
     planner they resolve to (:meth:`mmdopt.MMDOptConfig.highway` with the overrides, in full),
     so that a folder made under another version's preset refuses to be resumed."""
-    planner = highway_config(config_overrides).to_dict()
+    config = highway_config(config_overrides)
+    planner = config.to_dict()
+    samples = config.safety.margins.margin_mode == "samples"
     return json.loads(
         json.dumps(
             {
+                "predictor": settings.predictor,
+                "risk": float(config.safety.risk) if samples else None,
+                "margin_mode": config.safety.margins.margin_mode,
                 "settings": asdict(settings),
                 "config": config_overrides,
                 "seed": int(seed),
@@ -252,9 +260,16 @@ def _nanmean(values) -> float:
     return float(v.mean()) if v.size else float("nan")
 
 
+def _arrived_share(rows) -> float:
+    """The share of episodes whose ego reached its destination (NaN on roads without one)."""
+    flags = [r.get("arrived") for r in rows if r.get("arrived") is not None]
+    return float(np.mean([bool(f) for f in flags])) if flags else float("nan")
+
+
 def summarize(rows: Sequence[dict]) -> list[dict]:
     """Per method: episodes, crashes, mean speed, mean distance, median/mean/max plan time, mean
-    tracking error and time between lanes per episode, and shield interventions in all."""
+    tracking error and time between lanes per episode, shield interventions in all, and the
+    share of episodes that arrived (at a junction; NaN on roads without a destination)."""
     out = []
     for m in dict.fromkeys(r["method"] for r in rows):
         rs = [r for r in rows if r["method"] == m]
@@ -276,6 +291,7 @@ def summarize(rows: Sequence[dict]) -> list[dict]:
                 "tracking_error_m": _nanmean(r.get("tracking_error_m") for r in rs),
                 "between_lanes_s": _nanmean(r.get("between_lanes_s") for r in rs),
                 "interventions": int(sum(int(r.get("interventions") or 0) for r in rs)),
+                "arrived": _arrived_share(rs),
             }
         )
     return out
@@ -320,7 +336,17 @@ def run_highway(
     (out / "episodes").mkdir(parents=True, exist_ok=True)
     man = dict(_manifest(settings, overrides, seed), workers=worker_layout(jobs, executor, isolate))
     # folders written before the manifest recorded where episodes ran, or the planner
-    check_manifest(out, man, aliases={"workers": [MISSING], "planner": [MISSING]})
+    check_manifest(
+        out,
+        man,
+        aliases={
+            "workers": [MISSING],
+            "planner": [MISSING],
+            "predictor": [MISSING],
+            "risk": [MISSING],
+            "margin_mode": [MISSING],
+        },
+    )
     todo = [
         (i, seed + i, m, asdict(settings), overrides, str(out), progress)
         for i in range(episodes)

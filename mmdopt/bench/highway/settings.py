@@ -3,6 +3,7 @@ defaults, the environment/loop settings and the optional-dependency check."""
 
 from __future__ import annotations
 
+import dataclasses
 import math
 from dataclasses import dataclass, field
 from types import MappingProxyType
@@ -64,8 +65,9 @@ AGENTS = MappingProxyType(
 METHODS = tuple(AGENTS)
 #: "sim": the simulator oracle (rollouts of highway-env's own driver models); "cv": constant
 #: velocity; "learned": the MDN trained on highway-env rollouts of seeds >= 100000 (the
-#: benchmark's episodes use seeds below 100000)
-PREDICTORS = ("sim", "cv", "learned")
+#: benchmark's episodes use seeds below 100000); "route": one mode per route a car can take
+#: from its lane through the road network's junctions, uniform weights (:mod:`.junction`)
+PREDICTORS = ("sim", "cv", "learned", "route")
 #: planner settings for highway driving (overridable with ``--config``): a 5 s horizon on a 0.1 s
 #: grid (51 points), sizes cut to fit the 0.5 s replan budget on a 2-core CPU, the speed limit as
 #: the desired speed, and the lateral collision semi-axis of highway-env's 2 m wide cars (2 m
@@ -91,6 +93,11 @@ SHIELD = RSSConfig(
     margin=1.0,
     lateral_overlap=2.5,
 )
+
+#: the shield at a junction (an ego with a route to a destination: ``intersection-v2``,
+#: ``roundabout-v1``): :data:`SHIELD` with RSS's lateral safe distance checked beside the
+#: longitudinal one; the crossing rule applies wherever the scene source reports conflict areas
+JUNCTION_SHIELD = dataclasses.replace(SHIELD, lateral=True)
 
 
 def highway_available() -> bool:

@@ -26,6 +26,11 @@ import numpy as np
 PLAN_COLOUR = (30, 200, 30)
 SAMPLE_COLOUR = (120, 150, 235)
 REDUCED_COLOUR = (255, 120, 0)
+#: the samples of each route (mode) of a car at a junction, by route index
+MODE_COLOURS = ((70, 110, 255), (230, 50, 190), (0, 190, 200), (250, 170, 0), (150, 80, 255),
+                (120, 120, 120))  # fmt: skip
+#: the ego's route ahead at a junction
+ROUTE_COLOUR = (250, 250, 250)
 LABEL_BACKGROUND = (0, 0, 0)
 LABEL_COLOUR = (255, 255, 255)
 
@@ -45,13 +50,17 @@ def headless_display() -> None:
 class StepDrawing:
     """What is drawn during one replan period: ``time`` (s), ``plan_xy`` (K, 2), ``samples``
     (O, n, K, 2) obstacle samples, ``reduced`` (O, m) indices into the n samples (``None``: no
-    reduced set, every sample drawn alike) and the plan's ``status``."""
+    reduced set, every sample drawn alike) and the plan's ``status``; at a junction ``modes``
+    (O, n), the route (mode) of each sample (the route predictor's), and ``route_xy`` (R, 2), the
+    ego's route ahead."""
 
     time: float
     plan_xy: np.ndarray
     samples: np.ndarray
     reduced: np.ndarray | None
     status: str
+    modes: np.ndarray | None = None
+    route_xy: np.ndarray | None = None
 
 
 @dataclass
@@ -68,6 +77,10 @@ class PlanRecorder:
         if rs is not None and samples.shape[0] > 0:
             # the planner pads the obstacles with phantoms after the real ones (receding loop)
             reduced = np.asarray(rs.indices)[: samples.shape[0]]
+        info = obs.info or {}
+        modes = info.get("modes")
+        if modes is not None and np.shape(modes) != samples.shape[:2]:
+            modes = None  # not the futures drawn for this plan
         self.steps.append(
             StepDrawing(
                 time=float(obs.time),
@@ -75,6 +88,8 @@ class PlanRecorder:
                 samples=samples,
                 reduced=reduced,
                 status=str(plan.status_text),
+                modes=None if modes is None else np.asarray(modes),
+                route_xy=info.get("route_xy"),
             )
         )
 
@@ -94,22 +109,33 @@ def overlay(
     labels: list[str],
 ) -> np.ndarray:
     """``frame`` (H, W, 3) with ``step``'s plan (wide, green), its obstacle samples (thin blue
-    lines; the reduced set's thicker, in orange) and the ``labels`` (top left) drawn on it."""
+    lines; the reduced set's thicker, in orange) and the ``labels`` (top left) drawn on it.  At a
+    junction (``step.modes``) each sample is coloured by its route (:data:`MODE_COLOURS`), the
+    reduced set's thicker in the same colour, and the ego's route (``step.route_xy``) is drawn
+    under the plan."""
     from PIL import Image, ImageDraw
 
     img = Image.fromarray(np.ascontiguousarray(frame, dtype=np.uint8))
     draw = ImageDraw.Draw(img)
     if step is not None:
         # the plan first and wide, so the samples of a car in the ego's lane show on top of it
+        if step.route_xy is not None:
+            draw.line(_pix(step.route_xy, view), fill=ROUTE_COLOUR, width=2)
         draw.line(_pix(step.plan_xy, view), fill=PLAN_COLOUR, width=5)
         O = step.samples.shape[0]
         for o in range(O):
             chosen = set() if step.reduced is None else {int(j) for j in step.reduced[o]}
+
+            def colour(j, reduced, o=o):
+                if step.modes is None:
+                    return REDUCED_COLOUR if reduced else SAMPLE_COLOUR
+                return MODE_COLOURS[int(step.modes[o, j]) % len(MODE_COLOURS)]
+
             for j in range(step.samples.shape[1]):
                 if j not in chosen:
-                    draw.line(_pix(step.samples[o, j], view), fill=SAMPLE_COLOUR, width=1)
+                    draw.line(_pix(step.samples[o, j], view), fill=colour(j, False), width=1)
             for j in sorted(chosen):
-                draw.line(_pix(step.samples[o, j], view), fill=REDUCED_COLOUR, width=2)
+                draw.line(_pix(step.samples[o, j], view), fill=colour(j, True), width=3)
     y = 4
     for text in labels:
         box = draw.textbbox((6, y), text)

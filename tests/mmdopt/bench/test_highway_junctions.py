@@ -1,0 +1,178 @@
+"""Junctions in highway-env (``intersection-v2``, ``roundabout-v1``): the ego's path along its
+route, the routes other cars can take, the route predictor, the conflict areas of the shield's
+crossing rule and the ``arrived`` record.
+
+Skipped when highway-env is not installed (``pip install -e ".[highway]"``).
+"""
+
+from __future__ import annotations
+
+import csv
+
+import numpy as np
+import pytest
+
+from mmdopt.bench import highway as hw
+from mmdopt.bench.highway import junction, roads
+
+pytestmark = pytest.mark.skipif(
+    not hw.highway_available(),
+    reason='highway-env/gymnasium not installed (pip install ".[highway]")',
+)
+
+JUNCTIONS = ("intersection-v2", "roundabout-v1")
+LIMITS = dict(v_min=0.0, v_max=20.0, vy_max=3.0, ax_max=5.0, ay_max=3.0)
+
+
+def _env(name, seed=0):
+    from mmdopt.bench.highway.settings import require_highway
+
+    gym = require_highway()
+    env = gym.make(name).unwrapped
+    env.reset(seed=seed)
+    return env
+
+
+@pytest.mark.parametrize("name", JUNCTIONS)
+def test_the_ego_path_follows_its_route_exactly_and_smoothly(name):
+    env = _env(name, seed=3)
+    net, ego = env.road.network, env.vehicle
+    route = roads.route_of(ego)
+    assert route is not None and len(route) >= 3  # the configured destination
+    model = roads.build_road(net, ego.lane_index, ego.position, limits=LIMITS, route=route)
+    path = model.path
+    # the path runs along the route, road after road
+    assert [li[:2] for li in model.chain.indices[: len(route)]] == [r[:2] for r in route]
+    # away from the joins, the route's lane centres are the path's d = 0 to well under a cm
+    lanes = [net.get_lane(li) for li in model.chain.indices[: len(route)]]
+    kinks = roads._kinks(lanes, False)
+    pts = []
+    for k, lane in enumerate(lanes):
+        lo = kinks.get(k - 1, 0.0) + roads.BLEND
+        hi = float(lane.length) - kinks.get(k, 0.0) - roads.BLEND
+        pts += [lane.position(float(u), 0.0) for u in np.linspace(lo, hi, 40)]
+    pts = np.array(pts)
+    s, d = path.to_frenet(pts[:, 0], pts[:, 1])
+    inside = (s > 1.0) & (s < path.length - 1.0)
+    assert inside.sum() > 60
+    assert np.max(np.abs(d[inside])) < 1e-3
+    # Frenet <-> Cartesian round trip along the curves
+    rng = np.random.default_rng(0)
+    ss, dd = rng.uniform(1.0, path.length - 1.0, 500), rng.uniform(-2.0, 2.0, 500)
+    x, y = path.to_cartesian(ss, dd)
+    s2, d2 = path.to_frenet(x, y)
+    assert np.max(np.abs(s2 - ss)) < 1e-6 and np.max(np.abs(d2 - dd)) < 1e-6
+    # no kink a car could not follow (the roundabout's 47° entries are joined smoothly)
+    kappa = np.abs(path.curvature(np.linspace(0.0, path.length, 5000)))
+    assert kappa.max() < 0.2
+
+
+def test_roundabout_entries_and_exits_are_kinks_the_chain_joins():
+    env = _env("roundabout-v1")
+    net, ego = env.road.network, env.vehicle
+    idx, _ = roads.chain_indices(net, ego.lane_index, 300.0, route=roads.route_of(ego))
+    kinks = roads._kinks([net.get_lane(i) for i in idx], False)
+    assert len(kinks) == 2  # onto the ring and off it
+    assert all(0 < cut <= roads.JOIN for cut in kinks.values())
+
+
+def test_an_exit_lane_ends_the_chain_instead_of_turning_back():
+    env = _env("intersection-v2")
+    net = env.road.network
+    idx, closed = roads.chain_indices(net, ("il1", "o1", 0), 500.0)
+    assert idx == [("il1", "o1", 0)] and not closed
+
+
+def test_an_entry_of_the_intersection_has_three_routes_to_three_exits():
+    env = _env("intersection-v2")
+    net = env.road.network
+    routes = junction.routes_from(net, ("o2", "ir2", 0), 150.0)
+    assert len(routes) == 3
+    exits = {r[-1][1] for r in routes}
+    assert exits == {"o0", "o1", "o3"}  # right, straight, left: never back to o2
+    with pytest.raises(ValueError, match="reach"):
+        junction.routes_from(net, ("o2", "ir2", 0), 0.0)
+
+
+def test_route_predictor_splits_its_samples_evenly_over_the_routes_along_their_centre_lines():
+    env = _env("intersection-v2", seed=3)
+    cars = [v for v in env.road.vehicles if v is not env.vehicle]
+    pred = junction.RoutePredictor()
+    t = np.linspace(0.0, 5.0, 26)
+    out = pred(env.road, env.vehicle, cars, t, 12, np.random.default_rng(1))
+    assert out.shape == (len(cars), 12, 26, 2)
+    assert np.all(np.isfinite(out))
+    for o, routes in enumerate(pred.last_routes):
+        counts = np.bincount(pred.last_modes[o], minlength=len(routes))
+        assert counts.max() - counts.min() <= 1  # uniform weights
+        # the noise-free sample of each mode lies on its route's centre line (at the car's
+        # lateral offset, which the predictor keeps)
+        car = cars[o]
+        lane = env.road.network.get_lane(car.lane_index)
+        d0 = float(lane.local_coordinates(np.asarray(car.position, float))[1])
+        for j, route in enumerate(routes):
+            ch = pred.chain(env.road.network, route)
+            xy = out[o, j]
+            dist = np.min(np.linalg.norm(xy[:, None, :] - ch.xy[None, :, :], axis=-1), axis=1)
+            assert np.max(dist) < abs(d0) + 0.35
+    again = pred(env.road, env.vehicle, cars, t, 12, np.random.default_rng(1))
+    np.testing.assert_array_equal(out, again)  # the same stream, the same futures
+    with pytest.raises(ValueError, match="weights"):
+        junction.RoutePredictor(weights="learned")
+
+
+def test_crossing_cars_get_conflict_areas_and_the_car_ahead_in_lane_none():
+    env = _env("intersection-v2", seed=3)
+    net, ego = env.road.network, env.vehicle
+    model = roads.build_road(net, ego.lane_index, ego.position, limits=LIMITS,
+                             route=roads.route_of(ego))  # fmt: skip
+    pred = junction.RoutePredictor()
+    s_ego = float(model.path.to_frenet(*ego.position)[0])
+    cars = [v for v in env.road.vehicles if v is not ego]
+    c = junction.crossings(pred, env.road, model.path, s_ego, cars, ahead=80.0)
+    assert c.shape[1] == 3 and c.shape[0] >= 1
+    # the conflict areas lie in the junction ahead of the ego (it starts ~ 35 m before it)
+    assert np.all(c[:, 0] > s_ego) and np.all(c[:, 1] > c[:, 0])
+    assert np.all(c[:, 2] >= 0)
+    # a car in the ego's own lane, ahead of it, is the longitudinal rule's
+    ahead = type(cars[0]).make_on_lane(env.road, ego.lane_index, longitudinal=90.0, speed=5.0)
+    assert junction.crossings(pred, env.road, model.path, s_ego, [ahead]).shape == (0, 3)
+
+
+def test_earliest_arrival_accelerates_to_the_top_speed():
+    t = junction.earliest_arrival(np.array([0.0, 2.0, 100.0]), 0.0, 10.0, 2.0)
+    assert t[0] == 0.0
+    assert t[1] == pytest.approx(np.sqrt(2.0))  # ½ a t² = 2 m
+    assert t[2] == pytest.approx(5.0 + (100.0 - 25.0) / 10.0)  # 25 m to reach 10 m/s
+
+
+def test_intersection_episode_arrives_and_records_it(tmp_path):
+    settings = hw.HighwaySettings(
+        env="intersection-v2",
+        duration=15.0,
+        n_samples=6,
+        max_obstacles=3,
+        predictor="route",
+    )
+    tiny = {
+        "cem": {"n_samples": 60, "n_cem": 30, "n_elite": 10, "iterations": 3, "n_brake": 5},
+        "trajectory": {"num_steps": 26},
+        "selection": {"reduced_set_size": 3},
+    }
+    rows = hw.run_highway(
+        tmp_path, episodes=1, seed=7, methods=["mmd", "idm"], settings=settings,
+        config_overrides=tiny, progress=False,
+    )  # fmt: skip
+    by = {r["method"]: r for r in rows}
+    mmd = by["mmd"]
+    assert mmd["arrived"] in (True, False)
+    if not mmd["crashed"]:
+        assert mmd["arrived"] is True  # 15 s is ample for the ~80 m to the exit
+        assert mmd["duration_s"] < 15.0  # the episode ends on arrival, as the env's does
+    with open(tmp_path / "episodes.csv") as f:
+        got = list(csv.DictReader(f))
+    assert {"arrived", "risk", "mean_risk_bound"} <= set(got[0])
+    import json
+
+    run = json.loads((tmp_path / "run.json").read_text())
+    assert run["predictor"] == "route" and run["margin_mode"] == "linear"
