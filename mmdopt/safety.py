@@ -533,12 +533,12 @@ def check_crossings(
     ``executed`` seconds and then brakes at ``b_min``: it stops at
     ``t_stop = executed + v_ex/b_min``, at ``s_stop = s_ex + v_ex²/(2 b_min)``.  A crossing
     *applies* when it is not behind the ego (``s_out > s(0)``) and the ego is not already
-    committed to it: braking from now even at ``b_emergency`` ends past ``s_in − margin``.  A
-    committed ego could only stop inside the conflict area; RSS's proper response there is to
+    committed to it: braking from now even at ``b_emergency`` ends inside the area, past
+    ``s_in`` (an ego at rest never is).  A committed ego could only stop inside the conflict area; RSS's proper response there is to
     clear it, not to brake, so the rule does not apply (and so the braking fallback of
     :func:`shield` at ``b_emergency`` passes it whenever it stops within the plan's horizon).
     For every crossing that applies, the plan either stops before it (``s_stop ≤ s_in −
-    margin``: it may yield) or clears it ahead of the other car: the plan's centre passes
+    margin``, or where the ego already is when it waits within the margin: it may yield) or clears it ahead of the other car: the plan's centre passes
     ``s_out`` at least ``response_time`` before ``t_arrive`` (it may go first).  A plan that
     would enter the area with neither is refused before the ego is committed to it, so the ego
     never stands in a conflict area a car may reach first: the rule carries by induction from
@@ -563,7 +563,8 @@ def check_crossings(
     s_stop = s_ex + v_ex**2 / (2.0 * c.b_min)
     v0 = max(float(vs[0]), 0.0)
     s_in = cr[:, 0] - c.margin
-    committed = s[0] + v0**2 / (2.0 * c.b_emergency) > s_in
+    # committed: even the hardest braking from now ends inside the area (an ego at rest never is)
+    committed = s[0] + v0**2 / (2.0 * c.b_emergency) > cr[:, 0]
     idx = np.flatnonzero((cr[:, 1] > s[0]) & ~committed)
     if idx.size == 0:
         return PlanCheck(True, math.inf, -1, 0.0, 0)
@@ -575,7 +576,9 @@ def check_crossings(
     idx = idx[~first]
     if idx.size == 0:
         return PlanCheck(True, math.inf, -1, 0.0, 0)
-    slack = s_in[idx] - s_stop
+    # stopping short of the area by the margin, or where the ego already is (waiting in the
+    # margin, having crept into it while it tracked a stop)
+    slack = np.maximum(s_in[idx], float(s[0])) - s_stop
     i = int(np.argmin(slack))
     least = float(slack[i])
     return PlanCheck(least >= 0.0, least, int(idx[i]), float(cr[idx[i], 2]), int(idx.size))

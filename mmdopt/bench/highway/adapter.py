@@ -470,7 +470,8 @@ class HighwaySource:
     def _targets(self):
         """The ``max_obstacles`` cars nearest the ego among those from ``behind`` m behind to
         ``ahead`` m ahead of it along the path (Frenet ``s``) and at most 20 m beside the
-        outermost lane centres."""
+        outermost lane centres; at a junction (an ego with a route), the nearest within
+        ``ahead`` m in any direction, cars behind it in its own lane last."""
         others = [v for v in self.env.road.vehicles if v is not self.ego]
         if not others:
             return []
@@ -480,9 +481,15 @@ class HighwaySource:
         rel = s - s_ego
         keep = (rel >= -self.settings.behind) & (rel <= self.settings.ahead)
         keep &= (d >= self.road.y_lb - 20.0) & (d <= self.road.y_ub + 20.0)
-        cands = [v for v, k in zip(others, keep, strict=True) if k]
-        cands.sort(key=lambda v: float(np.linalg.norm(v.position - self.ego.position)))
-        return cands[: self.settings.max_obstacles]
+        dist = np.linalg.norm(pos - np.asarray(self.ego.position, float), axis=1)
+        if self.route is not None:
+            # at a junction the cars that matter come from every side, not along the path: those
+            # within ``ahead`` metres, the ones behind the ego in its own lane last
+            behind = (rel < -2.0) & (np.abs(d) < 3.0)
+            keep = dist <= self.settings.ahead
+            dist = dist + np.where(behind, self.settings.ahead, 0.0)
+        order = sorted(np.flatnonzero(keep), key=lambda i: float(dist[i]))
+        return [others[i] for i in order][: self.settings.max_obstacles]
 
     def ego_state(self) -> frenet.EgoState:
         fr = self.ego.frenet_now() if hasattr(self.ego, "frenet_now") else None
@@ -736,6 +743,10 @@ class HighwaySource:
             return "unknown"
         o = min(others, key=lambda v: float(np.linalg.norm(v.position - ego.position)))
         return classify_crash((*ego.position, ego.heading), tuple(o.position))
+
+    def others_crashed(self) -> int:
+        """How many cars other than the ego have crashed (into each other or the ego)."""
+        return sum(1 for v in self.env.road.vehicles if v is not self.ego and v.crashed)
 
     def distance(self) -> float:
         """Metres driven along the path (Frenet ``s``; Δx on a straight road along +x)."""

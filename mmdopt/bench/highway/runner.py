@@ -166,6 +166,9 @@ def run_episode(
         interventions=int(interventions),
         off_road=bool(src.off_road),
         arrived=src.arrived,
+        # other cars crashed among themselves by the episode's end (a wreck in a junction
+        # blocks every route through it, the ego's included)
+        others_crashed=src.others_crashed(),
         shield=shield_reasons[:20],
         ego_model=settings.ego_model,
         max_plan_curvature=float(np.max(limits[:, 0])) if limits.size else None,
