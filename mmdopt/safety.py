@@ -531,21 +531,22 @@ def check_crossings(
     half lengths) where another car's predicted route crosses it, and the earliest time
     ``t_arrive`` (s from now) that car could reach it.  The ego follows the plan for
     ``executed`` seconds and then brakes at ``b_min``: it stops at
-    ``t_stop = executed + v_ex/b_min``, at ``s_stop = s_ex + v_ex²/(2 b_min)``.  A crossing
+    ``t_stop = executed + v_ex/b_min``, at ``s_stop = s_ex + v_ex²/(2 b_min)``. A crossing
     *applies* when it is not behind the ego (``s_out > s(0)``) and the ego is not already
     committed to it: braking from now even at ``b_emergency`` ends inside the area, past
-    ``s_in`` (an ego at rest never is).  A committed ego could only stop inside the conflict area; RSS's proper response there is to
-    clear it, not to brake, so the rule does not apply (and so the braking fallback of
-    :func:`shield` at ``b_emergency`` passes it whenever it stops within the plan's horizon).
-    For every crossing that applies, the plan either stops before it (``s_stop ≤ s_in −
-    margin``, or where the ego already is when it waits within the margin: it may yield) or clears it ahead of the other car: the plan's centre passes
-    ``s_out`` at least ``response_time`` before ``t_arrive`` (it may go first).  A plan that
+    ``s_in`` (an ego at rest never is). A committed ego could only stop inside the conflict
+    area; RSS's proper response there is to clear it, not to brake, so the rule does not apply
+    (and so the braking fallback of :func:`shield` at ``b_emergency`` passes it whenever it
+    stops within the plan's horizon). For every crossing that applies, the plan either stops
+    before it (``s_stop ≤ s_in − margin``, or where the ego already is when it waits within the
+    margin: it may yield) or clears it ahead of the other car: the plan's centre passes
+    ``s_out`` at least ``response_time`` before ``t_arrive`` (it may go first). A plan that
     would enter the area with neither is refused before the ego is committed to it, so the ego
     never stands in a conflict area a car may reach first: the rule carries by induction from
     replan to replan (a plan that goes first stays ahead of ``t_arrive``, which only comes
-    nearer by the time that has passed).  Not covered: a car arriving earlier than
-    ``t_arrive`` says (faster than its earliest arrival) and one the ego is committed to when
-    it first appears.
+    nearer by the time that has passed). Not covered: a car arriving earlier than ``t_arrive``
+    says (faster than its earliest arrival) and one the ego is committed to when it first
+    appears.
 
     ``margin``: the least ``s_in − margin − s_stop`` over the crossings that apply (m; +inf:
     none), ``obstacle``: that crossing's row, ``time``: its ``t_arrive``, ``n_checked``: the
