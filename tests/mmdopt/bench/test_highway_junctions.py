@@ -176,3 +176,60 @@ def test_intersection_episode_arrives_and_records_it(tmp_path):
 
     run = json.loads((tmp_path / "run.json").read_text())
     assert run["predictor"] == "route" and run["margin_mode"] == "linear"
+
+
+def test_the_env_spawns_and_clears_its_traffic_between_steps():
+    settings = hw.HighwaySettings(env="intersection-v2", duration=8.0, predictor="route")
+    src = hw.HighwaySource(settings, 11, hw.highway_config({}), method="idm")
+    try:
+        first = {id(v) for v in src.env.road.vehicles}
+        src.run_idm()
+        now = {id(v) for v in src.env.road.vehicles}
+        assert now - first  # intersection-v2 spawns cars at its entries, ~0.6 per second
+        assert src._spawned == int(src.env.time)  # once per second of the env's own policy
+        assert src.others_crashed() >= 0
+    finally:
+        src.close()
+
+
+def test_at_a_junction_the_planner_sees_the_nearest_cars_from_every_side():
+    settings = hw.HighwaySettings(env="roundabout-v1", duration=2.0, predictor="route")
+    src = hw.HighwaySource(settings, 3, hw.highway_config({}), method="mmd")
+    try:
+        targets = src._targets()
+        ego = np.asarray(src.ego.position, float)
+        d = sorted(
+            float(np.linalg.norm(np.asarray(v.position) - ego))
+            for v in src.env.road.vehicles
+            if v is not src.ego
+        )
+        got = sorted(float(np.linalg.norm(np.asarray(v.position) - ego)) for v in targets)
+        want = [x for x in d if x <= settings.ahead][: settings.max_obstacles]
+        assert got == pytest.approx(want)  # by distance, not by the Frenet frame of the path
+    finally:
+        src.close()
+
+
+def test_the_video_colours_each_route_and_draws_the_ego_route():
+    from mmdopt.bench.highway import video
+
+    frame = np.full((60, 60, 3), 100, np.uint8)
+    samples = np.zeros((1, 2, 3, 2))
+    samples[0, 0, :, 0] = [5.0, 10.0, 15.0]
+    samples[0, 0, :, 1] = 10.0
+    samples[0, 1, :, 0] = 10.0
+    samples[0, 1, :, 1] = [30.0, 40.0, 50.0]
+    step = video.StepDrawing(
+        time=0.0,
+        plan_xy=np.array([[50.0, 50.0], [55.0, 55.0]]),
+        samples=samples,
+        reduced=None,
+        status="ok",
+        modes=np.array([[0, 1]]),
+        route_xy=np.array([[2.0, 2.0], [2.0, 58.0]]),
+    )
+    out = video.overlay(frame, (np.zeros(2), 1.0), step, [])
+    colours = {tuple(int(c) for c in px) for px in out.reshape(-1, 3)}
+    assert video.MODE_COLOURS[0] in colours and video.MODE_COLOURS[1] in colours
+    assert video.ROUTE_COLOUR in colours
+    assert video.SAMPLE_COLOUR not in colours  # at a junction the samples are by route
