@@ -360,7 +360,7 @@ def evaluate_live(
 
         def on_frame(f, road, ego, cars, live=live, asked=asked, seed=seed):
             for p in live.values():
-                p.record(road, 0.1 if f else 0.0)  # rollout's frames: 10 Hz
+                p.record(road, 0.1)  # rollout's frames: 10 Hz (the clock's origin is moot)
             if f < 9 or (f - 9) % EVAL_STRIDE or f + K > int(round(duration * 10)):
                 return
             d = np.array([np.linalg.norm(c.position - ego.position) for c in cars])

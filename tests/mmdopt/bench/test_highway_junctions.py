@@ -15,6 +15,8 @@ import pytest
 from mmdopt.bench import highway as hw
 from mmdopt.bench.highway import junction, roads
 
+from .test_highway_scenarios import TINY
+
 pytestmark = pytest.mark.skipif(
     not hw.highway_available(),
     reason='highway-env/gymnasium not installed (pip install ".[highway]")',
@@ -146,29 +148,39 @@ def test_earliest_arrival_accelerates_to_the_top_speed():
     assert t[2] == pytest.approx(5.0 + (100.0 - 25.0) / 10.0)  # 25 m to reach 10 m/s
 
 
-def test_intersection_episode_arrives_and_records_it(tmp_path):
+def test_arrival_is_25_m_along_the_last_road_of_the_route():
+    for name in JUNCTIONS:
+        env = _env(name, seed=2)
+        ego = env.vehicle
+        route = roads.route_of(ego)
+        last = env.road.network.get_lane((route[-1][0], route[-1][1], 0))
+        assert not roads.arrived(env, ego, route)  # at the start
+        for s, want in ((min(10.0, 0.3 * last.length), False), (last.length - 1.0, True)):
+            ego.position = last.position(s, 0.0)
+            ego.heading = last.heading_at(s)
+            ego.on_state_update()
+            assert roads.arrived(env, ego, route) is want, (name, s)
+        assert not roads.arrived(env, ego, None)  # no destination, never arrived
+
+
+def test_junction_episode_ends_on_arrival_and_records_it(tmp_path):
     settings = hw.HighwaySettings(
-        env="intersection-v2",
+        env="roundabout-v1",
         duration=15.0,
         n_samples=6,
         max_obstacles=3,
         predictor="route",
     )
-    tiny = {
-        "cem": {"n_samples": 60, "n_cem": 30, "n_elite": 10, "iterations": 3, "n_brake": 5},
-        "trajectory": {"num_steps": 26},
-        "selection": {"reduced_set_size": 3},
-    }
     rows = hw.run_highway(
         tmp_path, episodes=1, seed=7, methods=["mmd", "idm"], settings=settings,
-        config_overrides=tiny, progress=False,
+        config_overrides=TINY, progress=False,
     )  # fmt: skip
-    by = {r["method"]: r for r in rows}
-    mmd = by["mmd"]
-    assert mmd["arrived"] in (True, False)
-    if not mmd["crashed"]:
-        assert mmd["arrived"] is True  # 15 s is ample for the ~80 m to the exit
-        assert mmd["duration_s"] < 15.0  # the episode ends on arrival, as the env's does
+    for r in rows:
+        assert isinstance(r["arrived"], bool)
+        if r["arrived"]:
+            assert r["duration_s"] < 15.0  # the episode ends on arrival, as the env's does
+        elif not r["crashed"]:
+            assert r["duration_s"] == pytest.approx(15.0)
     with open(tmp_path / "episodes.csv") as f:
         got = list(csv.DictReader(f))
     assert {"arrived", "risk", "mean_risk_bound"} <= set(got[0])
@@ -176,6 +188,7 @@ def test_intersection_episode_arrives_and_records_it(tmp_path):
 
     run = json.loads((tmp_path / "run.json").read_text())
     assert run["predictor"] == "route" and run["margin_mode"] == "linear"
+    assert run["risk"] is None  # no ε asked: the preset's time-linear margins
 
 
 def test_the_env_spawns_and_clears_its_traffic_between_steps():
@@ -233,3 +246,15 @@ def test_the_video_colours_each_route_and_draws_the_ego_route():
     assert video.MODE_COLOURS[0] in colours and video.MODE_COLOURS[1] in colours
     assert video.ROUTE_COLOUR in colours
     assert video.SAMPLE_COLOUR not in colours  # at a junction the samples are by route
+
+
+def test_at_an_intersection_the_route_predictor_beats_constant_velocity_on_a_rollout():
+    from mmdopt.bench.highway.predictors import ConstantVelocityPredictor
+    from mmdopt.bench.highway.training import evaluate_live
+
+    preds = {"cv": ConstantVelocityPredictor, "route": junction.RoutePredictor}
+    res = evaluate_live(preds, "intersection-v2", [0], duration=7.0)
+    assert res["route"]["n_vehicles"] == res["cv"]["n_vehicles"] > 0
+    # cars turn: a mode per route covers the turn that one straight extrapolation misses
+    assert res["route"]["min_ade"] < 0.5 * res["cv"]["min_ade"]
+    assert res["route"]["coverage"] > res["cv"]["coverage"]
