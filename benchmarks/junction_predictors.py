@@ -12,8 +12,11 @@ from __future__ import annotations
 import argparse
 import time
 
-from mmdopt.bench.highway.junction import RoutePredictor
-from mmdopt.bench.highway.predictors import ConstantVelocityPredictor, LearnedPredictor
+from mmdopt.bench.highway.predictors import (
+    ConstantVelocityPredictor,
+    LearnedPredictor,
+    RoutePredictor,
+)
 from mmdopt.bench.highway.training import evaluate_live
 
 ENVS = ("intersection-v2", "roundabout-v1")

@@ -409,16 +409,23 @@ def _executed(executed, tp: np.ndarray) -> float:
     return ex
 
 
+def _finite_rows(values, name: str, fields: str) -> np.ndarray:
+    """``values`` as a finite ``(N, len(fields))`` array (empty: ``(0, k)``), or a ValueError
+    naming it ``name`` and its columns ``fields`` (comma-separated)."""
+    k = len(fields.split(","))
+    arr = np.asarray(values, dtype=np.float64)
+    if arr.size == 0:
+        return np.zeros((0, k))
+    if arr.ndim != 2 or arr.shape[1] != k or not np.all(np.isfinite(arr)):
+        raise ValueError(
+            f"{name} must be a finite (N, {k}) array of ({fields}), got shape {arr.shape}"
+        )
+    return arr
+
+
 def _lateral_states(obstacles, name: str) -> np.ndarray:
     """``obstacles`` as a finite ``(O, 4)`` array, or a ValueError naming it ``name``."""
-    ob = np.asarray(obstacles, dtype=np.float64)
-    if ob.size == 0:
-        return np.zeros((0, 4))
-    if ob.ndim != 2 or ob.shape[1] != 4 or not np.all(np.isfinite(ob)):
-        raise ValueError(
-            f"{name} must be a finite (O, 4) array of (s, d, vs, vd), got shape {ob.shape}"
-        )
-    return ob
+    return _finite_rows(obstacles, name, "s, d, vs, vd")
 
 
 #: a car moving sideways faster than this times its speed along the ego's path (a heading more
@@ -498,14 +505,7 @@ def check_lateral(
 def _crossings(crossings) -> np.ndarray:
     """``crossings`` as a finite ``(C, 3)`` array of ``(s_in, s_out, t_arrive)`` with
     ``s_out ≥ s_in`` and ``t_arrive ≥ 0``, or a ValueError naming it."""
-    cr = np.asarray(crossings, dtype=np.float64)
-    if cr.size == 0:
-        return np.zeros((0, 3))
-    if cr.ndim != 2 or cr.shape[1] != 3 or not np.all(np.isfinite(cr)):
-        raise ValueError(
-            f"crossings must be a finite (C, 3) array of (s_in, s_out, t_arrive), got shape "
-            f"{cr.shape}"
-        )
+    cr = _finite_rows(crossings, "crossings", "s_in, s_out, t_arrive")
     if not np.all(cr[:, 1] >= cr[:, 0]):
         raise ValueError("crossings must have s_out >= s_in in every row")
     if not np.all(cr[:, 2] >= 0):
@@ -681,6 +681,48 @@ def lane_braking_plan(
     return _fallback(plan, path, b, d, vd, ad, reason, status, shield_lane_centre=float(centre))
 
 
+def _why(rule: str, chk: PlanCheck, plan: Plan, obstacles, lat, cross, c: RSSConfig) -> str:
+    """The reason :func:`shield` gives when ``plan`` fails ``rule`` with ``chk``."""
+    if rule == "longitudinal":
+        ob = np.asarray(obstacles, dtype=np.float64).reshape(-1, 3)[chk.obstacle]
+        return (
+            f"the plan closes to {chk.margin + c.contact + c.margin:.2f} m (needs "
+            f"{c.contact + c.margin:.2f} m) at t = {chk.time:.2f} s on obstacle {chk.obstacle}, "
+            f"{ob[0] - plan.s[0]:.1f} m ahead at {ob[2]:.1f} m/s, in the RSS longitudinal "
+            "worst case"
+        )
+    if rule == "lateral":
+        ob = lat[chk.obstacle]
+        return (
+            f"the plan's side gap to obstacle {chk.obstacle} ({ob[1] - plan.d[0]:+.1f} m "
+            f"lateral, {ob[0] - plan.s[0]:+.1f} m along, at {ob[3]:+.2f} m/s sideways) falls "
+            f"{-chk.margin:.2f} m short of the RSS lateral safe distance at t = {chk.time:.2f} s"
+        )
+    cr = cross[chk.obstacle]
+    return (
+        f"crossing {chk.obstacle}: a car may reach the conflict area at "
+        f"{cr[0] - plan.s[0]:.1f} m ahead by t = {chk.time:.2f} s, and braking at b_min "
+        f"after the plan stops {-chk.margin:.2f} m too late to stay "
+        f"{c.margin:.2f} m short of it"
+    )
+
+
+def _lane_targets(plan: Plan, centres: np.ndarray, c: RSSConfig) -> list[float]:
+    """The lane centres a fallback may finish a move to (:func:`lane_braking_plan`): only a
+    move under way (the ego off every lane centre or moving sideways), into one of the two
+    lanes either side of it, the one the plan was heading to first; none without
+    ``lateral_accel`` or centres."""
+    dd0, vd0 = float(plan.d[0]), float(plan.vd[0])
+    if not (c.lateral_accel > 0 and centres.size):
+        return []
+    if np.min(np.abs(centres - dd0)) <= 0.1 and abs(vd0) <= 0.1:
+        return []
+    below, above = centres[centres <= dd0], centres[centres >= dd0]
+    side = [float(below.max())] if below.size else []
+    side += [float(above.min())] if above.size else []
+    return sorted(set(side), key=lambda cen: abs(cen - float(plan.d[-1])))
+
+
 def shield(
     plan: Plan,
     path: frenet.ReferencePath,
@@ -698,12 +740,9 @@ def shield(
     path braking at ``b_gentle`` … below ``b_min``, checked as a plan is; then
     :func:`braking_plan` at ``b_min``, harder up to ``b_emergency``; the hardest when none
     passes), with a :class:`ShieldRecord` of what was done and why.  With
-    ``config.lateral_accel > 0`` and ``lane_centres`` (m), at each braking level a fallback that
-    finishes the move to the lane centre the plan was heading to, or to the nearest one
-    (:func:`lane_braking_plan`), is tried before the one that holds the offset: a plan replaced
-    mid-lane-change does not leave the ego between two lanes.  Each fallback from ``b_min`` on
-    is checked along its own profile, every car ahead that its lateral path comes near
-    included.
+    ``config.lateral_accel > 0`` and ``lane_centres`` (m), at each level a fallback that finishes
+    the move to a lane centre (:func:`_lane_targets`, :func:`lane_braking_plan`) is tried first,
+    so a plan replaced mid-lane-change does not leave the ego between two lanes.
 
     Two more rules apply when their inputs are given: ``crossings`` ``(C, 3)`` =
     ``(s_in, s_out, t_arrive)`` in ``path``'s frame, the conflict areas of crossing routes
@@ -750,29 +789,7 @@ def shield(
         least = min(chk.margin for _, chk in checks)
         return plan, ShieldRecord(False, "", least, 0.0, True, checks[0][1].n_checked)
     rule, chk = failed[0]
-    if rule == "longitudinal":
-        ob = np.asarray(obstacles, dtype=np.float64).reshape(-1, 3)[chk.obstacle]
-        why = (
-            f"the plan closes to {chk.margin + c.contact + c.margin:.2f} m (needs "
-            f"{c.contact + c.margin:.2f} m) at t = {chk.time:.2f} s on obstacle {chk.obstacle}, "
-            f"{ob[0] - plan.s[0]:.1f} m ahead at {ob[2]:.1f} m/s, in the RSS longitudinal "
-            "worst case"
-        )
-    elif rule == "lateral":
-        ob = lat[chk.obstacle]
-        why = (
-            f"the plan's side gap to obstacle {chk.obstacle} ({ob[1] - plan.d[0]:+.1f} m "
-            f"lateral, {ob[0] - plan.s[0]:+.1f} m along, at {ob[3]:+.2f} m/s sideways) falls "
-            f"{-chk.margin:.2f} m short of the RSS lateral safe distance at t = {chk.time:.2f} s"
-        )
-    else:
-        cr = cross[chk.obstacle]
-        why = (
-            f"crossing {chk.obstacle}: a car may reach the conflict area at "
-            f"{cr[0] - plan.s[0]:.1f} m ahead by t = {chk.time:.2f} s, and braking at b_min "
-            f"after the plan stops {-chk.margin:.2f} m too late to stay "
-            f"{c.margin:.2f} m short of it"
-        )
+    why = _why(rule, chk, plan, obstacles, lat, cross, c)
 
     def record(decel: float, safe: bool) -> ShieldRecord:
         return ShieldRecord(True, why, chk.margin, decel, safe, chk.n_checked, rule)
@@ -783,16 +800,7 @@ def shield(
     s0, v0 = float(plan.s[0]), max(float(plan.vs[0]), 0.0)
     d0 = np.full_like(tp, float(plan.d[0]))
     vd_hold = np.zeros_like(tp)
-    targets: list[float] = []
-    dd0, vd0 = float(plan.d[0]), float(plan.vd[0])
-    if c.lateral_accel > 0 and centres.size:
-        # only a move under way is finished: the ego off every lane centre or moving sideways;
-        # into one of the two lanes either side of it, the one the plan was heading to first
-        if np.min(np.abs(centres - dd0)) > 0.1 or abs(vd0) > 0.1:
-            below, above = centres[centres <= dd0], centres[centres >= dd0]
-            side = [float(below.max())] if below.size else []
-            side += [float(above.min())] if above.size else []
-            targets = sorted(set(side), key=lambda cen: abs(cen - float(plan.d[-1])))
+    targets = _lane_targets(plan, centres, c)
     # below b_min: the plan's lateral profile, braking gently, checked as a plan is (its first
     # ``executed`` seconds, then b_min): the gentlest that passes keeps the same guarantee
     gentle = []

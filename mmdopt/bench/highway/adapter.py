@@ -14,8 +14,8 @@ import mmdopt
 from mmdopt.receding import Observation, StepOutcome
 
 from .context import scene_context
-from .junction import RoutePredictor, crossings
-from .predictors import make_predictor
+from .junction import crossings
+from .predictors import RoutePredictor, make_predictor
 from .roads import arrived, build_road, on_road, reanchor, route_of
 from .settings import AGENTS, EGO_MODELS, METHODS, HighwaySettings, require_highway
 

@@ -17,7 +17,7 @@ from pathlib import Path
 import numpy as np
 
 from .context import scene_context
-from .roads import follow_lanes
+from .roads import LaneChain, follow_lanes, routes_from
 from .settings import CV_MEAN, PREDICTORS
 
 
@@ -837,6 +837,101 @@ class ConstantVelocityPredictor:
         return out
 
 
+#: metres of route beyond the farthest a car can go in the horizon (:class:`RoutePredictor`)
+ROUTE_SLACK = 20.0
+
+
+@dataclass
+class RoutePredictor:
+    """A multi-modal predictor that is not the simulator: one mode per route a car can take from
+    its lane (:func:`routes_from` over the horizon's reach), with the stated weights ``weights``
+    ("uniform": each route equally likely; the samples split among the modes as evenly as
+    whole samples allow, mode ``j % M`` for sample ``j``).  In each mode the car moves along
+    the route's centre line (:class:`~.roads.LaneChain`, through the junction) at its observed
+    speed along its lane with a constant acceleration drawn from N(0, ``sigma_accel``²) (the
+    first sample of each mode noise-free), clipped to ``[-accel_limit, accel_limit / 2]``, its
+    speed kept within ``[0, lane speed limit + 2 m/s]``, and keeps its lateral offset from the
+    centre line.  A car's speed is the one observed (its tracked motion, as the cv predictor's).
+    After each call ``last_modes`` (O, n) gives each sample's mode and ``last_routes`` each car's
+    routes (for videos and the shield's crossing rule)."""
+
+    sigma_accel: float = 1.5
+    accel_limit: float = 6.0
+    weights: str = "uniform"
+    name: str = "route"
+    last_time_s: float = 0.0
+    last_modes: np.ndarray | None = None
+    last_routes: list = field(default_factory=list)
+    _tracker: object = field(default=None, init=False, repr=False)
+    _chains: dict = field(default_factory=dict, init=False, repr=False)
+
+    def __post_init__(self) -> None:
+        for f in ("sigma_accel", "accel_limit"):
+            v = getattr(self, f)
+            if isinstance(v, bool) or not isinstance(v, int | float) or not (0 <= v < math.inf):
+                raise ValueError(f"{f} must be a finite number >= 0 (m/s²), got {v!r}")
+        if self.weights != "uniform":
+            raise ValueError(f"weights must be 'uniform', got {self.weights!r}")
+        self._tracker = ConstantVelocityPredictor()
+
+    def record(self, road, dt: float) -> None:
+        """Track every car's position (the observed velocities, as the cv predictor does)."""
+        self._tracker.record(road, dt)
+
+    def chain(self, network, route: tuple) -> LaneChain:
+        """The centre line of ``route`` (cached: the network does not change in an episode)."""
+        key = (id(network), route)
+        ch = self._chains.get(key)
+        if ch is None:
+            total = sum(float(network.get_lane(li).length) for li in route)
+            ch = LaneChain.follow(network, route[0], total, route=list(route))
+            self._chains[key] = ch
+        return ch
+
+    def modes(self, road, vehicle, horizon: float) -> tuple[list[tuple], float, float, float]:
+        """``(routes, s0, d0, v0)`` of ``vehicle``: its routes over the horizon's reach, its
+        lane coordinates and its observed speed along its lane."""
+        net = road.network
+        lane = net.get_lane(vehicle.lane_index)
+        s0, d0 = (float(c) for c in lane.local_coordinates(np.asarray(vehicle.position, float)))
+        h = float(lane.heading_at(max(s0, 0.0)))
+        vel = self._tracker.observed_velocity(vehicle)
+        v0 = max(float(vel[0] * math.cos(h) + vel[1] * math.sin(h)), 0.0)
+        v_top = float(lane.speed_limit or 20.0) + 2.0
+        reach = max(v0, v_top) * horizon + ROUTE_SLACK
+        return routes_from(net, vehicle.lane_index, reach, start_s=max(s0, 0.0)), s0, d0, v0
+
+    def __call__(self, road, ego_vehicle, targets, t_grid: np.ndarray, n: int, rng) -> np.ndarray:
+        t0 = time.perf_counter()
+        t = np.asarray(t_grid, dtype=float)
+        O, K = len(targets), t.shape[0]
+        out = np.zeros((O, n, K, 2))
+        modes = np.zeros((O, n), dtype=np.int64)
+        self.last_routes = []
+        for o, v in enumerate(targets):
+            routes, s0, d0, v0 = self.modes(road, v, float(t[-1]))
+            self.last_routes.append(routes)
+            m = np.arange(n) % len(routes)
+            first = np.zeros(n, bool)
+            first[: len(routes)] = True
+            a = rng.normal(size=n) * self.sigma_accel
+            a[first] = 0.0
+            a = np.clip(a, -self.accel_limit, 0.5 * self.accel_limit)
+            lane = road.network.get_lane(v.lane_index)
+            v_top = float(lane.speed_limit or 20.0) + 2.0
+            vt = np.clip(v0 + a[:, None] * t[None, :], 0.0, max(v_top, v0))  # (n, K)
+            dt = np.diff(t, prepend=t[0])
+            s = s0 + np.cumsum(0.5 * (vt + np.concatenate([vt[:, :1], vt[:, :-1]], 1)) * dt, 1)
+            for j, route in enumerate(routes):
+                sel = m == j
+                if sel.any():
+                    out[o, sel] = self.chain(road.network, route).position(s[sel], d0)
+            modes[o] = m
+        self.last_modes = modes
+        self.last_time_s = time.perf_counter() - t0
+        return out
+
+
 def make_predictor(name: str, weights: str | Path | None = None):
     """The predictor ``name`` (:data:`~.settings.PREDICTORS`): ``"sim"`` (the simulator oracle),
     ``"cv"``, ``"route"`` (one mode per route through a junction, :mod:`.junction`) or
@@ -850,8 +945,6 @@ def make_predictor(name: str, weights: str | Path | None = None):
     if name == "learned":
         return LearnedPredictor(weights=weights)
     if name == "route":
-        from .junction import RoutePredictor
-
         return RoutePredictor()
     if name == CV_MEAN:
         return ConstantVelocityPredictor(sigma_long=0.0, sigma_lat=0.0, name=CV_MEAN)

@@ -512,3 +512,46 @@ def arrived(env, vehicle, route) -> bool:
     lane = net.get_lane(vehicle.lane_index)
     s = float(lane.local_coordinates(np.asarray(vehicle.position, float))[0])
     return s >= min(ARRIVAL_DISTANCE, 0.5 * float(lane.length))
+
+
+# ------------------------------------------------------------------------------ routes of a car
+#: the most routes per car (:func:`routes_from`: the first found, depth first, straightest first)
+MAX_ROUTES = 6
+
+
+def _next_roads(network, index):
+    """The lanes that can follow lane ``index``: one per road leaving its end node (the lane of
+    that road that starts nearest its end), without the ways back (a turn of more than 90°)."""
+    _from, _to, _id = index
+    nxt = network.graph.get(_to) or {}
+    lane = network.get_lane(index)
+    end_h = lane.heading_at(lane.length)
+    out = []
+    for road in nxt:
+        cand = _route_successor(network, index, [(_from, _to, _id), (_to, road, None)])
+        if cand is None:
+            continue
+        h = network.get_lane(cand).heading_at(0.0)
+        turn = abs(math.remainder(h - end_h, 2 * math.pi))
+        if turn <= 0.5 * math.pi:
+            out.append((turn, cand))
+    return [c for _, c in sorted(out)]
+
+
+def routes_from(network, index, reach: float, *, start_s: float = 0.0) -> list[tuple]:
+    """Every route (a tuple of lane indices) from lane ``index`` of ``network`` until it covers
+    ``reach`` metres past ``start_s`` or ends, straightest first, at most :data:`MAX_ROUTES`."""
+    if not (math.isfinite(reach) and reach > 0):
+        raise ValueError(f"reach must be > 0 m, got {reach!r}")
+    out: list[tuple] = []
+    stack = [((tuple(index),), float(network.get_lane(index).length) - float(start_s))]
+    while stack and len(out) < MAX_ROUTES:
+        route, covered = stack.pop()
+        nxt = [] if covered >= reach else _next_roads(network, route[-1])
+        nxt = [c for c in nxt if c[:2] not in {r[:2] for r in route}]
+        if not nxt:
+            out.append(route)
+            continue
+        for c in reversed(nxt):  # straightest popped first
+            stack.append((route + (c,), covered + float(network.get_lane(c).length)))
+    return out

@@ -14,6 +14,7 @@ import pytest
 
 from mmdopt.bench import highway as hw
 from mmdopt.bench.highway import junction, roads
+from mmdopt.bench.highway.predictors import RoutePredictor
 
 from .test_highway_scenarios import TINY
 
@@ -88,18 +89,18 @@ def test_an_exit_lane_ends_the_chain_instead_of_turning_back():
 def test_an_entry_of_the_intersection_has_three_routes_to_three_exits():
     env = _env("intersection-v2")
     net = env.road.network
-    routes = junction.routes_from(net, ("o2", "ir2", 0), 150.0)
+    routes = roads.routes_from(net, ("o2", "ir2", 0), 150.0)
     assert len(routes) == 3
     exits = {r[-1][1] for r in routes}
     assert exits == {"o0", "o1", "o3"}  # right, straight, left: never back to o2
     with pytest.raises(ValueError, match="reach"):
-        junction.routes_from(net, ("o2", "ir2", 0), 0.0)
+        roads.routes_from(net, ("o2", "ir2", 0), 0.0)
 
 
 def test_route_predictor_splits_its_samples_evenly_over_the_routes_along_their_centre_lines():
     env = _env("intersection-v2", seed=3)
     cars = [v for v in env.road.vehicles if v is not env.vehicle]
-    pred = junction.RoutePredictor()
+    pred = RoutePredictor()
     t = np.linspace(0.0, 5.0, 26)
     out = pred(env.road, env.vehicle, cars, t, 12, np.random.default_rng(1))
     assert out.shape == (len(cars), 12, 26, 2)
@@ -120,7 +121,7 @@ def test_route_predictor_splits_its_samples_evenly_over_the_routes_along_their_c
     again = pred(env.road, env.vehicle, cars, t, 12, np.random.default_rng(1))
     np.testing.assert_array_equal(out, again)  # the same stream, the same futures
     with pytest.raises(ValueError, match="weights"):
-        junction.RoutePredictor(weights="learned")
+        RoutePredictor(weights="learned")
 
 
 def test_crossing_cars_get_conflict_areas_and_the_car_ahead_in_lane_none():
@@ -128,7 +129,7 @@ def test_crossing_cars_get_conflict_areas_and_the_car_ahead_in_lane_none():
     net, ego = env.road.network, env.vehicle
     model = roads.build_road(net, ego.lane_index, ego.position, limits=LIMITS,
                              route=roads.route_of(ego))  # fmt: skip
-    pred = junction.RoutePredictor()
+    pred = RoutePredictor()
     s_ego = float(model.path.to_frenet(*ego.position)[0])
     cars = [v for v in env.road.vehicles if v is not ego]
     c = junction.crossings(pred, env.road, model.path, s_ego, cars, ahead=80.0)
@@ -252,7 +253,7 @@ def test_at_an_intersection_the_route_predictor_beats_constant_velocity_on_a_rol
     from mmdopt.bench.highway.predictors import ConstantVelocityPredictor
     from mmdopt.bench.highway.training import evaluate_live
 
-    preds = {"cv": ConstantVelocityPredictor, "route": junction.RoutePredictor}
+    preds = {"cv": ConstantVelocityPredictor, "route": RoutePredictor}
     res = evaluate_live(preds, "intersection-v2", [0], duration=7.0)
     assert res["route"]["n_vehicles"] == res["cv"]["n_vehicles"] > 0
     # cars turn: a mode per route covers the turn that one straight extrapolation misses
