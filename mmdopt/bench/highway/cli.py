@@ -15,6 +15,7 @@ from .settings import (
     HighwaySettings,
     check_env,
     check_env_config,
+    default_predictor,
     highway_available,
     highway_config,
 )
@@ -50,11 +51,11 @@ def add_highway_parser(bench_subparsers):
     h.add_argument(
         "--predictor",
         choices=PREDICTORS,
-        default="learned",
+        default=None,
         help="sim: the simulator oracle (rollouts of highway-env's own driver models); cv: "
         "constant velocity; learned: the MDN trained on highway-env rollouts of seeds >= 100000; "
         "route: one mode per route a car can take from its lane through a junction, uniform "
-        "weights (default learned)",
+        "weights (default: route at a junction, intersection-* and roundabout-*; else learned)",
     )
     h.add_argument(
         "--config",
@@ -199,7 +200,7 @@ def cmd_highway(args, parser=None) -> int:
             ego_model=getattr(args, "ego_model", "bicycle"),
             shield=not getattr(args, "no_shield", False),
             forecast=not getattr(args, "no_forecast", False),
-            predictor=args.predictor,
+            predictor=args.predictor or default_predictor(args.env),
         )
     except ValueError as e:
         return _fail(parser, str(e))

@@ -68,6 +68,18 @@ METHODS = tuple(AGENTS)
 #: benchmark's episodes use seeds below 100000); "route": one mode per route a car can take
 #: from its lane through the road network's junctions, uniform weights (:mod:`.junction`)
 PREDICTORS = ("sim", "cv", "learned", "route")
+#: highway-env ids whose ego drives a route through a junction (its configured destination)
+JUNCTION_PREFIXES = ("intersection-", "roundabout-")
+
+
+def default_predictor(env: str) -> str:
+    """The predictor ``bench highway`` uses when ``--predictor`` is not given: ``"route"`` at a
+    junction (:data:`JUNCTION_PREFIXES`; on held-out junction rollouts it has the smallest
+    minADE/minFDE and the largest coverage of cv, route and learned, the learned MDN having been
+    trained on straight roads and the merge), else ``"learned"``."""
+    return "route" if str(env).startswith(JUNCTION_PREFIXES) else "learned"
+
+
 #: planner settings for highway driving (overridable with ``--config``): a 5 s horizon on a 0.1 s
 #: grid (51 points), sizes cut to fit the 0.5 s replan budget on a 2-core CPU, the speed limit as
 #: the desired speed, and the lateral collision semi-axis of highway-env's 2 m wide cars (2 m

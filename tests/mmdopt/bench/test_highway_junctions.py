@@ -259,3 +259,11 @@ def test_at_an_intersection_the_route_predictor_beats_constant_velocity_on_a_rol
     # cars turn: a mode per route covers the turn that one straight extrapolation misses
     assert res["route"]["min_ade"] < 0.5 * res["cv"]["min_ade"]
     assert res["route"]["coverage"] > res["cv"]["coverage"]
+
+
+def test_bench_highway_predicts_routes_at_a_junction_by_default():
+    from mmdopt.bench.highway.settings import default_predictor
+
+    assert default_predictor("intersection-v2") == "route"
+    assert default_predictor("roundabout-v1") == "route"
+    assert default_predictor("highway-v0") == "learned"  # the learned MDN's roads
