@@ -158,7 +158,10 @@ def test_short_racetrack_episode_stays_on_the_road_and_its_video_shows_the_plan(
     assert row["distance_m"] == pytest.approx(row["mean_speed"] * 2.0, rel=0.2)
     with open(tmp_path / "run" / "episodes.csv") as f:
         header = next(csv.reader(f))
-    assert header[-3:] == ["off_road", "risk", "mean_risk_bound"]
+    # columns are only ever appended: the racetrack has no destination, its `arrived` is empty
+    assert header[-4:] == ["off_road", "risk", "mean_risk_bound", "arrived"]
+    with open(tmp_path / "run" / "episodes.csv") as f:
+        assert next(csv.DictReader(f))["arrived"] == ""
     # the video: 2 s at 10 Hz, the plan and the samples drawn over highway-env's frames
     path = hw.write_video(tmp_path / "v.mp4", 0, 1, "mmd", RACETRACK, hw.highway_config(TINY))
     frames = [np.asarray(f)[..., :3].astype(int) for f in imageio.mimread(path)]
