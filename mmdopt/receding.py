@@ -46,7 +46,7 @@ from . import methods as registry
 from .algorithm import PLANNER_PROJECTOR, MMDOptConfig
 from .padding import pad_obstacles
 from .planner import PLANNERS, apply_risk, draw_forecast
-from .plans import Plan, Road
+from .plans import Plan, PlanStatus, Road
 from .predict.base import Forecast
 from .safety import RSSConfig, obstacle_states_from_cartesian, obstacle_states_from_samples
 from .safety import shield as rss_shield
@@ -341,7 +341,8 @@ def _shielded(p: Plan, obs: Observation, rc: RecedingConfig, t_grid: np.ndarray)
     """``rc.shield`` applied to ``p``: the obstacles' current Frenet states from
     ``obs.obstacle_states`` when given, else from the prediction samples; the crossing rule on
     ``obs.crossings`` when given; with ``rc.shield.lateral`` and ``obs.obstacle_states``, the
-    lateral rule on those cars' lateral states too."""
+    lateral rule on those cars' lateral states too.  A plan of status ``unsafe`` is replaced by
+    the shield's checked braking even when it passes the rules."""
     path = obs.road.path
     lateral_states = None
     if obs.obstacle_states is not None:
@@ -350,6 +351,10 @@ def _shielded(p: Plan, obs: Observation, rc: RecedingConfig, t_grid: np.ndarray)
             lateral_states = obstacle_states_from_cartesian(path, obs.obstacle_states, lateral=True)
     else:
         states = obstacle_states_from_samples(path, obs.obstacles, t_grid)
+    # a plan its planner reports unsafe (it meets every future of some car) is not run on the
+    # strength of the rules alone: the shield brakes, along its checked fallbacks
+    unsafe = p.status == PlanStatus.UNSAFE
+    replace = f"the planner reports the plan unsafe ({p.message})" if unsafe else ""
     return rss_shield(
         p,
         path,
@@ -359,6 +364,7 @@ def _shielded(p: Plan, obs: Observation, rc: RecedingConfig, t_grid: np.ndarray)
         lane_centres=obs.road.lane_centres,
         crossings=obs.crossings,
         lateral_states=lateral_states,
+        replace=replace,
     )
 
 

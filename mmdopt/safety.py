@@ -733,6 +733,7 @@ def shield(
     lane_centres=(),
     crossings=None,
     lateral_states=None,
+    replace: str = "",
 ) -> tuple[Plan, ShieldRecord]:
     """Check ``plan`` with :func:`check_plan` (``executed`` seconds of it run before the next
     check) against ``obstacles`` ``(O, 3)`` = current ``(s, d, ṡ)`` in ``path``'s frame; return
@@ -754,7 +755,9 @@ def shield(
     Each fallback must then pass the same rules along its own profile (``executed`` seconds of
     it for the gentle levels, its whole horizon from ``b_min`` on; a fallback that holds the
     offset has ``ḋ = 0``).  Without ``crossings`` and ``lateral_states`` the shield is the
-    longitudinal one alone."""
+    longitudinal one alone.  ``replace`` (a reason): replace the plan even when it passes, by the
+    checked braking fallbacks from ``b_min`` on (rule ``"unsafe"``: the receding loop passes the
+    planner's own report that the plan meets every future of some car)."""
     c = RSSConfig() if config is None else config
     if not isinstance(c, RSSConfig):
         raise ValueError(f"config must be an RSSConfig, got {type(c).__name__}")
@@ -783,13 +786,18 @@ def shield(
     def passes(t, s, d, vs, vd, ex: float) -> bool:
         return all(chk.safe for _, chk in rules(t, s, d, vs, vd, ex))
 
+    if not isinstance(replace, str):
+        raise ValueError(f"replace must be a reason (str), got {type(replace).__name__}")
     checks = rules(plan.t, plan.s, plan.d, plan.vs, plan.vd, executed)
     failed = [(name, chk) for name, chk in checks if not chk.safe]
-    if not failed:
+    if not failed and not replace:
         least = min(chk.margin for _, chk in checks)
         return plan, ShieldRecord(False, "", least, 0.0, True, checks[0][1].n_checked)
-    rule, chk = failed[0]
-    why = _why(rule, chk, plan, obstacles, lat, cross, c)
+    if failed:
+        rule, chk = failed[0]
+        why = _why(rule, chk, plan, obstacles, lat, cross, c)
+    else:  # the plan passes the rules, but its planner says it meets every future of a car
+        rule, chk, why = "unsafe", PlanCheck(False, math.nan, -1, 0.0, 0), replace
 
     def record(decel: float, safe: bool) -> ShieldRecord:
         return ShieldRecord(True, why, chk.margin, decel, safe, chk.n_checked, rule)
@@ -804,7 +812,7 @@ def shield(
     # below b_min: the plan's lateral profile, braking gently, checked as a plan is (its first
     # ``executed`` seconds, then b_min): the gentlest that passes keeps the same guarantee
     gentle = []
-    if c.b_gentle < c.b_min:
+    if c.b_gentle < c.b_min and rule != "unsafe":
         gentle = np.linspace(c.b_gentle, c.b_min, GENTLE_LEVELS + 1)[:-1]
     d_plan = np.asarray(plan.d, np.float64)
     vd_plan = np.asarray(plan.vd, np.float64)

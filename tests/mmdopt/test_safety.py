@@ -531,3 +531,36 @@ def test_the_ego_may_go_first_only_if_it_clears_the_area_ahead_of_the_car():
     assert fb.status == PlanStatus.SHIELDED
     # it slows so that braking after the next replan period stops short of the area
     assert check_crossings(fb.t, fb.s, fb.vs, far, c, executed=0.5).safe
+
+
+def test_a_plan_its_planner_reports_unsafe_is_braked_even_when_the_rules_pass():
+    c = RSSConfig()
+    p = _plan(20.0)
+    kept, rec = shield(p, PATH, np.zeros((0, 3)), c, executed=0.5)
+    assert kept is p and not rec.intervened  # an empty road: every rule passes
+    why = "the planner reports the plan unsafe (it meets every future of obstacle 0)"
+    fb, rec = shield(p, PATH, np.zeros((0, 3)), c, executed=0.5, replace=why)
+    assert rec.intervened and rec.rule == "unsafe" and rec.reason == why
+    assert fb.status == PlanStatus.SHIELDED
+    assert rec.fallback_decel == c.b_min  # no gentle braking along the unsafe plan's path
+    assert np.all(np.diff(fb.vs) <= 1e-12) and fb.vs[-1] == 0.0
+    with pytest.raises(ValueError, match="replace"):
+        shield(p, PATH, np.zeros((0, 3)), c, executed=0.5, replace=True)
+
+
+def test_the_receding_loop_brakes_on_a_plan_reported_unsafe():
+    from mmdopt import Road
+    from mmdopt.receding import _shielded
+
+    road = Road(path=PATH, y_lb=-0.3, y_ub=3.8, v_max=30.0)
+    obs = Observation(
+        ego=frenet.EgoState(s=100.0, d=0.0, vs=20.0), road=road,
+        obstacles=np.zeros((0, 2, len(T), 2)),
+    )  # fmt: skip
+    rc = RecedingConfig(dt=0.5, shield=RSSConfig())
+    unsafe = dataclasses.replace(_plan(20.0), status=PlanStatus.UNSAFE, message="meets obstacle 0")
+    out, rec = _shielded(unsafe, obs, rc, T)
+    assert rec.intervened and rec.rule == "unsafe" and "meets obstacle 0" in rec.reason
+    assert out.status == PlanStatus.SHIELDED
+    _, rec = _shielded(_plan(20.0), obs, rc, T)
+    assert not rec.intervened  # the same plan reported ok runs
