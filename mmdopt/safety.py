@@ -723,6 +723,28 @@ def _lane_targets(plan: Plan, centres: np.ndarray, c: RSSConfig) -> list[float]:
     return sorted(set(side), key=lambda cen: abs(cen - float(plan.d[-1])))
 
 
+def _shield_inputs(plan, config, lane_centres, crossings, lateral_states, replace):
+    """:func:`shield`'s inputs checked (a ValueError naming the bad one): ``(config, lane
+    centres, crossings or None, lateral states or None)``; the lateral states are dropped
+    without ``RSSConfig.lateral``, the only setting under which the lateral rule is checked."""
+    c = RSSConfig() if config is None else config
+    if not isinstance(c, RSSConfig):
+        raise ValueError(f"config must be an RSSConfig, got {type(c).__name__}")
+    if not isinstance(plan, Plan):
+        raise ValueError(f"plan must be an mmdopt.Plan, got {type(plan).__name__}")
+    try:
+        centres = np.asarray(tuple(lane_centres), dtype=np.float64).reshape(-1)
+    except (TypeError, ValueError):
+        centres = np.array([np.nan])
+    if not np.all(np.isfinite(centres)):
+        raise ValueError(f"lane_centres must be finite lateral offsets (m), got {lane_centres!r}")
+    if not isinstance(replace, str):
+        raise ValueError(f"replace must be a reason (str), got {type(replace).__name__}")
+    cross = None if crossings is None else _crossings(crossings)
+    lat = None if lateral_states is None else _lateral_states(lateral_states, "lateral_states")
+    return c, centres, cross, (lat if c.lateral else None)
+
+
 def shield(
     plan: Plan,
     path: frenet.ReferencePath,
@@ -758,21 +780,9 @@ def shield(
     longitudinal one alone.  ``replace`` (a reason): replace the plan even when it passes, by the
     checked braking fallbacks from ``b_min`` on (rule ``"unsafe"``: the receding loop passes the
     planner's own report that the plan meets every future of some car)."""
-    c = RSSConfig() if config is None else config
-    if not isinstance(c, RSSConfig):
-        raise ValueError(f"config must be an RSSConfig, got {type(c).__name__}")
-    if not isinstance(plan, Plan):
-        raise ValueError(f"plan must be an mmdopt.Plan, got {type(plan).__name__}")
-    try:
-        centres = np.asarray(tuple(lane_centres), dtype=np.float64).reshape(-1)
-    except (TypeError, ValueError):
-        centres = np.array([np.nan])
-    if not np.all(np.isfinite(centres)):
-        raise ValueError(f"lane_centres must be finite lateral offsets (m), got {lane_centres!r}")
-    cross = None if crossings is None else _crossings(crossings)
-    lat = None if lateral_states is None else _lateral_states(lateral_states, "lateral_states")
-    if lat is not None and not c.lateral:
-        lat = None  # the lateral rule is checked only with RSSConfig.lateral
+    c, centres, cross, lat = _shield_inputs(
+        plan, config, lane_centres, crossings, lateral_states, replace
+    )
 
     def rules(t, s, d, vs, vd, ex: float) -> list[tuple[str, PlanCheck]]:
         """The rules that apply, checked on one profile, in the order they are reported."""
@@ -786,8 +796,6 @@ def shield(
     def passes(t, s, d, vs, vd, ex: float) -> bool:
         return all(chk.safe for _, chk in rules(t, s, d, vs, vd, ex))
 
-    if not isinstance(replace, str):
-        raise ValueError(f"replace must be a reason (str), got {type(replace).__name__}")
     checks = rules(plan.t, plan.s, plan.d, plan.vs, plan.vd, executed)
     failed = [(name, chk) for name, chk in checks if not chk.safe]
     if not failed and not replace:
