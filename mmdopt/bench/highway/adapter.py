@@ -669,7 +669,7 @@ class HighwaySource:
             env.road.act()
             env.road.step(1.0 / self.settings.simulation_frequency)
             self.predictor.record(env.road, 1.0 / self.settings.simulation_frequency)
-            if self._routes is not self.predictor:
+            if self.route is not None and self._routes is not self.predictor:
                 self._routes.record(env.road, 1.0 / self.settings.simulation_frequency)
             if self.own_predictor is not None:
                 self.own_predictor.record(env.road, 1.0 / self.settings.simulation_frequency)

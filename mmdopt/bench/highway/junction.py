@@ -80,8 +80,7 @@ def crossings(
         pos = np.asarray(v.position, float)[None, :]
         if _closest(ego_xy, pos)[0][0] < CROSS_DISTANCE:
             continue
-        routes, s0, d0, v0 = predictor.modes(road, v, horizon)
-        v_top = float(road.network.get_lane(v.lane_index).speed_limit or 20.0) + 2.0
+        routes, s0, _, v0, v_top = predictor.modes(road, v, horizon)
         for route in routes:
             ch = predictor.chain(road.network, route)
             keep = (ch.s >= s0) & (ch.s <= s0 + max(v0, v_top) * horizon + ROUTE_SLACK)

@@ -727,6 +727,15 @@ def stop_at_next_centre(y0, vy, y, road) -> np.ndarray:
     return np.clip(y, lo, hi)
 
 
+def _check_nonnegative(obj, names, unit: str) -> None:
+    """A ``ValueError`` naming the first of the fields ``names`` of ``obj`` that is not a finite
+    number >= 0 (in ``unit``)."""
+    for f in names:
+        v = getattr(obj, f)
+        if isinstance(v, bool) or not isinstance(v, int | float) or not (0 <= v < math.inf):
+            raise ValueError(f"{f} must be a finite number >= 0 ({unit}), got {v!r}")
+
+
 @dataclass
 class ConstantVelocityPredictor:
     """Each car keeps its current velocity; sample ``j > 0`` adds Gaussian velocity noise
@@ -765,10 +774,7 @@ class ConstantVelocityPredictor:
     _tracks: dict = field(default_factory=dict, init=False, repr=False)
 
     def __post_init__(self) -> None:
-        for f in ("sigma_long", "sigma_lat"):
-            v = getattr(self, f)
-            if isinstance(v, bool) or not isinstance(v, int | float) or not (0 <= v < math.inf):
-                raise ValueError(f"{f} must be a finite number >= 0 (m/s), got {v!r}")
+        _check_nonnegative(self, ("sigma_long", "sigma_lat"), "m/s")
         if not isinstance(self.lane_stop, bool):
             raise ValueError(f"lane_stop must be True or False, got {self.lane_stop!r}")
 
@@ -866,10 +872,7 @@ class RoutePredictor:
     _chains: dict = field(default_factory=dict, init=False, repr=False)
 
     def __post_init__(self) -> None:
-        for f in ("sigma_accel", "accel_limit"):
-            v = getattr(self, f)
-            if isinstance(v, bool) or not isinstance(v, int | float) or not (0 <= v < math.inf):
-                raise ValueError(f"{f} must be a finite number >= 0 (m/s²), got {v!r}")
+        _check_nonnegative(self, ("sigma_accel", "accel_limit"), "m/s²")
         if self.weights != "uniform":
             raise ValueError(f"weights must be 'uniform', got {self.weights!r}")
         self._tracker = ConstantVelocityPredictor()
@@ -888,9 +891,12 @@ class RoutePredictor:
             self._chains[key] = ch
         return ch
 
-    def modes(self, road, vehicle, horizon: float) -> tuple[list[tuple], float, float, float]:
-        """``(routes, s0, d0, v0)`` of ``vehicle``: its routes over the horizon's reach, its
-        lane coordinates and its observed speed along its lane."""
+    def modes(
+        self, road, vehicle, horizon: float
+    ) -> tuple[list[tuple], float, float, float, float]:
+        """``(routes, s0, d0, v0, v_top)`` of ``vehicle``: its routes over the horizon's reach,
+        its lane coordinates, its observed speed along its lane and the top speed it may reach
+        (the lane's speed limit + 2 m/s)."""
         net = road.network
         lane = net.get_lane(vehicle.lane_index)
         s0, d0 = (float(c) for c in lane.local_coordinates(np.asarray(vehicle.position, float)))
@@ -899,7 +905,8 @@ class RoutePredictor:
         v0 = max(float(vel[0] * math.cos(h) + vel[1] * math.sin(h)), 0.0)
         v_top = float(lane.speed_limit or 20.0) + 2.0
         reach = max(v0, v_top) * horizon + ROUTE_SLACK
-        return routes_from(net, vehicle.lane_index, reach, start_s=max(s0, 0.0)), s0, d0, v0
+        routes = routes_from(net, vehicle.lane_index, reach, start_s=max(s0, 0.0))
+        return routes, s0, d0, v0, v_top
 
     def __call__(self, road, ego_vehicle, targets, t_grid: np.ndarray, n: int, rng) -> np.ndarray:
         t0 = time.perf_counter()
@@ -909,7 +916,7 @@ class RoutePredictor:
         modes = np.zeros((O, n), dtype=np.int64)
         self.last_routes = []
         for o, v in enumerate(targets):
-            routes, s0, d0, v0 = self.modes(road, v, float(t[-1]))
+            routes, s0, d0, v0, v_top = self.modes(road, v, float(t[-1]))
             self.last_routes.append(routes)
             m = np.arange(n) % len(routes)
             first = np.zeros(n, bool)
@@ -917,8 +924,6 @@ class RoutePredictor:
             a = rng.normal(size=n) * self.sigma_accel
             a[first] = 0.0
             a = np.clip(a, -self.accel_limit, 0.5 * self.accel_limit)
-            lane = road.network.get_lane(v.lane_index)
-            v_top = float(lane.speed_limit or 20.0) + 2.0
             vt = np.clip(v0 + a[:, None] * t[None, :], 0.0, max(v_top, v0))  # (n, K)
             dt = np.diff(t, prepend=t[0])
             s = s0 + np.cumsum(0.5 * (vt + np.concatenate([vt[:, :1], vt[:, :-1]], 1)) * dt, 1)

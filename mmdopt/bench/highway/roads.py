@@ -67,14 +67,19 @@ def _route_successor(network, index, route):
     _from, _to = roads[k + 1]
     if _from != index[1] or _to not in network.graph.get(_from, {}):
         return None
+    return _joining_lane(network, index, _to, route[k + 1][2])
+
+
+def _joining_lane(network, index, to, want=None):
+    """The lane of the road ``index[1] → to`` that continues lane ``index``: lane ``want`` when
+    that road has it, else the one whose start lies nearest the end of ``index``."""
     end = network.get_lane(index).position(network.get_lane(index).length, 0.0)
-    lanes = network.graph[_from][_to]
+    lanes = network.graph[index[1]][to]
     ids = range(len(lanes))
-    want = route[k + 1][2]
     if want is not None and 0 <= int(want) < len(lanes):
         ids = [int(want)]
     best = min(ids, key=lambda i: float(np.linalg.norm(lanes[i].position(0.0, 0.0) - end)))
-    return (_from, _to, int(best))
+    return (index[1], to, int(best))
 
 
 def check_route(network, route) -> list:
@@ -522,15 +527,12 @@ MAX_ROUTES = 6
 def _next_roads(network, index):
     """The lanes that can follow lane ``index``: one per road leaving its end node (the lane of
     that road that starts nearest its end), without the ways back (a turn of more than 90°)."""
-    _from, _to, _id = index
-    nxt = network.graph.get(_to) or {}
+    nxt = network.graph.get(index[1]) or {}
     lane = network.get_lane(index)
     end_h = lane.heading_at(lane.length)
     out = []
     for road in nxt:
-        cand = _route_successor(network, index, [(_from, _to, _id), (_to, road, None)])
-        if cand is None:
-            continue
+        cand = _joining_lane(network, index, road)
         h = network.get_lane(cand).heading_at(0.0)
         turn = abs(math.remainder(h - end_h, 2 * math.pi))
         if turn <= 0.5 * math.pi:
