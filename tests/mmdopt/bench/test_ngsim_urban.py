@@ -1,0 +1,61 @@
+"""The real-traffic benchmark on the shared Lankershim Boulevard scenes (urban, signalised
+intersections): tasks are found without any check on the scene name, and the ego's reference path
+follows its recorded route through the junction with an exact Frenet <-> Cartesian map (skipped
+with a reason where ../shared/data is absent)."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+pytest.importorskip(
+    "commonroad", reason="the ngsim benchmark needs commonroad-io (mmdopt[commonroad])"
+)
+
+FILE = "USA_Lanker-2_1_T-1.xml"
+pytestmark = pytest.mark.filterwarnings("ignore::DeprecationWarning")
+
+
+@pytest.fixture(scope="module")
+def urban_file(shared_data):
+    f = shared_data / "ngsim_urban" / FILE
+    if not f.is_file():
+        pytest.skip(f"Lankershim scenes not found in {f.parent}")
+    return str(f)
+
+
+@pytest.fixture(scope="module")
+def tasks(urban_file):
+    from mmdopt.bench.ngsim.runner import select_tasks
+
+    return select_tasks([urban_file])
+
+
+def test_urban_scene_gives_tasks(urban_file, tasks):
+    from mmdopt.bench.ngsim.scene import load_scenario
+
+    sc = load_scenario(urban_file)
+    assert sc.dt == pytest.approx(0.1)
+    assert len(tasks) >= 1
+    assert {t["scenario"] for t in tasks} == {urban_file}
+    # every ego is a recorded car of the scene, planned at a time its history is recorded
+    assert all(t["ego_id"] in set(sc.ids.tolist()) for t in tasks)
+
+
+def test_route_path_follows_the_recorded_ego_exactly(urban_file, tasks):
+    """Along each task's reference path, the recorded ego's next 5 s map to Frenet and back to
+    within a millimetre, and stay within half a lane of the path (the path is its route)."""
+    from mmdopt.bench.ngsim.scene import ego_road_geometry, load_scenario
+
+    sc = load_scenario(urban_file)
+    for t in tasks[:3]:
+        v = int(np.flatnonzero(sc.ids == t["ego_id"])[0])
+        path, _, _ = ego_road_geometry(sc, v, t["k"])
+        xy = sc.xy[v, t["k"] : t["k"] + 51]
+        xy = xy[np.all(np.isfinite(xy), -1)]
+        s, d = (np.asarray(a) for a in path.to_frenet(xy[:, 0], xy[:, 1]))
+        x2, y2 = (np.asarray(a) for a in path.to_cartesian(s, d))
+        assert np.max(np.hypot(x2 - xy[:, 0], y2 - xy[:, 1])) < 1e-3
+        lane_w = sc.lanes[int(sc.lane_of[v, t["k"]])].width
+        assert np.max(np.abs(d)) < 0.5 * lane_w
+        assert np.all(np.diff(s) > -1e-6)  # it drives forwards along the path
