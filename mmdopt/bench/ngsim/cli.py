@@ -48,9 +48,17 @@ def default_data_dir() -> Path:
     return Path(root) / "ngsim_us101" if root else Path("../shared/data/ngsim_us101")
 
 
+def _ngsim_methods() -> tuple[str, ...]:
+    """The planning methods of :mod:`mmdopt.methods` and the bench's peers (at parse time)."""
+    import mmdopt.methods
+
+    from .reactive import PEERS
+
+    return (*mmdopt.methods.names(), *PEERS)
+
+
 def add_ngsim_parser(bench_subparsers) -> argparse.ArgumentParser:
     """``bench ngsim``: MMD-Opt in recorded US-101 traffic (CommonRoad scenes)."""
-    import mmdopt.methods
     from mmdopt.predict import PREDICTORS
 
     q = bench_subparsers.add_parser(
@@ -67,9 +75,10 @@ def add_ngsim_parser(bench_subparsers) -> argparse.ArgumentParser:
     q.add_argument("--out", required=True, help="output folder (resumable)")
     q.add_argument(
         "--methods",
-        type=method_list(mmdopt.methods.names),
+        type=method_list(_ngsim_methods),
         default=["mmd", "degroot"],
-        help="comma-separated planning methods (default: mmd,degroot)",
+        help="comma-separated planning methods, and 'reactive' (CommonRoad's reactive "
+        "planner, a peer) (default: mmd,degroot)",
     )
     q.add_argument("--predictor", choices=PREDICTORS, default="learned")
     q.add_argument(

@@ -52,6 +52,8 @@ from .metric import (
     rect_distance,
     rects_overlap,
 )
+from .reactive import PEERS, REACTIVE_FUTURES, PeerPlan, plan_reactive
+from .reactive import available as available_peer
 from .scene import (
     NgsimScene,
     context_at,
@@ -433,6 +435,21 @@ def plan_inputs(task: dict, params: NgsimParams, config, predictor: Any = "learn
     )
 
 
+def _peer_plan(task: dict, inp: PlanInputs) -> PeerPlan:
+    """The reactive planner's plan of one task (:func:`.reactive.plan_reactive`), against the
+    first :data:`~.reactive.REACTIVE_FUTURES` of the planning samples of each real obstacle."""
+    b = inp.task
+    sc, v, k, obs = b["scene"], b["v"], b["k"], b["obs"]
+    futures = np.asarray(inp.planned, np.float64)[: len(obs), :REACTIVE_FUTURES]
+    return plan_reactive(
+        task["scenario"], b["road"], b["ego"],
+        (sc.xy[v, k, 0], sc.xy[v, k, 1], sc.heading[v, k], sc.speed[v, k]),
+        (sc.length[v], sc.width[v]), b["times"], futures,
+        np.stack([sc.length[obs], sc.width[obs]], -1), sc.heading[obs, k],
+        float(inp.config.cost.v_des),
+    )  # fmt: skip
+
+
 def run_task(
     task: dict,
     methods,
@@ -458,10 +475,13 @@ def run_task(
     val = inp.predictor.sample(b["hist"], b["ctx"], params.n_validation, inp.key_validation)
     rows = []
     for m in methods:
-        plan = mmdopt.plan(
-            b["ego"], b["road"], inp.obstacles, method=m, config=cfg, projector=backend,
-            key=k_plan, risk=risk,
-        )  # fmt: skip
+        if m in PEERS:
+            plan = _peer_plan(task, inp)
+        else:
+            plan = mmdopt.plan(
+                b["ego"], b["road"], inp.obstacles, method=m, config=cfg, projector=backend,
+                key=k_plan, risk=risk,
+            )  # fmt: skip
         score = _score_recorded(b, plan, params)
         # the paper's metric (§IV-A): validation draws clear of every obstacle
         cf = int(
@@ -701,7 +721,10 @@ def run_ngsim(
     if not methods:
         raise ValueError("methods is empty")
     for m in methods:
-        mmdopt.methods.get(m)
+        if m not in PEERS:
+            mmdopt.methods.get(m)
+        elif available_peer() is not None:
+            raise ValueError(f"method {m!r}: {available_peer()}")
     if predictor not in PREDICTORS:
         raise ValueError(f"predictor must be one of {PREDICTORS}, got {predictor!r}")
     # every scenario file is read (and checked) before anything is written into ``out``
