@@ -17,6 +17,7 @@ from functools import lru_cache
 from pathlib import Path
 
 import numpy as np
+from scipy.ndimage import gaussian_filter1d
 
 import frenet
 from mmdopt.predict.base import GAP_NONE, PredictionContext, cartesian_to_lane, neighbour_gaps
@@ -25,6 +26,10 @@ from .inputs import ScenarioError, check_scenario_file
 
 __all__ = [
     "CHAIN_SPACING",
+    "ROUTE_SMOOTHING",
+    "MAX_ROUTES",
+    "route_chain",
+    "smooth_polyline",
     "Lane",
     "NgsimScene",
     "load_scenario",
@@ -212,17 +217,24 @@ def load_scenario(path: str | Path) -> NgsimScene:
 
 
 def _pick_lane(lanes: dict[int, Lane], p, heading, candidates) -> int:
-    """Of the lanelets containing ``p``, the one whose centre line is nearest."""
+    """Of the lanelets containing ``p``, the one whose centre line is nearest, among those
+    running within 45° of ``heading`` where any does (a junction's lanelets overlap: the cross
+    street's lanelet under a car is not its lane)."""
     if not candidates:
         return -1
     if len(candidates) == 1:
         return int(candidates[0])
-    best, best_d = -1, np.inf
+    scored = []
     for c in candidates:
-        dist = np.min(np.linalg.norm(lanes[int(c)].center - p, axis=-1))
-        if dist < best_d:
-            best, best_d = int(c), dist
-    return best
+        cl = lanes[int(c)].center
+        i = int(np.argmin(np.linalg.norm(cl - p, axis=-1)))
+        j = min(i, len(cl) - 2)
+        t = cl[j + 1] - cl[j]
+        dh = (
+            np.angle(np.exp(1j * (np.arctan2(t[1], t[0]) - heading))) if np.isfinite(heading) else 0
+        )
+        scored.append((abs(dh) > np.pi / 4, float(np.linalg.norm(cl[i] - p)), int(c)))
+    return min(scored)[2]
 
 
 # --------------------------------------------------------------------------- lane chains
@@ -242,17 +254,22 @@ def _resample(xy: np.ndarray, s_from: float, s_to: float, spacing: float) -> np.
     return xy[i] + (s - cum[i])[:, None] * tan[i]
 
 
+def _predecessors(lanes: dict[int, Lane], lane_id: int) -> list[np.ndarray]:
+    """Centre lines of ``lane_id``'s chain of (first) predecessors, farthest first."""
+    parts, seen, cur = [], {lane_id}, lanes[lane_id]
+    while cur.predecessors and cur.predecessors[0] not in seen and cur.predecessors[0] in lanes:
+        cur = lanes[cur.predecessors[0]]
+        seen.add(cur.id)
+        parts.insert(0, cur.center)
+    return parts
+
+
 def lane_chain(scene: NgsimScene, lane_id: int, prefer=()) -> np.ndarray:
     """Centre line of ``lane_id`` joined with its predecessors (first one) and successors (the
     first that is in ``prefer``, else the first), as a de-duplicated (P, 2) polyline."""
     lanes = scene.lanes
-    parts = [lanes[lane_id].center]
+    parts = _predecessors(lanes, lane_id) + [lanes[lane_id].center]
     seen = {lane_id}
-    cur = lanes[lane_id]
-    while cur.predecessors and cur.predecessors[0] not in seen:
-        cur = lanes[cur.predecessors[0]]
-        seen.add(cur.id)
-        parts.insert(0, cur.center)
     cur = lanes[lane_id]
     while cur.successors:
         nxt = [s for s in cur.successors if s in prefer] or list(cur.successors)
@@ -262,6 +279,88 @@ def lane_chain(scene: NgsimScene, lane_id: int, prefer=()) -> np.ndarray:
         seen.add(cur.id)
         parts.append(cur.center)
     return _dedup(np.concatenate(parts, 0))
+
+
+def _length(xy: np.ndarray) -> float:
+    return float(np.sum(np.linalg.norm(np.diff(xy, axis=0), axis=-1)))
+
+
+def _distance_to(poly: np.ndarray, pts: np.ndarray) -> np.ndarray:
+    """(N,) distance of each point ``pts`` (N, 2) to the polyline ``poly`` (P, 2)."""
+    a, b = poly[:-1], poly[1:]
+    ab = b - a
+    L2 = np.maximum(np.sum(ab * ab, -1), 1e-12)
+    u = np.clip(np.einsum("nsk,sk->ns", pts[:, None] - a[None], ab) / L2, 0.0, 1.0)
+    near = a[None] + u[..., None] * ab[None]
+    return np.min(np.linalg.norm(pts[:, None] - near, axis=-1), axis=1)
+
+
+#: most successor routes compared by :func:`route_chain`
+MAX_ROUTES = 64
+
+
+def _aligned_lanes(lanes: dict[int, Lane], p, heading: float, radius: float) -> list[int]:
+    """Lanelets whose centre line passes within ``radius`` m of ``p`` running within 45° of
+    ``heading`` there, nearest first."""
+    out = []
+    for lid, lane in lanes.items():
+        cl = lane.center
+        if len(cl) < 2:
+            continue
+        a, b = cl[:-1], cl[1:]
+        ab = b - a
+        u = np.clip(np.sum((p - a) * ab, -1) / np.maximum(np.sum(ab * ab, -1), 1e-12), 0, 1)
+        dist = np.linalg.norm(a + u[:, None] * ab - p, axis=-1)
+        i = int(np.argmin(dist))
+        dh = np.angle(np.exp(1j * (np.arctan2(ab[i, 1], ab[i, 0]) - heading)))
+        if dist[i] <= radius and abs(dh) <= np.pi / 4:
+            out.append((float(dist[i]), lid))
+    return [lid for _, lid in sorted(out)]
+
+
+def _successor_routes(lanes: dict[int, Lane], lid: int, need: float) -> list[tuple[int, ...]]:
+    """Lanelet sequences from ``lid`` through its successors (every branch) until ``need`` m
+    long or a dead end; at most :data:`MAX_ROUTES`."""
+    done, stack = [], [((lid,), _length(lanes[lid].center))]
+    while stack and len(done) < MAX_ROUTES:
+        seq, L = stack.pop()
+        nxt = [x for x in lanes[seq[-1]].successors if x not in seq and x in lanes]
+        if not nxt or L >= need:
+            done.append(seq)
+            continue
+        stack.extend((seq + (x,), L + _length(lanes[x].center)) for x in reversed(nxt))
+    return done + [seq for seq, _ in stack[: max(0, MAX_ROUTES - len(done))]]
+
+
+def route_chain(scene: NgsimScene, v: int, k: int, ahead: float = 260.0) -> tuple[np.ndarray, int]:
+    """Vehicle ``v``'s route at step ``k`` through the lanelet graph: a (P, 2) polyline and the
+    lanelet it starts in.
+
+    Start lanelet: its lanelet of ``lane_of`` where that runs within 45° of its heading; else
+    (inside a junction the lanelet under a car may be a crossing one) those within a lane width
+    (4 m) of it that do, else its ``lane_of`` lanelet.  From each, every successor sequence (to
+    ``ahead`` m or a dead end, at most :data:`MAX_ROUTES`), preceded by the start's chain of
+    first predecessors.  Chosen: the one
+    whose centre line is nearest (mean distance) to the car's recorded positions from ``k`` on:
+    at a junction, the turn the recorded car took."""
+    lanes = scene.lanes
+    lid = int(scene.lane_of[v, k])
+    if lid < 0:
+        raise ValueError(f"vehicle {scene.ids[v]} is off the lane map at step {k}")
+    rec = scene.xy[v, k:]
+    rec = rec[np.all(np.isfinite(rec), -1)]
+    hd = float(scene.heading[v, k])
+    starts = [lid] if lid in _aligned_lanes({lid: lanes[lid]}, rec[0], hd, np.inf) else []
+    starts = starts or _aligned_lanes(lanes, rec[0], hd, 4.0)[:4] or [lid]
+    best, best_d = (None, lid), np.inf
+    for start in starts:
+        back = _predecessors(lanes, start)
+        for seq in _successor_routes(lanes, start, ahead + _length(lanes[start].center)):
+            chain = _dedup(np.concatenate(back + [lanes[i].center for i in seq], 0))
+            dist = float(np.mean(_distance_to(chain, rec)))
+            if dist < best_d:
+                best, best_d = (chain, start), dist
+    return best
 
 
 def vehicle_centerline(
@@ -377,20 +476,38 @@ def context_at(
 
 
 # --------------------------------------------------------------------------- ego road
+#: σ (m) of the Gaussian smoothing of the ego's route before its spline is fitted: the lanelet
+#: polylines' corners would otherwise give the path curvature steps that no car can steer
+#: (CommonRoad's KS model refuses plans that follow them; :mod:`.crcheck`)
+ROUTE_SMOOTHING = 2.0
+
+
+def smooth_polyline(xy: np.ndarray, sigma: float, spacing: float = CHAIN_SPACING) -> np.ndarray:
+    """``xy`` (P, 2), evenly spaced ``spacing`` m apart, Gaussian-smoothed with σ = ``sigma`` m
+    along its length; the ends are point-reflected first, so a straight end stays put."""
+    xy = np.asarray(xy, np.float64)
+    n = int(np.ceil(4 * sigma / spacing))
+    if sigma <= 0 or len(xy) < 3 or n < 1:
+        return xy
+    n = min(n, len(xy) - 1)
+    pad = np.concatenate([2 * xy[0] - xy[n:0:-1], xy, 2 * xy[-1] - xy[-2 : -n - 2 : -1]])
+    return gaussian_filter1d(pad, sigma / spacing, axis=0, mode="nearest")[n:-n]
+
+
 def ego_road_geometry(
     scene: NgsimScene, v: int, k: int, behind: float = 30.0, ahead: float = 260.0
 ):
-    """The ego's reference path (its lane's chain, ``frenet.ReferencePath``) and the offsets (m)
+    """The ego's reference path (its route, :func:`route_chain`, smoothed by
+    :data:`ROUTE_SMOOTHING`: a ``frenet.ReferencePath``) and the offsets (m)
     of the same-direction neighbour lanes' centres in that path's frame (``None`` if absent),
     measured as the median over the 100 m ahead of the ego."""
     lid = int(scene.lane_of[v, k])
     if lid < 0:
         raise ValueError(f"vehicle {scene.ids[v]} is off the lane map at step {k}")
-    route = set(int(x) for x in scene.lane_of[v, k:] if x >= 0)
-    chain = lane_chain(scene, lid, prefer=route)
+    chain, lid = route_chain(scene, v, k, ahead)
     s0, _ = cartesian_to_lane(chain, scene.xy[v, k][None])
     pts = _resample(chain, float(s0[0]) - behind, float(s0[0]) + ahead, CHAIN_SPACING)
-    path = frenet.ReferencePath.from_waypoints(pts, spacing=0.5)
+    path = frenet.ReferencePath.from_waypoints(smooth_polyline(pts, ROUTE_SMOOTHING), spacing=0.5)
     lane = scene.lanes[lid]
     offsets = []
     for nb in (lane.left_id, lane.right_id):

@@ -59,3 +59,49 @@ def test_route_path_follows_the_recorded_ego_exactly(urban_file, tasks):
         lane_w = sc.lanes[int(sc.lane_of[v, t["k"]])].width
         assert np.max(np.abs(d)) < 0.5 * lane_w
         assert np.all(np.diff(s) > -1e-6)  # it drives forwards along the path
+
+
+def test_a_turning_ego_plans_along_its_turn(shared_data):
+    """Where the recorded ego turns through a junction (its heading over the next 5 s changes by
+    more than 45°), its reference path turns with it: the path's heading where the car ends up
+    is within 20° of the car's, and the car stays within a lane and a half of the path (the
+    lanelet map of these scenes is itself up to ~6 m off the recorded turns)."""
+    from mmdopt.bench.ngsim.runner import select_tasks
+    from mmdopt.bench.ngsim.scene import ego_road_geometry, load_scenario
+
+    files = sorted((shared_data / "ngsim_urban").glob("USA_Lanker-2_*_T-1.xml"))
+    if not files:
+        pytest.skip(f"Lankershim scenes not found in {shared_data / 'ngsim_urban'}")
+    turns = 0
+    for f in files:
+        sc = load_scenario(str(f))
+        for t in select_tasks([str(f)]):
+            v, k = int(np.flatnonzero(sc.ids == t["ego_id"])[0]), t["k"]
+            h = np.unwrap(sc.heading[v, k : k + 51])
+            if abs(h[-1] - h[0]) < np.pi / 4:
+                continue
+            turns += 1
+            path, _, _ = ego_road_geometry(sc, v, k)
+            xy = sc.xy[v, k : k + 51]
+            s, d = (np.asarray(a) for a in path.to_frenet(xy[:, 0], xy[:, 1]))
+            dh = np.angle(np.exp(1j * (np.asarray(path.heading(s[-1])) - h[-1])))
+            assert abs(dh) < np.radians(20), (f.name, t)
+            assert np.max(np.abs(d)) < 1.5 * sc.lanes[int(sc.lane_of[v, k])].width + 1.0
+            assert np.all(np.diff(s) > -0.05)  # the car moves forwards along its path
+    assert turns >= 2
+
+
+def test_route_path_is_smooth_enough_to_steer(urban_file, tasks):
+    """The route's curvature changes no faster than a car steers: driving its centre line at
+    8 m/s needs a steering rate within the KS model's 0.4 rad/s (the lanelets' polyline corners,
+    unsmoothed, need more: :data:`~mmdopt.bench.ngsim.scene.ROUTE_SMOOTHING`)."""
+    from mmdopt.bench.ngsim.scene import ego_road_geometry, load_scenario
+
+    sc = load_scenario(urban_file)
+    for t in tasks:
+        v = int(np.flatnonzero(sc.ids == t["ego_id"])[0])
+        path, _, _ = ego_road_geometry(sc, v, t["k"])
+        se, _ = path.to_frenet(*sc.xy[v, t["k"]])
+        s = float(se) + np.arange(0.0, 40.0, 0.8)  # 5 s at 8 m/s, one point per 0.1 s
+        delta = np.arctan(2.578 * np.asarray(path.curvature(s)))  # BMW 320i wheelbase
+        assert np.max(np.abs(np.diff(delta))) / 0.1 < 0.4, t
