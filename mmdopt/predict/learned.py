@@ -37,6 +37,9 @@ from .baselines import frenet_to_cartesian, lane_state
 __all__ = ["MDNConfig", "MDN", "Learned", "encode", "poly_basis", "DEFAULT_WEIGHTS"]
 
 DEFAULT_WEIGHTS = Path(__file__).parent / "weights" / "mdn_ngsim_us101"
+#: weights trained on the US-101 and the Lankershim Boulevard (urban, junctions) training scenes
+#: (``mdn_ngsim_urban.json`` names the files and the command)
+URBAN_WEIGHTS = Path(__file__).parent / "weights" / "mdn_ngsim_urban"
 
 
 @dataclass(frozen=True)

@@ -37,6 +37,7 @@ __all__ = [
     "cmd_train",
     "cmd_eval",
     "default_data_dir",
+    "default_training_data",
     "evaluate_heldout",
     "main",
 ]
@@ -46,6 +47,14 @@ def default_data_dir() -> Path:
     """``$MMDOPT_SHARED_DATA/ngsim_us101``, else ``../shared/data/ngsim_us101``."""
     root = os.environ.get("MMDOPT_SHARED_DATA")
     return Path(root) / "ngsim_us101" if root else Path("../shared/data/ngsim_us101")
+
+
+def default_training_data() -> list[Path]:
+    """What the shipped predictor is trained on: the US-101 folder (:func:`default_data_dir`)
+    and, where it is there, the Lankershim one beside it (``ngsim_urban``)."""
+    us = default_data_dir()
+    urban = us.parent / "ngsim_urban"
+    return [us] + ([urban] if urban.is_dir() else [])
 
 
 def _ngsim_methods() -> tuple[str, ...]:
@@ -212,7 +221,16 @@ def add_train_parser(subparsers) -> argparse.ArgumentParser:
     p = subparsers.add_parser("predictor", help="train / evaluate the learned predictor")
     ps = p.add_subparsers(dest="predictor_command", required=True, metavar="{train,eval}")
     t = ps.add_parser("train", help="train the MDN predictor on the training split")
-    t.add_argument("--data", type=existing_path, default=None, help="folder of the US-101 scenes")
+    t.add_argument(
+        "--data",
+        nargs="+",
+        type=existing_path,
+        default=None,
+        metavar="PATH",
+        help="CommonRoad scenes (files or folders; default: the shared US-101 folder; the "
+        "urban weights: it and the Lankershim folder)",
+    )
+    _add_holdout(t)
     t.add_argument(
         "--out",
         default=None,
@@ -229,11 +247,23 @@ def add_train_parser(subparsers) -> argparse.ArgumentParser:
         help="--source highway: simulated seconds per training rollout (default 30)",
     )
     e = ps.add_parser("eval", help="minADE/minFDE@20 and NLL of all predictors, held-out split")
-    e.add_argument("--data", type=existing_path, default=None)
+    e.add_argument("--data", nargs="+", type=existing_path, default=None, metavar="PATH")
+    _add_holdout(e)
     e.add_argument("--weights", default=None, help="learned weights (default: shipped)")
     e.add_argument("--out", default=None, help="write the table as JSON here")
     _add_source(e, eval_=True)
     return p
+
+
+def _add_holdout(q: argparse.ArgumentParser) -> None:
+    q.add_argument(
+        "--holdout",
+        nargs="+",
+        default=None,
+        metavar="PATTERN",
+        help="the held-out files: names or glob patterns (default: US-101 recordings N % 5 == 0, "
+        "other scenes LOC-M_N_T-1 with N % 5 == 0)",
+    )
 
 
 def _add_source(q: argparse.ArgumentParser, eval_: bool = False) -> None:
@@ -255,32 +285,50 @@ def _add_source(q: argparse.ArgumentParser, eval_: bool = False) -> None:
 
 
 def evaluate_heldout(
-    data=None, weights=None, *, k: int = 20, n_nll: int = 200, seed: int = 1, stride: int = 20
+    data=None,
+    weights=None,
+    *,
+    k: int = 20,
+    n_nll: int = 200,
+    seed: int = 1,
+    stride: int = 20,
+    holdout=None,
 ) -> list[dict]:
-    """minADE/minFDE@k and KDE NLL of cv, lane and learned on the held-out recordings
-    (windows every ``stride`` steps = 2 s)."""
+    """minADE/minFDE@k and KDE NLL of cv, lane and learned on the held-out files of ``data``
+    (windows every ``stride`` steps = 2 s); where the held-out files have cars with more than
+    one route (junctions), the rows of :func:`.routes.evaluate_routes` on them too."""
     import jax
 
     from mmdopt.predict import ConstantVelocity, LaneAware, evaluate_predictor
     from mmdopt.predict.learned import Learned
 
     from .data import split_files, windows
+    from .routes import evaluate_routes
 
-    _, test = split_files(default_data_dir() if data is None else data)
+    _, test = split_files(default_training_data() if data is None else data, holdout)
     W = windows(test, stride=stride)
     preds = [ConstantVelocity(), LaneAware(), Learned(weights)]
-    return [evaluate_predictor(p, W, jax.random.PRNGKey(seed), k=k, n_nll=n_nll) for p in preds]
+    rows = [evaluate_predictor(p, W, jax.random.PRNGKey(seed), k=k, n_nll=n_nll) for p in preds]
+    urban = [f for f in test if "US101" not in f.name]
+    if urban:
+        for r in evaluate_routes(urban, k=k, stride=5, seed=seed, weights_mdn=weights):
+            rows.append(dict(r, split="held-out, urban"))
+    return rows
 
 
-def _checked_split(data, parser, need: str) -> tuple[list[Path], list[Path]]:
-    """(train, held-out) files of ``--data``, every file checked
+def _checked_split(data, parser, need: str, holdout=None) -> tuple[list[Path], list[Path]]:
+    """(train, held-out) files of ``--data`` / ``--holdout``, every file checked
     (:func:`~mmdopt.bench.ngsim.inputs.check_scenario_file`) and the split ``need``ed
-    ("train" or "held-out") not empty; exit 2 naming ``--data`` otherwise."""
-    from .data import HOLDOUT_MOD, split_files
+    ("train" or "held-out") not empty; exit 2 naming the option otherwise."""
+    from .data import split_files
     from .inputs import check_scenario_file
 
     try:
-        train, test = split_files(data)
+        train, test = split_files(data, holdout)
+    except ValueError as e:
+        _refuse(parser, "--holdout" if "holdout" in str(e) else "--data", e)
+        raise SystemExit(2) from None
+    try:
         for f in train + test:
             check_scenario_file(f)
     except ValueError as e:
@@ -288,11 +336,11 @@ def _checked_split(data, parser, need: str) -> tuple[list[Path], list[Path]]:
         raise SystemExit(2) from None
     split = train if need == "train" else test
     if not split:
-        held = "==" if need == "held-out" else "!="
         _refuse(
             parser,
-            "--data",
-            f"{data}: no {need} recordings (USA_US101-N_K_T-1 with N % {HOLDOUT_MOD} {held} 0)",
+            "--holdout" if holdout is not None else "--data",
+            f"no {need} files among the {len(train) + len(test)} of --data "
+            f"(held out: {len(test)}; --holdout names them)",
         )
         raise SystemExit(2)
     return train, test
@@ -305,11 +353,13 @@ def cmd_train(args, parser=None) -> int:
     from mmdopt.predict.train import fit_mdn
 
     from ..inputs import check_out_file
-    from .data import HOLDOUT_MOD, TRAIN_WEIGHT_DECAY, windows
+    from .data import TRAIN_WEIGHT_DECAY, describe_split, windows
     from .inputs import ScenarioError
+    from .routes import fit_route_weights, save_route_weights
 
     data = default_data_dir() if args.data is None else args.data
-    train, test = _checked_split(data, parser, "train")
+    holdout = getattr(args, "holdout", None)
+    train, test = _checked_split(data, parser, "train", holdout)
     out = DEFAULT_WEIGHTS if args.out is None else Path(args.out)
     try:
         check_out_file(f"{out}.eqx")
@@ -334,26 +384,42 @@ def cmd_train(args, parser=None) -> int:
     )
     cfg = MDNConfig()
     pred, info = fit_mdn(W, cfg, steps=args.steps, seed=args.seed, weight_decay=TRAIN_WEIGHT_DECAY)
-    info.update(
-        split=f"train: recordings N % {HOLDOUT_MOD} != 0 ({len(train)} files); held out: "
-        f"N % {HOLDOUT_MOD} == 0 ({len(test)} files)",
-        train_files=[f.name for f in train],
-        command=f"mmdopt predictor train --steps {args.steps} --seed {args.seed}",
+    paths = [data] if isinstance(data, str | Path) else list(data)
+    command = (
+        f"mmdopt predictor train --data {' '.join(map(str, paths))}"
+        + (f" --out {args.out}" if args.out is not None else "")
+        + f" --steps {args.steps} --seed {args.seed}"
+        + (f" --holdout {' '.join(holdout)}" if holdout else "")
     )
+    split = describe_split(train, test, holdout)
+    info.update(split=split["holdout"], train_files=split["train_files"], command=command)
+    info["heldout_files"] = split["heldout_files"]
     base = save_weights(out, pred.model, pred.config, pred.norm, info)
     print(
         f"wrote {base}.eqx / .json (final train NLL {info['final_nll']:.3f}, "
         f"{info['train_s']:.0f} s)"
     )
+    try:
+        rw = fit_route_weights(train)
+    except ValueError as e:  # no junction in the training files: the shipped routes stay
+        print(f"route weights not fitted: {e}")
+    else:
+        rpath = Path(f"{base}_routes.json")
+        save_route_weights(rpath, rw, dict(split, command=command))
+        print(
+            f"wrote {rpath} ({rw.info['n_cars']} cars with several routes, train accuracy "
+            f"{rw.info['train_accuracy']:.2f})"
+        )
     if not args.no_eval:
-        for r in evaluate_heldout(data, base):
+        for r in evaluate_heldout(data, base, holdout=holdout):
             print(json.dumps(r))
     return 0
 
 
 def cmd_eval(args, parser=None) -> int:
-    _checked_split(default_data_dir() if args.data is None else args.data, parser, "held-out")
-    _report_rows(evaluate_heldout(args.data, args.weights), args.out)
+    data = default_training_data() if args.data is None else args.data
+    _checked_split(data, parser, "held-out", args.holdout)
+    _report_rows(evaluate_heldout(data, args.weights, holdout=args.holdout), args.out)
     return 0
 
 

@@ -1,13 +1,18 @@
 """Training/evaluation windows of the recorded scenes, the train/held-out split and the
 training's weight decay (shared with the highway predictor's training).
 
-Split: whole recordings are held out — the scenes ``USA_US101-N_K_T-1`` with ``N % 5 == 0``
-(N = 5, 10, 15, 20: 10 of the 48 shared files) are the **held-out** split, the rest train.  The
-``_K`` variants of one N share the same traffic, so splitting by file would leak.
+Split: the user's (``holdout``: file names, paths or glob patterns of the held-out files), else
+the default rule (:func:`default_heldout`): whole recordings are held out — the scenes
+``USA_US101-N_K_T-1`` with ``N % 5 == 0`` (N = 5, 10, 15, 20: 10 of the 48 shared files; the
+``_K`` variants of one N share the same traffic, so splitting by file would leak) — and of other
+CommonRoad scenes ``LOC-M_N_T-1`` (Lankershim: no two files share a car) the configurations
+``N % 5 == 0`` (``USA_Lanker-2_5``, ``USA_Lanker-2_10``); the rest train.
 """
 
 from __future__ import annotations
 
+import re
+from fnmatch import fnmatch
 from pathlib import Path
 
 import numpy as np
@@ -24,7 +29,15 @@ from .scene import (
     scenario_files,
 )
 
-__all__ = ["HOLDOUT_MOD", "TRAIN_WEIGHT_DECAY", "split_files", "scene_windows", "windows"]
+__all__ = [
+    "HOLDOUT_MOD",
+    "TRAIN_WEIGHT_DECAY",
+    "default_heldout",
+    "split_files",
+    "describe_split",
+    "scene_windows",
+    "windows",
+]
 
 #: Recordings N with ``N % HOLDOUT_MOD == 0`` are held out.
 HOLDOUT_MOD = 5
@@ -34,12 +47,53 @@ HOLDOUT_MOD = 5
 TRAIN_WEIGHT_DECAY = 1e-3
 
 
-def split_files(paths) -> tuple[list[Path], list[Path]]:
-    """(train, held-out) scenario files under ``paths`` (by recording number)."""
+def default_heldout(name: str) -> bool:
+    """Whether the scene ``name`` is in the default held-out split (module docstring)."""
+    stem = Path(name).stem
+    if "US101" in stem:
+        return recording_of(stem) % HOLDOUT_MOD == 0
+    m = re.match(r"^.+-\d+_(\d+)_T-\d+$", stem)
+    if m is None:
+        raise ValueError(
+            f"{name!r}: no default split for this name (CommonRoad LOC-M_N_T-k expected); "
+            "give the held-out files (holdout / --holdout)"
+        )
+    return int(m.group(1)) % HOLDOUT_MOD == 0
+
+
+def split_files(paths, holdout=None) -> tuple[list[Path], list[Path]]:
+    """(train, held-out) scenario files under ``paths``.  ``holdout``: None (the default rule,
+    :func:`default_heldout`), or file names, paths or glob patterns (``fnmatch`` on the file
+    name) of the held-out files; a pattern that matches none of the files raises
+    ``ValueError`` naming it."""
     files = scenario_files(paths)
-    test = [f for f in files if recording_of(f.stem) % HOLDOUT_MOD == 0]
-    train = [f for f in files if recording_of(f.stem) % HOLDOUT_MOD != 0]
+    if holdout is None:
+        test = [f for f in files if default_heldout(f.name)]
+    else:
+        pats = [holdout] if isinstance(holdout, str | Path) else list(holdout)
+        test = []
+        for pat in map(str, pats):
+            hit = [f for f in files if fnmatch(f.name, Path(pat).name) or str(f) == pat]
+            if not hit:
+                raise ValueError(f"holdout pattern {pat!r} matches none of the {len(files)} files")
+            test += [f for f in hit if f not in test]
+        test = sorted(test)
+    train = [f for f in files if f not in test]
     return train, test
+
+
+def describe_split(train, test, holdout=None) -> dict:
+    """The split as recorded in ``run.json`` and the weights' JSON: the rule and the files."""
+    rule = (
+        "default: USA_US101-N_K with N % 5 == 0, other LOC-M_N with N % 5 == 0"
+        if holdout is None
+        else [str(h) for h in ([holdout] if isinstance(holdout, str | Path) else holdout)]
+    )
+    return dict(
+        holdout=rule,
+        train_files=[Path(f).name for f in train],
+        heldout_files=[Path(f).name for f in test],
+    )
 
 
 def scene_windows(

@@ -103,6 +103,10 @@ class NgsimParams:
         ``n_samples`` (exactly ``n_samples`` with the time-linear margins of the NGSIM preset)
         and at most :data:`MAX_FORECAST_SAMPLES`; ``False``: ``n_samples`` drawn here, a fixed
         array
+    routes : predict every car along each route it can still take
+        (:class:`~mmdopt.bench.ngsim.routes.RouteMixture` of the predictor over
+        :func:`~mmdopt.bench.ngsim.scene.candidate_routes`, learned route weights); ``False``:
+        along the straightest route only
     lane_keep_margin : lateral freedom (m) on a side without a same-direction lane
     v_des : desired speed (m/s) of the cost (None: the config's)
     v_des_flow : if set (m/s), the desired speed respects the traffic: ``min(v_des, v_flow +
@@ -145,6 +149,7 @@ class NgsimParams:
     brake_threshold: float = BRAKE_THRESHOLD
     seed: int = 0
     forecast: bool = True
+    routes: bool = True
 
     def __post_init__(self) -> None:
         for name in ("v_des", "v_des_flow"):
@@ -157,8 +162,9 @@ class NgsimParams:
             raise ValueError(
                 f"NgsimParams.min_change_speed must be finite and >= 0, got {self.min_change_speed}"
             )
-        if not isinstance(self.forecast, bool):
-            raise ValueError(f"NgsimParams.forecast must be a bool, got {self.forecast!r}")
+        for name in ("forecast", "routes"):
+            if not isinstance(getattr(self, name), bool):
+                raise ValueError(f"NgsimParams.{name} must be a bool, got {getattr(self, name)!r}")
         if self.v_des_flow is not None and self.v_des is None:
             raise ValueError("NgsimParams.v_des_flow needs v_des (the cap without traffic)")
         for name in ("history", "egos_per_time", "max_obstacles", "n_samples", "n_validation"):

@@ -54,8 +54,10 @@ from .metric import (
 )
 from .reactive import PEERS, REACTIVE_FUTURES, PeerPlan, plan_reactive
 from .reactive import available as available_peer
+from .routes import RouteMixture, route_probabilities, shipped_route_weights
 from .scene import (
     NgsimScene,
+    candidate_routes,
     context_at,
     ego_road_geometry,
     future_at,
@@ -267,7 +269,10 @@ def build_task(task: dict, params: NgsimParams, config: mmdopt.MMDOptConfig) -> 
     if np.any(in_lane):
         lead = np.flatnonzero(in_lane)[np.argmin(s_obs[in_lane])]
         v_leader = float(sc.speed[obs[lead], k])
+    routes = tuple(np.stack(candidate_routes(sc, int(o), k)) for o in obs)
     return dict(
+        routes=routes,
+        route_p=tuple(route_probabilities(hist, routes, sc.dt, shipped_route_weights())),
         v_flow=v_flow,
         v_leader=v_leader,
         scene=sc,
@@ -417,7 +422,10 @@ def plan_inputs(task: dict, params: NgsimParams, config, predictor: Any = "learn
     ngsim`` plans it; ``predictor`` a name of :data:`mmdopt.predict.PREDICTORS` or a predictor
     object (e.g. ``Learned(spread=...)``)."""
     b = build_task(task, params, config)
-    pred = cached_predictor(predictor) if isinstance(predictor, str) else predictor
+    urban = b["scene"].n_intersections > 0
+    pred = cached_predictor(predictor, urban) if isinstance(predictor, str) else predictor
+    if params.routes:
+        pred = RouteMixture(pred, b["routes"], b["route_p"])
     key = jax.random.fold_in(jax.random.PRNGKey(params.seed), _task_seed(task))
     k_pred, k_val, k_plan = jax.random.split(key, 3)
     t1 = time.perf_counter()
@@ -534,14 +542,22 @@ def run_task(
 
 
 #: the predictors made in this process, by name (the one cache policy: solvers.cache)
-_PRED_CACHE: BoundedCache = BoundedCache(len(PREDICTORS))
+_PRED_CACHE: BoundedCache = BoundedCache(len(PREDICTORS) + 1)
 
 
-def cached_predictor(name: str):
+def cached_predictor(name: str, urban: bool = False):
     """The predictor ``name`` of :data:`mmdopt.predict.PREDICTORS`, made once per process and
-    shared by every task (loading the learned weights once)."""
+    shared by every task (loading the learned weights once).  ``urban`` (a scene whose lanelet
+    network has junctions): "learned" is the MDN trained on the US-101 and Lankershim scenes
+    (``mmdopt.predict.learned.URBAN_WEIGHTS``), else the US-101 one."""
     if name not in PREDICTORS:
         raise ValueError(f"predictor must be one of {PREDICTORS}, got {name!r}")
+    if name == "learned" and urban:
+        from mmdopt.predict.learned import URBAN_WEIGHTS
+
+        return _PRED_CACHE.get_or_create(
+            (name, True), lambda: make_predictor(name, weights=URBAN_WEIGHTS)
+        )
     return _PRED_CACHE.get_or_create(name, lambda: make_predictor(name))
 
 

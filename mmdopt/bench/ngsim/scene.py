@@ -29,6 +29,8 @@ __all__ = [
     "ROUTE_SMOOTHING",
     "MAX_ROUTES",
     "route_chain",
+    "candidate_routes",
+    "distance_to_polyline",
     "smooth_polyline",
     "Lane",
     "NgsimScene",
@@ -76,6 +78,7 @@ class NgsimScene:
     length: np.ndarray  # (V,) m
     width: np.ndarray  # (V,) m
     lane_of: np.ndarray = field(repr=False)  # (V, T) lanelet id, -1 off the map / absent
+    n_intersections: int = 0  # the lanelet network's intersections (junctions)
 
     @property
     def num_steps(self) -> int:
@@ -213,6 +216,7 @@ def load_scenario(path: str | Path) -> NgsimScene:
         length=length,
         width=width,
         lane_of=lane_of,
+        n_intersections=len(net.intersections),
     )
 
 
@@ -285,7 +289,7 @@ def _length(xy: np.ndarray) -> float:
     return float(np.sum(np.linalg.norm(np.diff(xy, axis=0), axis=-1)))
 
 
-def _distance_to(poly: np.ndarray, pts: np.ndarray) -> np.ndarray:
+def distance_to_polyline(poly: np.ndarray, pts: np.ndarray) -> np.ndarray:
     """(N,) distance of each point ``pts`` (N, 2) to the polyline ``poly`` (P, 2)."""
     a, b = poly[:-1], poly[1:]
     ab = b - a
@@ -357,27 +361,65 @@ def route_chain(scene: NgsimScene, v: int, k: int, ahead: float = 260.0) -> tupl
         back = _predecessors(lanes, start)
         for seq in _successor_routes(lanes, start, ahead + _length(lanes[start].center)):
             chain = _dedup(np.concatenate(back + [lanes[i].center for i in seq], 0))
-            dist = float(np.mean(_distance_to(chain, rec)))
+            dist = float(np.mean(distance_to_polyline(chain, rec)))
             if dist < best_d:
                 best, best_d = (chain, start), dist
     return best
+
+
+def _turning(xy: np.ndarray) -> float:
+    """Total absolute heading change (rad) along a polyline."""
+    d = np.diff(xy, axis=0)
+    h = np.unwrap(np.arctan2(d[:, 1], d[:, 0]))
+    return float(np.sum(np.abs(np.diff(h))))
+
+
+def candidate_routes(
+    scene: NgsimScene,
+    v: int,
+    k: int,
+    behind: float = 30.0,
+    ahead: float = 170.0,
+    max_routes: int = 4,
+) -> list[np.ndarray]:
+    """The routes vehicle ``v`` can still take at step ``k``, from what is known at ``k`` only
+    (its position and heading, the lanelet graph; never its recorded future): the successor
+    branches from its lanelet (:func:`route_chain`'s start rule) that part within its reach
+    (1.5 × its speed × 5 s, at least 40 m; later partings are one route), each resampled from
+    ``behind`` m behind the car to ``ahead`` m ahead (``(behind + ahead)/CHAIN_SPACING + 1``
+    points, so every route of every car has one shape), the straightest first, at most
+    ``max_routes``.  Off the map: the nearest lanelet's straightest chain."""
+    lanes = scene.lanes
+    lid = int(scene.lane_of[v, k])
+    p = scene.xy[v, k]
+    hd = float(scene.heading[v, k])
+    if lid < 0:
+        lid = min(lanes, key=lambda i: np.min(np.linalg.norm(lanes[i].center - p, axis=-1)))
+    elif lid not in _aligned_lanes({lid: lanes[lid]}, p, hd, np.inf):
+        lid = (_aligned_lanes(lanes, p, hd, 4.0) or [lid])[0]
+    back = _predecessors(lanes, lid)
+    # routes that part beyond the car's reach are one route (1.5 × its speed × 5 s, ≥ 40 m)
+    v0 = float(scene.speed[v, k]) if np.isfinite(scene.speed[v, k]) else 0.0
+    n_reach = int((behind + max(40.0, 7.5 * v0)) / CHAIN_SPACING) + 1
+    out: list[np.ndarray] = []
+    for seq in _successor_routes(lanes, lid, ahead + _length(lanes[lid].center)):
+        chain = _dedup(np.concatenate(back + [lanes[i].center for i in seq], 0))
+        s0, _ = cartesian_to_lane(chain, p[None])
+        r = _resample(chain, float(s0[0]) - behind, float(s0[0]) + ahead, CHAIN_SPACING)
+        if all(np.max(np.linalg.norm(r[:n_reach] - q[:n_reach], axis=-1)) > 0.5 for q in out):
+            out.append(r)
+    out.sort(key=_turning)
+    return out[:max_routes]
 
 
 def vehicle_centerline(
     scene: NgsimScene, v: int, k: int, behind: float = 30.0, ahead: float = 170.0
 ) -> np.ndarray:
     """Vehicle ``v``'s lane centre line at step ``k``, resampled from ``behind`` m behind it to
-    ``ahead`` m ahead (fixed length: ``(behind + ahead)/CHAIN_SPACING + 1`` points)."""
-    lid = int(scene.lane_of[v, k])
-    p = scene.xy[v, k]
-    if lid < 0:  # off the map: the nearest lanelet's chain
-        lid = min(
-            scene.lanes, key=lambda i: np.min(np.linalg.norm(scene.lanes[i].center - p, axis=-1))
-        )
-    route = set(int(x) for x in scene.lane_of[v, k:] if x >= 0)
-    chain = lane_chain(scene, lid, prefer=route)
-    s0, _ = cartesian_to_lane(chain, p[None])
-    return _resample(chain, float(s0[0]) - behind, float(s0[0]) + ahead, CHAIN_SPACING)
+    ``ahead`` m ahead (fixed length: ``(behind + ahead)/CHAIN_SPACING + 1`` points): the
+    straightest of its :func:`candidate_routes` (at a branch, the predictor's context does not
+    know which way the car will go)."""
+    return candidate_routes(scene, v, k, behind, ahead, max_routes=1)[0]
 
 
 # --------------------------------------------------------------------------- predictor inputs
