@@ -93,9 +93,11 @@ class NgsimParams:
     history : history rows given to the predictor (0.1 s apart)
     first_t0, every : planning times t0 = first_t0, first_t0 + every, … (s) while the ego is
         recorded over the whole horizon
+    min_task_speed : egos at least this fast (m/s) at t0 are chosen before slower ones (a car
+        waiting at a red light through the whole horizon is no planning task)
     egos_per_time : egos per (scene, t0): the candidates (recorded over history and horizon,
-        on the lane map, ≤ ``max_ego_length`` m, ≥ 1 vehicle within range) with the most
-        vehicles within ``range_m``, ties by id
+        on the lane map, ≤ ``max_ego_length`` m, ≥ 1 vehicle within range), those at least
+        ``min_task_speed`` fast first, then the most vehicles within ``range_m``, ties by id
     range_m, max_obstacles : vehicles planned against (Euclidean distance at t0)
     n_samples, n_validation : predictor samples per obstacle for planning / for the metric
     forecast : plan through the predictor (an :class:`mmdopt.predict.Forecast`): ``plan`` draws
@@ -107,6 +109,11 @@ class NgsimParams:
         (:class:`~mmdopt.bench.ngsim.routes.RouteMixture` of the predictor over
         :func:`~mmdopt.bench.ngsim.scene.candidate_routes`, learned route weights); ``False``:
         along the straightest route only
+    reactive_futures : predictor samples per car the ``reactive`` peer avoids, each one a
+        CommonRoad obstacle (the first of the planning samples, which mix the routes).  One,
+        the planner's design (one prediction per car), chosen on the Lankershim training
+        scenes 2_1–2_4 and 2_6 (16 tasks): 1 / 5 / 20 futures gave 0 / 0 / 2 at-fault, 1 / 4 / 7
+        contacts, 0.98 / 0.92 / 0.73 of the human's progress, 0.18 / 0.23 / 3.4 s median plan
     lane_keep_margin : lateral freedom (m) on a side without a same-direction lane
     v_des : desired speed (m/s) of the cost (None: the config's)
     v_des_flow : if set (m/s), the desired speed respects the traffic: ``min(v_des, v_flow +
@@ -134,6 +141,7 @@ class NgsimParams:
     first_t0: float = 1.0
     every: float = 2.0
     egos_per_time: int = 2
+    min_task_speed: float = 1.0
     range_m: float = 50.0
     max_obstacles: int = 15
     max_ego_length: float = 7.0
@@ -150,6 +158,7 @@ class NgsimParams:
     seed: int = 0
     forecast: bool = True
     routes: bool = True
+    reactive_futures: int = 1
 
     def __post_init__(self) -> None:
         for name in ("v_des", "v_des_flow"):
@@ -158,6 +167,10 @@ class NgsimParams:
                 raise ValueError(
                     f"NgsimParams.{name} must be None or a finite number >= 0, got {v!r}"
                 )
+        if not (np.isfinite(self.min_task_speed) and self.min_task_speed >= 0):
+            raise ValueError(
+                f"NgsimParams.min_task_speed must be finite and >= 0, got {self.min_task_speed}"
+            )
         if not (np.isfinite(self.min_change_speed) and self.min_change_speed >= 0):
             raise ValueError(
                 f"NgsimParams.min_change_speed must be finite and >= 0, got {self.min_change_speed}"
@@ -167,7 +180,14 @@ class NgsimParams:
                 raise ValueError(f"NgsimParams.{name} must be a bool, got {getattr(self, name)!r}")
         if self.v_des_flow is not None and self.v_des is None:
             raise ValueError("NgsimParams.v_des_flow needs v_des (the cap without traffic)")
-        for name in ("history", "egos_per_time", "max_obstacles", "n_samples", "n_validation"):
+        for name in (
+            "history",
+            "egos_per_time",
+            "max_obstacles",
+            "n_samples",
+            "n_validation",
+            "reactive_futures",
+        ):
             v = getattr(self, name)
             if isinstance(v, bool) or not isinstance(v, int | np.integer) or v < 1:
                 raise ValueError(f"NgsimParams.{name} must be an int >= 1, got {v!r}")

@@ -11,10 +11,11 @@ kept) plans the same task as :func:`mmdopt.plan` (:func:`~.runner.run_task`):
   of 1 m steps (the planner's own CLCS preprocessing on top), lateral samples within the same
   road bounds ``[y_lb, y_ub]``;
 * the same desired speed (the task config's ``v_des``) and horizon (the benchmark's time grid);
-* the same information about the others: each obstacle's first :data:`REACTIVE_FUTURES`
-  predictor samples (the ones MMD-Opt plans with), every one a CommonRoad dynamic obstacle of
-  the car's recorded size with the heading of its motion, plus the road boundary of the
-  lanelet network.  It never sees the recorded futures it is scored against.
+* the same information about the others: each obstacle's first ``reactive_futures``
+  (:class:`~.inputs.NgsimParams`) predictor samples (of the ones MMD-Opt plans with), every
+  one a CommonRoad dynamic obstacle of the car's recorded size with the heading of its motion,
+  plus the road boundary of the lanelet network.  It never sees the recorded futures it is
+  scored against.
 
 ``plan_time_s`` is the collision checker built from those futures plus ``planner.plan()``: what
 a user pays per planning cycle (the road boundary, built once per scene, is not in it).  When
@@ -41,7 +42,6 @@ import numpy as np
 __all__ = [
     "REACTIVE",
     "PEERS",
-    "REACTIVE_FUTURES",
     "FALLBACK_DECEL",
     "INSTALL",
     "available",
@@ -53,8 +53,6 @@ __all__ = [
 REACTIVE = "reactive"
 #: the bench-side peers (not :mod:`mmdopt.methods`: they plan on CommonRoad scenes only)
 PEERS = (REACTIVE,)
-#: predictor samples per obstacle the peer avoids (each one a CommonRoad obstacle)
-REACTIVE_FUTURES = 20
 #: deceleration (m/s²) of the peer's braking fallback when it finds no trajectory
 FALLBACK_DECEL = 6.0
 #: how to install the peer
@@ -269,7 +267,10 @@ def plan_reactive(
             initial_state_cart=x0_rear, collision_checker=cc,
             coordinate_system=planner.coordinate_system,
         )  # fmt: skip
-        planner.set_desired_velocity(desired_velocity=float(v_des), current_speed=x0_rear.velocity)
+        # at rest the planner reads the desired speed off a planning problem we do not have
+        # (current_speed == 0): the sampling range starts from 1 cm/s instead
+        v_now = max(float(x0_rear.velocity), 0.01)
+        planner.set_desired_velocity(desired_velocity=float(v_des), current_speed=v_now)
         out = planner.plan()
     except Exception as exc:  # the planner's asserts / CLCS projection errors: report, brake
         out, message = None, f"reactive planner failed ({type(exc).__name__}: {exc})"

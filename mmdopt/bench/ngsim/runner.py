@@ -52,7 +52,7 @@ from .metric import (
     rect_distance,
     rects_overlap,
 )
-from .reactive import PEERS, REACTIVE_FUTURES, PeerPlan, plan_reactive
+from .reactive import PEERS, PeerPlan, plan_reactive
 from .reactive import available as available_peer
 from .routes import RouteMixture, route_probabilities, shipped_route_weights
 from .scene import (
@@ -151,7 +151,12 @@ def select_tasks(paths, params: NgsimParams | None = None, config=None) -> list[
             if k + K >= sc.num_steps:
                 break
             if k - p.history + 1 >= 0:
-                cands = sorted(_candidates(sc, k, K, p), key=lambda c: (-c[0], sc.ids[c[1]]))
+                # moving cars first (a car waiting at a red light through the whole horizon
+                # is no planning task), then the most neighbours
+                cands = sorted(
+                    _candidates(sc, k, K, p),
+                    key=lambda c: (not sc.speed[c[1], k] >= p.min_task_speed, -c[0], sc.ids[c[1]]),
+                )
                 for _, v in cands[: p.egos_per_time]:
                     tasks.append(
                         dict(scenario=str(f), ego_id=int(sc.ids[v]), k=k, t0=round(k * sc.dt, 3))
@@ -443,12 +448,12 @@ def plan_inputs(task: dict, params: NgsimParams, config, predictor: Any = "learn
     )
 
 
-def _peer_plan(task: dict, inp: PlanInputs) -> PeerPlan:
+def _peer_plan(task: dict, inp: PlanInputs, n_futures: int) -> PeerPlan:
     """The reactive planner's plan of one task (:func:`.reactive.plan_reactive`), against the
-    first :data:`~.reactive.REACTIVE_FUTURES` of the planning samples of each real obstacle."""
+    first ``n_futures`` of the planning samples of each real obstacle."""
     b = inp.task
     sc, v, k, obs = b["scene"], b["v"], b["k"], b["obs"]
-    futures = np.asarray(inp.planned, np.float64)[: len(obs), :REACTIVE_FUTURES]
+    futures = np.asarray(inp.planned, np.float64)[: len(obs), :n_futures]
     return plan_reactive(
         task["scenario"], b["road"], b["ego"],
         (sc.xy[v, k, 0], sc.xy[v, k, 1], sc.heading[v, k], sc.speed[v, k]),
@@ -484,7 +489,7 @@ def run_task(
     rows = []
     for m in methods:
         if m in PEERS:
-            plan = _peer_plan(task, inp)
+            plan = _peer_plan(task, inp, params.reactive_futures)
         else:
             plan = mmdopt.plan(
                 b["ego"], b["road"], inp.obstacles, method=m, config=cfg, projector=backend,
