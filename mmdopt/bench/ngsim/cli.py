@@ -91,6 +91,14 @@ def add_ngsim_parser(bench_subparsers) -> argparse.ArgumentParser:
     )
     q.add_argument("--predictor", choices=PREDICTORS, default="learned")
     q.add_argument(
+        "--holdout",
+        nargs="+",
+        default=None,
+        metavar="PATTERN",
+        help="plan only the held-out files of --scenarios (names or glob patterns); the split "
+        "goes into run.json",
+    )
+    q.add_argument(
         "--config",
         type=existing_path,
         default=None,
@@ -197,11 +205,24 @@ def cmd_ngsim(args, parser=None) -> int:
             isolate=True,
             export=args.export,
             risk=getattr(args, "risk", None),
+            holdout=args.holdout,
         )
     except ScenarioError as e:
         return _refuse(parser, "--scenarios", e)
     except ValueError as e:  # a folder of other settings, a damaged run.json, Ray missing
+        if "holdout pattern" in str(e):
+            return _refuse(parser, "--holdout", e)
         return _refuse(parser, "", e)
+    refused = json.loads(Path(args.out, "refused.json").read_text())
+    for name, why in refused.items():
+        print(f"refused {name}: {why}")
+    seen = json.loads(Path(args.out, "trained_on.json").read_text())
+    if seen:
+        print(
+            f"note: the learned predictor was trained on {len(seen)} of these scenes "
+            f"({', '.join(seen[:4])}{', …' if len(seen) > 4 else ''}); --holdout plans only "
+            "held-out ones"
+        )
     summ = _summary(rows)
     Path(args.out, "summary.json").write_text(json.dumps(summ, indent=1))
     for s in summ:

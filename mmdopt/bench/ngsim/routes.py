@@ -45,6 +45,7 @@ from .scene import (
 __all__ = [
     "FEATURES",
     "COVERAGE_M",
+    "ROW_BUCKET",
     "ROUTE_WEIGHTS",
     "RouteWeights",
     "route_features",
@@ -61,6 +62,8 @@ __all__ = [
 
 #: the features of a (car, route) pair, in θ's order
 FEATURES = ("heading_gap_1s", "heading_gap_3s", "offset_m", "route_turn")
+#: :class:`RouteMixture` hands its inner predictor a multiple of this many rows
+ROW_BUCKET = 8
 #: a car is covered when one of its k futures ends within this distance (m) of where it went
 COVERAGE_M = 2.0
 #: the shipped route weights (fitted with the urban MDN: ``<weights>_routes.json``)
@@ -273,6 +276,11 @@ class RouteMixture:
                 f"routes have {cl.shape[1]} points, the context's centre lines "
                 f"{np.asarray(context.centerline).shape[1]}"
             )
+        # the inner predictor sees a multiple of ROW_BUCKET rows (the last repeated): a jitted
+        # predictor compiles once per bucket, not once per count of routes
+        pad = -len(rows) % ROW_BUCKET
+        rows = np.concatenate([rows, np.full(pad, rows[-1])])
+        cl = np.concatenate([cl, np.repeat(cl[-1:], pad, axis=0)])
         ctx = replace(context.subset(rows), centerline=cl)
         k_draw, k_mix = jax.random.split(key)
         draws = np.asarray(self.inner.sample(np.asarray(history)[rows], ctx, n, k_draw))

@@ -73,6 +73,9 @@ __all__ = [
     "ngsim_config",
     "select_tasks",
     "explain_no_tasks",
+    "file_report",
+    "refused_files",
+    "trained_on",
     "build_task",
     "traffic_v_des",
     "task_config",
@@ -165,58 +168,82 @@ def select_tasks(paths, params: NgsimParams | None = None, config=None) -> list[
     return tasks
 
 
-def explain_no_tasks(files, params, config) -> str:
-    """Why :func:`select_tasks` finds no task in ``files``: the
-    conditions a task's ego must meet (with ``params``' thresholds) and, per file, how many
-    vehicles pass each of them in turn (over every planning time t0)."""
-    p = params
-    need = (
+def _task_needs(p: NgsimParams, config) -> str:
+    return (
         f"a task needs, at a planning time t0 = {p.first_t0:g}, {p.first_t0 + p.every:g}, … s, "
         f"a vehicle recorded over its history ({p.history} rows before t0, NgsimParams.history) "
         f"and the {config.trajectory.horizon:g} s horizon after t0, on the lane map at t0, at "
         f"most {p.max_ego_length:g} m long (max_ego_length), with another vehicle within "
         f"{p.range_m:g} m (range_m)"
     )
-    lines = []
-    for f in files:
-        sc = load_scenario(str(f))
-        K = int(round(config.trajectory.horizon / sc.dt))
-        recorded = f"{sc.num_steps * sc.dt:.1f} s recorded, {len(sc.ids)} vehicle(s)"
-        passed = [set(), set(), set(), set()]  # recorded, on the map, length, neighbour
-        n_t0 = 0
-        t0 = p.first_t0
-        while True:
-            k = int(round(t0 / sc.dt))
-            if k + K >= sc.num_steps:
-                break
-            if k - p.history + 1 >= 0:
-                n_t0 += 1
-                ok = present(sc, k - p.history + 1, k + K)
-                passed[0] |= set(np.flatnonzero(ok))
-                ok &= sc.lane_of[:, k] >= 0
-                passed[1] |= set(np.flatnonzero(ok))
-                ok &= sc.length <= p.max_ego_length
-                passed[2] |= set(np.flatnonzero(ok))
-                here = np.isfinite(sc.xy[:, k, 0]) & np.isfinite(sc.xy[:, max(k - 1, 0), 0])
-                for v in np.flatnonzero(ok):
-                    d = np.linalg.norm(sc.xy[:, k] - sc.xy[v, k], axis=-1)
-                    if np.any(here & (d <= p.range_m) & (np.arange(len(d)) != v)):
-                        passed[3].add(int(v))
-            t0 += p.every
-        if n_t0 == 0:
-            lines.append(
-                f"{Path(f).name}: {recorded}; too short for one planning time "
-                f"(needs more than {p.first_t0 + config.trajectory.horizon:g} s)"
-            )
-        else:
-            c = [len(x) for x in passed]
-            lines.append(
-                f"{Path(f).name}: {recorded}, {n_t0} planning time(s); vehicles recorded over "
-                f"history and horizon: {c[0]}, of them on the lane map: {c[1]}, short enough: "
-                f"{c[2]}, with a vehicle within range: {c[3]}"
-            )
+
+
+def file_report(f, params: NgsimParams, config) -> str:
+    """One scenario file against the task conditions (:func:`select_tasks`): its length and
+    vehicles and, over every planning time, how many vehicles pass each condition in turn;
+    "too short" where no planning time fits."""
+    p = params
+    sc = load_scenario(str(f))
+    K = int(round(config.trajectory.horizon / sc.dt))
+    recorded = f"{sc.num_steps * sc.dt:.1f} s recorded, {len(sc.ids)} vehicle(s)"
+    passed: list[set] = [set(), set(), set(), set()]  # recorded, on the map, length, neighbour
+    n_t0 = 0
+    t0 = p.first_t0
+    while True:
+        k = int(round(t0 / sc.dt))
+        if k + K >= sc.num_steps:
+            break
+        if k - p.history + 1 >= 0:
+            n_t0 += 1
+            ok = present(sc, k - p.history + 1, k + K)
+            passed[0] |= set(np.flatnonzero(ok))
+            ok &= sc.lane_of[:, k] >= 0
+            passed[1] |= set(np.flatnonzero(ok))
+            ok &= sc.length <= p.max_ego_length
+            passed[2] |= set(np.flatnonzero(ok))
+            here = np.isfinite(sc.xy[:, k, 0]) & np.isfinite(sc.xy[:, max(k - 1, 0), 0])
+            for v in np.flatnonzero(ok):
+                d = np.linalg.norm(sc.xy[:, k] - sc.xy[v, k], axis=-1)
+                if np.any(here & (d <= p.range_m) & (np.arange(len(d)) != v)):
+                    passed[3].add(int(v))
+        t0 += p.every
+    if n_t0 == 0:
+        return (
+            f"{Path(f).name}: {recorded}; too short for one planning time "
+            f"(needs more than {p.first_t0 + config.trajectory.horizon:g} s)"
+        )
+    c = [len(x) for x in passed]
+    return (
+        f"{Path(f).name}: {recorded}, {n_t0} planning time(s); vehicles recorded over "
+        f"history and horizon: {c[0]}"
+        + (" (no car recorded long enough)" if c[0] == 0 else "")
+        + f", of them on the lane map: {c[1]}"
+        + (" (no route: none is on a lanelet)" if c[0] and c[1] == 0 else "")
+        + f", short enough: {c[2]}, with a vehicle within range: {c[3]}"
+    )
+
+
+def explain_no_tasks(files, params, config) -> str:
+    """Why :func:`select_tasks` finds no task in ``files``: the conditions a task's ego must
+    meet (with ``params``' thresholds) and, per file, :func:`file_report`."""
+    lines = [file_report(f, params, config) for f in files]
     shown = lines[:5] + ([f"… and {len(lines) - 5} more file(s)"] if len(lines) > 5 else [])
-    return f"no task selected from {len(lines)} scenario file(s): {need}. " + "; ".join(shown)
+    return (
+        f"no task selected from {len(lines)} scenario file(s): {_task_needs(params, config)}. "
+        + "; ".join(shown)
+    )
+
+
+def refused_files(files, tasks, params: NgsimParams, config) -> dict[str, str]:
+    """The files among ``files`` that gave none of ``tasks``, each with why
+    (:func:`file_report`, after the conditions)."""
+    used = {str(t["scenario"]) for t in tasks}
+    need = _task_needs(params, config)
+    return {
+        Path(f).name: f"{file_report(f, params, config)} — {need}"
+        for f in files
+        if str(f) not in used
+    }
 
 
 # --------------------------------------------------------------------------- one task
@@ -688,6 +715,22 @@ def _as_config(config) -> tuple[mmdopt.MMDOptConfig, NgsimParams]:
     return load_ngsim_config(config)
 
 
+def trained_on(files, predictor: str) -> list[str]:
+    """The names among ``files`` that the shipped ``predictor`` was trained on (its weights'
+    ``train_files``: the US-101 MDN, and the urban MDN with its route weights); [] for cv/lane."""
+    if predictor != "learned":
+        return []
+    from mmdopt.predict.learned import DEFAULT_WEIGHTS, URBAN_WEIGHTS
+
+    seen: set[str] = set()
+    for base in (DEFAULT_WEIGHTS, URBAN_WEIGHTS):
+        meta = Path(f"{base}.json")
+        if meta.is_file():
+            info = json.loads(meta.read_text()).get("info", {})
+            seen |= set(info.get("train_files", []) if isinstance(info, dict) else [])
+    return sorted(Path(f).name for f in files if Path(f).name in seen)
+
+
 def risk_config(config: mmdopt.MMDOptConfig, risk: float | None) -> mmdopt.MMDOptConfig:
     """``config`` in the risk mode at ε = ``risk`` (``--risk``): sample-driven margins
     (``margin_mode = "samples"``) and ``safety.risk = ε``; ``None``: ``config`` as it is."""
@@ -711,6 +754,7 @@ def run_ngsim(
     isolate: bool = False,
     export: str | Path | None = None,
     risk: float | None = None,
+    holdout=None,
 ) -> list[dict]:
     """Run the benchmark on the scenario files/folders ``scenarios``; write ``OUT/results.csv``.
 
@@ -730,7 +774,10 @@ def run_ngsim(
     ``risk`` ε: the planner in the risk mode at ε (:func:`risk_config`, recorded in the
     manifest's config), each method with its own mapping of ε, through the predictor's
     forecast (``params.forecast``) so that each plan draws the futures ε needs; the rows'
-    ``risk`` column.
+    ``risk`` column.  ``holdout``: file names or glob patterns (:func:`.data.split_files`): only
+    the held-out files of ``scenarios`` are planned, and the split goes into ``run.json``.
+    Files that give no task are named with the reason in ``OUT/refused.json``; the files the
+    shipped learned predictor was trained on, in ``OUT/trained_on.json``.
     """
     from mmdopt.bench.executors import MISSING, check_manifest, run_tasks, worker_layout
 
@@ -748,12 +795,23 @@ def run_ngsim(
             raise ValueError(f"method {m!r}: {available_peer()}")
     if predictor not in PREDICTORS:
         raise ValueError(f"predictor must be one of {PREDICTORS}, got {predictor!r}")
+    from .data import describe_split, split_files
+
+    split = None
+    if holdout is not None:
+        train, scenarios = split_files(scenarios, holdout)
+        split = describe_split(train, scenarios, holdout)
+        if not scenarios:
+            raise ScenarioError(f"no held-out file among the scenarios (holdout {holdout!r})")
+    files = scenario_files(scenarios)
     # every scenario file is read (and checked) before anything is written into ``out``
-    tasks = select_tasks(scenarios, p, cfg)
+    tasks = select_tasks(files, p, cfg)
     if not tasks:
-        raise ScenarioError(explain_no_tasks(scenario_files(scenarios), p, cfg))
+        raise ScenarioError(explain_no_tasks(files, p, cfg))
     out = Path(out)
     (out / "tasks").mkdir(parents=True, exist_ok=True)
+    (out / "refused.json").write_text(json.dumps(refused_files(files, tasks, p, cfg), indent=1))
+    (out / "trained_on.json").write_text(json.dumps(trained_on(files, predictor), indent=1))
     if max_tasks is not None:
         tasks = tasks[:max_tasks]
     cfg_d = {
@@ -768,11 +826,13 @@ def run_ngsim(
                     params=dataclasses.asdict(p),
                     config=cfg_d,
                     workers=worker_layout(jobs, executor, isolate),
+                    split=split,
                 ),
                 default=str,
             )
         ),
-        aliases={"workers": [MISSING]},  # folders written before the manifest recorded it
+        # folders written before the manifest recorded them
+        aliases={"workers": [MISSING], "split": [MISSING]},
     )
     args = [
         (t, methods, predictor, p, cfg, out, None if export is None else Path(export), risk)
