@@ -282,8 +282,8 @@ def _add_holdout(q: argparse.ArgumentParser) -> None:
         nargs="+",
         default=None,
         metavar="PATTERN",
-        help="the held-out files: names or glob patterns (default: US-101 recordings N % 5 == 0, "
-        "other scenes LOC-M_N_T-1 with N % 5 == 0)",
+        help="the held-out files: names or glob patterns (default: US-101 recordings N %% 5 == 0, "
+        "other scenes LOC-M_N_T-1 with N %% 5 == 0)",
     )
 
 
@@ -347,7 +347,7 @@ def _checked_split(data, parser, need: str, holdout=None) -> tuple[list[Path], l
     try:
         train, test = split_files(data, holdout)
     except ValueError as e:
-        _refuse(parser, "--holdout" if "holdout" in str(e) else "--data", e)
+        _refuse(parser, "--holdout" if "holdout pattern" in str(e) else "--data", e)
         raise SystemExit(2) from None
     try:
         for f in train + test:
@@ -360,7 +360,7 @@ def _checked_split(data, parser, need: str, holdout=None) -> tuple[list[Path], l
         _refuse(
             parser,
             "--holdout" if holdout is not None else "--data",
-            f"no {need} files among the {len(train) + len(test)} of --data "
+            f"no {need} recordings among the {len(train) + len(test)} file(s) of --data "
             f"(held out: {len(test)}; --holdout names them)",
         )
         raise SystemExit(2)

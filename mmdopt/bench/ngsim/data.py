@@ -55,8 +55,8 @@ def default_heldout(name: str) -> bool:
     m = re.match(r"^.+-\d+_(\d+)_T-\d+$", stem)
     if m is None:
         raise ValueError(
-            f"{name!r}: no default split for this name (CommonRoad LOC-M_N_T-k expected); "
-            "give the held-out files (holdout / --holdout)"
+            f"{name!r}: no default split for this name (USA_US101-N_K_T-1 or another CommonRoad "
+            "LOC-M_N_T-k name expected); give the held-out files (holdout / --holdout)"
         )
     return int(m.group(1)) % HOLDOUT_MOD == 0
 
