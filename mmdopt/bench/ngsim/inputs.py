@@ -109,6 +109,9 @@ class NgsimParams:
         (:class:`~mmdopt.bench.ngsim.routes.RouteMixture` of the predictor over
         :func:`~mmdopt.bench.ngsim.scene.candidate_routes`, learned route weights); ``False``:
         along the straightest route only
+    speed_limits : the desired speed is capped at the lowest speed-limit sign of the ego's route
+        lanelets it reaches within 2 s (at least 20 m; Lankershim: 3.6–13.4 m/s, the US-101
+        scenes have none)
     reactive_futures : predictor samples per car the ``reactive`` peer avoids, each one a
         CommonRoad obstacle (the first of the planning samples, which mix the routes).  One,
         the planner's design (one prediction per car), chosen on the Lankershim training
@@ -158,6 +161,7 @@ class NgsimParams:
     seed: int = 0
     forecast: bool = True
     routes: bool = True
+    speed_limits: bool = True
     reactive_futures: int = 1
 
     def __post_init__(self) -> None:
@@ -175,7 +179,7 @@ class NgsimParams:
             raise ValueError(
                 f"NgsimParams.min_change_speed must be finite and >= 0, got {self.min_change_speed}"
             )
-        for name in ("forecast", "routes"):
+        for name in ("forecast", "routes", "speed_limits"):
             if not isinstance(getattr(self, name), bool):
                 raise ValueError(f"NgsimParams.{name} must be a bool, got {getattr(self, name)!r}")
         if self.v_des_flow is not None and self.v_des is None:

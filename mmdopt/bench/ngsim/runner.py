@@ -64,6 +64,7 @@ from .scene import (
     history_at,
     load_scenario,
     present,
+    route_speed_limit,
     scenario_files,
 )
 
@@ -302,7 +303,15 @@ def build_task(task: dict, params: NgsimParams, config: mmdopt.MMDOptConfig) -> 
         lead = np.flatnonzero(in_lane)[np.argmin(s_obs[in_lane])]
         v_leader = float(sc.speed[obs[lead], k])
     routes = tuple(np.stack(candidate_routes(sc, int(o), k)) for o in obs)
+    # the map's speed limit of the lanelets the ego drives on within 2 s (>= 20 m): one
+    # desired speed for the horizon, so a limit farther ahead is not the ego's yet
+    v_limit = (
+        route_speed_limit(sc, v, k, max(20.0, 2.0 * max(float(ego.vs), 0.0)))
+        if params.speed_limits
+        else None
+    )
     return dict(
+        v_limit=v_limit,
         routes=routes,
         route_p=tuple(route_probabilities(hist, routes, sc.dt, shipped_route_weights())),
         v_flow=v_flow,
@@ -342,8 +351,11 @@ def traffic_v_des(
 
 def task_config(b: dict, params: NgsimParams, config: mmdopt.MMDOptConfig) -> mmdopt.MMDOptConfig:
     """The planner config of one built task (:func:`build_task`): ``config`` with the task's
-    desired speed (:func:`traffic_v_des`)."""
+    desired speed (:func:`traffic_v_des`), capped at the map's speed limit along the ego's
+    route (:func:`~.scene.route_speed_limit`, ``NgsimParams.speed_limits``)."""
     v = traffic_v_des(b.get("v_flow"), params, b.get("v_leader"))
+    if b.get("v_limit") is not None:
+        v = min(config.cost.v_des if v is None else v, float(b["v_limit"]))
     return config if v is None else config.replace(v_des=v)
 
 

@@ -29,6 +29,8 @@ __all__ = [
     "ROUTE_SMOOTHING",
     "MAX_ROUTES",
     "route_chain",
+    "route_speed_limit",
+    "SPEED_LIMIT_SIGNS",
     "candidate_routes",
     "distance_to_polyline",
     "smooth_polyline",
@@ -60,6 +62,7 @@ class Lane:
     predecessors: tuple[int, ...]
     left_id: int | None  # same-direction neighbour
     right_id: int | None
+    speed_limit: float | None = None  # m/s, the lanelet's speed-limit sign (None: none)
 
 
 @dataclass(frozen=True, eq=False)
@@ -172,6 +175,7 @@ def load_scenario(path: str | Path) -> NgsimScene:
             predecessors=tuple(int(i) for i in ll.predecessor),
             left_id=int(ll.adj_left) if ll.adj_left and ll.adj_left_same_direction else None,
             right_id=int(ll.adj_right) if ll.adj_right and ll.adj_right_same_direction else None,
+            speed_limit=_speed_limit(net, ll),
         )
     obs = list(scenario.dynamic_obstacles)
     T = 1 + max([o.prediction.final_time_step for o in obs if o.prediction is not None] + [0])
@@ -218,6 +222,27 @@ def load_scenario(path: str | Path) -> NgsimScene:
         lane_of=lane_of,
         n_intersections=len(net.intersections),
     )
+
+
+#: CommonRoad's speed-limit signs: the US "R2-1" and the German "274" (value in m/s)
+SPEED_LIMIT_SIGNS = ("R2-1", "274")
+
+
+def _speed_limit(net, lanelet) -> float | None:
+    """The lanelet's speed limit (m/s) from its traffic signs, the lowest if several."""
+    out = None
+    for sid in lanelet.traffic_signs:
+        sign = net.find_traffic_sign_by_id(sid)
+        for el in getattr(sign, "traffic_sign_elements", ()):
+            if str(getattr(el.traffic_sign_element_id, "value", "")) not in SPEED_LIMIT_SIGNS:
+                continue
+            try:
+                v = float(el.additional_values[0])
+            except (IndexError, TypeError, ValueError):
+                continue
+            if np.isfinite(v) and v > 0:
+                out = v if out is None else min(out, v)
+    return out
 
 
 def _pick_lane(lanes: dict[int, Lane], p, heading, candidates) -> int:
@@ -347,6 +372,11 @@ def route_chain(scene: NgsimScene, v: int, k: int, ahead: float = 260.0) -> tupl
     first predecessors.  Chosen: the one
     whose centre line is nearest (mean distance) to the car's recorded positions from ``k`` on:
     at a junction, the turn the recorded car took."""
+    return _route(scene, v, k, ahead)[:2]
+
+
+def _route(scene: NgsimScene, v: int, k: int, ahead: float):
+    """:func:`route_chain`'s (chain, start lanelet) and the lanelet sequence from the start."""
     lanes = scene.lanes
     lid = int(scene.lane_of[v, k])
     if lid < 0:
@@ -356,15 +386,31 @@ def route_chain(scene: NgsimScene, v: int, k: int, ahead: float = 260.0) -> tupl
     hd = float(scene.heading[v, k])
     starts = [lid] if lid in _aligned_lanes({lid: lanes[lid]}, rec[0], hd, np.inf) else []
     starts = starts or _aligned_lanes(lanes, rec[0], hd, 4.0)[:4] or [lid]
-    best, best_d = (None, lid), np.inf
+    best, best_d = (None, lid, (lid,)), np.inf
     for start in starts:
         back = _predecessors(lanes, start)
         for seq in _successor_routes(lanes, start, ahead + _length(lanes[start].center)):
             chain = _dedup(np.concatenate(back + [lanes[i].center for i in seq], 0))
             dist = float(np.mean(distance_to_polyline(chain, rec)))
             if dist < best_d:
-                best, best_d = (chain, start), dist
+                best, best_d = (chain, start, seq), dist
     return best
+
+
+def route_speed_limit(scene: NgsimScene, v: int, k: int, reach: float) -> float | None:
+    """The lowest speed limit (m/s) of the lanelets of the ego's route (:func:`route_chain`)
+    that start within ``reach`` m ahead of it; None where none has a sign."""
+    _, start, seq = _route(scene, v, k, reach + 10.0)
+    lanes = scene.lanes
+    s0, _ = cartesian_to_lane(lanes[start].center, scene.xy[v, k][None])
+    along, limits = -float(s0[0]), []
+    for lid in seq:
+        if along > reach:
+            break
+        if lanes[lid].speed_limit is not None:
+            limits.append(lanes[lid].speed_limit)
+        along += _length(lanes[lid].center)
+    return min(limits) if limits else None
 
 
 def _turning(xy: np.ndarray) -> float:

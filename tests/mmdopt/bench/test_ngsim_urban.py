@@ -105,3 +105,24 @@ def test_route_path_is_smooth_enough_to_steer(urban_file, tasks):
         s = float(se) + np.arange(0.0, 40.0, 0.8)  # 5 s at 8 m/s, one point per 0.1 s
         delta = np.arctan(2.578 * np.asarray(path.curvature(s)))  # BMW 320i wheelbase
         assert np.max(np.abs(np.diff(delta))) / 0.1 < 0.4, t
+
+
+def test_the_desired_speed_respects_the_maps_speed_limit(urban_file, tasks):
+    """Lankershim's lanelets carry speed-limit signs (25 and 30 mph, 8 mph on a few); a task's
+    desired speed is capped at the one of the lanelets the ego reaches within 2 s, and only
+    there (``speed_limits=False``: the traffic's speed alone)."""
+    from mmdopt.bench.ngsim.runner import NgsimParams, build_task, ngsim_config, task_config
+    from mmdopt.bench.ngsim.scene import load_scenario
+
+    sc = load_scenario(urban_file)
+    limits = [lane.speed_limit for lane in sc.lanes.values()]
+    assert None not in limits
+    assert {round(x, 2) for x in limits} <= {3.58, 11.18, 13.41}
+    cfg = ngsim_config()
+    for t in tasks:
+        on, off = NgsimParams(), NgsimParams(speed_limits=False)
+        b = build_task(t, on, cfg)
+        assert b["v_limit"] is not None
+        v_on = task_config(b, on, cfg).cost.v_des
+        v_off = task_config(build_task(t, off, cfg), off, cfg).cost.v_des
+        assert v_on == pytest.approx(min(v_off, b["v_limit"]))
