@@ -149,24 +149,31 @@ def select_tasks(paths, params: NgsimParams | None = None, config=None) -> list[
     for f in scenario_files(paths):
         sc = load_scenario(str(f))
         K = int(round(cfg.trajectory.horizon / sc.dt))
-        t0 = p.first_t0
-        while True:
-            k = int(round(t0 / sc.dt))
-            if k + K >= sc.num_steps:
-                break
-            if k - p.history + 1 >= 0:
-                # moving cars first (a car waiting at a red light through the whole horizon
-                # is no planning task), then the most neighbours
-                cands = sorted(
-                    _candidates(sc, k, K, p),
-                    key=lambda c: (not sc.speed[c[1], k] >= p.min_task_speed, -c[0], sc.ids[c[1]]),
+        for k in _planning_steps(sc, K, p):
+            # moving cars first (a car waiting at a red light through the whole horizon is no
+            # planning task), then the most neighbours
+            cands = sorted(
+                _candidates(sc, k, K, p),
+                key=lambda c, k=k: (not sc.speed[c[1], k] >= p.min_task_speed, -c[0], sc.ids[c[1]]),
+            )
+            for _, v in cands[: p.egos_per_time]:
+                tasks.append(
+                    dict(scenario=str(f), ego_id=int(sc.ids[v]), k=k, t0=round(k * sc.dt, 3))
                 )
-                for _, v in cands[: p.egos_per_time]:
-                    tasks.append(
-                        dict(scenario=str(f), ego_id=int(sc.ids[v]), k=k, t0=round(k * sc.dt, 3))
-                    )
-            t0 += p.every
     return tasks
+
+
+def _planning_steps(sc: NgsimScene, K: int, p: NgsimParams) -> list[int]:
+    """The steps k of the planning times t0 = first_t0, first_t0 + every, … whose history and
+    ``K``-step horizon are inside the recording."""
+    out, t0 = [], p.first_t0
+    while True:
+        k = int(round(t0 / sc.dt))
+        if k + K >= sc.num_steps:
+            return out
+        if k - p.history + 1 >= 0:
+            out.append(k)
+        t0 += p.every
 
 
 def _task_needs(p: NgsimParams, config) -> str:
@@ -188,26 +195,20 @@ def file_report(f, params: NgsimParams, config) -> str:
     K = int(round(config.trajectory.horizon / sc.dt))
     recorded = f"{sc.num_steps * sc.dt:.1f} s recorded, {len(sc.ids)} vehicle(s)"
     passed: list[set] = [set(), set(), set(), set()]  # recorded, on the map, length, neighbour
-    n_t0 = 0
-    t0 = p.first_t0
-    while True:
-        k = int(round(t0 / sc.dt))
-        if k + K >= sc.num_steps:
-            break
-        if k - p.history + 1 >= 0:
-            n_t0 += 1
-            ok = present(sc, k - p.history + 1, k + K)
-            passed[0] |= set(np.flatnonzero(ok))
-            ok &= sc.lane_of[:, k] >= 0
-            passed[1] |= set(np.flatnonzero(ok))
-            ok &= sc.length <= p.max_ego_length
-            passed[2] |= set(np.flatnonzero(ok))
-            here = np.isfinite(sc.xy[:, k, 0]) & np.isfinite(sc.xy[:, max(k - 1, 0), 0])
-            for v in np.flatnonzero(ok):
-                d = np.linalg.norm(sc.xy[:, k] - sc.xy[v, k], axis=-1)
-                if np.any(here & (d <= p.range_m) & (np.arange(len(d)) != v)):
-                    passed[3].add(int(v))
-        t0 += p.every
+    steps = _planning_steps(sc, K, p)
+    n_t0 = len(steps)
+    for k in steps:
+        ok = present(sc, k - p.history + 1, k + K)
+        passed[0] |= set(np.flatnonzero(ok))
+        ok &= sc.lane_of[:, k] >= 0
+        passed[1] |= set(np.flatnonzero(ok))
+        ok &= sc.length <= p.max_ego_length
+        passed[2] |= set(np.flatnonzero(ok))
+        here = np.isfinite(sc.xy[:, k, 0]) & np.isfinite(sc.xy[:, max(k - 1, 0), 0])
+        for v in np.flatnonzero(ok):
+            d = np.linalg.norm(sc.xy[:, k] - sc.xy[v, k], axis=-1)
+            if np.any(here & (d <= p.range_m) & (np.arange(len(d)) != v)):
+                passed[3].add(int(v))
     if n_t0 == 0:
         return (
             f"{Path(f).name}: {recorded}; too short for one planning time "
