@@ -11,13 +11,21 @@ class                     condition (checked in this order, at the first contact
 ``front``                 the ego's front edge touches the other footprint            yes
 ``rear``                  the other vehicle's centre is behind the ego's rear bumper  if braking
 ``lateral``               anything else (side contact)                                if the ego
-                                                                                      changes lane
+                                                                                      changes lane,
+                                                                                      crosses a
+                                                                                      junction or
+                                                                                      either car
+                                                                                      turns
 ========================  =========================================================  =========
 
 "if braking": a contact from behind (or with a stopped ego) is the follower's fault unless the ego
 braked harder than :data:`BRAKE_THRESHOLD` (3 m/s²) in the second before the contact (a brake
 check).  "changes lane": the ego's footprint crosses a lane line (its offset from the nearest lane
-centre exceeds ``(lane width − ego width)/2``).  Replaying recorded traffic is open loop: the
+centre exceeds ``(lane width − ego width)/2``).  The junction cases (urban scenes): a lateral
+contact while the ego's centre is inside a junction (its lanelets: the successors of the
+intersection's incomings) or while either car turns (heading rate above
+:data:`TURNING_RATE` over the second around the contact) is the ego's fault too: there no lane
+line says who keeps to what.  Replaying recorded traffic is open loop: the
 recorded followers react to the human who drove the ego's car, not to the plan, which is why
 rear contacts are excluded.
 """
@@ -29,7 +37,10 @@ import numpy as np
 __all__ = [
     "BRAKE_THRESHOLD",
     "COLLISION_CLASSES",
+    "TURNING_RATE",
     "at_fault",
+    "inside_any",
+    "turning",
     "classify_collision",
     "rect_corners",
     "rect_distance",
@@ -41,6 +52,34 @@ BRAKE_THRESHOLD = 3.0
 #: Speed (m/s) below which a vehicle counts as stopped (nuPlan's value).
 STOPPED_SPEED = 0.05
 COLLISION_CLASSES = ("stopped_ego", "stopped_track", "front", "rear", "lateral")
+#: Heading rate (rad/s) above which a car counts as turning (a right angle in 10 s)
+TURNING_RATE = 0.15
+
+
+def inside_any(p, polygons) -> bool:
+    """Whether the point ``p`` (2,) lies inside any of ``polygons`` ((P, 2) arrays; ray casting)."""
+    x, y = float(p[0]), float(p[1])
+    for poly in polygons:
+        q = np.asarray(poly, np.float64)
+        xa, ya = q[:, 0], q[:, 1]
+        xb, yb = np.roll(xa, -1), np.roll(ya, -1)
+        cross = (ya > y) != (yb > y)
+        with np.errstate(divide="ignore", invalid="ignore"):
+            xi = xa + (y - ya) * (xb - xa) / (yb - ya)
+        if int(np.sum(cross & (x < xi))) % 2 == 1:
+            return True
+    return False
+
+
+def turning(heading, dt: float, j: int, window: float = 1.0) -> bool:
+    """Whether a car with headings ``heading`` (K,) every ``dt`` s turns at step ``j``: its mean
+    heading rate over ``window`` s around ``j`` above :data:`TURNING_RATE`."""
+    h = np.unwrap(np.asarray(heading, np.float64))
+    w = max(1, int(round(0.5 * window / dt)))
+    a, b = max(0, j - w), min(len(h) - 1, j + w)
+    if b <= a or not np.all(np.isfinite(h[[a, b]])):
+        return False
+    return bool(abs(h[b] - h[a]) / ((b - a) * dt) > TURNING_RATE)
 
 
 def rect_corners(x, y, heading, length, width) -> np.ndarray:
@@ -112,14 +151,20 @@ def classify_collision(ego_rect, ego_heading, ego_speed, other_rect, other_xy, o
 
 
 def at_fault(
-    cls: str, ego_decel: float, ego_changing_lanes: bool, brake_threshold: float = BRAKE_THRESHOLD
+    cls: str,
+    ego_decel: float,
+    ego_changing_lanes: bool,
+    brake_threshold: float = BRAKE_THRESHOLD,
+    in_junction: bool = False,
+    turning: bool = False,
 ) -> bool:
     """The at-fault rule of the module table.  ``ego_decel``: the ego's largest deceleration
-    (m/s², positive = braking) in the second before the contact."""
+    (m/s², positive = braking) in the second before the contact; ``in_junction`` / ``turning``:
+    the junction cases of a lateral contact (the ego inside a junction, either car turning)."""
     if cls not in COLLISION_CLASSES:
         raise ValueError(f"unknown collision class {cls!r}; one of {COLLISION_CLASSES}")
     if cls in ("front", "stopped_track"):
         return True
     if cls == "lateral":
-        return bool(ego_changing_lanes)
+        return bool(ego_changing_lanes or in_junction or turning)
     return bool(ego_decel > brake_threshold)

@@ -48,9 +48,11 @@ from .inputs import NgsimParams, ScenarioError, load_ngsim_config, ngsim_config
 from .metric import (
     at_fault,
     classify_collision,
+    inside_any,
     rect_corners,
     rect_distance,
     rects_overlap,
+    turning,
 )
 from .reactive import PEERS, PeerPlan, plan_reactive
 from .reactive import available as available_peer
@@ -383,7 +385,8 @@ def _score_recorded(b: dict, plan, params: NgsimParams) -> dict:
     dev = np.min(np.abs(plan.d[:, None] - np.array(centres)[None]), axis=1)
     changing = dev > 0.5 * (b["lane_w"] - sc.width[v])
     decel = -np.asarray(plan.as_)
-    win = max(1, int(round(1.0 / (times[1] - times[0]))))
+    dt = float(times[1] - times[0])
+    win = max(1, int(round(1.0 / dt)))
     fault, classes = False, []
     for i in np.flatnonzero(overlap.any(1)):
         j = int(np.flatnonzero(overlap[i])[0])
@@ -391,7 +394,12 @@ def _score_recorded(b: dict, plan, params: NgsimParams) -> dict:
             ego_rect[j], plan.heading[j], plan.speed[j], o_rect[i, j], fut[i, j], spd[i, j]
         )
         dec = float(np.max(decel[max(0, j - win) : j + 1]))
-        f = at_fault(cls, dec, bool(changing[j]), params.brake_threshold)
+        in_junction = inside_any((plan.x[j], plan.y[j]), sc.junctions)
+        turns = turning(plan.heading, dt, j) or turning(hd[i], dt, j)
+        f = at_fault(
+            cls, dec, bool(changing[j]), params.brake_threshold, in_junction=in_junction,
+            turning=turns,
+        )  # fmt: skip
         classes.append(cls + ("*" if f else ""))
         fault |= f
     return dict(

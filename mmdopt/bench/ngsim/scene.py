@@ -82,6 +82,7 @@ class NgsimScene:
     width: np.ndarray  # (V,) m
     lane_of: np.ndarray = field(repr=False)  # (V, T) lanelet id, -1 off the map / absent
     n_intersections: int = 0  # the lanelet network's intersections (junctions)
+    junctions: tuple = ()  # (P, 2) polygons of the lanelets inside the junctions
 
     @property
     def num_steps(self) -> int:
@@ -221,6 +222,7 @@ def load_scenario(path: str | Path) -> NgsimScene:
         width=width,
         lane_of=lane_of,
         n_intersections=len(net.intersections),
+        junctions=_junction_polygons(net),
     )
 
 
@@ -243,6 +245,22 @@ def _speed_limit(net, lanelet) -> float | None:
             if np.isfinite(v) and v > 0:
                 out = v if out is None else min(out, v)
     return out
+
+
+def _junction_polygons(net) -> tuple:
+    """Polygons of the lanelets inside the network's junctions (the successors of every
+    incoming of every intersection)."""
+    ids: set[int] = set()
+    for it in net.intersections:
+        for inc in it.incomings:
+            for group in (inc.successors_right, inc.successors_straight, inc.successors_left):
+                ids |= {int(i) for i in group}
+    out = []
+    for i in sorted(ids):
+        ll = net.find_lanelet_by_id(i)
+        if ll is not None:
+            out.append(np.concatenate([ll.left_vertices, ll.right_vertices[::-1]], 0))
+    return tuple(out)
 
 
 def _pick_lane(lanes: dict[int, Lane], p, heading, candidates) -> int:

@@ -126,3 +126,28 @@ def test_the_desired_speed_respects_the_maps_speed_limit(urban_file, tasks):
         v_on = task_config(b, on, cfg).cost.v_des
         v_off = task_config(build_task(t, off, cfg), off, cfg).cost.v_des
         assert v_on == pytest.approx(min(v_off, b["v_limit"]))
+
+
+def test_junction_cases_of_the_at_fault_rule(urban_file):
+    """A side contact is the ego's fault when it changes lanes, and in a junction also when its
+    centre is inside the junction or either car turns; the other classes keep their rule."""
+    from mmdopt.bench.ngsim.metric import at_fault, inside_any, turning
+    from mmdopt.bench.ngsim.scene import load_scenario
+
+    assert not at_fault("lateral", 0.0, False)
+    assert at_fault("lateral", 0.0, False, in_junction=True)
+    assert at_fault("lateral", 0.0, False, turning=True)
+    assert not at_fault("rear", 0.0, False, in_junction=True, turning=True)  # not a brake check
+    assert at_fault("front", 0.0, False)
+    # a car turning a right angle in 5 s turns; one drifting 3° in 1 s does not
+    t = np.arange(51) * 0.1
+    assert turning(t * (np.pi / 2) / 5.0, 0.1, 25)
+    assert not turning(t * np.radians(3.0), 0.1, 25)
+    # the junction polygons of a Lankershim scene hold their lanelets' centre points
+    sc = load_scenario(urban_file)
+    assert sc.n_intersections >= 1 and len(sc.junctions) >= 4
+    for poly in sc.junctions[:4]:
+        n = len(poly) // 2
+        mid = 0.5 * (poly[n // 2] + poly[len(poly) - 1 - n // 2])
+        assert inside_any(mid, [poly])
+    assert not inside_any(np.array([1e6, 1e6]), sc.junctions)
