@@ -4,19 +4,22 @@ from __future__ import annotations
 
 from pathlib import Path
 
-import jax
 import numpy as np
 
 import mmdopt
 from mmdopt.bench.plots import method_colour, method_label, pyplot
-from mmdopt.padding import pad_obstacles
 
 from .inputs import NgsimParams, ngsim_config
 from .metric import rect_corners
-from .runner import build_task, cached_predictor, task_config
+from .reactive import PEERS
+from .runner import peer_plan, plan_inputs
 from .scene import future_at
 
-__all__ = ["ngsim_scene_figure", "timing_vs_obstacles_figure"]
+__all__ = ["ROUTE_COLOURS", "ngsim_scene_figure", "timing_vs_obstacles_figure"]
+
+
+#: colours of a car's routes in the figures, the straightest first
+ROUTE_COLOURS = ("tab:red", "tab:blue", "tab:purple", "tab:orange")
 
 
 def ngsim_scene_figure(
@@ -28,31 +31,40 @@ def ngsim_scene_figure(
     config=None,
     n_draw: int = 20,
 ) -> Path:
-    """Cartesian figure of one task: lanelets (boundaries, grey), every obstacle's recorded
-    future (black) and ``n_draw`` predictor samples each (light red), the ego's recorded future
-    (dashed) and each method's plan with footprints at 0, 2.5 and 5 s."""
+    """Cartesian figure of one task exactly as ``bench ngsim`` plans it (:func:`plan_inputs`):
+    lanelets, the ego's route (its reference path, thick grey), every obstacle's recorded future
+    (black) and ``n_draw`` of its planning futures coloured by the route each follows (nearest
+    route at the end; :data:`ROUTE_COLOURS`, the straightest red), the ego's recorded future
+    (dashed) and each method's plan (``reactive`` too) with footprints at 0, 2.5 and 5 s."""
     plt = pyplot()
     p = NgsimParams() if params is None else params
     cfg = ngsim_config() if config is None else config
-    b = build_task(task, p, cfg)
-    cfg = task_config(b, p, cfg)
+    inp = plan_inputs(task, p, cfg, predictor)
+    b, cfg = inp.task, inp.config
     sc, v, k, times = b["scene"], b["v"], b["k"], b["times"]
-    key = jax.random.PRNGKey(p.seed)
-    samples = cached_predictor(predictor).sample(b["hist"], b["ctx"], p.n_samples, key)
-    m = p.max_obstacles
-    planned = pad_obstacles(samples, m, b["ego"], b["road"], times, bucket=m)
+    samples = np.asarray(inp.planned)[: len(b["obs"])]
     fig, ax = plt.subplots(figsize=(8, 8))
     _draw_lanelets(ax, task["scenario"], sc)
-    for o in range(samples.shape[0]):
-        for j in range(min(n_draw, samples.shape[1])):
-            ax.plot(samples[o, j, :, 0], samples[o, j, :, 1], color="tab:red", alpha=0.12, lw=0.7)
-    ax.plot(
-        [],
-        [],
-        color="tab:red",
-        alpha=0.4,
-        label=f"{predictor} predictor samples ({n_draw}/obstacle)",
+    path_xy = np.stack(
+        [np.asarray(a) for a in b["road"].path.to_cartesian(*_path_grid(b["road"].path))], -1
     )
+    ax.plot(path_xy[:, 0], path_xy[:, 1], color="0.45", lw=5, alpha=0.35, zorder=2)
+    ax.plot([], [], color="0.45", lw=5, alpha=0.35, label="ego route (reference path)")
+    used = set()
+    for o in range(samples.shape[0]):
+        routes = b["routes"][o]
+        for j in range(min(n_draw, samples.shape[1])):
+            end = samples[o, j, -1]
+            r = int(np.argmin([np.min(np.linalg.norm(rt - end, axis=-1)) for rt in routes]))
+            used.add(r)
+            col = ROUTE_COLOURS[min(r, len(ROUTE_COLOURS) - 1)]
+            ax.plot(samples[o, j, :, 0], samples[o, j, :, 1], color=col, alpha=0.15, lw=0.7)
+    for r in sorted(used):
+        name = "straightest route" if r == 0 else f"route {r + 1}"
+        ax.plot(
+            [], [], color=ROUTE_COLOURS[min(r, 3)], alpha=0.5,
+            label=f"planning futures, {name} ({n_draw}/car)",
+        )  # fmt: skip
     others = np.flatnonzero(np.arange(len(sc.ids)) != v)
     fut = future_at(sc, others, k, times)
     for o in range(len(others)):
@@ -66,18 +78,18 @@ def ngsim_scene_figure(
     ax.plot([], [], color="k", lw=1.0, label="recorded futures (other vehicles)")
     rec = future_at(sc, [v], k, times)[0]
     ax.plot(
-        rec[:, 0],
-        rec[:, 1],
-        "--",
-        color="tab:green",
-        lw=1.6,
-        label="recorded human (ego car)",
+        rec[:, 0], rec[:, 1], "--", color="tab:green", lw=1.6, label="recorded human (ego car)",
         zorder=6,
-    )
+    )  # fmt: skip
     pts = [rec]
     for m in methods:
-        pl = mmdopt.plan(b["ego"], b["road"], planned, method=m, config=cfg, key=key)
-        col = method_colour(m) or "tab:blue"
+        if m in PEERS:
+            pl = peer_plan(task, inp, p.reactive_futures)
+        else:
+            pl = mmdopt.plan(
+                b["ego"], b["road"], inp.obstacles, method=m, config=cfg, key=inp.key_plan
+            )
+        col = method_colour(m) or "tab:brown"
         ax.plot(pl.x, pl.y, color=col, lw=2.2, label=f"plan: {method_label(m)}", zorder=5)
         pts.append(pl.xy)
         for t_mark in (0.0, 2.5, 5.0):
@@ -104,6 +116,11 @@ def ngsim_scene_figure(
     return path
 
 
+def _path_grid(path) -> tuple[np.ndarray, np.ndarray]:
+    s = np.linspace(0.0, float(path.length), 300)
+    return s, 0.0 * s
+
+
 def _draw_lanelets(ax, scenario_path, sc) -> None:
     """The scene's lanelet network drawn by commonroad-io's ``MPRenderer`` on ``ax`` (lanelet
     surfaces and boundaries, under everything else); the lanelet boundary polylines of the
@@ -114,6 +131,9 @@ def _draw_lanelets(ax, scenario_path, sc) -> None:
 
         scenario, _ = CommonRoadFileReader(str(scenario_path)).open()
         rnd = MPRenderer(ax=ax)
+        # no traffic signs / lights: the urban scenes' sign labels fail in its offset boxes
+        rnd.draw_params.lanelet_network.traffic_sign.draw_traffic_signs = False
+        rnd.draw_params.lanelet_network.traffic_light.draw_traffic_lights = False
         scenario.lanelet_network.draw(rnd)
         rnd.render()
         for c in [*ax.collections, *ax.patches, *ax.lines]:

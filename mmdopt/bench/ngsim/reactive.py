@@ -242,6 +242,9 @@ def plan_reactive(
     rc.debug.show_plots = rc.debug.save_plots = False
     rc.vehicle.length, rc.vehicle.width = (float(a) for a in size)
     rc.sampling.d_min, rc.sampling.d_max = float(road.y_lb), float(road.y_ub)
+    # end times at the horizon only: a sample ending earlier is extended along a straight line
+    # in Cartesian space (``TrajectorySample.enlarge``), which leaves the route in a turn
+    rc.sampling.t_min = rc.planning.planning_horizon
     rc.scenario = Scenario(dt=dt)
     rc.scenario.add_objects(network)
     path = road.path

@@ -87,6 +87,7 @@ __all__ = [
     "PhantomPadded",
     "cached_predictor",
     "run_task",
+    "peer_plan",
     "run_ngsim",
     "timing_vs_obstacles",
 ]
@@ -496,7 +497,7 @@ def plan_inputs(task: dict, params: NgsimParams, config, predictor: Any = "learn
     )
 
 
-def _peer_plan(task: dict, inp: PlanInputs, n_futures: int) -> PeerPlan:
+def peer_plan(task: dict, inp: PlanInputs, n_futures: int) -> PeerPlan:
     """The reactive planner's plan of one task (:func:`.reactive.plan_reactive`), against the
     first ``n_futures`` of the planning samples of each real obstacle."""
     b = inp.task
@@ -537,7 +538,7 @@ def run_task(
     rows = []
     for m in methods:
         if m in PEERS:
-            plan = _peer_plan(task, inp, params.reactive_futures)
+            plan = peer_plan(task, inp, params.reactive_futures)
         else:
             plan = mmdopt.plan(
                 b["ego"], b["road"], inp.obstacles, method=m, config=cfg, projector=backend,

@@ -165,3 +165,22 @@ def test_cli_names_refused_files_records_the_split_and_the_predictors_training(
     with pytest.raises(SystemExit) as e:
         main([*argv, "--out", str(tmp_path / "x"), "--holdout", "nothing*"])
     assert e.value.code == 2 and "--holdout" in capsys.readouterr().err
+
+
+def test_junction_figure_is_written(shared_data, tmp_path):
+    """The task figure (route, futures coloured by route, plans) of a turning Lankershim ego,
+    with the peer's plan: a readable PNG."""
+    import matplotlib.image as mpimg
+
+    from mmdopt.bench.ngsim.plot import ngsim_scene_figure
+    from mmdopt.bench.ngsim.reactive import available
+
+    if available() is not None:
+        pytest.skip(available())
+    f = shared_data / "ngsim_urban" / "USA_Lanker-2_2_T-1.xml"
+    if not f.is_file():
+        pytest.skip(f"{f} not found")
+    task = dict(scenario=str(f), ego_id=230, k=10, t0=1.0)
+    out = ngsim_scene_figure(task, tmp_path / "junction.png", methods=("reactive",), n_draw=5)
+    img = mpimg.imread(out)
+    assert img.ndim == 3 and img.shape[0] > 500 and img.std() > 0.05
