@@ -84,7 +84,7 @@ def ngsim_scene_figure(
     pts = [rec]
     for m in methods:
         if m in PEERS:
-            pl = peer_plan(task, inp, p.reactive_futures)
+            pl = peer_plan(task, inp, p.reactive_futures, p.reactive_full_horizon)
         else:
             pl = mmdopt.plan(
                 b["ego"], b["road"], inp.obstacles, method=m, config=cfg, key=inp.key_plan

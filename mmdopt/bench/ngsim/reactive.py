@@ -200,6 +200,7 @@ def plan_reactive(
     obstacle_sizes: np.ndarray,
     obstacle_headings: np.ndarray,
     v_des: float,
+    full_horizon: bool = False,
 ) -> PeerPlan:
     """The reactive planner's plan of one task.
 
@@ -208,7 +209,9 @@ def plan_reactive(
     ``size``: the ego's (length, width); ``times``: the (K,) time grid from 0 (uniform);
     ``futures``: (O, M, K, 2) predicted positions of the obstacles (M futures each),
     ``obstacle_sizes`` (O, 2) their (length, width), ``obstacle_headings`` (O,) their headings
-    at t0; ``v_des``: the desired speed (m/s)."""
+    at t0; ``v_des``: the desired speed (m/s); ``full_horizon``: sample end times at the horizon
+    only (the planner's default samples them from 0.4 s on and extends a short sample straight
+    to the horizon)."""
     reason = available()
     if reason is not None:
         raise ValueError(f"method {REACTIVE!r}: {reason}")
@@ -242,9 +245,10 @@ def plan_reactive(
     rc.debug.show_plots = rc.debug.save_plots = False
     rc.vehicle.length, rc.vehicle.width = (float(a) for a in size)
     rc.sampling.d_min, rc.sampling.d_max = float(road.y_lb), float(road.y_ub)
-    # end times at the horizon only: a sample ending earlier is extended along a straight line
-    # in Cartesian space (``TrajectorySample.enlarge``), which leaves the route in a turn
-    rc.sampling.t_min = rc.planning.planning_horizon
+    if full_horizon:
+        # end times at the horizon only: a sample ending earlier is extended along a straight
+        # line in Cartesian space (``TrajectorySample.enlarge``), which leaves the route in a turn
+        rc.sampling.t_min = rc.planning.planning_horizon
     rc.scenario = Scenario(dt=dt)
     rc.scenario.add_objects(network)
     path = road.path

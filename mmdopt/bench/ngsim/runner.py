@@ -497,7 +497,7 @@ def plan_inputs(task: dict, params: NgsimParams, config, predictor: Any = "learn
     )
 
 
-def peer_plan(task: dict, inp: PlanInputs, n_futures: int) -> PeerPlan:
+def peer_plan(task: dict, inp: PlanInputs, n_futures: int, full_horizon: bool = False) -> PeerPlan:
     """The reactive planner's plan of one task (:func:`.reactive.plan_reactive`), against the
     first ``n_futures`` of the planning samples of each real obstacle."""
     b = inp.task
@@ -508,7 +508,7 @@ def peer_plan(task: dict, inp: PlanInputs, n_futures: int) -> PeerPlan:
         (sc.xy[v, k, 0], sc.xy[v, k, 1], sc.heading[v, k], sc.speed[v, k]),
         (sc.length[v], sc.width[v]), b["times"], futures,
         np.stack([sc.length[obs], sc.width[obs]], -1), sc.heading[obs, k],
-        float(inp.config.cost.v_des),
+        float(inp.config.cost.v_des), full_horizon,
     )  # fmt: skip
 
 
@@ -538,7 +538,7 @@ def run_task(
     rows = []
     for m in methods:
         if m in PEERS:
-            plan = peer_plan(task, inp, params.reactive_futures)
+            plan = peer_plan(task, inp, params.reactive_futures, params.reactive_full_horizon)
         else:
             plan = mmdopt.plan(
                 b["ego"], b["road"], inp.obstacles, method=m, config=cfg, projector=backend,
