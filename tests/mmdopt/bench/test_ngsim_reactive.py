@@ -134,9 +134,10 @@ def test_run_task_scores_the_peer_like_a_method(inputs):
 def test_cli_names_refused_files_records_the_split_and_the_predictors_training(
     shared_data, tmp_path, capsys
 ):
-    """``bench ngsim`` on a 5.6 s scene and a 9.1 s one: the short one is refused with its
-    reason (printed and in refused.json), the split given by --holdout is in run.json, and the
-    scenes the learned predictor was trained on are named (trained_on.json)."""
+    """``bench ngsim --holdout`` on a 5.6 s scene and a 9.1 s one: the short one is refused with
+    its reason (printed and in refused.json), the split is in run.json, and the scenes the
+    learned predictor was trained on are named (trained_on.json, printed); a pattern that
+    matches no file is exit 2 naming --holdout."""
     import json
 
     from mmdopt.bench.cli import main
@@ -150,17 +151,17 @@ def test_cli_names_refused_files_records_the_split_and_the_predictors_training(
         pytest.skip(f"Lankershim scenes not found in {d}")
     out = tmp_path / "run"
     argv = ["bench", "ngsim", "--scenarios", str(short), str(long_), "--methods", "reactive"]
-    assert main([*argv, "--max-tasks", "1", "--out", str(out)]) == 0
+    held = [*argv, "--max-tasks", "1", "--out", str(out), "--holdout", "USA_Lanker-*"]
+    assert main(held) == 0
     text = capsys.readouterr().out
     assert "refused USA_Lanker-1_2_T-1.xml: " in text and "too short" in text
     refused = json.loads((out / "refused.json").read_text())
     assert list(refused) == ["USA_Lanker-1_2_T-1.xml"]
     assert json.loads((out / "trained_on.json").read_text()) == [short.name, FILE]
-    assert json.loads((out / "run.json").read_text())["split"] is None
-    out2 = tmp_path / "held"
-    assert main([*argv, "--max-tasks", "1", "--out", str(out2), "--holdout", FILE]) == 0
-    split = json.loads((out2 / "run.json").read_text())["split"]
-    assert split["heldout_files"] == [FILE] and split["train_files"] == [short.name]
+    assert "trained on 2 of these scenes" in text
+    split = json.loads((out / "run.json").read_text())["split"]
+    assert split["heldout_files"] == [short.name, FILE] and split["train_files"] == []
+    assert split["holdout"] == ["USA_Lanker-*"]
     capsys.readouterr()
     with pytest.raises(SystemExit) as e:
         main([*argv, "--out", str(tmp_path / "x"), "--holdout", "nothing*"])
