@@ -131,12 +131,9 @@ def _headings(pts: np.ndarray, h0: float) -> np.ndarray:
     d = np.gradient(pts, axis=0)
     moving = np.hypot(d[:, 0], d[:, 1]) > 0.02
     h = np.arctan2(d[:, 1], d[:, 0])
-    out = np.empty(len(pts))
-    last = h0
-    for i in range(len(pts)):  # forward fill over the standing steps (K ≤ a few hundred)
-        last = h[i] if moving[i] else last
-        out[i] = last
-    return np.unwrap(out)
+    # forward fill over the standing steps: the last moving step's heading, else h0
+    last = np.maximum.accumulate(np.where(moving, np.arange(len(pts)), -1))
+    return np.unwrap(np.where(last >= 0, h[np.maximum(last, 0)], h0))
 
 
 def _checker(boundary, futures: np.ndarray, lengths, widths, h0s):

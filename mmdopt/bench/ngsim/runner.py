@@ -310,7 +310,7 @@ def build_task(task: dict, params: NgsimParams, config: mmdopt.MMDOptConfig) -> 
     # the map's speed limit of the lanelets the ego drives on within 2 s (>= 20 m): one
     # desired speed for the horizon, so a limit farther ahead is not the ego's yet
     v_limit = (
-        route_speed_limit(sc, v, k, max(20.0, 2.0 * max(float(ego.vs), 0.0)))
+        route_speed_limit(sc, v, k, max(20.0, 2.0 * max(float(ego.vs), 0.0)), ahead=260.0)
         if params.speed_limits
         else None
     )

@@ -365,6 +365,15 @@ def _aligned_lanes(lanes: dict[int, Lane], p, heading: float, radius: float) -> 
     return [lid for _, lid in sorted(out)]
 
 
+def _start_lanes(lanes: dict[int, Lane], lid: int, p, heading: float) -> list[int]:
+    """Where a car's routes start: its ``lane_of`` lanelet ``lid`` where that runs within 45° of
+    its heading; else (inside a junction the lanelet under a car may be a crossing one) the
+    lanelets within a lane width (4 m) of it that do, nearest first (at most 4); else ``lid``."""
+    if lid in _aligned_lanes({lid: lanes[lid]}, p, heading, np.inf):
+        return [lid]
+    return _aligned_lanes(lanes, p, heading, 4.0)[:4] or [lid]
+
+
 def _successor_routes(lanes: dict[int, Lane], lid: int, need: float) -> list[tuple[int, ...]]:
     """Lanelet sequences from ``lid`` through its successors (every branch) until ``need`` m
     long or a dead end; at most :data:`MAX_ROUTES`."""
@@ -393,32 +402,35 @@ def route_chain(scene: NgsimScene, v: int, k: int, ahead: float = 260.0) -> tupl
     return _route(scene, v, k, ahead)[:2]
 
 
+@lru_cache(maxsize=256)
 def _route(scene: NgsimScene, v: int, k: int, ahead: float):
-    """:func:`route_chain`'s (chain, start lanelet) and the lanelet sequence from the start."""
+    """:func:`route_chain`'s (chain, start lanelet) and the lanelet sequence from the start;
+    cached (the path and the speed limit of a task read the same route)."""
     lanes = scene.lanes
     lid = int(scene.lane_of[v, k])
     if lid < 0:
         raise ValueError(f"vehicle {scene.ids[v]} is off the lane map at step {k}")
     rec = scene.xy[v, k:]
     rec = rec[np.all(np.isfinite(rec), -1)]
-    hd = float(scene.heading[v, k])
-    starts = [lid] if lid in _aligned_lanes({lid: lanes[lid]}, rec[0], hd, np.inf) else []
-    starts = starts or _aligned_lanes(lanes, rec[0], hd, 4.0)[:4] or [lid]
     best, best_d = (None, lid, (lid,)), np.inf
-    for start in starts:
+    for start in _start_lanes(lanes, lid, rec[0], float(scene.heading[v, k])):
         back = _predecessors(lanes, start)
         for seq in _successor_routes(lanes, start, ahead + _length(lanes[start].center)):
             chain = _dedup(np.concatenate(back + [lanes[i].center for i in seq], 0))
             dist = float(np.mean(distance_to_polyline(chain, rec)))
             if dist < best_d:
                 best, best_d = (chain, start, seq), dist
+    best[0].setflags(write=False)
     return best
 
 
-def route_speed_limit(scene: NgsimScene, v: int, k: int, reach: float) -> float | None:
-    """The lowest speed limit (m/s) of the lanelets of the ego's route (:func:`route_chain`)
-    that start within ``reach`` m ahead of it; None where none has a sign."""
-    _, start, seq = _route(scene, v, k, reach + 10.0)
+def route_speed_limit(
+    scene: NgsimScene, v: int, k: int, reach: float, ahead: float = 260.0
+) -> float | None:
+    """The lowest speed limit (m/s) of the lanelets of the ego's route (:func:`route_chain`
+    to ``ahead`` m, the route of its reference path) that start within ``reach`` m ahead of
+    it; None where none has a sign."""
+    _, start, seq = _route(scene, int(v), int(k), float(ahead))
     lanes = scene.lanes
     s0, _ = cartesian_to_lane(lanes[start].center, scene.xy[v, k][None])
     along, limits = -float(s0[0]), []
@@ -453,14 +465,20 @@ def candidate_routes(
     ``behind`` m behind the car to ``ahead`` m ahead (``(behind + ahead)/CHAIN_SPACING + 1``
     points, so every route of every car has one shape), the straightest first, at most
     ``max_routes``.  Off the map: the nearest lanelet's straightest chain."""
+    return list(_routes_ahead(scene, int(v), int(k), float(behind), float(ahead))[:max_routes])
+
+
+@lru_cache(maxsize=1024)
+def _routes_ahead(scene: NgsimScene, v: int, k: int, behind: float, ahead: float) -> tuple:
+    """Every route of :func:`candidate_routes`, straightest first (read-only arrays); cached:
+    a task's planner inputs and the predictor's context read the same routes."""
     lanes = scene.lanes
     lid = int(scene.lane_of[v, k])
     p = scene.xy[v, k]
-    hd = float(scene.heading[v, k])
     if lid < 0:
         lid = min(lanes, key=lambda i: np.min(np.linalg.norm(lanes[i].center - p, axis=-1)))
-    elif lid not in _aligned_lanes({lid: lanes[lid]}, p, hd, np.inf):
-        lid = (_aligned_lanes(lanes, p, hd, 4.0) or [lid])[0]
+    else:
+        lid = _start_lanes(lanes, lid, p, float(scene.heading[v, k]))[0]
     back = _predecessors(lanes, lid)
     # routes that part beyond the car's reach are one route (1.5 × its speed × 5 s, ≥ 40 m)
     v0 = float(scene.speed[v, k]) if np.isfinite(scene.speed[v, k]) else 0.0
@@ -471,9 +489,10 @@ def candidate_routes(
         s0, _ = cartesian_to_lane(chain, p[None])
         r = _resample(chain, float(s0[0]) - behind, float(s0[0]) + ahead, CHAIN_SPACING)
         if all(np.max(np.linalg.norm(r[:n_reach] - q[:n_reach], axis=-1)) > 0.5 for q in out):
+            r.setflags(write=False)
             out.append(r)
     out.sort(key=_turning)
-    return out[:max_routes]
+    return tuple(out)
 
 
 def vehicle_centerline(
@@ -607,9 +626,6 @@ def ego_road_geometry(
     :data:`ROUTE_SMOOTHING`: a ``frenet.ReferencePath``) and the offsets (m)
     of the same-direction neighbour lanes' centres in that path's frame (``None`` if absent),
     measured as the median over the 100 m ahead of the ego."""
-    lid = int(scene.lane_of[v, k])
-    if lid < 0:
-        raise ValueError(f"vehicle {scene.ids[v]} is off the lane map at step {k}")
     chain, lid = route_chain(scene, v, k, ahead)
     s0, _ = cartesian_to_lane(chain, scene.xy[v, k][None])
     pts = _resample(chain, float(s0[0]) - behind, float(s0[0]) + ahead, CHAIN_SPACING)
