@@ -117,6 +117,10 @@ class NgsimParams:
         the planner's design (one prediction per car), chosen on the Lankershim training
         scenes 2_1–2_4 and 2_6 (16 tasks): 1 / 5 / 20 futures gave 0 / 0 / 2 at-fault, 1 / 4 / 7
         contacts, 0.98 / 0.92 / 0.73 of the human's progress, 0.18 / 0.23 / 3.4 s median plan
+    warm_up : before each task's timed plan of a JAX method, plan it once with another key,
+        untimed, so ``plan_time_s`` is the planner's time on compiled programs, as in a loop at
+        10 Hz; the first call's extra time is ``compile_s`` (``False``: one plan, whose time
+        includes any compile and ``compile_s`` is empty)
     reactive_full_horizon : the peer samples end times at the horizon only (its default, False:
         from 0.4 s on, a short sample extended straight to the horizon, which leaves the route
         in turns); measured on the Lankershim scenes: True gave it more at-fault collisions
@@ -168,6 +172,7 @@ class NgsimParams:
     speed_limits: bool = True
     reactive_futures: int = 1
     reactive_full_horizon: bool = False
+    warm_up: bool = True
 
     def __post_init__(self) -> None:
         for name in ("v_des", "v_des_flow"):
@@ -184,7 +189,13 @@ class NgsimParams:
             raise ValueError(
                 f"NgsimParams.min_change_speed must be finite and >= 0, got {self.min_change_speed}"
             )
-        for name in ("forecast", "routes", "speed_limits", "reactive_full_horizon"):
+        for name in (
+            "forecast",
+            "routes",
+            "speed_limits",
+            "reactive_full_horizon",
+            "warm_up",
+        ):
             if not isinstance(getattr(self, name), bool):
                 raise ValueError(f"NgsimParams.{name} must be a bool, got {getattr(self, name)!r}")
         if self.v_des_flow is not None and self.v_des is None:

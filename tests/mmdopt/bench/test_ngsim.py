@@ -4,6 +4,7 @@ a 2-scenario smoke run (skipped with a reason where ../shared/data is absent).""
 from __future__ import annotations
 
 import csv
+import dataclasses
 import json
 
 import numpy as np
@@ -167,14 +168,23 @@ def test_two_scenario_smoke_run_writes_the_csv_and_resumes(ngsim_dir, tmp_path):
         assert 0 <= r["collision_free"] <= 16 and r["n_validation"] == 16
         assert r["recorded_progress_m"] > 0 and np.isfinite(r["progress_m"])
         assert r["min_clearance_m"] >= 0 and 1 <= r["n_obstacles"] <= 3
+        # plan time on compiled programs, the first call's extra time apart
+        assert r["compile_s"] >= 0 and r["plan_time_s"] > 0
     # resumable: a second call recomputes nothing
     mtimes = sorted(p_.stat().st_mtime_ns for p_ in (tmp_path / "tasks").glob("*.json"))
     run_ngsim(files, tmp_path, methods=("mmd",), predictor="cv", config=cfg, params=p)
     assert sorted(p_.stat().st_mtime_ns for p_ in (tmp_path / "tasks").glob("*.json")) == mtimes
     assert all(r["risk"] == "" for r in table)  # the preset's margins: no level asked
     # --risk: the risk mode at ε, each plan's level beside its bound, recorded in run.json
+    # (without the warm-up plan: one call, compile_s empty; the warm-up never changes a plan)
+    p1 = dataclasses.replace(p, warm_up=False)
+    (same,) = run_ngsim(files[:1], tmp_path / "cold", methods=("mmd",), predictor="cv",
+                        config=cfg, params=p1)  # fmt: skip
+    first = next(r for r in rows if r["scenario"] == same["scenario"])
+    assert same["compile_s"] is None
+    assert (same["cost"], same["progress_m"]) == (first["cost"], first["progress_m"])
     (row,) = run_ngsim(files[:1], tmp_path / "risk", methods=("mmd",), predictor="cv",
-                       config=cfg, params=p, risk=0.1)  # fmt: skip
+                       config=cfg, params=p1, risk=0.1)  # fmt: skip
     assert row["risk"] == 0.1 and 0.0 <= row["risk_bound"] <= 1.0
     assert not str(row["status"]).startswith("error"), row["status"]
     man = json.loads((tmp_path / "risk" / "run.json").read_text())
