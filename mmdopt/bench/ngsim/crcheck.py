@@ -15,8 +15,9 @@ benchmark suite scores solutions with, on the same recorded scene:
   :data:`VEHICLE_TYPE` (``commonroad_dc.feasibility.feasibility_checker.trajectory_feasibility``:
   for each 0.1 s step an input within the model's steering-rate and acceleration bounds that
   reaches the next planned position and orientation within the checker's default tolerance).
-  KS states need a steering angle, which the planner does not output: it is the one of the KS
-  model's path curvature, ``δ = atan(l_wb · θ̇ / v)`` from the planned heading rate.
+  A plan is the path of the car's centre; the KS model's rear axle follows it
+  (:func:`body_heading`), which gives each state's body orientation, rear-axle speed and
+  steering angle ``δ = atan(l_wb · ψ̇ / v)`` (the planner outputs none of the three).
 
 :func:`solution` / :func:`write_solution` give a plan as a CommonRoad solution file
 (``commonroad.common.solution``: one ``PlanningProblemSolution`` of the KS model, the ego's
@@ -40,6 +41,7 @@ __all__ = [
     "VEHICLE_MODEL",
     "VEHICLE_TYPE",
     "available",
+    "body_heading",
     "plan_trajectory",
     "check_plan",
     "solution",
@@ -100,11 +102,59 @@ def _vehicle():
     return VehicleDynamics.from_model(VehicleModel[VEHICLE_MODEL], VehicleType[VEHICLE_TYPE])
 
 
+def body_heading(
+    t: np.ndarray, heading: np.ndarray, speed: np.ndarray, l_r: float, substeps: int = 10
+) -> tuple[np.ndarray, np.ndarray]:
+    """The body heading ``ψ`` and its rate of a kinematic single-track car whose centre moves in
+    the direction ``heading`` (φ, unwrapped) at ``speed`` (v) at times ``t`` (each (n,)).
+
+    The KS model's states are the car's centre, but its rear axle is what moves along the body
+    (CommonRoad's KS converts a state's position to the rear axle, ``b`` = ``l_r`` behind the
+    centre along ψ).  With the rear axle dragged by the centre (a tractrix), ``ψ̇ = v·sin(φ − ψ)
+    / l_r``; integrated here with RK4 (``substeps`` per interval, φ and v linear in between) from
+    the steady turn of the starting curvature κ₀ = φ̇₀ / v₀: ``sin(φ₀ − ψ₀) = l_r κ₀``.  A plan
+    whose heading is its direction of motion is the centre's path, and ``ψ`` differs from it by
+    the slip angle (≈ 5° in a 15 m turn); giving the checker ``φ`` instead puts the rear axle
+    off the path it must follow.  Returns ``(ψ, ψ̇)``, each (n,)."""
+    t, phi, v = (np.asarray(a, np.float64) for a in (t, heading, speed))
+    if not (t.shape == phi.shape == v.shape and t.ndim == 1 and t.size >= 1):
+        raise ValueError(
+            f"t, heading, speed must be 1-D of one length, got {t.shape}, {phi.shape}, {v.shape}"
+        )
+    if not (np.isfinite(l_r) and l_r > 0):
+        raise ValueError(f"l_r must be a finite number > 0, got {l_r!r}")
+
+    def rate(tt: float, psi: float) -> float:
+        return float(np.interp(tt, t, v)) * np.sin(float(np.interp(tt, t, phi)) - psi) / l_r
+
+    k0 = 0.0
+    if t.size > 1 and v[0] > 0.5:
+        k0 = (phi[1] - phi[0]) / (t[1] - t[0]) / v[0]
+    psi = np.empty_like(phi)
+    psi[0] = phi[0] - np.arcsin(np.clip(l_r * k0, -0.5, 0.5))
+    for i in range(t.size - 1):  # one ODE along the horizon (≤ 51 intervals): sequential
+        p, h = psi[i], (t[i + 1] - t[i]) / substeps
+        for j in range(substeps):
+            tt = t[i] + j * h
+            k1 = rate(tt, p)
+            k2 = rate(tt + h / 2, p + h / 2 * k1)
+            k3 = rate(tt + h / 2, p + h / 2 * k2)
+            k4 = rate(tt + h, p + h * k3)
+            p += h / 6 * (k1 + 2 * k2 + 2 * k3 + k4)
+        psi[i + 1] = p
+    return psi, v * np.sin(phi - psi) / l_r
+
+
 def plan_trajectory(plan: Any, k0: int, dt: float):
     """The plan as a CommonRoad ``Trajectory`` of KS states from time step ``k0`` (the task's
     planning step), resampled onto the scene's grid of ``dt`` seconds.
 
-    ``plan``: anything with ``t, x, y, heading, speed`` arrays (an :class:`mmdopt.Plan`)."""
+    ``plan``: anything with ``t, x, y, heading, speed`` arrays (an :class:`mmdopt.Plan`): the
+    car's centre and its direction of motion.  The states keep the centre's positions; their
+    orientation is the body heading of :func:`body_heading`, their velocity the rear axle's
+    (``v·cos(φ − ψ)``) and their steering angle the KS model's ``δ = atan(l_wb·ψ̇ / v)``.  A
+    plan with ``heading_is_body`` (a KS planner's states, the peer's) keeps its heading and
+    speed."""
     from commonroad.scenario.state import KSState
     from commonroad.scenario.trajectory import Trajectory
 
@@ -116,16 +166,21 @@ def plan_trajectory(plan: Any, k0: int, dt: float):
     n = int(np.floor(t[-1] / dt + 1e-9)) + 1
     tg = np.arange(n) * dt
     x, y, v = (np.interp(tg, t, np.asarray(a, float)) for a in (plan.x, plan.y, plan.speed))
-    th = np.interp(tg, t, np.unwrap(np.asarray(plan.heading, float)))
-    l_wb = float(_vehicle().parameters.a + _vehicle().parameters.b)
-    dth = np.gradient(th, dt) if n > 1 else np.zeros(n)
-    delta = np.arctan(l_wb * dth / np.maximum(v, 0.1))
+    phi = np.interp(tg, t, np.unwrap(np.asarray(plan.heading, float)))
+    par = _vehicle().parameters
+    if getattr(plan, "heading_is_body", False):  # a KS planner's own states (the peer's)
+        th, v_rear = phi, v
+        dth = np.gradient(th, dt) if n > 1 else np.zeros(n)
+    else:
+        th, dth = body_heading(tg, phi, v, float(par.b))
+        v_rear = v * np.cos(phi - th)
+    delta = np.arctan(float(par.a + par.b) * dth / np.maximum(v_rear, 0.1))
     states = [
         KSState(
             time_step=int(k0 + i),
             position=np.array([x[i], y[i]]),
             steering_angle=float(delta[i]),
-            velocity=float(v[i]),
+            velocity=float(v_rear[i]),
             orientation=float(th[i]),
         )
         for i in range(n)

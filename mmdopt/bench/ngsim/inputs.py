@@ -112,6 +112,12 @@ class NgsimParams:
     speed_limits : the desired speed is capped at the lowest speed-limit sign of the ego's route
         lanelets it reaches within 2 s (at least 20 m; Lankershim: 3.6–13.4 m/s, the US-101
         scenes have none)
+    curve_accel, curve_steer_rate : the desired speed is also capped at the speed at which
+        the ego can drive its route's curves within the horizon's reach (``max(20, v0 · T)`` m):
+        lateral acceleration at most ``curve_accel`` (m/s²) and the steering rate of the
+        curvature's change at most ``curve_steer_rate`` (rad/s: the KS model's limit of the
+        drivability checker is 0.4) (:func:`~mmdopt.bench.ngsim.scene.curve_speed`); ``None``:
+        that bound is not applied
     reactive_futures : predictor samples per car the ``reactive`` peer avoids, each one a
         CommonRoad obstacle (the first of the planning samples, which mix the routes).  One,
         the planner's design (one prediction per car), chosen on the Lankershim training
@@ -170,6 +176,8 @@ class NgsimParams:
     forecast: bool = True
     routes: bool = True
     speed_limits: bool = True
+    curve_accel: float | None = 3.0
+    curve_steer_rate: float | None = 0.4
     reactive_futures: int = 1
     reactive_full_horizon: bool = False
     warm_up: bool = True
@@ -198,6 +206,12 @@ class NgsimParams:
         ):
             if not isinstance(getattr(self, name), bool):
                 raise ValueError(f"NgsimParams.{name} must be a bool, got {getattr(self, name)!r}")
+        for name in ("curve_accel", "curve_steer_rate"):
+            v = getattr(self, name)
+            if v is not None and not (isinstance(v, int | float) and np.isfinite(v) and v > 0):
+                raise ValueError(
+                    f"NgsimParams.{name} must be None or a finite number > 0, got {v!r}"
+                )
         if self.v_des_flow is not None and self.v_des is None:
             raise ValueError("NgsimParams.v_des_flow needs v_des (the cap without traffic)")
         for name in (

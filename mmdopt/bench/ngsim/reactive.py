@@ -35,7 +35,7 @@ import atexit
 import time
 from dataclasses import dataclass, field
 from functools import lru_cache
-from typing import Any
+from typing import Any, ClassVar
 
 import numpy as np
 
@@ -77,7 +77,13 @@ def available() -> str | None:
 class PeerPlan:
     """A peer's plan on the benchmark's time grid, with the fields the scores read
     (:class:`mmdopt.Plan`'s names): centre positions ``x, y``, ``heading``, ``speed``,
-    longitudinal acceleration ``as_``, Frenet ``s, d`` on the task's reference path."""
+    longitudinal acceleration ``as_``, Frenet ``s, d`` on the task's reference path.  Its
+    ``heading`` is the car's body orientation and ``speed`` the rear axle's (the reactive
+    planner's KS states, positions shifted to the centre): :attr:`heading_is_body`."""
+
+    #: the heading is the body's, not the centre's direction of motion (read by
+    #: :func:`~mmdopt.bench.ngsim.crcheck.plan_trajectory`)
+    heading_is_body: ClassVar[bool] = True
 
     t: np.ndarray
     x: np.ndarray

@@ -61,6 +61,7 @@ from .scene import (
     NgsimScene,
     candidate_routes,
     context_at,
+    curve_speed,
     ego_road_geometry,
     future_at,
     history_at,
@@ -316,8 +317,15 @@ def build_task(task: dict, params: NgsimParams, config: mmdopt.MMDOptConfig) -> 
         if params.speed_limits
         else None
     )
+    # the speed its route's curves allow within the horizon's reach (one desired speed for the
+    # horizon: a curve the plan reaches caps it from the start)
+    v_curve = curve_speed(
+        path, float(ego.s), max(20.0, float(ego.vs) * float(config.trajectory.horizon)),
+        params.curve_accel, params.curve_steer_rate,
+    )  # fmt: skip
     return dict(
         v_limit=v_limit,
+        v_curve=v_curve,
         routes=routes,
         route_p=tuple(route_probabilities(hist, routes, sc.dt, shipped_route_weights())),
         v_flow=v_flow,
@@ -358,10 +366,13 @@ def traffic_v_des(
 def task_config(b: dict, params: NgsimParams, config: mmdopt.MMDOptConfig) -> mmdopt.MMDOptConfig:
     """The planner config of one built task (:func:`build_task`): ``config`` with the task's
     desired speed (:func:`traffic_v_des`), capped at the map's speed limit along the ego's
-    route (:func:`~.scene.route_speed_limit`, ``NgsimParams.speed_limits``)."""
+    route (:func:`~.scene.route_speed_limit`, ``NgsimParams.speed_limits``) and at the speed
+    of its route's curves (:func:`~.scene.curve_speed`, ``NgsimParams.curve_accel`` and
+    ``curve_steer_rate``)."""
     v = traffic_v_des(b.get("v_flow"), params, b.get("v_leader"))
-    if b.get("v_limit") is not None:
-        v = min(config.cost.v_des if v is None else v, float(b["v_limit"]))
+    for cap in ("v_limit", "v_curve"):
+        if b.get(cap) is not None:
+            v = min(config.cost.v_des if v is None else v, float(b[cap]))
     return config if v is None else config.replace(v_des=v)
 
 

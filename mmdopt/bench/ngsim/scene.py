@@ -30,6 +30,8 @@ __all__ = [
     "MAX_ROUTES",
     "route_chain",
     "route_speed_limit",
+    "curve_speed",
+    "WHEELBASE",
     "SPEED_LIMIT_SIGNS",
     "candidate_routes",
     "distance_to_polyline",
@@ -617,6 +619,45 @@ def smooth_polyline(xy: np.ndarray, sigma: float, spacing: float = CHAIN_SPACING
     n = min(n, len(xy) - 1)
     pad = np.concatenate([2 * xy[0] - xy[n:0:-1], xy, 2 * xy[-1] - xy[-2 : -n - 2 : -1]])
     return gaussian_filter1d(pad, sigma / spacing, axis=0, mode="nearest")[n:-n]
+
+
+#: the wheelbase (m) of the curve-speed rule's steering rate: CommonRoad's BMW 320i, the car
+#: whose KS model the drivability checker reproduces plans with
+WHEELBASE = 2.578
+
+
+def curve_speed(
+    path: frenet.ReferencePath,
+    s0: float,
+    reach: float,
+    lateral_accel: float | None,
+    steer_rate: float | None,
+    wheelbase: float = WHEELBASE,
+    step: float = 0.5,
+) -> float | None:
+    """The highest speed (m/s) at which a car can drive ``path`` from arc length ``s0`` to
+    ``s0 + reach``: its lateral acceleration ``v²|κ|`` at most ``lateral_accel`` (m/s²) and its
+    steering rate ``δ̇ ≈ wheelbase · v · |dκ/ds|`` at most ``steer_rate`` (rad/s), the
+    kinematic single-track car's rate of steering along a curvature that changes with arc
+    length; each bound ``None`` is not applied.  None where neither binds (a straight path)."""
+    for name, val in (("reach", reach), ("wheelbase", wheelbase), ("step", step)):
+        if not (np.isfinite(val) and val > 0):
+            raise ValueError(f"{name} must be a finite number > 0, got {val!r}")
+    for name, val in (("lateral_accel", lateral_accel), ("steer_rate", steer_rate)):
+        if val is not None and not (np.isfinite(val) and val > 0):
+            raise ValueError(f"{name} must be None or a finite number > 0, got {val!r}")
+    s = float(s0) + np.arange(0.0, float(reach) + step, step)
+    kappa = np.abs(np.asarray(path.curvature(s), np.float64))
+    caps = [np.inf]
+    tiny = 1e-9  # curvature (1/m) and its change (1/m²) below this are a straight line's
+    if lateral_accel is not None and np.any(kappa > tiny):
+        caps.append(float(np.sqrt(lateral_accel / np.max(kappa))))
+    if steer_rate is not None and s.size > 1:
+        dk = float(np.max(np.abs(np.gradient(kappa, step))))
+        if dk > tiny:
+            caps.append(steer_rate / (wheelbase * dk))
+    v = min(caps)
+    return v if np.isfinite(v) else None
 
 
 def ego_road_geometry(

@@ -113,3 +113,43 @@ def test_bench_ngsim_writes_checker_columns_and_exports_solutions(ngsim_file, tm
     traj = pps.trajectory
     assert traj.initial_time_step == round(rows[0]["t0"] / 0.1)
     assert len(traj.state_list) == 51  # 5 s on the scene's 0.1 s grid
+
+
+def _arc_plan(v: float, radius: float, straight: float, seconds: float = 5.0):
+    """The centre of a car driving ``straight`` m straight, then a circle of ``radius`` m (no
+    transition), at ``v`` m/s; heading = its direction of motion, as a plan's."""
+    t = np.arange(0.0, seconds + 1e-9, 0.1)
+    s = v * t
+    on = s > straight
+    ang = np.where(on, (s - straight) / radius, 0.0)
+    x = np.where(on, straight + radius * np.sin(ang), s)
+    y = np.where(on, radius * (1.0 - np.cos(ang)), 0.0)
+    return _fake_plan(np.stack([x, y], -1), ang, np.full_like(t, v), t)
+
+
+def test_body_heading_is_the_tractrix_of_a_steady_turn():
+    """On a circle the KS car's rear axle runs on the inner circle: the body heading trails the
+    centre's direction of motion by the slip angle asin(l_r / R) and turns at v / R."""
+    l_r, R, v = 1.42, 20.0, 8.0
+    plan = _arc_plan(v, R, straight=0.0)
+    psi, rate = crcheck.body_heading(plan.t, plan.heading, plan.speed, l_r)
+    np.testing.assert_allclose(plan.heading - psi, np.arcsin(l_r / R), atol=1e-6)
+    np.testing.assert_allclose(rate, v / R, rtol=1e-5)
+    # the rear axle moves along the body heading
+    rear = np.stack([plan.x - l_r * np.cos(psi), plan.y - l_r * np.sin(psi)], -1)
+    chord = np.arctan2(*np.diff(rear, axis=0).T[::-1])
+    np.testing.assert_allclose(chord, 0.5 * (psi[1:] + psi[:-1]), atol=1e-4)
+    with pytest.raises(ValueError, match="l_r"):
+        crcheck.body_heading(plan.t, plan.heading, plan.speed, 0.0)
+
+
+def test_the_ks_check_accepts_a_steerable_turn_and_rejects_a_steering_jump():
+    """A car steering into a 20 m circle at 6 m/s (the steady turn from the start) is
+    reproducible by the KS model; a straight that turns into a 12 m circle without a
+    transition at 12 m/s asks for a steering jump beyond the 0.4 rad/s limit."""
+    from commonroad_dc.feasibility.feasibility_checker import trajectory_feasibility
+
+    for plan, expected in ((_arc_plan(6.0, 20.0, 0.0), True), (_arc_plan(12.0, 12.0, 20.0), False)):
+        traj = crcheck.plan_trajectory(plan, 0, 0.1)
+        ok, _ = trajectory_feasibility(traj, crcheck._vehicle(), 0.1)
+        assert bool(ok) is expected

@@ -153,3 +153,36 @@ def test_junction_cases_of_the_at_fault_rule(urban_file):
         mid = 0.5 * (poly[n // 2] + poly[len(poly) - 1 - n // 2])
         assert inside_any(mid, [poly])
     assert not inside_any(np.array([1e6, 1e6]), sc.junctions)
+
+
+def test_curve_speed_keeps_lateral_acceleration_and_steering_rate():
+    """On a 20 m circle a car keeps 3 m/s² of lateral acceleration at √60 ≈ 7.7 m/s; where a
+    straight runs into the circle the curvature's change caps the speed by the steering rate
+    (wheelbase · v · |dκ/ds| ≤ δ̇); a straight road has no curve speed; bad bounds are named."""
+    import frenet
+    from mmdopt.bench.ngsim.scene import WHEELBASE, curve_speed
+
+    ang = np.linspace(0.0, np.pi / 2, 200)
+    circle = frenet.ReferencePath.from_waypoints(
+        np.stack([20 * np.sin(ang), 20 * (1 - np.cos(ang))], -1), spacing=0.5
+    )
+    v = curve_speed(circle, 5.0, 15.0, lateral_accel=3.0, steer_rate=None)
+    assert v == pytest.approx(np.sqrt(60.0), rel=0.03)
+    line = frenet.ReferencePath.from_waypoints(np.stack([np.arange(0, 100.0), 0 * ang[:100]], -1))
+    assert curve_speed(line, 0.0, 50.0, 3.0, 0.4) is None
+    x = np.arange(0.0, 30.0, 0.5)
+    arc = np.arange(0.0, 25.0, 0.5)
+    arc_xy = np.stack([np.asarray(a) for a in circle.to_cartesian(arc, 0.0 * arc)], -1)
+    joined = np.concatenate([np.stack([x - 30.0, 0 * x], -1)[:-1], arc_xy], axis=0)
+    path = frenet.ReferencePath.from_waypoints(joined, spacing=0.5)
+    v_steer = curve_speed(path, 10.0, 30.0, lateral_accel=None, steer_rate=0.4)
+    s = np.arange(10.0, 40.5, 0.5)
+    dk = np.max(np.abs(np.gradient(np.asarray(path.curvature(s)), 0.5)))
+    assert v_steer == pytest.approx(0.4 / (WHEELBASE * dk), rel=1e-6)
+    assert v_steer < np.sqrt(60.0)  # the transition binds before the circle itself
+    with pytest.raises(ValueError, match="lateral_accel"):
+        curve_speed(circle, 0.0, 10.0, lateral_accel=-1.0, steer_rate=None)
+    with pytest.raises(ValueError, match="curve_accel"):
+        from mmdopt.bench.ngsim.inputs import NgsimParams
+
+        NgsimParams(curve_accel=0.0)
