@@ -25,8 +25,8 @@ section                what it holds
 Sizes and modes are static (changing them recompiles); tunable scalars are pytree leaves.
 The static fields that only the host-side steps of :func:`mmdopt.plan` read (``margin_mode``,
 ``coverage_knn``, ``reselect``, ``risk_hits``, ``nearest_futures``, ``joint_futures``,
-``reduced_set_size`` and the selector's ``reduced_set``) do not recompile Algorithm 1: its
-programs see :meth:`MMDOptConfig.program`, with those fields at their defaults.
+``unsafe_brake``, ``reduced_set_size`` and the selector's ``reduced_set``) do not recompile
+Algorithm 1: its programs see :meth:`MMDOptConfig.program`, with those fields at their defaults.
 Every field name is unique across the sections, so ``replace(name=value)`` reaches any of them.
 "Automatic" is spelled ``None`` everywhere (``reselect``, ``coverage_knn``, ``project_chunk``,
 ``admm_rho``, ``saa_eps``, ``cvar_alpha``).
@@ -447,6 +447,9 @@ class SafetyConfig(_Section):
         False: each obstacle's samples are separate draws, paired in no particular order; the
         bound is the union over obstacles (Bonferroni), valid whatever their dependence, and
         n(ε) grows about linearly with O (:func:`mmdopt.risk.risk_bound`)
+    unsafe_brake : where the plan meets every planning future of some obstacle (``unsafe``),
+        brake at this deceleration (m/s²) to a stop instead (:func:`mmdopt.safety.braking_plan`,
+        status ``fallback``): the minimal-risk manoeuvre.  ``None``: return it flagged (NGSIM: 6)
     """
 
     risk: float = 0.005
@@ -454,27 +457,27 @@ class SafetyConfig(_Section):
     risk_hits: int | None = _host(None)
     nearest_futures: int = _host(200)
     joint_futures: bool = _host(True)
+    unsafe_brake: float | None = _host(None)
     footprint: Footprint = field(default_factory=Footprint)
     margins: MarginConfig = field(default_factory=MarginConfig)
     rules: RoadRules = field(default_factory=RoadRules)
 
     _ints = ("reselect", "risk_hits", "nearest_futures")
+    _nonneg = _ints  # (None: automatic)
+    _positive = ("unsafe_brake",)
 
     def __post_init__(self) -> None:
         self._check()
-        for name in ("risk_hits", "nearest_futures"):
-            if getattr(self, name) is not None and getattr(self, name) < 0:
-                raise ValueError(f"SafetyConfig.{name} must be >= 0, got {getattr(self, name)}")
         if not isinstance(self.joint_futures, bool | np.bool_):
             raise ValueError(
                 f"SafetyConfig.joint_futures must be a bool, got {self.joint_futures!r}"
             )
+        if isinstance(self.unsafe_brake, bool | str):
+            raise ValueError(
+                f"SafetyConfig.unsafe_brake must be None or m/s² > 0, got {self.unsafe_brake!r}"
+            )
         if _plain(self.risk) and not 0 < float(self.risk) < 0.5:
             raise ValueError(f"SafetyConfig.risk must be in (0, 0.5), got {self.risk!r}")
-        if self.reselect is not None and self.reselect < 0:
-            raise ValueError(
-                f"SafetyConfig.reselect must be >= 0 (or None: automatic), got {self.reselect}"
-            )
         subsections = (("footprint", Footprint), ("margins", MarginConfig), ("rules", RoadRules))
         for name, cls in subsections:
             if not isinstance(getattr(self, name), cls):
@@ -787,13 +790,15 @@ class MMDOptConfig:
         a 3.0 × 2.2 m ellipse (the ego point against a car's three circles: half a length
         + 0.5 m along, two half widths + 0.2 m across), time-linear margins 1.5 + 0.5·t m and
         0.2 m, a follower rule of 2 m, a slip limit of 0.5 and a yaw-aware footprint of 2.5 m
-        (chosen on the training recordings), and sizes for 10–15 obstacles in real time on two
-        cores (300 samples, n_cem 60, n_e 20, 10 iterations, m = 10, selector 50/10/20)."""
+        (chosen on the training recordings), braking at 6 m/s² where no plan is clear
+        (``unsafe_brake``), and sizes for 10–15 obstacles in real time on two cores (300
+        samples, n_cem 60, n_e 20, 10 iterations, m = 10, selector 50/10/20)."""
         base = cls(
             cem=CEMConfig(n_samples=300, n_cem=60, n_elite=20, iterations=10),
             trajectory=TrajectoryConfig(horizon=5.0, num_steps=51),
             safety=SafetyConfig(
                 reselect=0,
+                unsafe_brake=6.0,
                 footprint=Footprint(a=3.0, b=2.2, yaw_extent=2.5),
                 margins=MarginConfig(
                     margin_mode="linear", margin_long=1.5, margin_lat=0.2, margin_rate=0.5
@@ -818,28 +823,12 @@ class MMDOptConfig:
         rule for the lane: kept in full within 2.5 m to the side of the point, the shield's
         corridor (``headway_lane``)."""
         base = cls().replace(
-            horizon=5.0,
-            num_steps=51,
-            n_samples=400,
-            n_cem=100,
-            n_elite=30,
-            iterations=12,
-            reduced_set_size=10,
-            v_des=30.0,
-            b=2.6,
-            margin_lat=0.4,
-            margin_long=2.5,
-            margin_rate=1.0,
-            margin_mode="linear",
-            reselect=0,
-            lane_setpoints=True,
-            lateral_gain=4.0,
-            lane_commit=0.5,
-            w_lane=6.0,
-            headway_time=1.0,
-            headway_gap=6.0,
+            horizon=5.0, num_steps=51, n_samples=400, n_cem=100, n_elite=30, iterations=12,
+            reduced_set_size=10, v_des=30.0, b=2.6, margin_lat=0.4, margin_long=2.5,
+            margin_rate=1.0, margin_mode="linear", reselect=0, lane_setpoints=True,
+            lateral_gain=4.0, lane_commit=0.5, w_lane=6.0, headway_time=1.0, headway_gap=6.0,
             headway_lane=2.5,
-        )
+        )  # fmt: skip
         return base.replace(**overrides)
 
     # ---------------------------------------------------------------------------- derived

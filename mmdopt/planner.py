@@ -35,6 +35,7 @@ from .padding import pad_obstacles
 from .plans import Plan, PlanStatus, Road
 from .predict.base import Forecast
 from .risk import config_for_risk, coverage_data, samples_for_risk
+from .safety import braking_plan
 from .samples import ReducedSet
 from .schedule import (
     Candidate,
@@ -433,7 +434,7 @@ class Planner:
                 f"no sample met the constraints (least residual {float(lv.res):.3g} > res_tol "
                 f"{float(config.projection.res_tol):g}); least-violating plan returned"
             ))  # fmt: skip
-        return assemble(
+        plan = assemble(
             frame,
             np.asarray(chosen.cx, np.float64),
             np.asarray(chosen.cy, np.float64),
@@ -447,6 +448,11 @@ class Planner:
             diag,
             result.met,
         )
+        brake = config.safety.unsafe_brake
+        if plan.status is PlanStatus.UNSAFE and brake is not None:
+            why = f"{plan.message}; braking at {brake:g} m/s² to a stop returned (unsafe_brake)"
+            return braking_plan(plan, road.path, brake, reason=why)
+        return plan
 
 
 class PlannerCache:

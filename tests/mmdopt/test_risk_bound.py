@@ -160,6 +160,31 @@ def test_a_plan_that_meets_more_samples_than_asked_says_so():
     assert p.risk_bound > 0.2 and "meets 8 planning sample(s)" in p.message
 
 
+def test_a_plan_that_meets_every_future_says_so_or_brakes_to_a_stop():
+    """Every future of the car sits on the ego's start: no plan is collision-free.  The plan is
+    returned flagged ``unsafe``; with ``unsafe_brake`` the planner brakes at that deceleration to
+    a stop instead and says why (status ``fallback``), with nothing measured on the replaced
+    plan kept."""
+    import jax
+
+    import frenet
+    import mmdopt
+
+    cfg, obs = _scene(40, on_ego=40)
+    kw = dict(key=jax.random.PRNGKey(0), risk=0.2)
+    ego = frenet.EgoState(vs=10.0)
+    p = mmdopt.plan(ego, mmdopt.Road(), obs, config=cfg, **kw)
+    assert p.status == mmdopt.PlanStatus.UNSAFE, p.status_text
+    b = mmdopt.plan(ego, mmdopt.Road(), obs, config=cfg.replace(unsafe_brake=6.0), **kw)
+    assert b.status == mmdopt.PlanStatus.FALLBACK and "unsafe_brake" in b.message
+    assert "collides with every planning sample" in b.message
+    np.testing.assert_allclose(b.vs, np.maximum(10.0 - 6.0 * (b.t - b.t[0]), 0.0), atol=1e-5)
+    assert b.progress == pytest.approx(10.0**2 / (2 * 6.0), rel=1e-5) and np.all(b.d == b.d[0])
+    assert np.isnan(b.risk_bound) and not b.feasible
+    with pytest.raises(ValueError, match="unsafe_brake"):
+        cfg.replace(unsafe_brake=-1.0)
+
+
 @pytest.mark.slow
 def test_several_obstacles_met_in_the_same_futures_count_once():
     # two cars whose futures 0..7 both sit on the ego's start: every plan meets those 8 joint
