@@ -447,9 +447,9 @@ class SafetyConfig(_Section):
         False: each obstacle's samples are separate draws, paired in no particular order; the
         bound is the union over obstacles (Bonferroni), valid whatever their dependence, and
         n(ε) grows about linearly with O (:func:`mmdopt.risk.risk_bound`)
-    unsafe_brake : where the plan meets every planning future of some obstacle (``unsafe``),
-        brake at this deceleration (m/s²) to a stop instead (:func:`mmdopt.safety.braking_plan`,
-        status ``fallback``): the minimal-risk manoeuvre.  ``None``: return it flagged (NGSIM: 6)
+    unsafe_brake : where the plan meets every planning future of some obstacle (``unsafe``)
+        and a stop at this deceleration (m/s²) meets fewer, brake (``fallback``; not from a car
+        behind).  ``None``: return the plan flagged (NGSIM: 6; :func:`mmdopt.safety.braking_plan`)
     """
 
     risk: float = 0.005

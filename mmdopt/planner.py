@@ -45,6 +45,7 @@ from .schedule import (
     coverage,
     obstacle_centres,
     run_schedule,
+    samples_met,
 )
 from .validate import (
     check_obstacle_headings,
@@ -448,11 +449,26 @@ class Planner:
             diag,
             result.met,
         )
-        brake = config.safety.unsafe_brake
-        if plan.status is PlanStatus.UNSAFE and brake is not None:
-            why = f"{plan.message}; braking at {brake:g} m/s² to a stop returned (unsafe_brake)"
-            return braking_plan(plan, road.path, brake, reason=why)
+        if plan.status is PlanStatus.UNSAFE and config.safety.unsafe_brake is not None:
+            return _brake_if_safer(plan, frame)
         return plan
+
+
+def _brake_if_safer(plan: Plan, frame: PlanFrame) -> Plan:
+    """``plan`` (status UNSAFE) or, where it meets more of the planning futures (joint draws met
+    with any obstacle), the stop at ``safety.unsafe_brake`` m/s² (:func:`mmdopt.safety.
+    braking_plan`, status FALLBACK): braking is the way out of a car ahead, not of one that
+    runs into the ego from behind."""
+    brake = float(frame.config.safety.unsafe_brake)
+    why = f"{plan.message}; braking at {brake:g} m/s² to a stop returned (unsafe_brake)"
+    stop = braking_plan(plan, frame.road.path, brake, reason=why)
+    s = np.stack([plan.s, stop.s]) - frame.s_offset  # the planning frame: the ego at s = 0
+    met = samples_met(frame.config, frame.obs_fr, frame.obs_h, s, np.stack([plan.d, stop.d]))
+    plan_met, stop_met = (int(np.any(m, axis=0).sum()) for m in met)  # joint futures met
+    diag = {"unsafe_brake_met": (plan_met, stop_met)}
+    if stop_met < plan_met:
+        return dataclasses.replace(stop, diagnostics={**stop.diagnostics, **diag})
+    return dataclasses.replace(plan, diagnostics={**plan.diagnostics, **diag})
 
 
 class PlannerCache:

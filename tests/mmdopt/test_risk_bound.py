@@ -160,27 +160,37 @@ def test_a_plan_that_meets_more_samples_than_asked_says_so():
     assert p.risk_bound > 0.2 and "meets 8 planning sample(s)" in p.message
 
 
-def test_a_plan_that_meets_every_future_says_so_or_brakes_to_a_stop():
-    """Every future of the car sits on the ego's start: no plan is collision-free.  The plan is
-    returned flagged ``unsafe``; with ``unsafe_brake`` the planner brakes at that deceleration to
-    a stop instead and says why (status ``fallback``), with nothing measured on the replaced
-    plan kept."""
+def test_a_plan_that_meets_every_future_says_so_or_brakes_where_a_stop_is_clear():
+    """A car stands 18 m ahead on a road too narrow to pass: no plan found is collision-free
+    and the plan is returned flagged ``unsafe``.  With ``unsafe_brake`` the planner brakes at
+    that deceleration to a stop short of it instead and says why (status ``fallback``, nothing
+    measured on the replaced plan kept).  Where the futures sit on the ego's start, a stop
+    meets them as well: the plan stays, flagged ``unsafe``."""
     import jax
 
     import frenet
     import mmdopt
 
-    cfg, obs = _scene(40, on_ego=40)
+    cfg, on_ego = _scene(40, on_ego=40)
+    t = np.linspace(0.0, cfg.trajectory.horizon, cfg.trajectory.num_steps)
+    x = 18.0 + np.random.default_rng(0).normal(0.0, 0.2, (40, 1)) + 0.0 * t
+    ahead = np.stack([x, np.zeros_like(x)], -1)[None]
     kw = dict(key=jax.random.PRNGKey(0), risk=0.2)
-    ego = frenet.EgoState(vs=10.0)
-    p = mmdopt.plan(ego, mmdopt.Road(), obs, config=cfg, **kw)
+    ego, road = frenet.EgoState(vs=10.0), mmdopt.Road(y_lb=-0.5, y_ub=0.5)
+    brake = cfg.replace(unsafe_brake=6.0)
+    p = mmdopt.plan(ego, road, ahead, config=cfg, **kw)
     assert p.status == mmdopt.PlanStatus.UNSAFE, p.status_text
-    b = mmdopt.plan(ego, mmdopt.Road(), obs, config=cfg.replace(unsafe_brake=6.0), **kw)
+    b = mmdopt.plan(ego, road, ahead, config=brake, **kw)
     assert b.status == mmdopt.PlanStatus.FALLBACK and "unsafe_brake" in b.message
     assert "collides with every planning sample" in b.message
     np.testing.assert_allclose(b.vs, np.maximum(10.0 - 6.0 * (b.t - b.t[0]), 0.0), atol=1e-5)
     assert b.progress == pytest.approx(10.0**2 / (2 * 6.0), rel=1e-5) and np.all(b.d == b.d[0])
     assert np.isnan(b.risk_bound) and not b.feasible
+    assert b.diagnostics["unsafe_brake_met"] == (40, 0)  # joint futures: the plan's, the stop's
+    stays = mmdopt.plan(ego, road, on_ego, config=brake, **kw)
+    assert (
+        stays.status == mmdopt.PlanStatus.UNSAFE and stays.diagnostics["unsafe_brake_met"][1] == 40
+    )
     with pytest.raises(ValueError, match="unsafe_brake"):
         cfg.replace(unsafe_brake=-1.0)
 
