@@ -157,7 +157,8 @@ def test_two_scenario_smoke_run_writes_the_csv_and_resumes(ngsim_dir, tmp_path):
         reduced_set_size=4,
         reduced_set=ReducedSetConfig(population=16, n_elite=4, iterations=3, simplex_iterations=20),
     )
-    p = NgsimParams(egos_per_time=1, every=100.0, max_obstacles=3, n_samples=8, n_validation=16)
+    p = NgsimParams(egos_per_time=1, every=100.0, max_obstacles=3, n_samples=8, n_validation=16,
+                    warm_up=False)  # fmt: skip
     rows = run_ngsim(files, tmp_path, methods=("mmd",), predictor="cv", config=cfg, params=p)
     with open(tmp_path / "results.csv") as f:
         table = list(csv.DictReader(f))
@@ -168,23 +169,22 @@ def test_two_scenario_smoke_run_writes_the_csv_and_resumes(ngsim_dir, tmp_path):
         assert 0 <= r["collision_free"] <= 16 and r["n_validation"] == 16
         assert r["recorded_progress_m"] > 0 and np.isfinite(r["progress_m"])
         assert r["min_clearance_m"] >= 0 and 1 <= r["n_obstacles"] <= 3
-        # plan time on compiled programs, the first call's extra time apart
-        assert r["compile_s"] >= 0 and r["plan_time_s"] > 0
+        assert r["compile_s"] is None  # one call, no warm-up: its time includes any compile
     # resumable: a second call recomputes nothing
     mtimes = sorted(p_.stat().st_mtime_ns for p_ in (tmp_path / "tasks").glob("*.json"))
     run_ngsim(files, tmp_path, methods=("mmd",), predictor="cv", config=cfg, params=p)
     assert sorted(p_.stat().st_mtime_ns for p_ in (tmp_path / "tasks").glob("*.json")) == mtimes
     assert all(r["risk"] == "" for r in table)  # the preset's margins: no level asked
     # --risk: the risk mode at ε, each plan's level beside its bound, recorded in run.json
-    # (without the warm-up plan: one call, compile_s empty; the warm-up never changes a plan)
-    p1 = dataclasses.replace(p, warm_up=False)
-    (same,) = run_ngsim(files[:1], tmp_path / "cold", methods=("mmd",), predictor="cv",
-                        config=cfg, params=p1)  # fmt: skip
+    # the default warm-up: plan time on compiled programs, the first call's extra time apart;
+    # the warm-up never changes a plan
+    (same,) = run_ngsim(files[:1], tmp_path / "warm", methods=("mmd",), predictor="cv",
+                        config=cfg, params=dataclasses.replace(p, warm_up=True))  # fmt: skip
     first = next(r for r in rows if r["scenario"] == same["scenario"])
-    assert same["compile_s"] is None
+    assert same["compile_s"] >= 0 and same["plan_time_s"] > 0
     assert (same["cost"], same["progress_m"]) == (first["cost"], first["progress_m"])
     (row,) = run_ngsim(files[:1], tmp_path / "risk", methods=("mmd",), predictor="cv",
-                       config=cfg, params=p1, risk=0.1)  # fmt: skip
+                       config=cfg, params=p, risk=0.1)  # fmt: skip
     assert row["risk"] == 0.1 and 0.0 <= row["risk_bound"] <= 1.0
     assert not str(row["status"]).startswith("error"), row["status"]
     man = json.loads((tmp_path / "risk" / "run.json").read_text())
