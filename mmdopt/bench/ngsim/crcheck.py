@@ -30,6 +30,7 @@ Needs ``commonroad-io`` < 2026 (2024.3 checked) and ``commonroad-drivability-che
 from __future__ import annotations
 
 import atexit
+import math
 from functools import lru_cache
 from pathlib import Path
 from typing import Any
@@ -124,23 +125,24 @@ def body_heading(
     if not (np.isfinite(l_r) and l_r > 0):
         raise ValueError(f"l_r must be a finite number > 0, got {l_r!r}")
 
-    def rate(tt: float, psi: float) -> float:
-        return float(np.interp(tt, t, v)) * np.sin(float(np.interp(tt, t, phi)) - psi) / l_r
-
     k0 = 0.0
     if t.size > 1 and v[0] > 0.5:
         k0 = (phi[1] - phi[0]) / (t[1] - t[0]) / v[0]
     psi = np.empty_like(phi)
     psi[0] = phi[0] - np.arcsin(np.clip(l_r * k0, -0.5, 0.5))
-    for i in range(t.size - 1):  # one ODE along the horizon (≤ 51 intervals): sequential
-        p, h = psi[i], (t[i + 1] - t[i]) / substeps
-        for j in range(substeps):
-            tt = t[i] + j * h
-            k1 = rate(tt, p)
-            k2 = rate(tt + h / 2, p + h / 2 * k1)
-            k3 = rate(tt + h / 2, p + h / 2 * k2)
-            k4 = rate(tt + h, p + h * k3)
-            p += h / 6 * (k1 + 2 * k2 + 2 * k3 + k4)
+    # φ and v / l_r at every RK4 stage time (start, middle, end of each substep), interpolated
+    # at once; only the ODE itself is sequential (≤ 51 intervals × ``substeps``)
+    h = np.diff(t)[:, None, None] / substeps
+    tq = t[:-1, None, None] + h * (np.arange(substeps)[None, :, None] + [[[0.0, 0.5, 1.0]]])
+    pq, wq = np.interp(tq, t, phi).tolist(), (np.interp(tq, t, v) / l_r).tolist()
+    for i in range(t.size - 1):
+        p, hi = psi[i], float(h[i, 0, 0])
+        for (p0, pm, p1), (w0, wm, w1) in zip(pq[i], wq[i], strict=True):
+            k1 = w0 * math.sin(p0 - p)
+            k2 = wm * math.sin(pm - p - hi / 2 * k1)
+            k3 = wm * math.sin(pm - p - hi / 2 * k2)
+            k4 = w1 * math.sin(p1 - p - hi * k3)
+            p += hi / 6 * (k1 + 2 * k2 + 2 * k3 + k4)
         psi[i + 1] = p
     return psi, v * np.sin(phi - psi) / l_r
 
