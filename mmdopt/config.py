@@ -472,7 +472,7 @@ class SafetyConfig(_Section):
             raise ValueError(
                 f"SafetyConfig.joint_futures must be a bool, got {self.joint_futures!r}"
             )
-        if isinstance(self.unsafe_brake, bool | str):
+        if isinstance(self.unsafe_brake, bool):  # (a str is refused by _check)
             raise ValueError(
                 f"SafetyConfig.unsafe_brake must be None or m/s² > 0, got {self.unsafe_brake!r}"
             )

@@ -44,6 +44,8 @@ from .schedule import (
     PassName,
     coverage,
     obstacle_centres,
+    plan_bound,
+    risk_counts,
     run_schedule,
     samples_met,
 )
@@ -455,18 +457,19 @@ class Planner:
 
 
 def _brake_if_safer(plan: Plan, frame: PlanFrame) -> Plan:
-    """``plan`` (status UNSAFE) or, where it meets more of the planning futures (joint draws met
-    with any obstacle), the stop at ``safety.unsafe_brake`` m/s² (:func:`mmdopt.safety.
-    braking_plan`, status FALLBACK): braking is the way out of a car ahead, not of one that
-    runs into the ego from behind."""
-    brake = float(frame.config.safety.unsafe_brake)
+    """``plan`` (status UNSAFE) or, where the planning futures give it the lower risk bound
+    (:func:`mmdopt.schedule.plan_bound`: the joint futures met, or each obstacle's samples with
+    ``joint_futures = False``), the stop at ``safety.unsafe_brake`` m/s²
+    (:func:`mmdopt.safety.braking_plan`, status FALLBACK): braking is the way out of a car
+    ahead, not of one that runs into the ego from behind."""
+    config = frame.config
+    brake = float(config.safety.unsafe_brake)
     why = f"{plan.message}; braking at {brake:g} m/s² to a stop returned (unsafe_brake)"
     stop = braking_plan(plan, frame.road.path, brake, reason=why)
     s = np.stack([plan.s, stop.s]) - frame.s_offset  # the planning frame: the ego at s = 0
-    met = samples_met(frame.config, frame.obs_fr, frame.obs_h, s, np.stack([plan.d, stop.d]))
-    plan_met, stop_met = (int(np.any(m, axis=0).sum()) for m in met)  # joint futures met
-    diag = {"unsafe_brake_met": (plan_met, stop_met)}
-    if stop_met < plan_met:
+    met = samples_met(config, frame.obs_fr, frame.obs_h, s, np.stack([plan.d, stop.d]))
+    diag = {"unsafe_brake_met": tuple(int(risk_counts(config, m).sum()) for m in met)}
+    if plan_bound(config, met[1]) < plan_bound(config, met[0]):
         return dataclasses.replace(stop, diagnostics={**stop.diagnostics, **diag})
     return dataclasses.replace(plan, diagnostics={**plan.diagnostics, **diag})
 
