@@ -129,6 +129,17 @@ def _headings(xy, initial):
     d = jnp.diff(xy, axis=-2)
     psi = jnp.arctan2(d[..., 1], d[..., 0])
     moving = jnp.hypot(d[..., 0], d[..., 1]) >= MIN_HEADING_STEP
+    # every step of every trajectory moving (the common case): psi as it is, the same values
+    # as carrying them (no gathers over all samples)
+    return lax.cond(
+        jnp.all(moving),
+        lambda: jnp.concatenate([psi, psi[..., -1:]], axis=-1),
+        lambda: _carried_headings(psi, moving, init),
+    )
+
+
+def _carried_headings(psi, moving, init):
+    # the heading of the last moving step so far; before the first, init (or the first's)
     idx = jnp.arange(psi.shape[-1])
     last = lax.cummax(jnp.where(moving, idx, -1), axis=psi.ndim - 1)  # last moving step so far
     if init is None:  # the first longer step's heading, 0 when there is none
@@ -174,7 +185,9 @@ def ellipse_values(s, d, centres, a, b, a_behind=None, rear_exempt_width=None, h
     Parameters
     ----------
     s, d : (B, K) ego Frenet positions (m)
-    centres : (O, J, C, K, 2) obstacle circle centres (m)
+    centres : (O, J, C, K, 2) obstacle circle centres (m), or their two components as a pair
+        of (O, J, C, K) arrays (formed in the same jitted program, XLA fuses them into this
+        evaluation instead of storing them)
     a, b : ellipse semi-axes (m); ``b`` scalar, (K,) or per ego sample (B, K)
     a_behind : optional (B, K) longitudinal semi-axis used where the ego is behind the centre
         (Δs < 0): a following distance (:func:`mmdopt.algorithm.headway_semi_axis`)
@@ -189,8 +202,9 @@ def ellipse_values(s, d, centres, a, b, a_behind=None, rear_exempt_width=None, h
     -------
     (B, O, J, C, K)
     """
-    ds = s[:, None, None, None, :] - centres[None, ..., 0]
-    dd = d[:, None, None, None, :] - centres[None, ..., 1]
+    cs, cd = centres if isinstance(centres, tuple) else (centres[..., 0], centres[..., 1])
+    ds = s[:, None, None, None, :] - cs[None]
+    dd = d[:, None, None, None, :] - cd[None]
     # eq. (coll_constraints) with the reciprocals 1/a², 1/b² formed before broadcasting: one
     # division per step instead of two per value (measured 1.6× faster at B = 150, J = 20)
     a = jnp.asarray(a)

@@ -577,6 +577,8 @@ class ScheduleConfig(_Section):
     selection_pool : the most samples a method with a selection pool
         (:attr:`mmdopt.methods.PlanMethod.selection_pool`) selects among in the "samples" mode:
         beyond it the reduced set is chosen from a random pool of this size (1000)
+    coverage_pool : the nearest-futures pass forms its k-NN coverage clusters among at most
+        this many of the n futures (evenly spaced draws; k scaled by the share), 5000
     """
 
     nearest_repeats: int = _host(2)
@@ -585,10 +587,11 @@ class ScheduleConfig(_Section):
     margin_ladder: tuple[float, ...] = _host(())
     level_cap: float = _host(0.45)
     selection_pool: int = _host(1000)
+    coverage_pool: int = _host(5000)
 
-    _ints = ("nearest_repeats", "tail_passes", "selection_pool")
+    _ints = ("nearest_repeats", "tail_passes", "selection_pool", "coverage_pool")
     _nonneg = ("nearest_repeats", "tail_passes")
-    _positive = ("nearest_margin_factor", "level_cap", "selection_pool")
+    _positive = ("nearest_margin_factor", "level_cap", "selection_pool", "coverage_pool")
 
     def __post_init__(self) -> None:
         try:

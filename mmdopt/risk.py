@@ -168,23 +168,30 @@ def _check_frenet(obstacles_frenet) -> np.ndarray:
     return X
 
 
+_ROWS = 4096
+
+
 def coverage_data(obstacles_frenet: np.ndarray, lateral_scale: float = 1.0) -> CoverageData:
     """:class:`CoverageData` of the (O, n, K, 2) planning samples for ``lateral_scale``."""
     X = _check_frenet(obstacles_frenet)
     O, n, K, _ = X.shape
-    scale = np.array([1.0, float(lateral_scale)])
+    scale = np.tile(np.array([1.0, float(lateral_scale)]), K)
     flat, F, FF, flat2, std_s = [], [], [], [], []
     for o in range(O):
         # centred (n, 2K) positions: the expanded distances and sums of squares keep their
         # precision far from the origin
         f = X[o].reshape(n, -1)
         f = f - f.mean(axis=0)
-        g = f * np.tile(scale, K)
+        g = f * scale
+        ff = np.empty(n)
+        for i in range(0, n, _ROWS):  # row sums in blocks: no (n, 2K) temporary
+            ff[i : i + _ROWS] = (g[i : i + _ROWS] * g[i : i + _ROWS]).sum(1)
+        f2 = f * f
         flat.append(f)
         F.append(g)
-        FF.append((g * g).sum(1))
-        flat2.append(f * f)
-        std_s.append(X[o][:, :, 0].std(axis=0))
+        FF.append(ff)
+        flat2.append(f2)
+        std_s.append(np.sqrt(f2[:, 0::2].mean(axis=0)))  # the arc length's spread per step
     return CoverageData(X.shape, float(lateral_scale), *map(tuple, (flat, F, FF, flat2, std_s)))
 
 
@@ -198,6 +205,7 @@ def coverage_margins(
     knn: int = 0,
     bandwidth: float = 0.0,
     data: CoverageData | None = None,
+    pool: np.ndarray | None = None,
 ) -> np.ndarray:
     """Sample-driven planning margins (m), shape (3, O, J, K): behind, ahead, lateral.
 
@@ -214,6 +222,9 @@ def coverage_margins(
     NumPy: the distances are O(O·J·n·K) (one matrix product), the cluster sums O(O·n·K)
     (O·J·knn·K with ``knn``: sparse membership).  ``data``: :func:`coverage_data` of these
     samples for this ``lateral_scale``, when already computed (the result is the same).
+    ``pool`` (O, R), with ``knn > 0``: point j's cluster is the point itself and its ``knn``
+    nearest among the samples ``pool`` only (a random subset of the n: the same neighbourhood
+    with R/n of its members, for R/n of the work; the caller scales ``knn`` by R/n).
     """
     if data is None:
         data = coverage_data(obstacles_frenet, lateral_scale)
@@ -240,11 +251,14 @@ def coverage_margins(
     if not (math.isfinite(bandwidth) and bandwidth >= 0):
         raise ValueError(f"bandwidth must be finite and >= 0, got {bandwidth}")
     J = idx.shape[1]
+    cand = _check_pool(pool, O, n, knn)
     out = np.empty((3, O, J, K))
     for o in range(O):  # O is a handful of obstacles; everything inside is vectorised
-        flat, F = data.flat[o], data.F[o]
+        flat, F, FF = data.flat[o], data.F[o], data.FF[o]
         A = F[idx[o]]
-        sq = (A * A).sum(1)[:, None] + data.FF[o][None, :] - 2.0 * A @ F.T  # (J, n)
+        if cand is not None:  # distances to the pool's samples only
+            F, FF = F[cand[o]], FF[cand[o]]
+        sq = (A * A).sum(1)[:, None] + FF[None, :] - 2.0 * A @ F.T  # (J, n) or (J, R)
         h_e = 0.0
         if bandwidth > 0:  # kernel-density smoothing of the tail (Silverman's rule, per step)
             h_e = bandwidth * 1.06 * data.std_s[o] * n**-0.2  # (K,)
@@ -255,14 +269,30 @@ def coverage_margins(
             rows = np.concatenate([first[np.argmin(sq[first], axis=0)], np.arange(J)])
             cols = np.concatenate([np.arange(n), idx[o]])
         else:
-            k = min(int(knn), n)
+            k = min(int(knn), sq.shape[1])
             nb = np.argpartition(sq, k - 1, axis=1)[:, :k]  # (J, k) incl. the point itself
             rows, cols = np.repeat(np.arange(J), k), nb.reshape(-1)
+            if cand is not None:  # pool positions to sample indices, and the point itself
+                rows = np.concatenate([rows, np.arange(J)])
+                cols = np.concatenate([cand[o][cols], idx[o]])
         # cluster membership, 0/1 (a pair named twice, a point in its own cluster, counts once)
         M = sp.coo_matrix((np.ones(rows.size), (rows, cols)), shape=(J, n)).tocsr()
         M.data[:] = 1.0
         out[:, o] = _cluster_margins(flat, data.flat2[o], idx[o], M, z, prior, h_e)
     return out
+
+
+def _check_pool(pool, O: int, n: int, knn: int) -> np.ndarray | None:
+    if pool is None:
+        return None
+    p = np.asarray(pool)
+    if knn == 0:
+        raise ValueError("pool needs knn > 0 (with knn = 0 every sample is assigned a point)")
+    if p.ndim != 2 or p.shape[0] != O or p.shape[1] == 0:
+        raise ValueError(f"pool must have shape (O, R) = ({O}, R >= 1), got {p.shape}")
+    if not np.issubdtype(p.dtype, np.integer) or p.min() < 0 or p.max() >= n:
+        raise ValueError(f"pool must be integers in [0, {n})")
+    return p
 
 
 # ------------------------------------------------------------------------- what samples support

@@ -46,9 +46,9 @@ from . import algorithm as alg
 from .collision import (
     OBSTACLE_FOOTPRINT,
     circle_centres,
-    collision_free_count,
     ellipse_f,
     ellipse_values,
+    headings,
 )
 from .config import MMDOptConfig
 from .methods import PlanMethod
@@ -72,6 +72,8 @@ __all__ = [
     "plan_bound",
     "risk_counts",
     "obstacle_centres",
+    "SampleGeometry",
+    "sample_geometry",
     "samples_met",
     "coverage",
 ]
@@ -159,10 +161,16 @@ class PassContext:
     coverage_data: CoverageData | None = None
 
     @functools.cached_property
-    def all_centres(self) -> jax.Array:
-        """Footprint circle centres (O, n, C, K, 2) of every planning sample, computed once per
-        plan (every conflict-depth measurement uses them)."""
-        return obstacle_centres(self.obs_fr, self.obs_h)
+    def scores(self) -> dict[Candidate, tuple[float, float, np.ndarray]]:
+        """The final check's score (bound, task cost, samples met) of each candidate scored so
+        far in this plan (filled by the schedule)."""
+        return {}
+
+    @functools.cached_property
+    def geometry(self) -> SampleGeometry:
+        """The planning samples' :class:`SampleGeometry`, formed once per plan: every
+        measurement against all n samples reads it (the conflict depth, the final check)."""
+        return sample_geometry(self.obs_fr, self.obs_h)
 
     def centres(self, idx: np.ndarray) -> jax.Array:
         """Footprint circle centres (O, J, C, K, 2) of the samples ``idx`` (O, J)."""
@@ -209,6 +217,50 @@ class ScheduleResult:
 
 
 # ------------------------------------------------------------------------------ shared tools
+@jax.tree_util.register_dataclass
+@dataclass(frozen=True)
+class SampleGeometry:
+    """The planning samples as every measurement against all of them reads them: positions
+    ``xy`` (O, n, K, 2) and the unit vectors of their body headings ``cos``, ``sin`` (O, n, K)
+    (:func:`mmdopt.collision.headings` where none is given), with the footprint's circle
+    offsets ``r`` (C,).  A jitted consumer forms the circle centres with :meth:`centres`, which
+    XLA fuses into the consumer's reduction: the (O, n, C, K, 2) centres (240 MB at n = 50 000)
+    are never stored, and the trigonometry is done once per plan, not once per circle."""
+
+    xy: jax.Array
+    cos: jax.Array
+    sin: jax.Array
+    r: jax.Array
+
+    def centres(self) -> jax.Array:
+        """(O, n, C, K, 2) circle centres, as :func:`mmdopt.collision.circle_centres` gives
+        them (bit for bit)."""
+        u = jnp.stack([self.cos, self.sin], axis=-1)
+        return self.xy[..., None, :, :] + self.r[:, None, None] * u[..., None, :, :]
+
+    def circle(self, c: int) -> tuple[jax.Array, jax.Array]:
+        """The two components (O, n, K) of circle ``c``'s centres (those of :meth:`centres`, bit
+        for bit): a consumer that loops over the C circles and reduces each in turn reads the
+        samples once per circle, and XLA fuses each circle's arithmetic into one loop."""
+        return self.xy[..., 0] + self.r[c] * self.cos, self.xy[..., 1] + self.r[c] * self.sin
+
+
+def sample_geometry(obs_fr, obs_h=None) -> SampleGeometry:
+    """:class:`SampleGeometry` of the samples ``obs_fr`` (O, n, K, 2) along ``obs_h`` (O, n, K)
+    (``None``: each sample's motion), with :data:`mmdopt.collision.OBSTACLE_FOOTPRINT`."""
+    xy = jnp.asarray(obs_fr)
+    r = jnp.asarray(OBSTACLE_FOOTPRINT.offsets_array(), xy.dtype)
+    c, sn = _units(xy, None if obs_h is None else jnp.asarray(obs_h, xy.dtype))
+    return SampleGeometry(xy, c, sn, r)
+
+
+@jax.jit
+def _units(xy, h):
+    if h is None:
+        h = headings(xy)
+    return jnp.cos(h), jnp.sin(h)
+
+
 def obstacle_centres(obs_fr, obs_h, idx=None) -> jax.Array:
     """Footprint circle centres (O, J, C, K, 2) of the samples ``idx`` (O, J) of ``obs_fr``
     (all when None), along ``obs_h`` (O, n, K) where given, else along each sample's motion."""
@@ -222,11 +274,13 @@ def obstacle_centres(obs_fr, obs_h, idx=None) -> jax.Array:
 
 
 def coverage(
-    config: MMDOptConfig, obs_fr, idx, level=None, knn: int = 0, data: CoverageData | None = None
-) -> np.ndarray:
+    config: MMDOptConfig, obs_fr, idx, level=None, knn: int = 0, data: CoverageData | None = None,
+    pool: np.ndarray | None = None,
+) -> np.ndarray:  # fmt: skip
     """:func:`mmdopt.risk.coverage_margins` of the points ``idx`` among ``obs_fr`` at ``level``
     (default: the risk level ε) with ``config``'s coverage settings (every pass plans with
-    these); ``data``: the samples' :class:`~mmdopt.risk.CoverageData` (the pass context's)."""
+    these); ``data``: the samples' :class:`~mmdopt.risk.CoverageData` (the pass context's);
+    ``pool``: the samples the k-NN clusters are formed among (``None``: all)."""
     return coverage_margins(
         obs_fr,
         idx,
@@ -236,6 +290,7 @@ def coverage(
         knn=knn,
         bandwidth=float(config.safety.margins.coverage_bandwidth),
         data=data,
+        pool=pool,
     )
 
 
@@ -264,30 +319,54 @@ def _conflict_depth(ctx: PassContext, best) -> np.ndarray:
     cy1 = np.asarray(best.cy, np.float64)
     s1, d1 = (Bs.P @ cx1)[None], (Bs.P @ cy1)[None]
     vs1, vd1 = (Bs.Pdot @ cx1)[None], (Bs.Pdot @ cy1)[None]
-    return np.asarray(_depth_values(ctx.config.program(), s1, d1, vs1, vd1, ctx.all_centres))
+    return np.asarray(_depth_values(ctx.config.program(), s1, d1, vs1, vd1, ctx.geometry))
 
 
 @jax.jit
-def _depth_values(config: MMDOptConfig, s1, d1, vs1, vd1, centres):
-    # one compiled program per shape for _conflict_depth (eagerly: a program per op and shape)
+def _depth_values(config: MMDOptConfig, s1, d1, vs1, vd1, geo: SampleGeometry):
+    # one compiled program per shape for _conflict_depth (eagerly: a program per op and shape);
+    # the circles are formed here, so XLA fuses them into the reduction: the (O, n, C, K)
+    # centres of all n samples are never stored (at n = 50 000 they were 240 MB)
     b = jnp.asarray(config.safety.footprint.b)
     if config.safety.footprint.yaw_aware:
         b = b + alg.yaw_widening(config, vs1, vd1)  # (1, K)
     rear = float(config.safety.rules.rear_exempt_width) if config.safety.rules.asymmetric else None
-    f = ellipse_values(s1, d1, centres, config.safety.footprint.a, b, rear_exempt_width=rear)
-    return jnp.max(f[0], axis=(2, 3))
+    depth = None
+    for c in range(geo.r.shape[0]):  # one circle at a time: each a fused loop over the samples
+        cs, cd = geo.circle(c)
+        f = ellipse_values(s1, d1, (cs[:, :, None], cd[:, :, None]), config.safety.footprint.a,
+                           b, rear_exempt_width=rear)  # fmt: skip
+        m = jnp.max(f[0, :, :, 0], axis=-1)  # (O, n)
+        depth = m if depth is None else jnp.maximum(depth, m)
+    return depth
 
 
-#: plans are scored against every sample in batches padded to a multiple of this (one compiled
-#: count serves 1–4 plans)
+#: plans are scored against every sample in batches of 1, 2, 4, then padded to a multiple of
+#: this (one compiled count per bucket)
 COUNT_BUCKET = 4
+
+
+def _bucket(c: int) -> int:
+    return 1 << (c - 1).bit_length() if c <= COUNT_BUCKET else -(-c // COUNT_BUCKET) * COUNT_BUCKET
+
+
+@jax.jit
+def _met_from_geometry(s, d, geo: SampleGeometry, a, b):
+    # eq. (coll_constraints) as collision_free_count evaluates it (the ego's one circle is its
+    # reference point) for a bucket of plans at once, the circles formed inside the reduction
+    # (a fused loop over plans × samples × steps per circle: nothing of that size is stored)
+    met = None
+    for c in range(geo.r.shape[0]):  # one circle at a time: each a fused loop over the samples
+        cs, cd = geo.circle(c)
+        ds, dd = s[:, None, None] - cs[None], d[:, None, None] - cd[None]  # (P, O, n, K)
+        hit = jnp.any(1.0 - ds**2 / a**2 - dd**2 / b**2 > 0.0, axis=-1)  # ellipse_f's order
+        met = hit if met is None else met | hit
+    return met
 
 
 @jax.jit
 def _met_from_centres(s, d, centres, a, b):
-    # eq. (coll_constraints) as collision_free_count evaluates it (the ego's one circle is its
-    # reference point), one plan at a time: the (O, n, C, K) values of a plan are reduced as
-    # they are formed instead of materialising those of every plan
+    # as _met_from_samples, from circle centres already formed (one plan at a time)
     def one(sd):
         ego = jnp.stack(sd, -1)  # (K, 2)
         return jnp.any(ellipse_f(ego, centres, a, b) > 0.0, axis=(2, 3))
@@ -295,40 +374,47 @@ def _met_from_centres(s, d, centres, a, b):
     return lax.map(one, (s, d))
 
 
-def samples_met(config: MMDOptConfig, obs_fr, obs_h, s, d, centres=None) -> np.ndarray:
+def samples_met(config: MMDOptConfig, obs_fr, obs_h, s, d, centres=None,
+                geometry: SampleGeometry | None = None) -> np.ndarray:  # fmt: skip
     """(C, O, n) the planning samples each of the C plans (s, d) (C, K) meets, counted as
     :func:`mmdopt.collision_free_count` counts a collision (any circle pair, any step); the
-    plans are padded to a multiple of :data:`COUNT_BUCKET`.  ``centres``: the samples' footprint
-    circle centres (O, n, C, K, 2) when already computed (:attr:`PassContext.all_centres`):
-    the count then reads them instead of forming them again from ``obs_fr`` and ``obs_h``."""
+    plans are padded to 1, 2, 4 or a multiple of :data:`COUNT_BUCKET`.  The footprint circles (along
+    ``obs_h`` (O, n, K), else each sample's motion) are formed inside the count, never stored;
+    ``geometry``: the samples' :class:`SampleGeometry` when already formed
+    (:attr:`PassContext.geometry`), ``centres``: their circle centres (O, n, C, K, 2); the
+    count then reads them (the same answer, bit for bit)."""
     xy = np.stack([np.asarray(s, np.float64), np.asarray(d, np.float64)], -1)
     C = xy.shape[0]
-    pad = -(-C // COUNT_BUCKET) * COUNT_BUCKET - C
+    pad = _bucket(C) - C
+    xy = np.concatenate([xy, np.repeat(xy[:1], pad, axis=0)])
+    a, b = float(config.safety.footprint.a), float(config.safety.footprint.b)
+    sj, dj = jnp.asarray(xy[..., 0]), jnp.asarray(xy[..., 1])
     if centres is not None:
-        xy = np.concatenate([xy, np.repeat(xy[:1], pad, axis=0)])
-        a, b = float(config.safety.footprint.a), float(config.safety.footprint.b)
-        met = _met_from_centres(jnp.asarray(xy[..., 0]), jnp.asarray(xy[..., 1]), centres,
-                                a, b)  # fmt: skip
-        return np.asarray(met)[:C]
-    cnt = collision_free_count(
-        np.concatenate([xy, np.repeat(xy[:1], pad, axis=0)]),
-        obs_fr,
-        a=config.safety.footprint.a,
-        b=config.safety.footprint.b,
-        obstacle_heading=obs_h,
-    )
-    return np.asarray(cnt.colliding)[:C]
+        return np.asarray(_met_from_centres(sj, dj, centres, a, b))[:C]
+    geo = sample_geometry(obs_fr, obs_h) if geometry is None else geometry
+    return np.asarray(_met_from_geometry(sj, dj, geo, a, b))[:C]
 
 
 def _bounds_of(ctx: PassContext, cands) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """The 95 % risk bound (C,), task cost (C,) and planning samples met (C, O, n) of the
-    candidates' best plans against every planning sample."""
+    candidates' best plans against every planning sample; a candidate scored before in this
+    plan (the nearest pass's check, then the final check) is read from
+    :attr:`PassContext.scores`, not counted again."""
+    new = [c for c in dict.fromkeys(cands) if c not in ctx.scores]
+    if new:
+        for c, score in zip(new, zip(*_score(ctx, new), strict=True), strict=True):
+            ctx.scores[c] = score
+    bound, task, hits = zip(*(ctx.scores[c] for c in cands), strict=True)
+    return np.array(bound), np.array(task), np.stack(hits)
+
+
+def _score(ctx: PassContext, cands) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     config, B = ctx.config, ctx.workspace.basis
     bests = [c.state.best for c in cands]
     cx = np.stack([np.asarray(b.cx, np.float64) for b in bests])
     cy = np.stack([np.asarray(b.cy, np.float64) for b in bests])
     s, d = cx @ B.P.T, cy @ B.P.T
-    hits = samples_met(config, ctx.obs_fr, ctx.obs_h, s, d, ctx.all_centres)  # (C, O, n)
+    hits = samples_met(config, ctx.obs_fr, ctx.obs_h, s, d, geometry=ctx.geometry)
     bound = np.array([plan_bound(config, h) for h in hits])
     vs, as_, ad = cx @ B.Pdot.T, cx @ B.Pddot.T, cy @ B.Pddot.T
     c = config.cost
@@ -410,10 +496,14 @@ def _nearest_pass(ctx: PassContext, start: Candidate, fewer: int) -> tuple[Candi
     level = min(float(sched.nearest_margin_factor) * float(config.safety.risk),
                 float(sched.level_cap))  # fmt: skip
     knn = max(2, n // config.selection.reduced_set_size)
+    R, pool = int(sched.coverage_pool), None
+    if n > R:  # the clusters among R evenly spaced draws: the same neighbourhoods, R/n the work
+        pool = np.tile(np.linspace(0, n - 1, R).round().astype(pad.dtype), (O, 1))
+        knn = max(2, round(knn * R / n))
+    margins = coverage(config, obs_fr, pad, level, knn, ctx.coverage_data, pool)
     obstacles = alg.ObstacleSet.create(
-        cfg, ctx.centres(pad), np.where(mask, 1.0 / M, 0.0), "chance", mask=mask,
-        margins=coverage(config, obs_fr, pad, level=level, knn=knn, data=ctx.coverage_data),
-    )  # fmt: skip
+        cfg, ctx.centres(pad), np.where(mask, 1.0 / M, 0.0), "chance", mask=mask, margins=margins
+    )
     state = ctx.run(obstacles, ctx.keys.nearest(fewer), ctx.warm(start.state), config=cfg)
     return Candidate(PassName.NEAREST, state, obstacles, pad, level=level), (k + 0.5) / M
 

@@ -436,3 +436,26 @@ def test_a_car_at_rest_keeps_a_heading_instead_of_taking_one_from_noise():
     centres = np.asarray(mmdopt.circle_centres(rest[None], mmdopt.OBSTACLE_FOOTPRINT))
     assert np.abs(centres[..., 1] - 4.0).max() < 0.01  # all three circles on the car's line
     assert MIN_HEADING_STEP <= 0.1  # a car at 1 m/s on a 0.1 s grid still has a heading
+
+
+def test_a_samples_headings_do_not_depend_on_the_other_samples_of_the_batch():
+    """Headings are computed for a whole batch of samples at once (a fast path when every
+    sample moves at every step): a moving sample's headings are the same bit for bit alone,
+    in a batch of moving samples and beside a sample that stops, and equal the direction of
+    its forward differences with the last one repeated."""
+    from mmdopt.collision import headings
+
+    rng = np.random.default_rng(4)
+    t = np.linspace(0.0, 5.0, 41)[:, None]
+    moving = np.concatenate([5 * t + rng.normal(0, 0.2, (41, 1)), 0.3 * t**2], -1)
+    other = np.concatenate([4 * t, 0.1 * t], -1)
+    stops = np.concatenate([np.minimum(t, 1.0) * 4, 0 * t], -1)  # at rest after 1 s
+    with jax.enable_x64(True):
+        alone = np.asarray(headings(moving[None]))[0]
+        in_moving = np.asarray(headings(np.stack([moving, other])))[0]
+        beside_stop = np.asarray(headings(np.stack([moving, stops])))
+    step = np.diff(moving, axis=0)
+    want = np.arctan2(step[:, 1], step[:, 0])
+    np.testing.assert_allclose(alone, np.append(want, want[-1]), rtol=0, atol=1e-14)
+    assert np.array_equal(alone, in_moving) and np.array_equal(alone, beside_stop[0])
+    np.testing.assert_allclose(beside_stop[1, 11:], 0.0, atol=1e-14)  # keeps its heading

@@ -6,7 +6,7 @@ import jax
 import numpy as np
 
 from mmdopt.config import MMDOptConfig
-from mmdopt.schedule import obstacle_centres, samples_met
+from mmdopt.schedule import obstacle_centres, sample_geometry, samples_met
 
 
 def test_counting_from_the_plans_centres_equals_counting_from_the_samples():
@@ -29,5 +29,30 @@ def test_counting_from_the_plans_centres_equals_counting_from_the_samples():
             want = samples_met(cfg, obs, heading, s, d)
             got = samples_met(cfg, obs, heading, s, d, obstacle_centres(obs, heading))
         assert got.shape == want.shape == (C, 2, n) and got.dtype == bool
+        assert 0 < want.sum() < want.size
+        assert np.array_equal(got, want)
+
+
+def test_counting_from_the_sample_geometry_equals_counting_from_the_centres():
+    """The count against all n samples reads the samples' geometry (positions and heading unit
+    vectors, formed once per plan) and forms the circles inside the count: the same (C, O, n)
+    answer, bit for bit, as counting from the stored circle centres, with headings given and
+    with headings from each sample's motion."""
+    rng = np.random.default_rng(5)
+    K, n = 25, 300
+    t = np.linspace(0.0, 5.0, K)
+    xy = np.stack([15 + rng.normal(0, 5, (n, 1)) + 4 * t, rng.normal(0, 2.0, (n, 1)) + 0 * t], -1)
+    obs = np.stack([xy, xy[::-1] + [5.0, 1.0]])
+    cfg = MMDOptConfig()
+    s = np.stack([(5 + c) * t for c in range(3)])
+    d = np.stack([0.7 * c * np.ones(K) for c in range(3)])
+    for heading in (None, rng.normal(0, 0.2, obs.shape[:-1])):
+        with jax.enable_x64(True):
+            want = samples_met(cfg, obs, heading, s, d, obstacle_centres(obs, heading))
+            geo = sample_geometry(obs, heading)
+            got = samples_met(cfg, obs, heading, s, d, geometry=geo)
+            np.testing.assert_array_equal(
+                np.asarray(geo.centres()), np.asarray(obstacle_centres(obs, heading))
+            )
         assert 0 < want.sum() < want.size
         assert np.array_equal(got, want)
