@@ -853,8 +853,10 @@ def _projector_settings(problem: ProjectionProblem, num_iters, dtype, settings):
         raise ValueError(f"dtype must be 'float32' or 'float64', got {dtype!r}")
     # Start at a large step, rho = 62.5 (the backend's default 0.1 stalls at these budgets),
     # with OSQP's adaptive rule over a ladder extended upwards: measured best for residual and
-    # distance at 25-500 iterations (docs/experiments/qp-backends.md).
+    # distance at 25-500 iterations (docs/experiments/qp-backends.md).  Dense products: at the
+    # planner's shapes (n, m ≲ 100, few iterations) the batched matmul is the fast one.
     base = dict(
+        products="dense",
         max_iter=int(num_iters),
         check_every=min(25, int(num_iters)),
         dtype=dtype,

@@ -16,11 +16,13 @@ from .core import (
     ADMMSettings,
     ADMMState,
     PolishSettings,
+    SparsePattern,
     admm_factor,
     admm_iterate,
     admm_projector,
     flops_per_iteration,
     rows_from_bounds,
+    sparse_pattern,
 )
 from .polish import polish
 
@@ -29,12 +31,14 @@ __all__ = [
     "ADMMFactor",
     "ADMMState",
     "PolishSettings",
+    "SparsePattern",
     "ADMMBackend",
     "DENSE_N_WARN",
     "admm_factor",
     "admm_iterate",
     "admm_projector",
     "rows_from_bounds",
+    "sparse_pattern",
     "polish",
     "flops_per_iteration",
     "make_backend",

@@ -120,7 +120,7 @@ class ADMMBackend(Backend):
             pd = polish_data(P, A, s, f.D, f.E, f.c)
             self._factors[key] = (f, pd)
         # the tolerances are not baked into the factor arrays: swap the settings in
-        return ADMMFactor(*f.tree_flatten()[0], settings=s.replace(polish=False, fallback=None)), pd
+        return dataclasses.replace(f, settings=s.replace(polish=False, fallback=None)), pd
 
     def solve(self, qp: QP, *, warm_start: Any = None, **settings: Any) -> Solution:
         batch = QPBatch(qp.P, qp.A, qp.q[None], qp.l[None], qp.u[None], check_convex=False)

@@ -119,6 +119,11 @@ class ADMMSettings:
         two.  Saves the dense batch's work on QPs already solved; each new batch size compiles.
     fallback : ``None`` or ``"clarabel"``: re-solve QPs still not solved (not certified
         infeasible) with Clarabel; counted in ``extras["fallback_count"]``.
+    products : how the iterations multiply by ``Ā`` and ``Āᵀ``: ``"dense"`` (batched matmuls),
+        ``"sparse"`` (over the nonzeros, stored row by row and column by column, padded to the
+        longest; :func:`sparse_pattern`) or ``"auto"`` (sparse when no row of ``Ā`` has more
+        than ``n/8`` nonzeros and no column more than ``m/8``: a gather costs about ten matmul
+        flops, so sparse pays below an eighth).  ``K⁻¹`` stays a dense inverse either way.
     """
 
     eps_abs: float = 1e-5
@@ -140,6 +145,7 @@ class ADMMSettings:
     polish_settings: PolishSettings = PolishSettings()
     stage_iter: int | None = None
     fallback: str | None = None
+    products: str = "auto"
 
     def __post_init__(self) -> None:
         object.__setattr__(self, "rho_ladder", tuple(sorted(float(r) for r in self.rho_ladder)))
@@ -150,6 +156,8 @@ class ADMMSettings:
             )
         if self.dtype not in ("float32", "float64"):
             raise ValueError(f"dtype must be 'float32' or 'float64', got {self.dtype!r}")
+        if self.products not in ("auto", "dense", "sparse"):
+            raise ValueError(f"products must be 'auto', 'dense' or 'sparse', got {self.products!r}")
         if self.fallback not in (None, "clarabel"):
             raise ValueError(f"fallback must be None or 'clarabel', got {self.fallback!r}")
         if self.check_every < 1 or self.max_iter < 0:
@@ -225,6 +233,53 @@ class ADMMSettings:
 
 
 # ----------------------------------------------------------------------------- factor (host)
+class SparsePattern(NamedTuple):
+    """The nonzeros of ``Ā`` for products over them (a pytree of arrays), padded with zeros.
+
+    ``Āx = Σ_j rvals[:, j]·x[rows[:, j]]`` and ``Āᵀw = Σ_j cvals[:, j]·w[cols[:, j]]``: each row
+    of ``Ā`` lists the columns of its nonzeros, each column the rows of its nonzeros.
+    """
+
+    rows: Any  # (m, kr) int32 column indices of each row's nonzeros
+    rvals: Any  # (m, kr) their values (0 where padded)
+    cols: Any  # (n, kc) int32 row indices of each column's nonzeros
+    cvals: Any  # (n, kc)
+
+
+def _padded_lists(M: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Each row's nonzero columns and values of ``M``, padded with (0, 0.0) to the longest row."""
+    nz = M != 0
+    k = max(1, int(nz.sum(axis=1).max(initial=0)))
+    # stable sort puts each row's nonzero columns first, in increasing order
+    order = np.argsort(~nz, axis=1, kind="stable")[:, :k]
+    keep = np.take_along_axis(nz, order, axis=1)
+    idx = np.where(keep, order, 0).astype(np.int32)
+    vals = np.where(keep, np.take_along_axis(M, order, axis=1), 0.0)
+    return idx, vals
+
+
+def sparse_pattern(A: np.ndarray, dtype: Any = np.float64) -> SparsePattern:
+    """:class:`SparsePattern` of a dense ``A (m, n)`` (its exact zeros are left out)."""
+    A = np.asarray(A, np.float64)
+    if A.ndim != 2:
+        raise ValueError(f"A must be 2-D, got shape {A.shape}")
+    rows, rvals = _padded_lists(A)
+    cols, cvals = _padded_lists(A.T)
+    dt = np.dtype(dtype)
+    return SparsePattern(rows, rvals.astype(dt), cols, cvals.astype(dt))
+
+
+def _use_sparse(A: np.ndarray, products: str) -> bool:
+    """Whether ``products`` (``"auto"``, ``"dense"``, ``"sparse"``) means sparse for ``A``."""
+    if products != "auto":
+        return products == "sparse"
+    m, n = A.shape
+    if m == 0 or n == 0:
+        return False
+    nz = A != 0
+    return bool(nz.sum(axis=1).max() <= n / 8 and nz.sum(axis=0).max() <= m / 8)
+
+
 @jax.tree_util.register_pytree_node_class
 @dataclass(frozen=True, eq=False)
 class ADMMFactor:
@@ -244,6 +299,7 @@ class ADMMFactor:
     Rbase: Any  # (m,) row multipliers of rho (1, rho_eq_scale, or rho_free/rho)
     free: Any  # (m,) bool, rows with the absolute rho_free
     settings: ADMMSettings
+    sparse: Any = None  # SparsePattern of Ā, or None (dense products)
 
     def tree_flatten(self):
         leaves = (
@@ -256,12 +312,14 @@ class ADMMFactor:
             self.ladder,
             self.Rbase,
             self.free,
+            self.sparse,
         )
         return leaves, self.settings
 
     @classmethod
     def tree_unflatten(cls, settings, leaves):
-        return cls(*leaves, settings=settings)
+        *arrays, sparse = leaves
+        return cls(*arrays, settings=settings, sparse=sparse)
 
     @property
     def n(self) -> int:
@@ -330,6 +388,7 @@ def admm_factor(
         Kinv[r] = 0.5 * (Ki + Ki.T)
     dt = np.dtype(s.dtype)
     return ADMMFactor(
+        sparse=sparse_pattern(As, dt) if _use_sparse(As, s.products) else None,
         P=Ps.astype(dt),
         A=As.astype(dt),
         D=D.astype(dt),
@@ -374,6 +433,7 @@ class _Scaled(NamedTuple):
     ladder: jax.Array  # (L,)
     Rbase: jax.Array  # (m,)
     free: jax.Array  # (m,) bool
+    sp: SparsePattern | None  # nonzeros of Ā (sparse products) or None (dense)
     q: jax.Array  # (B, n) q̄ = c·D q
     lb: jax.Array  # (B, m) l̄ = E l
     ub: jax.Array  # (B, m) ū = E u
@@ -420,12 +480,41 @@ def _scale_problem(factor: ADMMFactor, q, l, u) -> _Scaled:
         ladder=ladder,
         Rbase=Rbase,
         free=free,
+        sp=None if factor.sparse is None else SparsePattern(*map(jnp.asarray, factor.sparse)),
         q=c * D * q,
         lb=E * l,
         ub=E * u,
         l=l,
         u=u,
     )
+
+
+def _mul_A(pb: _Scaled, x):
+    """``Ā x`` for ``x (B, n)`` -> ``(B, m)``: a matmul, or a sum over the nonzeros."""
+    if pb.sp is None:
+        return x @ pb.A.T
+    return jnp.sum(x[:, pb.sp.rows] * pb.sp.rvals, axis=-1)
+
+
+def _mul_At(pb: _Scaled, y):
+    """``Āᵀ y`` for ``y (B, m)`` -> ``(B, n)``."""
+    if pb.sp is None:
+        return y @ pb.A
+    return jnp.sum(y[:, pb.sp.cols] * pb.sp.cvals, axis=-1)
+
+
+def _mul_A_last(pb: _Scaled, xT):
+    """``Ā x`` with the batch as the last axis: ``(n, B)`` -> ``(m, B)``."""
+    if pb.sp is None:
+        return pb.A @ xT
+    return jnp.sum(pb.sp.rvals[:, :, None] * xT[pb.sp.rows], axis=1)
+
+
+def _mul_At_last(pb: _Scaled, yT):
+    """``Āᵀ y`` with the batch as the last axis: ``(m, B)`` -> ``(n, B)``."""
+    if pb.sp is None:
+        return pb.A.T @ yT
+    return jnp.sum(pb.sp.cvals[:, :, None] * yT[pb.sp.cols], axis=1)
 
 
 def _initial_rung(pb: _Scaled, s: ADMMSettings, B: int, rho0, dt) -> jax.Array:
@@ -470,9 +559,9 @@ def _kinv_apply(pb: _Scaled, rhs, rung, active):
 def _step(pb: _Scaled, s: ADMMSettings, x, z, y, rung, active):
     """One ADMM iteration (OSQP's, over-relaxed) with each QP on its own rung of the ladder."""
     R = _row_rho(pb, s, rung)
-    rhs = s.sigma * x - pb.q + (R * z - y) @ pb.A
+    rhs = s.sigma * x - pb.q + _mul_At(pb, R * z - y)
     xt, k = _kinv_apply(pb, rhs, rung, active)  # x̃ = K⁻¹(σx − q + Āᵀ(Rz − y))
-    zt = xt @ pb.A.T
+    zt = _mul_A(pb, xt)
     xn = s.alpha * xt + (1.0 - s.alpha) * x
     zr = s.alpha * zt + (1.0 - s.alpha) * z
     zn = jnp.clip(zr + y / R, pb.lb, pb.ub)  # z ← Π[l,u](αz̃ + (1−α)z + y/R)
@@ -487,26 +576,57 @@ def _fixed_rung_iterations(pb: _Scaled, s: ADMMSettings, K_fix, R_fix, x, z, y, 
     runs ≈ 3× faster at these shapes (n, m ≲ 100; measured, docs/experiments/qp-backends.md).
     Returns ``(x, z, y, x_prev, y_prev)``."""
     R, Rinv = R_fix.T, (1.0 / R_fix).T  # (m, 1)
+    x, z, y, xp, yp, _ = _last_axis_iterations(
+        pb, s, lambda rhs: (K_fix @ rhs, 0), R, Rinv, x, z, y, active, all_active
+    )
+    return x, z, y, xp, yp
+
+
+def _ladder_iterations(pb: _Scaled, s: ADMMSettings, x, z, y, rung, active):
+    """``check_every`` iterations of :func:`_step` (each QP on its own rung) with the batch as
+    the last axis, the layout of the sparse products (a gather then reads each of ``x``'s rows
+    as one contiguous batch vector).  Returns ``(x, z, y, x_prev, y_prev, K⁻¹ products)``."""
+    R = _row_rho(pb, s, rung).T  # (m, B)
+    L = pb.Kinv.shape[0]
+
+    def kinv(rhs):
+        def body(r, acc):
+            out, cnt = acc
+            sel = (rung == r) & active
+            use = jnp.any(sel)
+            out = lax.cond(
+                use, lambda o: jnp.where(sel[None, :], pb.Kinv[r] @ rhs, o), lambda o: o, out
+            )
+            return out, cnt + use.astype(jnp.int32)
+
+        return lax.fori_loop(0, L, body, (jnp.zeros_like(rhs), jnp.zeros((), jnp.int32)))
+
+    return _last_axis_iterations(pb, s, kinv, R, 1.0 / R, x, z, y, active, False)
+
+
+def _last_axis_iterations(pb: _Scaled, s: ADMMSettings, kinv, R, Rinv, x, z, y, active, all_active):
+    """The ADMM iterations of :func:`_step` on transposed iterates ``(n, B)``, ``(m, B)``;
+    ``kinv(rhs) -> (K⁻¹ rhs, products)``.  Returns ``(x, z, y, x_prev, y_prev, products)``."""
     qT, lT, uT = pb.q.T, pb.lb.T, pb.ub.T
-    Ab = pb.A
     a = active[None, :]
 
     def it(_, c_):
-        xT, zT, yT, _xp, _yp = c_
-        rhs = s.sigma * xT - qT + Ab.T @ (R * zT - yT)
-        xt = K_fix @ rhs  # K⁻¹ is symmetric
-        zt = Ab @ xt
+        xT, zT, yT, _xp, _yp, cnt = c_
+        rhs = s.sigma * xT - qT + _mul_At_last(pb, R * zT - yT)
+        xt, k = kinv(rhs)  # K⁻¹ is symmetric
+        zt = _mul_A_last(pb, xt)
         xn = s.alpha * xt + (1.0 - s.alpha) * xT
         zr = s.alpha * zt + (1.0 - s.alpha) * zT
         zn = jnp.clip(zr + yT * Rinv, lT, uT)
         yn = yT + R * (zr - zn)
         if not all_active:  # QPs that have stopped keep their iterate
             xn, zn, yn = (jnp.where(a, new, old) for new, old in ((xn, xT), (zn, zT), (yn, yT)))
-        return xn, zn, yn, xT, yT
+        return xn, zn, yn, xT, yT, cnt + k
 
     xT, zT, yT = x.T, z.T, y.T
-    xT, zT, yT, xpT, ypT = lax.fori_loop(0, s.check_every, it, (xT, zT, yT, xT, yT))
-    return xT.T, zT.T, yT.T, xpT.T, ypT.T
+    zero = jnp.zeros((), jnp.int32)
+    xT, zT, yT, xpT, ypT, cnt = lax.fori_loop(0, s.check_every, it, (xT, zT, yT, xT, yT, zero))
+    return xT.T, zT.T, yT.T, xpT.T, ypT.T, cnt
 
 
 class _Residuals(NamedTuple):
@@ -520,9 +640,9 @@ class _Residuals(NamedTuple):
 
 def _residuals(pb: _Scaled, s: ADMMSettings, x, z, y) -> _Residuals:
     """OSQP's unscaled termination test (``scaled_termination = False``)."""
-    Ax = x @ pb.A.T
+    Ax = _mul_A(pb, x)
     Px = x @ pb.P
-    Aty = y @ pb.A
+    Aty = _mul_At(pb, y)
     Dinv, Einv, c = pb.Dinv, pb.Einv, pb.c
     prim = _inf_norm(Einv * (Ax - z))
     dual = _inf_norm(Dinv * (Px + pb.q + Aty)) / c
@@ -545,7 +665,7 @@ def _primal_infeasible(pb: _Scaled, s: ADMMSettings, y, yp):
     dy = jnp.where(finite_u, dy, jnp.minimum(dy, 0.0))
     dy = jnp.where(finite_l, dy, jnp.maximum(dy, 0.0))
     ndy = _inf_norm(dy)
-    Atdy = _inf_norm(pb.Dinv * ((y - yp) @ pb.A)) / pb.c
+    Atdy = _inf_norm(pb.Dinv * _mul_At(pb, y - yp)) / pb.c
     supp = jnp.sum(
         jnp.where(dy > 0, jnp.where(finite_u, pb.u, 0.0) * dy, 0.0)
         + jnp.where(dy < 0, jnp.where(finite_l, pb.l, 0.0) * dy, 0.0),
@@ -562,7 +682,7 @@ def _dual_infeasible(pb: _Scaled, s: ADMMSettings, x, xp):
     ndx = _inf_norm(dx)
     Pdx = _inf_norm(pb.Dinv * (dxs @ pb.P)) / pb.c
     qdx = jnp.sum(pb.q * dxs, axis=-1) / pb.c
-    Adx = pb.Einv * (dxs @ pb.A.T)
+    Adx = pb.Einv * _mul_A(pb, dxs)
     tol = s.eps_dual_inf * ndx[:, None]
     ok_rows = jnp.where(finite_u, Adx <= tol, True) & jnp.where(finite_l, Adx >= -tol, True)
     return (
@@ -630,6 +750,9 @@ def _chunk(pb: _Scaled, s: ADMMSettings, fixed, carry: _Carry, all_active=False)
         K_fix, R_fix = fixed
         x, z, y, xp, yp = _fixed_rung_iterations(pb, s, K_fix, R_fix, x, z, y, active, all_active)
         cnt = cnt + s.check_every * jnp.any(active).astype(jnp.int32)
+    elif pb.sp is not None:
+        x, z, y, xp, yp, k = _ladder_iterations(pb, s, x, z, y, rung, active)
+        cnt = cnt + k
     else:
         x, z, y, xp, yp, cnt = lax.fori_loop(0, s.check_every, it, (x, z, y, x, y, cnt))
     prim_n, dual_n, status_n, rung = _check(pb, s, x, z, y, xp, yp, rung, carry.status, active)
@@ -681,7 +804,7 @@ def admm_iterate(
         ys = jnp.zeros((B, m), dt)
     else:
         ys = pb.c * jnp.atleast_2d(jnp.asarray(y0, dt)) * pb.Einv
-    zs = jnp.clip(xs @ pb.A.T, pb.lb, pb.ub)
+    zs = jnp.clip(_mul_A(pb, xs), pb.lb, pb.ub)
     rung = _initial_rung(pb, s, B, rho0, dt)
 
     # Static fast path: every QP starts on the same rung and no rho update can happen before
