@@ -95,9 +95,10 @@ def _batched_cholesky(M: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
 
 def _cho_solve(L: np.ndarray, b: np.ndarray) -> np.ndarray:
     """Solve ``L Lᵀ x = b`` batched (``L (B, k, k)``, ``b (B, k)``); batched triangular solves
-    (NumPy's batched ``inv`` is ~50× slower here)."""
-    t = sla.solve_triangular(L, b[..., None], lower=True)
-    return sla.solve_triangular(L, t, lower=True, trans="T")[..., 0]
+    (NumPy's batched ``inv`` is ~50× slower here).  No finiteness check: a non-finite solution
+    fails the polish's own test (``np.isfinite`` on the polished iterate) and is not accepted."""
+    t = sla.solve_triangular(L, b[..., None], lower=True, check_finite=False)
+    return sla.solve_triangular(L, t, lower=True, trans="T", check_finite=False)[..., 0]
 
 
 def _reduced_kkt(
