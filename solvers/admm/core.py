@@ -539,17 +539,20 @@ def _row_rho(pb: _Scaled, s: ADMMSettings, rung):
     )
 
 
-def _kinv_apply(pb: _Scaled, rhs, rung, active):
+def _kinv_apply(pb: _Scaled, rhs, rung, active, batch_last: bool = False):
     """``K⁻¹_r · rhs`` for each QP's rung ``r``: one matmul per rung in use, then a select (a
-    rolled loop keeps compile time small).  Returns ``(out, rung matmuls executed)``."""
+    rolled loop keeps compile time small).  ``rhs`` is ``(B, n)``, or ``(n, B)`` with
+    ``batch_last``.  Returns ``(out, rung matmuls executed)``."""
 
     def body(r, acc):
         out, cnt = acc
         sel = (rung == r) & active
         use = jnp.any(sel)
-        out = lax.cond(
-            use, lambda o: jnp.where(sel[:, None], rhs @ pb.Kinv[r], o), lambda o: o, out
-        )
+        if batch_last:  # K⁻¹ is symmetric: K⁻¹·rhs either way
+            new, mask = (lambda: pb.Kinv[r] @ rhs), sel[None, :]
+        else:
+            new, mask = (lambda: rhs @ pb.Kinv[r]), sel[:, None]
+        out = lax.cond(use, lambda o: jnp.where(mask, new(), o), lambda o: o, out)
         return out, cnt + use.astype(jnp.int32)
 
     L = pb.Kinv.shape[0]
@@ -587,19 +590,9 @@ def _ladder_iterations(pb: _Scaled, s: ADMMSettings, x, z, y, rung, active):
     the last axis, the layout of the sparse products (a gather then reads each of ``x``'s rows
     as one contiguous batch vector).  Returns ``(x, z, y, x_prev, y_prev, K⁻¹ products)``."""
     R = _row_rho(pb, s, rung).T  # (m, B)
-    L = pb.Kinv.shape[0]
 
     def kinv(rhs):
-        def body(r, acc):
-            out, cnt = acc
-            sel = (rung == r) & active
-            use = jnp.any(sel)
-            out = lax.cond(
-                use, lambda o: jnp.where(sel[None, :], pb.Kinv[r] @ rhs, o), lambda o: o, out
-            )
-            return out, cnt + use.astype(jnp.int32)
-
-        return lax.fori_loop(0, L, body, (jnp.zeros_like(rhs), jnp.zeros((), jnp.int32)))
+        return _kinv_apply(pb, rhs, rung, active, batch_last=True)
 
     return _last_axis_iterations(pb, s, kinv, R, 1.0 / R, x, z, y, active, False)
 
