@@ -92,16 +92,20 @@ def main() -> None:
         jnp.stack([f0] * R),
     )
     # the cache of run after one iteration: elites and brake rows scored and projected
-    _, cache = alg._step(st, obstacles, None, alg._empty_cache(cfg, prob.nvar, dt))
+    pcfg = cfg.program()
+    _, cache = alg._step(
+        prob, pcfg, problem, st, obstacles, None, alg._empty_cache(cfg, prob.nvar, dt)
+    )
 
     def with_keys(k):
         return st._replace(keys=jnp.stack([k] * cfg.cem.iterations))
 
     out["whole step, cost cache (run)"] = in_graph_ms(
-        lambda k: alg._step(with_keys(k), obstacles, None, cache)[0].mu, st.keys
+        lambda k: alg._step(prob, pcfg, problem, with_keys(k), obstacles, None, cache)[0].mu,
+        st.keys,
     )
     out["whole step, no cache (update)"] = in_graph_ms(
-        lambda k: alg._step(with_keys(k), obstacles).mu, st.keys
+        lambda k: alg._step(prob, pcfg, problem, with_keys(k), obstacles).mu, st.keys
     )
     active = jnp.mean(jnp.max(f0, axis=(2, 3)) > 0)
     print(

@@ -21,6 +21,7 @@ import frenet
 from . import algorithm as alg
 from .algorithm import MMDOptConfig, n_taylor_terms, planning_semi_axis
 from .collision import ellipse_values, mmd_cost
+from .counting import Futures
 from .methods import PlanMethod
 from .plans import STATUS_PRECEDENCE, Plan, PlanStatus, Road
 from .risk import risk_floor, samples_for_risk
@@ -51,6 +52,12 @@ class PlanFrame:
     obs_fr: np.ndarray
     obs_h: np.ndarray | None
     empty: bool = False
+    #: the samples as the counts read them (formed from ``obs_fr`` when not given)
+    futures: Futures | None = None
+
+    def __post_init__(self) -> None:
+        if self.futures is None:
+            object.__setattr__(self, "futures", Futures.of(self.obs_fr, self.obs_h))
 
 
 def risk_status(config: MMDOptConfig, bound: float, colliding) -> tuple[PlanStatus, str]:
@@ -171,7 +178,8 @@ def assemble(
     if met is not None and np.array_equal(met[0], cx) and np.array_equal(met[1], cy):
         colliding = met[2]  # counted by the final check
     else:
-        colliding = samples_met(config, frame.obs_fr, frame.obs_h, s[None], d[None])[0]
+        colliding = samples_met(config, frame.obs_fr, frame.obs_h, s[None], d[None],
+                                futures=frame.futures)[0]  # fmt: skip
     cf_plan = colliding.shape[1] - colliding.sum(axis=1)
     if frame.empty:  # nothing to meet: the collision probability is 0
         colliding, cf_plan = np.zeros((0, colliding.shape[1]), bool), np.zeros(0, int)

@@ -75,10 +75,8 @@ CVAR_ALPHA_LINEAR = 0.98
 W_COVER = 100.0
 #: the planning futures (joint draws of every obstacle, ``SafetyConfig.joint_futures``) an
 #: MMD-Opt plan drawn from a predictor may meet with its 95 % bound ≤ ε ("samples" margin mode,
-#: ``SafetyConfig.risk_hits = None``): it draws n(ε) ≈ 52/ε futures instead of ≈ 3/ε (its
-#: reduced set keeps the cost of more futures small), so that its plans may come as close to ε
-#: as the bound allows instead of clearing every future (docs/experiments/frontier.md gives the
-#: measured rates for each choice)
+#: ``SafetyConfig.risk_hits = None``): it draws n(ε) ≈ 52/ε futures instead of ≈ 3/ε, so that
+#: its plans may come as close to ε as the bound allows (docs/experiments/frontier.md)
 MMD_RISK_HITS = 40
 
 
@@ -424,8 +422,9 @@ class SafetyConfig(_Section):
     risk : ε, the target probability that the plan's footprint meets an obstacle, under the
         predictor's distribution of futures (:mod:`mmdopt.risk`; 0.005)
     reselect : samples in deepest conflict with the first plan added to the reduced set for a
-        second, warm-started pass (``None``: automatic — m/2 for MMD-Opt in the "samples"
-        margin mode, else 0; 0: off; :meth:`mmdopt.methods.PlanMethod.reselect`)
+        second, warm-started pass (``None``: automatic — 0 for every built-in method: MMD-Opt's
+        nearest-futures pass does its work at a fraction of the cost; 0: off;
+        :meth:`mmdopt.methods.PlanMethod.reselect`)
     footprint : the collision ellipse (:class:`mmdopt.Footprint`), the one every user reads
     margins : :class:`MarginConfig`;  rules : :class:`RoadRules`
     risk_hits : when ``plan`` draws its futures from a predictor, n(ε) is the fewest futures per
@@ -437,7 +436,7 @@ class SafetyConfig(_Section):
         warm-started from the plan so far, against the ``nearest_futures`` planning futures per
         obstacle nearest to that plan (all of them when there are fewer), with the sample-average
         chance term at the number of futures the plan may meet while its 95 % bound stays ≤ ε
-        and loose coverage margins (200; 0: off; skipped when ε is below what the futures can
+        and loose coverage margins (100; 0: off; skipped when ε is below what the futures can
         confirm; repeated around its plan with one hit fewer, at most twice, while that plan's
         bound exceeds ε).  Each of its plans is one more candidate of the final check
     joint_futures : whether sample i of every obstacle is one joint draw of the scene's future
@@ -455,7 +454,7 @@ class SafetyConfig(_Section):
     risk: float = 0.005
     reselect: int | None = _host(None)
     risk_hits: int | None = _host(None)
-    nearest_futures: int = _host(200)
+    nearest_futures: int = _host(100)
     joint_futures: bool = _host(True)
     unsafe_brake: float | None = _host(None)
     footprint: Footprint = field(default_factory=Footprint)
@@ -576,9 +575,13 @@ class ScheduleConfig(_Section):
     level_cap : the loosest coverage level of a pass (0.45: z = Φ⁻¹(0.55) ≈ 0.13 σ)
     selection_pool : the most samples a method with a selection pool
         (:attr:`mmdopt.methods.PlanMethod.selection_pool`) selects among in the "samples" mode:
-        beyond it the reduced set is chosen from a random pool of this size (1000)
+        beyond it the reduced set is chosen from a random pool of this size (100: the paper's
+        sample count)
     coverage_pool : the nearest-futures pass forms its k-NN coverage clusters among at most
         this many of the n futures (evenly spaced draws; k scaled by the share), 5000
+    nearest_share : when the nearest-futures pass follows, it and the first pass share
+        Algorithm 1's N iterations: it (each repeat too) runs this share (≥ 1), the first pass
+        the rest (0.4: 12 + 8 of the paper's 20)
     """
 
     nearest_repeats: int = _host(2)
@@ -586,8 +589,9 @@ class ScheduleConfig(_Section):
     tail_passes: int = _host(3)
     margin_ladder: tuple[float, ...] = _host(())
     level_cap: float = _host(0.45)
-    selection_pool: int = _host(1000)
+    selection_pool: int = _host(100)
     coverage_pool: int = _host(5000)
+    nearest_share: float = _host(0.4)
 
     _ints = ("nearest_repeats", "tail_passes", "selection_pool", "coverage_pool")
     _nonneg = ("nearest_repeats", "tail_passes")
@@ -605,6 +609,10 @@ class ScheduleConfig(_Section):
             raise ValueError(f"ScheduleConfig.margin_ladder rungs must be > 0, got {ladder}")
         object.__setattr__(self, "margin_ladder", ladder)
         self._check()
+        if not 0 < float(self.nearest_share) < 1:
+            raise ValueError(
+                f"ScheduleConfig.nearest_share must be in (0, 1), got {self.nearest_share}"
+            )
         if not 0 < float(self.level_cap) < 0.5:
             raise ValueError(f"ScheduleConfig.level_cap must be in (0, 0.5), got {self.level_cap}")
 

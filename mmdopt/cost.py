@@ -10,6 +10,7 @@ from typing import Any
 import jax.numpy as jnp
 
 from .collision import (
+    circle_max,
     collision_cost,
     cvar_cost,
     lane_lateral,
@@ -63,9 +64,9 @@ def obstacle_cost(cfg: MMDOptConfig, ws: Any, s, dd, obstacles: ObstacleSet, dt,
     wide = yaw_widening(cfg, vs, vd).astype(dt) if cfg.safety.footprint.yaw_aware else None
     if obstacles.margins is not None:
         # sample-driven coverage margins (mmdopt.risk): per-point ellipses
-        f = margin_ellipse_values(
+        f = circle_max(margin_ellipse_values(
             cfg, s, dd, obstacles.centres.astype(dt), obstacles.margins, vs=vs, widen=wide
-        )
+        ))  # fmt: skip
         if mode == "embedding":
             coll = mmd_cost(
                 f,

@@ -203,8 +203,8 @@ class PlanMethod:
 
 # ------------------------------------------------------------------------------ the built-ins
 def _mmd_settings(eps: float) -> Mapping[str, Any]:
-    # the coverage term on the inflated ellipses, and the automatic re-selection pass size
-    return {"w_cover": W_COVER, "reselect": None}
+    # the coverage term on the inflated ellipses (the caller's re-selection size is kept)
+    return {"w_cover": W_COVER}
 
 
 def _random_settings(eps: float) -> Mapping[str, Any]:
@@ -228,7 +228,6 @@ BUILTIN: tuple[PlanMethod, ...] = (
         collision="embedding",
         risk_settings=_mmd_settings,
         passes=("reselect", "nearest", "ladder", "tail"),
-        auto_reselect=True,
         auto_risk_hits=MMD_RISK_HITS,
         selection_pool=True,
         max_futures=50_000,

@@ -31,6 +31,7 @@ from .algorithm import PLANNER_PROJECTOR, MMDOptConfig
 from .assemble import PlanFrame, assemble, braking_fallback
 from .baselines import select_for_method
 from .collision import headings
+from .counting import Futures, to_planes
 from .padding import pad_obstacles
 from .plans import Plan, PlanStatus, Road
 from .predict.base import Forecast
@@ -43,6 +44,8 @@ from .schedule import (
     PassContext,
     PassName,
     coverage,
+    coverage_rows,
+    first_config,
     obstacle_centres,
     plan_bound,
     risk_counts,
@@ -126,8 +129,13 @@ def _selection_pool(rec, config: MMDOptConfig, n: int, keys: KeyStream) -> np.nd
     pool = int(config.schedule.selection_pool)
     if not rec.selection_pool or n <= pool or config.safety.margins.margin_mode != "samples":
         return None
-    perm = np.asarray(jax.random.permutation(keys.pool(), n))
-    return np.sort(perm[:pool])
+    # a uniform draw without replacement, seeded by the pool's key: O(pool), not a permutation
+    # of all n (at 50 000 futures that costs more than the selection itself)
+    key = keys.pool()
+    bits = np.asarray(jax.random.key_data(key) if jax.dtypes.issubdtype(
+        key.dtype, jax.dtypes.prng_key) else key, np.uint32).ravel()  # fmt: skip
+    rng = np.random.default_rng([int(b) for b in bits])
+    return np.sort(rng.choice(n, pool, replace=False))
 
 
 def _select(rec, config, obs_fr, ego, workspace, keys: KeyStream) -> ReducedSet:
@@ -142,7 +150,7 @@ def _select(rec, config, obs_fr, ego, workspace, keys: KeyStream) -> ReducedSet:
     rs = select_for_method(
         rec,
         keys.selection,
-        obs_fr if pool is None else obs_fr[:, pool],
+        np.asarray(obs_fr if pool is None else obs_fr[:, pool], np.float64),
         config.selection.reduced_set_size,
         config.selection.reduced_set,
         lateral_scale=float(config.selection.rs_lateral_scale),
@@ -343,44 +351,48 @@ class Planner:
                 )
             arr = _phantom(arr, ego, road, config)
             frenet_frame = False
+        # plan in arc length relative to the ego (float32 keeps ~1e-6 relative precision:
+        # absolute arc lengths of kilometres would cost millimetres); shifted back in assembly.
+        # The samples are stored once, as the planes every count reads in place (float32,
+        # mmdopt.counting); the rest reads small gathers of them in float64
+        s_off = float(ego.s)
+        t1 = time.perf_counter()
         if frenet_frame:
-            obs_fr = arr
-            diag: dict[str, Any] = {"frenet_conversion_s": 0.0}
+            planes = to_planes(arr, lambda b: (b[..., 0] - s_off, b[..., 1]))
         else:
-            t1 = time.perf_counter()
-            s, d = road.path.to_frenet(arr[..., 0], arr[..., 1])
-            obs_fr = np.stack([s, d], axis=-1)
-            if not np.all(np.isfinite(obs_fr)):
+            planes = to_planes(arr, lambda b: road.path.to_frenet_points(b, s_off))
+            if not math.isfinite(float(planes.max())) or not math.isfinite(float(planes.min())):
                 raise ValueError(
                     "obstacles could not be converted to the road's Frenet frame (non-finite)"
                 )
-            diag = {"frenet_conversion_s": time.perf_counter() - t1}
+        obs_fr = planes.transpose(0, 3, 2, 1)  # (O, n, K, 2): a view of the count's layout
+        diag: dict[str, Any] = {
+            "frenet_conversion_s": 0.0 if frenet_frame else time.perf_counter() - t1
+        }
         diag.update(forecast_diag, empty_road=empty)
         h0 = None
         if obstacle_headings is not None:
             h0 = check_obstacle_headings(obstacle_headings, obs_fr.shape[0])
             if not frenet_frame:  # relative to the path's tangent where each obstacle starts
-                h0 = h0 - np.asarray(road.path.heading(obs_fr[:, 0, 0, 0]), np.float64)
+                h0 = h0 - np.asarray(road.path.heading(obs_fr[:, 0, 0, 0] + s_off), np.float64)
         return self._plan_samples(
-            ego, road, obs_fr, rec, config, projector, key, projector_settings, t0, diag,
-            reduced_set, warm_start, h0,
+            ego, road, planes, s_off, rec, config, projector, key, projector_settings, t0,
+            diag, reduced_set, warm_start, h0,
         )  # fmt: skip
 
     def _plan_samples(
-        self, ego, road, obs_fr, rec, config, projector, key, projector_settings, t0, diag, rs,
-        warm_start, h0=None,
+        self, ego, road, planes, s_off, rec, config, projector, key, projector_settings, t0,
+        diag, rs, warm_start, h0=None,
     ) -> Plan:  # fmt: skip
-        """The plan from checked Frenet samples: selection, margins, Algorithm 1, the risk
-        passes and the assembly."""
-        # plan in arc length relative to the ego (float32 keeps ~1e-6 relative precision:
-        # absolute arc lengths of kilometres would cost millimetres); shifted back in assembly
-        s_off = float(ego.s)
+        """The plan from checked Frenet samples, the planes ``planes`` (O, 2, K, n) float32 in
+        the planning frame (arc length relative to the ego at ``s_off``): selection, margins,
+        Algorithm 1, the risk passes and the assembly."""
         ego = dataclasses.replace(ego, s=0.0)
-        obs_fr = np.array(obs_fr, dtype=np.float64, copy=True)
-        obs_fr[..., 0] -= s_off
+        obs_fr = planes.transpose(0, 3, 2, 1)  # (O, n, K, 2), a view
         O, n, K, _ = obs_fr.shape
         # a body heading given for each obstacle holds before (and without) motion of its own
         obs_h = None if h0 is None else np.asarray(headings(obs_fr, h0[:, None]), np.float64)
+        futures = Futures(planes, obs_h)
         if warm_start is not None:
             check_warm_start(warm_start, config)
         ws = self.workspace(road.bounds(), config)
@@ -395,7 +407,8 @@ class Planner:
         margins = cdata = None
         if config.safety.margins.margin_mode == "samples":
             t3 = time.perf_counter()
-            cdata = coverage_data(obs_fr, float(config.selection.rs_lateral_scale))
+            cdata = coverage_data(obs_fr, float(config.selection.rs_lateral_scale),
+                                  coverage_rows(config, n))  # fmt: skip
             knn = 0
             if rec.all_samples:
                 knn = config.safety.margins.coverage_knn
@@ -408,7 +421,7 @@ class Planner:
             rec.collision, margins=margins,
         )  # fmt: skip
         frame = PlanFrame(ego, road, config, ws, rec, projector, rs, t0, s_off, obs_fr, obs_h,
-                          empty=bool(diag.get("empty_road", False)))  # fmt: skip
+                          empty=bool(diag.get("empty_road", False)), futures=futures)  # fmt: skip
         try:  # an infeasible initial state: braking profile, flagged
             ws.projection.check_state(ego)
         except ValueError as exc:
@@ -417,9 +430,11 @@ class Planner:
         problem = alg.Problem.create(config, ego, road.bounds(), lanes=road.lane_centres)
         ctx = PassContext(
             ws, config, rec, problem, obs_fr, obs_h, rs, projector, projector_settings, keys,
-            lambda cfg: self.workspace(road.bounds(), cfg), cdata,
+            lambda cfg: self.workspace(road.bounds(), cfg), cdata, futures,
         )  # fmt: skip
-        first = Candidate(PassName.FIRST, ctx.run(obstacles, keys.cem, warm_start), obstacles, idx0)
+        cfg1 = first_config(config, rec, n, O)  # with the nearest pass: the iterations split
+        state1 = ctx.run(obstacles, keys.cem, warm_start, config=None if cfg1 is config else cfg1)
+        first = Candidate(PassName.FIRST, state1, obstacles, idx0)
         result = run_schedule(ctx, first, diag)
         diag["cem_s"] = time.perf_counter() - t2
         state = result.chosen.state
@@ -467,7 +482,8 @@ def _brake_if_safer(plan: Plan, frame: PlanFrame) -> Plan:
     why = f"{plan.message}; braking at {brake:g} m/s² to a stop returned (unsafe_brake)"
     stop = braking_plan(plan, frame.road.path, brake, reason=why)
     s = np.stack([plan.s, stop.s]) - frame.s_offset  # the planning frame: the ego at s = 0
-    met = samples_met(config, frame.obs_fr, frame.obs_h, s, np.stack([plan.d, stop.d]))
+    met = samples_met(config, frame.obs_fr, frame.obs_h, s, np.stack([plan.d, stop.d]),
+                      futures=frame.futures)  # fmt: skip
     diag = {"unsafe_brake_met": tuple(int(risk_counts(config, m).sum()) for m in met)}
     if plan_bound(config, met[1]) < plan_bound(config, met[0]):
         return dataclasses.replace(stop, diagnostics={**stop.diagnostics, **diag})

@@ -144,10 +144,11 @@ def _cluster_margins(flat, flat2, idx, M, z, prior, h_e=0.0):
 
 @dataclass(frozen=True, eq=False)
 class CoverageData:
-    """What :func:`coverage_margins` computes from all n samples before it looks at the points,
-    per obstacle, for one ``lateral_scale``: the centred positions ``flat`` (n, 2K), their
-    scaled copy ``F``, its squared norms ``FF`` (n,), ``flat²`` and the spread of the arc length
-    per step (K,).  A planner that asks for the margins of several point sets among the same
+    """What :func:`coverage_margins` computes from the samples before it looks at the points,
+    per obstacle, for one ``lateral_scale``: the centred positions ``flat`` (R, 2K) of the
+    samples ``rows`` (``None``: all n, R = n) about their mean ``centre`` (2K,), their scaled
+    copy ``F``, its squared norms ``FF`` (R,), ``flat²`` and the spread of the arc length per
+    step (K,).  A planner that asks for the margins of several point sets among the same
     samples builds it once (:func:`coverage_data`); the margins are the same bit for bit."""
 
     shape: tuple[int, int, int, int]
@@ -157,34 +158,48 @@ class CoverageData:
     FF: tuple[np.ndarray, ...]
     flat2: tuple[np.ndarray, ...]
     std_s: tuple[np.ndarray, ...]
-
-
-def _check_frenet(obstacles_frenet) -> np.ndarray:
-    X = np.asarray(obstacles_frenet, np.float64)
-    if X.ndim != 4 or X.shape[-1] != 2 or X.shape[1] == 0:
-        raise ValueError(f"obstacles_frenet must have shape (O, n, K, 2), n >= 1, got {X.shape}")
-    if not np.all(np.isfinite(X)):
-        raise ValueError("obstacles_frenet contains NaN or inf")
-    return X
+    centre: tuple[np.ndarray, ...] = ()
+    rows: np.ndarray | None = None
 
 
 _ROWS = 4096
 
 
-def coverage_data(obstacles_frenet: np.ndarray, lateral_scale: float = 1.0) -> CoverageData:
-    """:class:`CoverageData` of the (O, n, K, 2) planning samples for ``lateral_scale``."""
-    X = _check_frenet(obstacles_frenet)
+def coverage_data(
+    obstacles_frenet: np.ndarray, lateral_scale: float = 1.0, rows: np.ndarray | None = None
+) -> CoverageData:
+    """:class:`CoverageData` of the (O, n, K, 2) planning samples for ``lateral_scale``, formed
+    from the samples ``rows`` (R,) of each obstacle only (``None``: all n).  With rows, the
+    margins are estimated from those samples (a random or evenly spaced subset of i.i.d.
+    futures: the same clusters' spread, from R/n of the work) and every point joins its own
+    cluster (:func:`coverage_margins`)."""
+    X = np.asarray(obstacles_frenet)
+    if X.ndim != 4 or X.shape[-1] != 2 or X.shape[1] == 0:
+        raise ValueError(f"obstacles_frenet must have shape (O, n, K, 2), n >= 1, got {X.shape}")
     O, n, K, _ = X.shape
+    if rows is not None:
+        rows = np.asarray(rows)
+        if (
+            rows.ndim != 1
+            or rows.size == 0
+            or not np.issubdtype(rows.dtype, np.integer)
+            or (rows.min() < 0 or rows.max() >= n)
+        ):
+            raise ValueError(f"rows must be a 1-D array of sample positions in [0, {n})")
+    used = X if rows is None else X[:, rows]
+    if not np.all(np.isfinite(used)):
+        raise ValueError("obstacles_frenet contains NaN or inf")
     scale = np.tile(np.array([1.0, float(lateral_scale)]), K)
-    flat, F, FF, flat2, std_s = [], [], [], [], []
+    flat, F, FF, flat2, std_s, centre = [], [], [], [], [], []
     for o in range(O):
-        # centred (n, 2K) positions: the expanded distances and sums of squares keep their
+        # centred (R, 2K) positions: the expanded distances and sums of squares keep their
         # precision far from the origin
-        f = X[o].reshape(n, -1)
-        f = f - f.mean(axis=0)
+        f = np.asarray(used[o], np.float64).reshape(used.shape[1], -1)
+        mean = f.mean(axis=0)
+        f = f - mean
         g = f * scale
-        ff = np.empty(n)
-        for i in range(0, n, _ROWS):  # row sums in blocks: no (n, 2K) temporary
+        ff = np.empty(f.shape[0])
+        for i in range(0, f.shape[0], _ROWS):  # row sums in blocks: no (R, 2K) temporary
             ff[i : i + _ROWS] = (g[i : i + _ROWS] * g[i : i + _ROWS]).sum(1)
         f2 = f * f
         flat.append(f)
@@ -192,7 +207,10 @@ def coverage_data(obstacles_frenet: np.ndarray, lateral_scale: float = 1.0) -> C
         FF.append(ff)
         flat2.append(f2)
         std_s.append(np.sqrt(f2[:, 0::2].mean(axis=0)))  # the arc length's spread per step
-    return CoverageData(X.shape, float(lateral_scale), *map(tuple, (flat, F, FF, flat2, std_s)))
+        centre.append(mean)
+    return CoverageData(
+        X.shape, float(lateral_scale), *map(tuple, (flat, F, FF, flat2, std_s, centre)), rows
+    )
 
 
 def coverage_margins(
@@ -224,7 +242,11 @@ def coverage_margins(
     samples for this ``lateral_scale``, when already computed (the result is the same).
     ``pool`` (O, R), with ``knn > 0``: point j's cluster is the point itself and its ``knn``
     nearest among the samples ``pool`` only (a random subset of the n: the same neighbourhood
-    with R/n of its members, for R/n of the work; the caller scales ``knn`` by R/n).
+    with R/n of its members, for R/n of the work; the caller scales ``knn`` by R/n).  ``data``
+    formed from ``rows`` (:func:`coverage_data`) is such a pool for every point set: the samples
+    are then those rows and the points themselves (with ``knn = 0`` every row joins its nearest
+    point; with ``knn > 0`` the neighbourhoods are among the rows), and ``pool`` must be
+    ``None``.
     """
     if data is None:
         data = coverage_data(obstacles_frenet, lateral_scale)
@@ -252,16 +274,24 @@ def coverage_margins(
         raise ValueError(f"bandwidth must be finite and >= 0, got {bandwidth}")
     J = idx.shape[1]
     cand = _check_pool(pool, O, n, knn)
+    if cand is not None and data.rows is not None:
+        raise ValueError("pool and data formed from rows exclude each other (the rows are one)")
     out = np.empty((3, O, J, K))
+    X = np.asarray(obstacles_frenet)
     for o in range(O):  # O is a handful of obstacles; everything inside is vectorised
-        flat, F, FF = data.flat[o], data.F[o], data.FF[o]
-        A = F[idx[o]]
-        if cand is not None:  # distances to the pool's samples only
-            F, FF = F[cand[o]], FF[cand[o]]
-        sq = (A * A).sum(1)[:, None] + FF[None, :] - 2.0 * A @ F.T  # (J, n) or (J, R)
         h_e = 0.0
         if bandwidth > 0:  # kernel-density smoothing of the tail (Silverman's rule, per step)
             h_e = bandwidth * 1.06 * data.std_s[o] * n**-0.2  # (K,)
+        if data.rows is not None:
+            anchors = np.asarray(X[o, idx[o]], np.float64).reshape(J, -1) - data.centre[o]
+            out[:, o] = _rows_margins(data, o, anchors, idx[o], lateral_scale, knn, z, prior, h_e)
+            continue
+        flat, F, FF = data.flat[o], data.F[o], data.FF[o]
+        A = F[idx[o]]
+        among = None if cand is None else cand[o]
+        if among is not None:  # distances to the pool's samples only
+            F, FF = F[among], FF[among]
+        sq = (A * A).sum(1)[:, None] + FF[None, :] - 2.0 * A @ F.T  # (J, n) or (J, R)
         if knn == 0:
             # nearest point of every sample (a repeated point's samples go to its first copy),
             # and every point belongs to its own cluster
@@ -272,14 +302,49 @@ def coverage_margins(
             k = min(int(knn), sq.shape[1])
             nb = np.argpartition(sq, k - 1, axis=1)[:, :k]  # (J, k) incl. the point itself
             rows, cols = np.repeat(np.arange(J), k), nb.reshape(-1)
-            if cand is not None:  # pool positions to sample indices, and the point itself
+            if among is not None:  # pool positions to sample indices, and the point itself
                 rows = np.concatenate([rows, np.arange(J)])
-                cols = np.concatenate([cand[o][cols], idx[o]])
+                cols = np.concatenate([among[cols], idx[o]])
         # cluster membership, 0/1 (a pair named twice, a point in its own cluster, counts once)
         M = sp.coo_matrix((np.ones(rows.size), (rows, cols)), shape=(J, n)).tocsr()
         M.data[:] = 1.0
         out[:, o] = _cluster_margins(flat, data.flat2[o], idx[o], M, z, prior, h_e)
     return out
+
+
+def _rows_margins(data, o, anchors, pts, lateral_scale, knn, z, prior, h_e):
+    """:func:`coverage_margins` of obstacle ``o`` from data formed from rows: the samples are the
+    R rows and the J points themselves (``anchors`` (J, 2K), centred as the rows); with
+    ``knn = 0`` every row and every point joins its nearest point (a repeated point's members go
+    to its first copy), with ``knn > 0`` a point's cluster is its ``knn`` nearest rows; every
+    point is in its own cluster.  The rows' part of the moments is a sparse product, the points'
+    a (J, J) one: nothing of the rows' size is copied."""
+    J = anchors.shape[0]
+    K2 = anchors.shape[1]
+    scale = np.tile(np.array([1.0, float(lateral_scale)]), K2 // 2)
+    ga = anchors * scale
+    gg = (ga * ga).sum(1)
+    sq = gg[:, None] + data.FF[o][None, :] - 2.0 * ga @ data.F[o].T  # (J, R)
+    R = sq.shape[1]
+    own = np.eye(J)
+    if knn == 0:
+        _, first = np.unique(pts, return_index=True)
+        rr = np.concatenate([first[np.argmin(sq[first], axis=0)]])
+        cc = np.arange(R)
+        sqa = gg[:, None] + gg[None, :] - 2.0 * ga @ ga.T  # (J, J)
+        near = first[np.argmin(sqa[first], axis=0)]  # each point's nearest (first copies)
+        own[near, np.arange(J)] = 1.0
+    else:
+        k = min(int(knn), R)
+        nb = np.argpartition(sq, k - 1, axis=1)[:, :k]
+        rr, cc = np.repeat(np.arange(J), k), nb.reshape(-1)
+    M = sp.coo_matrix((np.ones(rr.size), (rr, cc)), shape=(J, R)).tocsr()
+    M.data[:] = 1.0
+    c = np.maximum(np.asarray(M.sum(1)).reshape(-1) + own.sum(1), 1.0)[:, None]
+    mean = (M @ data.flat[o] + own @ anchors) / c
+    mu = mean - anchors  # mean deviation from the anchor
+    v = np.maximum((M @ data.flat2[o] + own @ (anchors * anchors)) / c - mean * mean, 0.0)
+    return _margins_from_moments(c, mu[:, 0::2], mu[:, 1::2], v[:, 0::2], v[:, 1::2], z, prior, h_e)
 
 
 def _check_pool(pool, O: int, n: int, knn: int) -> np.ndarray | None:

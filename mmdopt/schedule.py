@@ -40,25 +40,22 @@ from typing import Any
 import jax
 import jax.numpy as jnp
 import numpy as np
-from jax import lax
 
 from . import algorithm as alg
-from .collision import (
-    OBSTACLE_FOOTPRINT,
-    circle_centres,
-    ellipse_f,
-    ellipse_values,
-    headings,
-)
+from .collision import OBSTACLE_FOOTPRINT, circle_centres, ellipse_values
 from .config import MMDOptConfig
-from .methods import PlanMethod
-from .risk import (
-    CoverageData,
-    coverage_margins,
-    hits_for_risk,
-    risk_bound,
-    risk_floor,
+from .counting import (
+    FutureIndex,
+    Futures,
+    SampleGeometry,
+    plan_bound,
+    risk_counts,
+    sample_geometry,
+    samples_met,
+    smallest,
 )
+from .methods import PlanMethod
+from .risk import CoverageData, coverage_margins, hits_for_risk, risk_floor
 from .samples import ReducedSet
 
 __all__ = [
@@ -68,6 +65,8 @@ __all__ = [
     "Candidate",
     "ScheduleResult",
     "run_schedule",
+    "runs_nearest",
+    "first_config",
     "final_check",
     "plan_bound",
     "risk_counts",
@@ -76,6 +75,7 @@ __all__ = [
     "sample_geometry",
     "samples_met",
     "coverage",
+    "coverage_rows",
 ]
 
 
@@ -159,6 +159,9 @@ class PassContext:
     #: the planning samples' :class:`~mmdopt.risk.CoverageData` (built once by the planner in
     #: the "samples" margin mode; every coverage margin of the plan reads it)
     coverage_data: CoverageData | None = None
+    #: the planning samples as the counts read them (:class:`mmdopt.counting.Futures`; formed
+    #: from ``obs_fr`` and ``obs_h`` when not given)
+    samples: Futures | None = None
 
     @functools.cached_property
     def scores(self) -> dict[Candidate, tuple[float, float, np.ndarray]]:
@@ -168,9 +171,34 @@ class PassContext:
 
     @functools.cached_property
     def geometry(self) -> SampleGeometry:
-        """The planning samples' :class:`SampleGeometry`, formed once per plan: every
-        measurement against all n samples reads it (the conflict depth, the final check)."""
+        """The planning samples' :class:`SampleGeometry`, formed once per plan: the conflict
+        depth with the config's rules of the road reads it."""
         return sample_geometry(self.obs_fr, self.obs_h)
+
+    @functools.cached_property
+    def futures(self) -> Futures:
+        """The planning samples as the counts read them (:class:`mmdopt.counting.Futures`)."""
+        return Futures.of(self.obs_fr, self.obs_h) if self.samples is None else self.samples
+
+    @functools.cached_property
+    def indices(self) -> list[FutureIndex]:
+        """The plan's :class:`~mmdopt.counting.FutureIndex` (at most one: the first exact pass
+        over every sample, against the plan the nearest-futures pass starts from or the first
+        candidate of the final check); every later count and search reads it."""
+        return []
+
+    def index(self, s, d, q: np.ndarray | None = None) -> FutureIndex:
+        """The plan's index, made against the plan ``s, d`` (K,) when there is none yet
+        (``q``: that plan's windowed count, when already made)."""
+        if not self.indices:
+            a, b = float(self.config.safety.footprint.a), float(self.config.safety.footprint.b)
+            self.indices.append(FutureIndex(self.futures, s, d, a, b, q))
+        return self.indices[0]
+
+    def trajectory(self, best) -> tuple[np.ndarray, np.ndarray]:
+        """The positions ``s, d`` (K,) of a state's plan (:class:`mmdopt.algorithm.Best`)."""
+        B = self.workspace.basis
+        return B.P @ np.asarray(best.cx, np.float64), B.P @ np.asarray(best.cy, np.float64)
 
     def centres(self, idx: np.ndarray) -> jax.Array:
         """Footprint circle centres (O, J, C, K, 2) of the samples ``idx`` (O, J)."""
@@ -217,50 +245,6 @@ class ScheduleResult:
 
 
 # ------------------------------------------------------------------------------ shared tools
-@jax.tree_util.register_dataclass
-@dataclass(frozen=True)
-class SampleGeometry:
-    """The planning samples as every measurement against all of them reads them: positions
-    ``xy`` (O, n, K, 2) and the unit vectors of their body headings ``cos``, ``sin`` (O, n, K)
-    (:func:`mmdopt.collision.headings` where none is given), with the footprint's circle
-    offsets ``r`` (C,).  A jitted consumer forms the circle centres with :meth:`centres`, which
-    XLA fuses into the consumer's reduction: the (O, n, C, K, 2) centres (240 MB at n = 50 000)
-    are never stored, and the trigonometry is done once per plan, not once per circle."""
-
-    xy: jax.Array
-    cos: jax.Array
-    sin: jax.Array
-    r: jax.Array
-
-    def centres(self) -> jax.Array:
-        """(O, n, C, K, 2) circle centres, as :func:`mmdopt.collision.circle_centres` gives
-        them (bit for bit)."""
-        u = jnp.stack([self.cos, self.sin], axis=-1)
-        return self.xy[..., None, :, :] + self.r[:, None, None] * u[..., None, :, :]
-
-    def circle(self, c: int) -> tuple[jax.Array, jax.Array]:
-        """The two components (O, n, K) of circle ``c``'s centres (those of :meth:`centres`, bit
-        for bit): a consumer that loops over the C circles and reduces each in turn reads the
-        samples once per circle, and XLA fuses each circle's arithmetic into one loop."""
-        return self.xy[..., 0] + self.r[c] * self.cos, self.xy[..., 1] + self.r[c] * self.sin
-
-
-def sample_geometry(obs_fr, obs_h=None) -> SampleGeometry:
-    """:class:`SampleGeometry` of the samples ``obs_fr`` (O, n, K, 2) along ``obs_h`` (O, n, K)
-    (``None``: each sample's motion), with :data:`mmdopt.collision.OBSTACLE_FOOTPRINT`."""
-    xy = jnp.asarray(obs_fr)
-    r = jnp.asarray(OBSTACLE_FOOTPRINT.offsets_array(), xy.dtype)
-    c, sn = _units(xy, None if obs_h is None else jnp.asarray(obs_h, xy.dtype))
-    return SampleGeometry(xy, c, sn, r)
-
-
-@jax.jit
-def _units(xy, h):
-    if h is None:
-        h = headings(xy)
-    return jnp.cos(h), jnp.sin(h)
-
-
 def obstacle_centres(obs_fr, obs_h, idx=None) -> jax.Array:
     """Footprint circle centres (O, J, C, K, 2) of the samples ``idx`` (O, J) of ``obs_fr``
     (all when None), along ``obs_h`` (O, n, K) where given, else along each sample's motion."""
@@ -271,6 +255,14 @@ def obstacle_centres(obs_fr, obs_h, idx=None) -> jax.Array:
         h = None if obs_h is None else np.take_along_axis(obs_h, idx[:, :, None], axis=1)
     hj = None if h is None else jnp.asarray(h)
     return circle_centres(jnp.asarray(sel), OBSTACLE_FOOTPRINT, hj)
+
+
+def coverage_rows(config: MMDOptConfig, n: int) -> np.ndarray | None:
+    """The samples every coverage margin of a plan is estimated from: all n (``None``), or
+    beyond ``schedule.coverage_pool`` that many evenly spaced draws (i.i.d. futures: the same
+    clusters' spread from a fraction of the work; the points themselves always join)."""
+    R = int(config.schedule.coverage_pool)
+    return None if n <= R else np.linspace(0, n - 1, R).round().astype(np.int64)
 
 
 def coverage(
@@ -294,32 +286,48 @@ def coverage(
     )
 
 
-def risk_counts(config: MMDOptConfig, colliding) -> np.ndarray:
-    """The counts a plan's risk bound is computed from, given the (O, n) planning samples it
-    meets: (1,) the joint futures it meets with any obstacle (``safety.joint_futures``), else
-    (O,) the samples of each obstacle (:func:`mmdopt.risk.risk_bound`)."""
-    hits = np.asarray(colliding, bool)
-    if config.bound_groups(hits.shape[0]) == 1:
-        return hits.any(0).sum(keepdims=True)
-    return hits.sum(-1)
-
-
-def plan_bound(config: MMDOptConfig, colliding) -> float:
-    """The 95 % risk bound of a plan meeting the (O, n) planning samples ``colliding``."""
-    counts = risk_counts(config, colliding)
-    return risk_bound(counts, [np.shape(colliding)[-1]] * counts.size)
+def _plain_depth(config: MMDOptConfig) -> bool:
+    """Whether the conflict depth is the count's own measure (no rule of the road widens or
+    exempts: the nominal ellipse, ``1 − q``), so that the index serves it."""
+    return not (config.safety.rules.asymmetric or config.safety.footprint.yaw_aware)
 
 
 def _conflict_depth(ctx: PassContext, best) -> np.ndarray:
     """(O, n) deepest conflict over time of the plan ``best`` with every planning sample: the
     nominal ellipse ``a, b`` with the geometry and responsibility rules of the config (yaw
-    widening, rear exemption); > 0 where the plan enters a sample's ellipse."""
+    widening, rear exemption); > 0 where the plan enters a sample's ellipse.  Without rules it
+    is ``1 − q`` of the count (:mod:`mmdopt.counting`), and that pass makes the plan's index."""
+    s1, d1 = ctx.trajectory(best)
+    if _plain_depth(ctx.config):
+        if not ctx.indices:  # the first pass over every sample: it makes the plan's index
+            return 1.0 - ctx.index(s1, d1).q_ref
+        ref = ctx.indices[0]
+        if np.array_equal(ref.ref_s, s1) and np.array_equal(ref.ref_d, d1):
+            return 1.0 - ref.q_ref
+        return _depth_full(ctx, s1, d1)
     Bs = ctx.workspace.basis
-    cx1 = np.asarray(best.cx, np.float64)
-    cy1 = np.asarray(best.cy, np.float64)
-    s1, d1 = (Bs.P @ cx1)[None], (Bs.P @ cy1)[None]
-    vs1, vd1 = (Bs.Pdot @ cx1)[None], (Bs.Pdot @ cy1)[None]
-    return np.asarray(_depth_values(ctx.config.program(), s1, d1, vs1, vd1, ctx.geometry))
+    vs1 = (Bs.Pdot @ np.asarray(best.cx, np.float64))[None]
+    vd1 = (Bs.Pdot @ np.asarray(best.cy, np.float64))[None]
+    return np.asarray(
+        _depth_values(ctx.config.program(), s1[None], d1[None], vs1, vd1, ctx.geometry)
+    )
+
+
+def _depth_full(ctx: PassContext, s, d) -> np.ndarray:
+    a, b = float(ctx.config.safety.footprint.a), float(ctx.config.safety.footprint.b)
+    return 1.0 - ctx.futures.q(s[None], d[None], a, b)[0, ..., 0].astype(np.float64)
+
+
+def _deepest(ctx: PassContext, best, M: int) -> np.ndarray:
+    """(O, M) the positions, ascending, of the M planning samples in deepest conflict with the
+    plan ``best`` (:func:`_conflict_depth`; ties to the lower position); with the plain depth the
+    plan's index finds them from a few candidates when it can."""
+    if _plain_depth(ctx.config) and ctx.indices:
+        s1, d1 = ctx.trajectory(best)
+        near = ctx.indices[0].nearest(s1, d1, M)
+        if near is not None:
+            return np.sort(near, axis=1)
+    return smallest(-_conflict_depth(ctx, best), M)
 
 
 @jax.jit
@@ -341,60 +349,6 @@ def _depth_values(config: MMDOptConfig, s1, d1, vs1, vd1, geo: SampleGeometry):
     return depth
 
 
-#: plans are scored against every sample in batches of 1, 2, 4, then padded to a multiple of
-#: this (one compiled count per bucket)
-COUNT_BUCKET = 4
-
-
-def _bucket(c: int) -> int:
-    return 1 << (c - 1).bit_length() if c <= COUNT_BUCKET else -(-c // COUNT_BUCKET) * COUNT_BUCKET
-
-
-@jax.jit
-def _met_from_geometry(s, d, geo: SampleGeometry, a, b):
-    # eq. (coll_constraints) as collision_free_count evaluates it (the ego's one circle is its
-    # reference point) for a bucket of plans at once, the circles formed inside the reduction
-    # (a fused loop over plans × samples × steps per circle: nothing of that size is stored)
-    met = None
-    for c in range(geo.r.shape[0]):  # one circle at a time: each a fused loop over the samples
-        cs, cd = geo.circle(c)
-        ds, dd = s[:, None, None] - cs[None], d[:, None, None] - cd[None]  # (P, O, n, K)
-        hit = jnp.any(1.0 - ds**2 / a**2 - dd**2 / b**2 > 0.0, axis=-1)  # ellipse_f's order
-        met = hit if met is None else met | hit
-    return met
-
-
-@jax.jit
-def _met_from_centres(s, d, centres, a, b):
-    # as _met_from_samples, from circle centres already formed (one plan at a time)
-    def one(sd):
-        ego = jnp.stack(sd, -1)  # (K, 2)
-        return jnp.any(ellipse_f(ego, centres, a, b) > 0.0, axis=(2, 3))
-
-    return lax.map(one, (s, d))
-
-
-def samples_met(config: MMDOptConfig, obs_fr, obs_h, s, d, centres=None,
-                geometry: SampleGeometry | None = None) -> np.ndarray:  # fmt: skip
-    """(C, O, n) the planning samples each of the C plans (s, d) (C, K) meets, counted as
-    :func:`mmdopt.collision_free_count` counts a collision (any circle pair, any step); the
-    plans are padded to 1, 2, 4 or a multiple of :data:`COUNT_BUCKET`.  The footprint circles (along
-    ``obs_h`` (O, n, K), else each sample's motion) are formed inside the count, never stored;
-    ``geometry``: the samples' :class:`SampleGeometry` when already formed
-    (:attr:`PassContext.geometry`), ``centres``: their circle centres (O, n, C, K, 2); the
-    count then reads them (the same answer, bit for bit)."""
-    xy = np.stack([np.asarray(s, np.float64), np.asarray(d, np.float64)], -1)
-    C = xy.shape[0]
-    pad = _bucket(C) - C
-    xy = np.concatenate([xy, np.repeat(xy[:1], pad, axis=0)])
-    a, b = float(config.safety.footprint.a), float(config.safety.footprint.b)
-    sj, dj = jnp.asarray(xy[..., 0]), jnp.asarray(xy[..., 1])
-    if centres is not None:
-        return np.asarray(_met_from_centres(sj, dj, centres, a, b))[:C]
-    geo = sample_geometry(obs_fr, obs_h) if geometry is None else geometry
-    return np.asarray(_met_from_geometry(sj, dj, geo, a, b))[:C]
-
-
 def _bounds_of(ctx: PassContext, cands) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """The 95 % risk bound (C,), task cost (C,) and planning samples met (C, O, n) of the
     candidates' best plans against every planning sample; a candidate scored before in this
@@ -414,7 +368,7 @@ def _score(ctx: PassContext, cands) -> tuple[np.ndarray, np.ndarray, np.ndarray]
     cx = np.stack([np.asarray(b.cx, np.float64) for b in bests])
     cy = np.stack([np.asarray(b.cy, np.float64) for b in bests])
     s, d = cx @ B.P.T, cy @ B.P.T
-    hits = samples_met(config, ctx.obs_fr, ctx.obs_h, s, d, geometry=ctx.geometry)
+    hits = ctx.index(s[0], d[0]).met(s, d)  # the first exact pass makes the index
     bound = np.array([plan_bound(config, h) for h in hits])
     vs, as_, ad = cx @ B.Pdot.T, cx @ B.Pddot.T, cy @ B.Pddot.T
     c = config.cost
@@ -446,6 +400,38 @@ def _extended(ctx: PassContext, idx: np.ndarray, extra: np.ndarray, level=None):
 
 
 # ------------------------------------------------------------------------------------ passes
+def _nearest_iterations(config: MMDOptConfig) -> int:
+    """Algorithm 1's iterations in a nearest-futures pass: ``schedule.nearest_share`` of the
+    config's N (at least 1); the first pass runs the rest (:func:`first_config`)."""
+    N = int(config.cem.iterations)
+    return max(1, min(N - 1, round(float(config.schedule.nearest_share) * N))) if N > 1 else 1
+
+
+def runs_nearest(config: MMDOptConfig, method: PlanMethod, n: int, obstacles: int) -> bool:
+    """Whether a plan of ``method`` on ``n`` planning futures of ``obstacles`` obstacles runs the
+    nearest-futures pass: its record names it, ``safety.nearest_futures`` > 0, the "samples"
+    margin mode, and ε at or above what the n futures can confirm (below it there is no
+    allowance for the pass to use: the margins alone extrapolate the tail the futures do not
+    show)."""
+    return (
+        method.runs("nearest")
+        and config.safety.nearest_futures > 0
+        and config.safety.margins.margin_mode == "samples"
+        and risk_floor([n] * config.bound_groups(obstacles)) <= float(config.safety.risk)
+    )
+
+
+def first_config(config: MMDOptConfig, method: PlanMethod, n: int, obstacles: int):
+    """The config of the first pass: when the nearest-futures pass follows
+    (:func:`runs_nearest`), the two share Algorithm 1's N iterations
+    (``schedule.nearest_share``) and the first runs N minus the nearest pass's; else
+    ``config`` itself."""
+    N = int(config.cem.iterations)
+    if N < 2 or not runs_nearest(config, method, n, obstacles):
+        return config
+    return config.replace(iterations=N - _nearest_iterations(config))
+
+
 def reselect_pass(ctx: PassContext, first: Candidate, diag: dict) -> Candidate | None:
     """The re-selection pass (``safety.reselect`` = r > 0): the reduced set plus the r samples
     in deepest conflict with the first plan (weight 1/n each) after the ⌊ε·n⌋ deepest (the
@@ -483,8 +469,7 @@ def _nearest_pass(ctx: PassContext, start: Candidate, fewer: int) -> tuple[Candi
     P = int(config.safety.nearest_futures)  # one compiled program for every n: pad to P
     M = min(n, P)
     if M < n:
-        depth = _conflict_depth(ctx, start.state.best)  # (O, n), as the re-selection pass
-        idx = np.sort(np.argsort(-depth, axis=1, kind="stable")[:, :M], axis=1)
+        idx = _deepest(ctx, start.state.best, M)
     else:
         idx = np.tile(np.arange(n), (O, 1))
     pad = np.concatenate([idx, np.repeat(idx[:, :1], P - M, axis=1)], axis=1)
@@ -492,15 +477,17 @@ def _nearest_pass(ctx: PassContext, start: Candidate, fewer: int) -> tuple[Candi
     G = config.bound_groups(O)
     k = max(hits_for_risk(float(config.safety.risk), int(n), G) - int(fewer), 0)
     k = min(k, M - 1)  # a level below 1 (with as many hits as futures seen, all may be met)
-    cfg = config.replace(saa_eps=(k + 0.5) / M)
+    cfg = config.replace(saa_eps=(k + 0.5) / M, iterations=_nearest_iterations(config))
     level = min(float(sched.nearest_margin_factor) * float(config.safety.risk),
                 float(sched.level_cap))  # fmt: skip
     knn = max(2, n // config.selection.reduced_set_size)
-    R, pool = int(sched.coverage_pool), None
+    R = int(sched.coverage_pool)
+    data, pool = ctx.coverage_data, None
     if n > R:  # the clusters among R evenly spaced draws: the same neighbourhoods, R/n the work
-        pool = np.tile(np.linspace(0, n - 1, R).round().astype(pad.dtype), (O, 1))
         knn = max(2, round(knn * R / n))
-    margins = coverage(config, obs_fr, pad, level, knn, ctx.coverage_data, pool)
+        if data is None or data.rows is None:
+            pool = np.tile(coverage_rows(config, n).astype(pad.dtype), (O, 1))
+    margins = coverage(config, obs_fr, pad, level, knn, data, pool)
     obstacles = alg.ObstacleSet.create(
         cfg, ctx.centres(pad), np.where(mask, 1.0 / M, 0.0), "chance", mask=mask, margins=margins
     )
@@ -529,6 +516,11 @@ def nearest_passes(ctx: PassContext, start: Candidate, diag: dict) -> list[Candi
         nearest_level=levels[0],
         nearest_levels=levels,
         nearest_s=time.perf_counter() - t0,
+        # Algorithm 1's iterations in the first pass and in each nearest-futures pass
+        pass_iterations=(
+            int(ctx.config.cem.iterations) - _nearest_iterations(ctx.config),
+            _nearest_iterations(ctx.config),
+        ),
     )
     return out
 
@@ -699,13 +691,6 @@ def run_schedule(ctx: PassContext, first: Candidate, diag: dict) -> ScheduleResu
             base = nxt
     if config.safety.margins.margin_mode != "samples":
         return ScheduleResult(passes[-1], base.obstacles)
-    n, O = ctx.obs_fr.shape[1], ctx.obs_fr.shape[0]
-    # below the floor of the n futures (ε < what they can confirm) there is no allowance for
-    # the pass to use: the margins alone extrapolate the tail the futures do not show
-    if (
-        method.runs("nearest")
-        and config.safety.nearest_futures > 0
-        and risk_floor([n] * config.bound_groups(O)) <= float(config.safety.risk)
-    ):
+    if runs_nearest(config, method, ctx.obs_fr.shape[1], ctx.obs_fr.shape[0]):
         passes += nearest_passes(ctx, passes[-1], diag)
     return final_check(ctx, passes, base, diag)

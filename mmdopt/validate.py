@@ -7,6 +7,7 @@ words.
 
 from __future__ import annotations
 
+import math
 import warnings
 from typing import Any
 
@@ -97,7 +98,7 @@ def check_obstacles(
     if np.iscomplexobj(raw):
         raise ValueError(f"{name} must be real (x, y) positions, got a complex array")
     try:
-        arr = raw.astype(np.float64)
+        arr = raw.astype(np.float64, copy=False)  # the planner copies into its own frame
     except (TypeError, ValueError):
         raise ValueError(f"{name} must be a numeric array (O, n, K, 2)") from None
     K = config.trajectory.num_steps
@@ -117,11 +118,12 @@ def check_obstacles(
             f"{name} has {k} time steps but config.num_steps = {K}: samples must be on the "
             f"planner's time grid ({config.trajectory.horizon} s, {K} points)"
         )
-    if not np.all(np.isfinite(arr)):
+    hi, lo = float(np.max(arr)), float(np.min(arr))  # two reads, no temporary (NaN propagates)
+    if not (math.isfinite(hi) and math.isfinite(lo)):
         raise ValueError(f"{name} contains NaN or inf")
-    if np.max(np.abs(arr)) > MAX_COORD:
+    if max(hi, -lo) > MAX_COORD:
         raise ValueError(
-            f"{name} has coordinates beyond {MAX_COORD:g} m (max |value| {np.max(np.abs(arr)):.3g})"
+            f"{name} has coordinates beyond {MAX_COORD:g} m (max |value| {max(hi, -lo):.3g})"
         )
     m = config.selection.reduced_set_size
     if registry.get(method).selector is not None and n < m:

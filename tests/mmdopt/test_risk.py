@@ -39,9 +39,9 @@ def test_every_method_has_a_knob_with_a_default():
 
 def test_the_default_config_is_every_methods_knob_at_its_default():
     """``plan(..., method=m)`` plans as ``plan(..., method=m, risk=ε)`` (ε the record's
-    default): the sample-driven margins, the coverage term, the re-selection pass (MMD-Opt
-    only) and SAA's chance level all follow the knob; ``margin_mode="linear"`` keeps the old
-    constants."""
+    default): the sample-driven margins, the coverage term and SAA's chance level all follow
+    the knob, and no method runs the re-selection pass unless asked (``reselect``);
+    ``margin_mode="linear"`` keeps the old constants."""
     X = _two_clusters()
     road = mmdopt.Road()
     key = jax.random.PRNGKey(3)
@@ -52,8 +52,8 @@ def test_the_default_config_is_every_methods_knob_at_its_default():
         and cfg.cost.w_cover == 100.0
     )
     get = mmdopt.methods.get
-    assert get("mmd").reselect(cfg) == cfg.selection.reduced_set_size // 2
-    assert [get(m).reselect(cfg) for m in ("random", "degroot", "saa", "scenario_all")] == [0] * 4
+    assert [get(m).reselect(cfg) for m in mmdopt.PLAN_METHODS] == [0] * len(mmdopt.PLAN_METHODS)
+    assert get("mmd").reselect(cfg.replace(reselect=7)) == 7
     assert cfg.saa_level == cfg.safety.risk
     assert cfg.replace(margin_mode="linear").saa_level == 0.02
     assert cfg.replace(saa_eps=0.1).saa_level == 0.1
@@ -70,7 +70,7 @@ def test_the_default_config_is_every_methods_knob_at_its_default():
         assert a.status in ("ok", "risk floor"), (m, a.status_text)
         np.testing.assert_array_equal(a.s, b.s, err_msg=m)
         np.testing.assert_array_equal(a.d, b.d, err_msg=m)
-        assert ("reselected" in a.diagnostics) == (m == "mmd")
+        assert "reselected" not in a.diagnostics
     with pytest.raises(ValueError, match="reselect"):
         mmdopt.MMDOptConfig().replace(reselect=-2)
 
@@ -212,10 +212,15 @@ def test_plan_risk_knob_trades_progress_for_safety():
     assert wide.progress <= tight.progress + 1e-6
     # the tight plan keeps every planning sample clear
     assert np.all(tight.diagnostics["collision_free_planning"] == X.shape[1])
-    # the second pass added the samples in deepest conflict with the first plan to the set
-    extra = tight.diagnostics["reselected"]
-    assert extra.shape == (1, SMALL.selection.reduced_set_size // 2)
-    assert not set(extra[0].tolist()) & set(np.asarray(tight.reduced_set.indices)[0].tolist())
+    # with the re-selection pass asked for, it adds the samples in deepest conflict with the
+    # first plan to the set
+    r = SMALL.selection.reduced_set_size // 2
+    again = mmdopt.plan(EGO, road, X, method="mmd", config=SMALL.replace(reselect=r), key=key,
+                        risk=0.001)  # fmt: skip
+    extra = again.diagnostics["reselected"]
+    assert extra.shape == (1, r)
+    assert not set(extra[0].tolist()) & set(np.asarray(again.reduced_set.indices)[0].tolist())
+    assert np.all(again.diagnostics["collision_free_planning"] == X.shape[1])
     with pytest.raises(ValueError, match="risk"):
         mmdopt.plan(EGO, road, X, method="mmd", config=SMALL, key=key, risk=0.7)
 
@@ -227,8 +232,9 @@ def test_reselection_leaves_the_eps_n_deepest_conflicts_to_the_chance_level():
     n = X.shape[1]
     road = mmdopt.Road()
     key = jax.random.PRNGKey(0)
+    cfg = SMALL.replace(reselect=SMALL.selection.reduced_set_size // 2)
     for risk in (0.001, 0.05, 0.2):
-        p = mmdopt.plan(EGO, road, X, method="mmd", config=SMALL, key=key, risk=risk)
+        p = mmdopt.plan(EGO, road, X, method="mmd", config=cfg, key=key, risk=risk)
         assert p.feasible and not p.fallback
         k = int(np.floor(risk * n))
         extra, dropped = p.diagnostics["reselected"], p.diagnostics["discarded"]
