@@ -85,10 +85,8 @@ def _static(default):
 
 
 def _host(default):
-    """A static field that only the host-side steps of :func:`mmdopt.plan` read (which passes
-    run, how many futures are drawn, how the bound is stated), never Algorithm 1's jitted
-    programs: configs that differ only in such fields share those programs
-    (:meth:`MMDOptConfig.program`)."""
+    """A static field only the host-side steps of :func:`mmdopt.plan` read, never Algorithm 1's
+    programs: configs differing only in such fields share them (:meth:`MMDOptConfig.program`)."""
     return field(default=default, metadata=dict(static=True, host=True))
 
 
@@ -567,18 +565,17 @@ class ScheduleConfig(_Section):
         the final check's bound covers the rest (10)
     tail_passes : the most tail passes of the final check, each adding the planning samples the
         best plan so far meets to the reduced set (3; 0: off)
-    margin_ladder : MMD-Opt's margin ladder in the final check: one more pass per rung with
-        coverage margins at level rung · ε (capped at ``level_cap``; ``inf``: the cap), each
-        warm-started from the one before, then one refining tail pass; a rung's plan is
-        returned only if its bound is ≤ ε and its task cost the least (``()``: off, the
-        default; docs/experiments/frontier.md, "What we tried")
+    margin_ladder : MMD-Opt's margin ladder: one more pass per rung with coverage margins at
+        level rung · ε (capped at ``level_cap``), each warm-started from the one before, then a
+        refining tail pass (``()``: off, the default; docs/experiments/frontier.md)
     level_cap : the loosest coverage level of a pass (0.45: z = Φ⁻¹(0.55) ≈ 0.13 σ)
-    selection_pool : the most samples a method with a selection pool
-        (:attr:`mmdopt.methods.PlanMethod.selection_pool`) selects among in the "samples" mode:
-        beyond it the reduced set is chosen from a random pool of this size (100: the paper's
-        sample count)
-    coverage_pool : the nearest-futures pass forms its k-NN coverage clusters among at most
-        this many of the n futures (evenly spaced draws; k scaled by the share), 5000
+    selection_pool : beyond this many samples a method with a selection pool chooses its
+        reduced set among a random pool of this size ("samples" mode; 100)
+    coverage_pool : beyond this many futures every coverage margin is estimated from this many
+        of them, evenly spaced (k-NN clusters with k scaled by the share), 5000
+    futures_budget : the most obstacle-futures (O · n) a plan drawn from a predictor draws
+        for the hits it may meet (``risk_hits``): with O obstacles at most this / O each, never
+        fewer than the n(ε) that can confirm ε (50 000)
     nearest_share : when the nearest-futures pass follows, it and the first pass share
         Algorithm 1's N iterations: it (each repeat too) runs this share (≥ 1), the first pass
         the rest (0.4: 12 + 8 of the paper's 20)
@@ -592,10 +589,13 @@ class ScheduleConfig(_Section):
     selection_pool: int = _host(100)
     coverage_pool: int = _host(5000)
     nearest_share: float = _host(0.4)
+    futures_budget: int = _host(50_000)
 
-    _ints = ("nearest_repeats", "tail_passes", "selection_pool", "coverage_pool")
+    _ints = ("nearest_repeats", "tail_passes", "selection_pool", "coverage_pool",
+             "futures_budget")  # fmt: skip
     _nonneg = ("nearest_repeats", "tail_passes")
-    _positive = ("nearest_margin_factor", "level_cap", "selection_pool", "coverage_pool")
+    _positive = ("nearest_margin_factor", "level_cap", "selection_pool", "coverage_pool",
+                 "futures_budget")  # fmt: skip
 
     def __post_init__(self) -> None:
         try:

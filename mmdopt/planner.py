@@ -95,9 +95,11 @@ def draw_forecast(fc: Forecast, config: MMDOptConfig, method: Any, key) -> tuple
         lo = max(lo, config.selection.reduced_set_size)
     needed = None
     if config.safety.margins.margin_mode == "samples":
-        needed = samples_for_risk(
-            float(config.safety.risk), config.bound_groups(O), hits=rec.risk_hits(config)
-        )
+        eps, G, hits = float(config.safety.risk), config.bound_groups(O), rec.risk_hits(config)
+        needed = samples_for_risk(eps, G, hits=hits)
+        if hits > 0:  # the budget limits the futures drawn for allowed hits, never below n(ε)
+            fewest = samples_for_risk(eps, G)
+            needed = min(needed, max(fewest, int(config.schedule.futures_budget) // O))
     n = int(min(max(lo, needed or lo), max(fc.max_samples, lo)))
     t0 = time.perf_counter()
     k_pred = KeyStream(key).forecast()

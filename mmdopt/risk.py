@@ -146,23 +146,30 @@ def _cluster_margins(flat, flat2, idx, M, z, prior, h_e=0.0):
 class CoverageData:
     """What :func:`coverage_margins` computes from the samples before it looks at the points,
     per obstacle, for one ``lateral_scale``: the centred positions ``flat`` (R, 2K) of the
-    samples ``rows`` (``None``: all n, R = n) about their mean ``centre`` (2K,), their scaled
-    copy ``F``, its squared norms ``FF`` (R,), ``flat²`` and the spread of the arc length per
-    step (K,).  A planner that asks for the margins of several point sets among the same
-    samples builds it once (:func:`coverage_data`); the margins are the same bit for bit."""
+    samples ``rows`` (``None``: all n, R = n) about their mean ``centre`` (2K,), the squared
+    norms ``FF`` (R,) of their copy with the lateral offsets scaled, ``flat²`` and the spread of
+    the arc length per step (K,).  A planner that asks for the margins of several point sets
+    among the same samples builds it once (:func:`coverage_data`); the margins are the same."""
 
     shape: tuple[int, int, int, int]
     lateral_scale: float
     flat: tuple[np.ndarray, ...]
-    F: tuple[np.ndarray, ...]
     FF: tuple[np.ndarray, ...]
     flat2: tuple[np.ndarray, ...]
     std_s: tuple[np.ndarray, ...]
     centre: tuple[np.ndarray, ...] = ()
     rows: np.ndarray | None = None
 
+    def obstacle(self, o: int) -> CoverageData:
+        """The data of obstacle ``o`` alone (of the samples ``obstacles_frenet[o : o + 1]``)."""
+        O, n, K, _ = self.shape
+        if not 0 <= o < O:
+            raise ValueError(f"o must be an obstacle in [0, {O}), got {o}")
+        one = (self.flat, self.FF, self.flat2, self.std_s, self.centre)
+        return CoverageData((1, n, K, 2), self.lateral_scale,
+                            *(f[o : o + 1] for f in one), self.rows)  # fmt: skip
 
-_ROWS = 4096
+
 
 
 def coverage_data(
@@ -189,27 +196,22 @@ def coverage_data(
     used = X if rows is None else X[:, rows]
     if not np.all(np.isfinite(used)):
         raise ValueError("obstacles_frenet contains NaN or inf")
-    scale = np.tile(np.array([1.0, float(lateral_scale)]), K)
-    flat, F, FF, flat2, std_s, centre = [], [], [], [], [], []
+    scale2 = np.tile(np.array([1.0, float(lateral_scale) ** 2]), K)
+    flat, FF, flat2, std_s, centre = [], [], [], [], []
     for o in range(O):
         # centred (R, 2K) positions: the expanded distances and sums of squares keep their
         # precision far from the origin
         f = np.asarray(used[o], np.float64).reshape(used.shape[1], -1)
         mean = f.mean(axis=0)
-        f = f - mean
-        g = f * scale
-        ff = np.empty(f.shape[0])
-        for i in range(0, f.shape[0], _ROWS):  # row sums in blocks: no (R, 2K) temporary
-            ff[i : i + _ROWS] = (g[i : i + _ROWS] * g[i : i + _ROWS]).sum(1)
+        f = f - mean  # (a new array: the caller's samples are left as they are)
         f2 = f * f
         flat.append(f)
-        F.append(g)
-        FF.append(ff)
+        FF.append(f2 @ scale2)  # squared norms with the lateral offsets scaled
         flat2.append(f2)
         std_s.append(np.sqrt(f2[:, 0::2].mean(axis=0)))  # the arc length's spread per step
         centre.append(mean)
     return CoverageData(
-        X.shape, float(lateral_scale), *map(tuple, (flat, F, FF, flat2, std_s, centre)), rows
+        X.shape, float(lateral_scale), *map(tuple, (flat, FF, flat2, std_s, centre)), rows
     )
 
 
@@ -278,6 +280,7 @@ def coverage_margins(
         raise ValueError("pool and data formed from rows exclude each other (the rows are one)")
     out = np.empty((3, O, J, K))
     X = np.asarray(obstacles_frenet)
+    scale2 = np.tile(np.array([1.0, float(lateral_scale) ** 2]), K)
     for o in range(O):  # O is a handful of obstacles; everything inside is vectorised
         h_e = 0.0
         if bandwidth > 0:  # kernel-density smoothing of the tail (Silverman's rule, per step)
@@ -286,12 +289,14 @@ def coverage_margins(
             anchors = np.asarray(X[o, idx[o]], np.float64).reshape(J, -1) - data.centre[o]
             out[:, o] = _rows_margins(data, o, anchors, idx[o], lateral_scale, knn, z, prior, h_e)
             continue
-        flat, F, FF = data.flat[o], data.F[o], data.FF[o]
-        A = F[idx[o]]
+        flat, FF = data.flat[o], data.FF[o]
+        A = flat[idx[o]]
         among = None if cand is None else cand[o]
-        if among is not None:  # distances to the pool's samples only
-            F, FF = F[among], FF[among]
-        sq = (A * A).sum(1)[:, None] + FF[None, :] - 2.0 * A @ F.T  # (J, n) or (J, R)
+        AA = FF[idx[o]]
+        F = flat if among is None else flat[among]  # distances to the pool's samples only
+        FF = FF if among is None else FF[among]
+        # the distances with the lateral offsets × lateral_scale (the selection's kernel)
+        sq = AA[:, None] + FF[None, :] - 2.0 * (A * scale2) @ F.T  # (J, n) or (J, R)
         if knn == 0:
             # nearest point of every sample (a repeated point's samples go to its first copy),
             # and every point belongs to its own cluster
@@ -321,17 +326,17 @@ def _rows_margins(data, o, anchors, pts, lateral_scale, knn, z, prior, h_e):
     a (J, J) one: nothing of the rows' size is copied."""
     J = anchors.shape[0]
     K2 = anchors.shape[1]
-    scale = np.tile(np.array([1.0, float(lateral_scale)]), K2 // 2)
-    ga = anchors * scale
-    gg = (ga * ga).sum(1)
-    sq = gg[:, None] + data.FF[o][None, :] - 2.0 * ga @ data.F[o].T  # (J, R)
+    scale2 = np.tile(np.array([1.0, float(lateral_scale) ** 2]), K2 // 2)
+    ga = anchors * scale2
+    gg = (ga * anchors).sum(1)
+    sq = gg[:, None] + data.FF[o][None, :] - 2.0 * ga @ data.flat[o].T  # (J, R)
     R = sq.shape[1]
     own = np.eye(J)
     if knn == 0:
         _, first = np.unique(pts, return_index=True)
         rr = np.concatenate([first[np.argmin(sq[first], axis=0)]])
         cc = np.arange(R)
-        sqa = gg[:, None] + gg[None, :] - 2.0 * ga @ ga.T  # (J, J)
+        sqa = gg[:, None] + gg[None, :] - 2.0 * ga @ anchors.T  # (J, J)
         near = first[np.argmin(sqa[first], axis=0)]  # each point's nearest (first copies)
         own[near, np.arange(J)] = 1.0
     else:

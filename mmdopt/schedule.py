@@ -457,23 +457,49 @@ def reselect_pass(ctx: PassContext, first: Candidate, diag: dict) -> Candidate |
     return Candidate(PassName.RESELECT, state, obstacles, full, extra)
 
 
+def _nearest_pairs(ctx: PassContext, best, M: int) -> np.ndarray:
+    """(M, 2) the (obstacle, position) pairs, in ascending order, of the M planning samples of
+    all obstacles in deepest conflict with the plan ``best`` (ties to the lower obstacle, then
+    position): per obstacle its M deepest (:func:`_deepest`), then the M deepest of those."""
+    O, n = ctx.obs_fr.shape[:2]
+    per = _deepest(ctx, best, min(M, n))  # (O, min(M, n))
+    if O == 1:
+        return np.stack([np.zeros(per.shape[1], np.int64), per[0]], -1)
+    depth = _pair_depth(ctx, best, per)  # (O, m)
+    flat = smallest(-depth.reshape(1, -1), M)[0]
+    o, i = np.divmod(flat, per.shape[1])
+    return np.stack([o, per[o, i]], -1)
+
+
+def _pair_depth(ctx: PassContext, best, idx: np.ndarray) -> np.ndarray:
+    """(O, m) the conflict depth of the plan ``best`` with the samples ``idx`` (O, m)."""
+    if _plain_depth(ctx.config):
+        s1, d1 = ctx.trajectory(best)
+        a, b = float(ctx.config.safety.footprint.a), float(ctx.config.safety.footprint.b)
+        q = ctx.futures.subset(idx).q(s1[None], d1[None], a, b)[0, ..., 0]
+        return 1.0 - q.astype(np.float64)
+    return np.take_along_axis(_conflict_depth(ctx, best), idx, 1)
+
+
 def _nearest_pass(ctx: PassContext, start: Candidate, fewer: int) -> tuple[Candidate, float]:
-    """One nearest-futures pass from ``start``: Algorithm 1 against the M = min(n,
-    ``nearest_futures``) planning futures per obstacle in deepest conflict with its plan (padded
-    to ``nearest_futures``, padding masked out), weight 1/M each, k-NN coverage margins at the
-    loose level min(``nearest_margin_factor`` · ε, ``level_cap``) and SAA's chance term at level
-    (k + ½)/M, k = :func:`mmdopt.risk.hits_for_risk` (ε, n, G) − ``fewer`` (≥ 0); returns the
-    candidate and its chance level."""
+    """One nearest-futures pass from ``start``: Algorithm 1 against the M = min(O·n,
+    ``nearest_futures``) planning samples of all obstacles together in deepest conflict with its
+    plan (one set, padded to ``nearest_futures``, padding masked out: the pass costs the same
+    for any number of obstacles), weight 1/M each, k-NN coverage margins among each sample's own
+    obstacle at the loose level min(``nearest_margin_factor`` · ε, ``level_cap``), and SAA's
+    chance term at level (k + ½)/M, k = :func:`mmdopt.risk.hits_for_risk` (ε, n, G) − ``fewer``
+    (≥ 0): a joint future met through two obstacles counts twice, so the term is conservative;
+    returns the candidate and its chance level."""
     config, obs_fr, sched = ctx.config, ctx.obs_fr, ctx.config.schedule
     O, n = obs_fr.shape[:2]
-    P = int(config.safety.nearest_futures)  # one compiled program for every n: pad to P
-    M = min(n, P)
-    if M < n:
-        idx = _deepest(ctx, start.state.best, M)
+    P = int(config.safety.nearest_futures)  # one compiled program for every n and O: pad to P
+    M = min(O * n, P)
+    if M < O * n:
+        pairs = _nearest_pairs(ctx, start.state.best, M)
     else:
-        idx = np.tile(np.arange(n), (O, 1))
-    pad = np.concatenate([idx, np.repeat(idx[:, :1], P - M, axis=1)], axis=1)
-    mask = np.arange(P)[None, :].repeat(O, 0) < M
+        pairs = np.stack(np.divmod(np.arange(O * n), n), -1)
+    pairs = np.concatenate([pairs, np.repeat(pairs[:1], P - M, axis=0)])  # (P, 2)
+    mask = (np.arange(P) < M)[None]
     G = config.bound_groups(O)
     k = max(hits_for_risk(float(config.safety.risk), int(n), G) - int(fewer), 0)
     k = min(k, M - 1)  # a level below 1 (with as many hits as futures seen, all may be met)
@@ -482,17 +508,27 @@ def _nearest_pass(ctx: PassContext, start: Candidate, fewer: int) -> tuple[Candi
                 float(sched.level_cap))  # fmt: skip
     knn = max(2, n // config.selection.reduced_set_size)
     R = int(sched.coverage_pool)
-    data, pool = ctx.coverage_data, None
+    data = ctx.coverage_data
     if n > R:  # the clusters among R evenly spaced draws: the same neighbourhoods, R/n the work
         knn = max(2, round(knn * R / n))
-        if data is None or data.rows is None:
-            pool = np.tile(coverage_rows(config, n).astype(pad.dtype), (O, 1))
-    margins = coverage(config, obs_fr, pad, level, knn, data, pool)
+    margins = np.empty((3, 1, P, obs_fr.shape[2]))
+    for o in np.unique(pairs[:, 0]):  # each sample's margins among its own obstacle's samples
+        at = np.flatnonzero(pairs[:, 0] == o)
+        data_o = None if data is None else data.obstacle(int(o))
+        pool = None
+        if n > R and (data_o is None or data_o.rows is None):
+            pool = coverage_rows(config, n)[None]
+        margins[:, 0, at] = coverage(config, obs_fr[o : o + 1], pairs[at, 1][None], level, knn,
+                                     data_o, pool)[:, 0]  # fmt: skip
+    sel = obs_fr[pairs[:, 0], pairs[:, 1]][None]  # (1, P, K, 2)
+    h = None if ctx.obs_h is None else ctx.obs_h[pairs[:, 0], pairs[:, 1]][None]
     obstacles = alg.ObstacleSet.create(
-        cfg, ctx.centres(pad), np.where(mask, 1.0 / M, 0.0), "chance", mask=mask, margins=margins
-    )
+        cfg, obstacle_centres(np.asarray(sel, np.float64), h), np.where(mask, 1.0 / M, 0.0),
+        "chance", mask=mask, margins=margins,
+    )  # fmt: skip
     state = ctx.run(obstacles, ctx.keys.nearest(fewer), ctx.warm(start.state), config=cfg)
-    return Candidate(PassName.NEAREST, state, obstacles, pad, level=level), (k + 0.5) / M
+    cand = Candidate(PassName.NEAREST, state, obstacles, pairs[None, :, 1], level=level)
+    return cand, (k + 0.5) / M, pairs[:M]
 
 
 def nearest_passes(ctx: PassContext, start: Candidate, diag: dict) -> list[Candidate]:
@@ -502,17 +538,18 @@ def nearest_passes(ctx: PassContext, start: Candidate, diag: dict) -> list[Candi
     goes; these passes let it pass as close to the futures that matter as the bound allows."""
     t0 = time.perf_counter()
     eps = float(ctx.config.safety.risk)
-    first, level = _nearest_pass(ctx, start, 0)
+    first, level, pairs = _nearest_pass(ctx, start, 0)
     out, levels = [first], [level]
     for rep in range(1, int(ctx.config.schedule.nearest_repeats) + 1):
         if _bounds_of(ctx, [out[-1]])[0][0] <= eps:
             break
-        nxt, level = _nearest_pass(ctx, out[-1], rep)
+        nxt, level, _ = _nearest_pass(ctx, out[-1], rep)
         out.append(nxt)
         levels.append(level)
-    M = min(ctx.obs_fr.shape[1], int(ctx.config.safety.nearest_futures))
+    if ctx.obs_fr.shape[0] == 1:  # the positions among the one obstacle's samples
+        diag["nearest_futures"] = np.sort(pairs[:, 1])[None]
     diag.update(
-        nearest_futures=np.sort(first.indices[:, :M], axis=1),
+        nearest_pairs=pairs,
         nearest_level=levels[0],
         nearest_levels=levels,
         nearest_s=time.perf_counter() - t0,

@@ -155,3 +155,20 @@ def test_an_allowance_above_the_futures_seen_keeps_a_chance_level_below_one():
     p = _plan(obs, TINY.replace(nearest_futures=2))
     assert p.diagnostics["nearest_level"] == pytest.approx(1.5 / 2)
     assert p.status == "ok" and p.risk_bound <= EPS, p.status_text
+
+
+def test_with_several_obstacles_the_pass_takes_the_deepest_samples_of_all_together():
+    """The nearest pass pools the samples of every obstacle: a car far behind in the next lane
+    gives none of its samples to the pass while the slow car ahead has samples in deeper
+    conflict, and no sample is taken twice."""
+    n = 3 * samples_for_risk(EPS, 1)
+    ahead = _slow_car_ahead(n)
+    t = frenet.TimeGrid(TINY.trajectory.horizon, TINY.trajectory.num_steps).t
+    s = -150.0 + 5.0 * t + np.random.default_rng(2).normal(0.0, 0.5, (n, 1))
+    behind = np.stack([s, np.full_like(s, 3.5)], -1)[None]
+    p = _plan(np.concatenate([behind, ahead]), TINY.replace(nearest_futures=40))
+    pairs = p.diagnostics["nearest_pairs"]
+    assert pairs.shape == (40, 2)
+    assert set(pairs[:, 0].tolist()) == {1}  # all from the car ahead
+    assert len({tuple(r) for r in pairs.tolist()}) == 40
+    assert (p.status == "ok") == (p.risk_bound <= EPS), p.status_text
