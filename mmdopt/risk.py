@@ -170,8 +170,6 @@ class CoverageData:
                             *(f[o : o + 1] for f in one), self.rows)  # fmt: skip
 
 
-
-
 def coverage_data(
     obstacles_frenet: np.ndarray, lateral_scale: float = 1.0, rows: np.ndarray | None = None
 ) -> CoverageData:
