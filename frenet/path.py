@@ -303,6 +303,19 @@ class ReferencePath:
         d += x0 * uy - y0 * ux
         return s, d
 
+    def frenet_affine(
+        self, s_offset: float = 0.0
+    ) -> tuple[NDArray[np.float64], NDArray[np.float64]] | None:
+        """On a straight path the map of :meth:`to_frenet_points` as ``(M, c)``: ``(s −
+        s_offset, d) = xy @ M + c`` (M (2, 2), c (2,)), so a caller converting many points can
+        fuse it with its own copy; ``None`` on a curved path (there the projection iterates)."""
+        if self._line is None:
+            return None
+        x0, y0, ux, uy = self._line
+        M = np.array([[ux, -uy], [uy, ux]])
+        c = np.array([float(self._knots[0]) - x0 * ux - y0 * uy - s_offset, x0 * uy - y0 * ux])
+        return M, c
+
     @staticmethod
     def _relative_heading(heading: ArrayLike, shape: tuple, theta) -> NDArray[np.float64]:
         """``heading`` (broadcast to ``shape``) relative to the path heading ``theta``, wrapped."""

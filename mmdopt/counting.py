@@ -217,18 +217,32 @@ def _carried_units(xy):
 _BLOCK = 512
 
 
-def to_planes(obs_fr, convert=None) -> np.ndarray:
+def to_planes(obs_fr, convert=None, affine=None) -> np.ndarray:
     """The futures ``obs_fr`` (O, n, K, 2) as planes (O, 2, K, n) float32, 64-byte aligned (the
     layout every count reads: :class:`Futures`); ``convert``: a map of each block of positions
     (b, K, 2) to the two coordinates to store, each (b, K) (e.g. Cartesian → Frenet,
-    :meth:`frenet.ReferencePath.to_frenet_points`), applied block by block."""
+    :meth:`frenet.ReferencePath.to_frenet_points`), applied block by block; ``affine``: instead,
+    ``(M, c)`` with the coordinates ``xy @ M + c`` (a straight path,
+    :meth:`frenet.ReferencePath.frenet_affine`): one product and one add per block in float64,
+    rounded once (a fifth less time than the two-coordinate map at 50 000 futures)."""
     X = np.asarray(obs_fr)
     O, n, K, _ = X.shape
+    if convert is not None and affine is not None:
+        raise ValueError("convert and affine exclude each other")
     out = aligned_empty((O, 2, K, n), np.float32)
+    if affine is not None:
+        M, c = (np.asarray(a, np.float64) for a in affine)
+        if M.shape != (2, 2) or c.shape != (2,):
+            raise ValueError(f"affine must be (M (2, 2), c (2,)), got {M.shape}, {c.shape}")
+        c, tmp = c[:, None, None], np.empty((2, K, min(n, _BLOCK)))
     for o in range(O):
         for i in range(0, n, _BLOCK):
             blk = X[o, i : i + _BLOCK]
-            if convert is None:
+            if affine is not None:  # the block's planes in float64 (in cache), then rounded
+                t = tmp[:, :, : blk.shape[0]]
+                np.add((blk @ M).transpose(2, 1, 0), c, out=t)
+                out[o, :, :, i : i + _BLOCK] = t
+            elif convert is None:
                 out[o, :, :, i : i + _BLOCK] = blk.transpose(2, 1, 0)
             else:
                 a, b = convert(blk)

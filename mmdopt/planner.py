@@ -362,7 +362,11 @@ class Planner:
         if frenet_frame:
             planes = to_planes(arr, lambda b: (b[..., 0] - s_off, b[..., 1]))
         else:
-            planes = to_planes(arr, lambda b: road.path.to_frenet_points(b, s_off))
+            affine = road.path.frenet_affine(s_off)  # a straight road: one product per block
+            if affine is not None:
+                planes = to_planes(arr, affine=affine)
+            else:
+                planes = to_planes(arr, lambda b: road.path.to_frenet_points(b, s_off))
             if not math.isfinite(float(planes.max())) or not math.isfinite(float(planes.min())):
                 raise ValueError(
                     "obstacles could not be converted to the road's Frenet frame (non-finite)"

@@ -170,3 +170,22 @@ def test_margins_from_a_pool_of_rows_equal_those_of_the_rows_and_the_points(knn)
     np.testing.assert_allclose(got, want, atol=1e-9)
     with pytest.raises(ValueError, match="rows"):
         coverage_data(X, 10.0, np.array([0, n]))
+
+
+def test_the_affine_conversion_matches_the_pointwise_one_on_a_straight_road():
+    """A straight road's Frenet map fused into the copy to planes gives the coordinates of
+    :meth:`frenet.ReferencePath.to_frenet_points`, rounded once to float32."""
+    rng = np.random.default_rng(4)
+    path = frenet.ReferencePath.from_waypoints(np.array([[100.0, 50.0], [400.0, 450.0]]))
+    xy = rng.normal(0.0, 30.0, (2, 700, 6, 2)) + np.array([250.0, 250.0])
+    want = to_planes(xy, lambda b: path.to_frenet_points(b, 37.5))
+    got = to_planes(xy, affine=path.frenet_affine(37.5))
+    np.testing.assert_allclose(got, want, rtol=0, atol=1e-4)
+    assert (
+        frenet.ReferencePath.from_waypoints(
+            np.array([[0.0, 0.0], [50.0, 10.0], [100.0, 40.0]])
+        ).frenet_affine()
+        is None
+    )
+    with pytest.raises(ValueError, match="affine"):
+        to_planes(xy, affine=(np.eye(3), np.zeros(2)))
