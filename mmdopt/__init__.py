@@ -35,6 +35,7 @@ _LAZY = MappingProxyType(
         "schedule": ".schedule",
         "plan": ".api",
         "plan_frenet": ".api",
+        "enable_compile_cache": ".compile_cache",
         "CollisionCounts": ".collision",
         "ReducedObstacles": ".collision",
         "SurrogateConfig": ".collision",
@@ -222,4 +223,5 @@ __all__ = [
     "plan",
     "plan_frenet",
     "PLAN_METHODS",
+    "enable_compile_cache",
 ]

@@ -320,13 +320,36 @@ class Futures:
             mixed = np.take_along_axis(self.mixed, idx, 1)
             out.__dict__["mixed"] = mixed
             if mixed.any():  # every heading carried, as the whole set's would be
-                xy = np.ascontiguousarray(out.xy).reshape(-1, K, 2)
-                cx, cy = (np.asarray(a) for a in _carried_units(xy))
-                u = aligned_empty(planes.shape, np.float32)
-                u[:, 0] = cx.reshape(O, -1, K).transpose(0, 2, 1)
-                u[:, 1] = cy.reshape(O, -1, K).transpose(0, 2, 1)
-                out.__dict__["units"] = u
+                out.__dict__["units"] = self._carried(idx)
                 out.__dict__["mixed"] = np.zeros_like(mixed)
+        return out
+
+    @functools.cached_property
+    def _units_cache(self) -> tuple[np.ndarray, np.ndarray]:
+        # the carried heading units of the futures asked for so far, and which those are
+        return aligned_empty(self.planes.shape, np.float32), np.zeros(self.shape[:2], bool)
+
+    def _carried(self, idx: np.ndarray) -> np.ndarray:
+        """(O, 2, K, J) the carried heading units (:func:`_carried_units`) of the futures
+        ``idx`` (O, J): each future's are formed once per set (a plan's counts ask for many
+        overlapping subsets) and kept."""
+        u, have = self._units_cache
+        O, J = idx.shape
+        oo = np.repeat(np.arange(O), J)
+        flat = idx.reshape(-1)
+        need = ~have[oo, flat]
+        if need.any():
+            rows = np.unique(np.stack([oo[need], flat[need]], 1), axis=0)  # (R, 2)
+            R = rows.shape[0]
+            pad = np.concatenate([rows, np.repeat(rows[:1], _size_bucket(R) - R, 0)])
+            xy = self.planes[pad[:, 0], :, :, pad[:, 1]].transpose(0, 2, 1)  # (B, K, 2)
+            cx, cy = (np.asarray(a)[:R] for a in _carried_units(np.ascontiguousarray(xy)))
+            u[rows[:, 0], 0, :, rows[:, 1]] = cx
+            u[rows[:, 0], 1, :, rows[:, 1]] = cy
+            have[rows[:, 0], rows[:, 1]] = True
+        out = aligned_empty((O, 2, u.shape[2], J), np.float32)
+        for o in range(O):
+            out[o] = u[o][:, :, idx[o]]
         return out
 
     def q(self, s, d, a: float, b: float, windows: int = 1) -> np.ndarray:

@@ -541,51 +541,26 @@ def _add_predictor(sub) -> None:
 
 #: where the CLI keeps JAX's compiled programs (``--no-compile-cache``), as its help says it
 COMPILE_CACHE_HELP = "$XDG_CACHE_HOME/mmdopt/jax (default ~/.cache/mmdopt/jax)"
-#: the most the compile cache may hold (bytes; JAX evicts the least recently used entries)
-COMPILE_CACHE_MAX_BYTES = 2 * 1024**3
 
 
 def compile_cache_dir(env: Mapping[str, str] | None = None) -> Path | None:
-    """The folder of the CLI's persistent JAX compilation cache: ``MMDOPT_COMPILE_CACHE`` when
-    set (``0``: none), else ``$XDG_CACHE_HOME/mmdopt/jax``, else ``~/.cache/mmdopt/jax``."""
-    env = os.environ if env is None else env
-    own = env.get("MMDOPT_COMPILE_CACHE")
-    if own is not None:
-        return None if own.strip() in ("", "0") else Path(own).expanduser()
-    base = env.get("XDG_CACHE_HOME") or str(Path.home() / ".cache")
-    return Path(base) / "mmdopt" / "jax"
+    """The folder of the CLI's persistent JAX compilation cache
+    (:func:`mmdopt.compile_cache.compile_cache_dir`)."""
+    from mmdopt.compile_cache import compile_cache_dir as folder
+
+    return folder(env)
 
 
 def enable_compile_cache(args) -> Path | None:
-    """Turn on JAX's persistent compilation cache for this run (unless ``--no-compile-cache``
-    or ``MMDOPT_COMPILE_CACHE=0``; a ``JAX_COMPILATION_CACHE_DIR`` the caller set is used as
-    is): a first plan in a new process then loads Algorithm 1's programs instead of compiling
-    them.  Every program is kept, however quick its compile (a plan calls a few hundred small
-    ones), up to :data:`COMPILE_CACHE_MAX_BYTES`.  Returns the folder, or ``None``."""
+    """Turn on JAX's persistent compilation cache for this run
+    (:func:`mmdopt.enable_compile_cache`) unless ``--no-compile-cache`` or
+    ``MMDOPT_COMPILE_CACHE=0``: a first plan in a new process then loads Algorithm 1's programs
+    instead of compiling them.  Returns the folder, or ``None``."""
     if getattr(args, "no_compile_cache", False):
         return None
-    if "JAX_COMPILATION_CACHE_DIR" in os.environ:
-        return Path(os.environ["JAX_COMPILATION_CACHE_DIR"])
-    path = compile_cache_dir()
-    if path is None:
-        return None
-    try:
-        path.mkdir(parents=True, exist_ok=True)
-    except OSError:  # a read-only home: run without it
-        return None
-    settings = {
-        "JAX_COMPILATION_CACHE_DIR": str(path),
-        "JAX_PERSISTENT_CACHE_MIN_COMPILE_TIME_SECS": "0",
-        "JAX_COMPILATION_CACHE_MAX_SIZE": str(COMPILE_CACHE_MAX_BYTES),
-    }
-    os.environ.update(settings)  # worker processes inherit it
-    if "jax" in sys.modules:  # imported already (a caller in-process): set it there too
-        import jax
+    from mmdopt.compile_cache import enable_compile_cache as enable
 
-        jax.config.update("jax_compilation_cache_dir", str(path))
-        jax.config.update("jax_persistent_cache_min_compile_time_secs", 0.0)
-        jax.config.update("jax_compilation_cache_max_size", COMPILE_CACHE_MAX_BYTES)
-    return path
+    return enable()
 
 
 def build_parser() -> argparse.ArgumentParser:
