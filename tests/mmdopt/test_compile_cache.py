@@ -20,12 +20,17 @@ _KEYS = ("jax_compilation_cache_dir", "jax_persistent_cache_min_compile_time_sec
 
 @pytest.fixture
 def restored(monkeypatch):
-    """JAX's cache settings and the environment as they were, after the test."""
+    """JAX's cache settings and the whole environment as they were, after the test (the
+    function sets variables that were absent, which ``monkeypatch.delenv`` would not undo: a
+    cache size left behind would switch later processes of the run to JAX's LRU cache)."""
     before = {k: getattr(jax.config, k) for k in _KEYS}
-    for k in ("JAX_COMPILATION_CACHE_DIR", "JAX_PERSISTENT_CACHE_MIN_COMPILE_TIME_SECS",
-              "JAX_COMPILATION_CACHE_MAX_SIZE", "MMDOPT_COMPILE_CACHE"):  # fmt: skip
+    saved = dict(os.environ)
+    for k in ("JAX_COMPILATION_CACHE_DIR", "MMDOPT_COMPILE_CACHE"):
         monkeypatch.delenv(k, raising=False)
     yield monkeypatch
+    monkeypatch.undo()
+    os.environ.clear()
+    os.environ.update(saved)
     for k, v in before.items():
         jax.config.update(k, v)
 
