@@ -221,8 +221,9 @@ class PassContext:
 @dataclass(frozen=True, eq=False)
 class Candidate:
     """One pass's outcome: its name, Algorithm 1 state, the obstacle set it planned against,
-    that set's sample indices (O, J), the indices it added to the reduced set (``None``: none)
-    and the coverage level of its margins (``None``: ε)."""
+    that set's sample indices (O, J; the nearest pass's pooled set: (1, P) positions, their
+    obstacles in ``diagnostics["nearest_pairs"]``), the indices it added to the reduced set
+    (``None``: none) and the coverage level of its margins (``None``: ε)."""
 
     name: PassName
     state: alg.CEMState
@@ -460,28 +461,27 @@ def reselect_pass(ctx: PassContext, first: Candidate, diag: dict) -> Candidate |
 def _nearest_pairs(ctx: PassContext, best, M: int) -> np.ndarray:
     """(M, 2) the (obstacle, position) pairs, in ascending order, of the M planning samples of
     all obstacles in deepest conflict with the plan ``best`` (ties to the lower obstacle, then
-    position): per obstacle its M deepest (:func:`_deepest`), then the M deepest of those."""
+    position).  With the plain depth, per obstacle its M deepest through the plan's index
+    (:func:`_deepest`), then the M deepest of those; with the rules' depth, the M deepest of
+    the one full pass of :func:`_conflict_depth`."""
     O, n = ctx.obs_fr.shape[:2]
+    if not _plain_depth(ctx.config):
+        flat = smallest(-_conflict_depth(ctx, best).reshape(1, -1), M)[0]
+        return np.stack(np.divmod(flat, n), -1)
     per = _deepest(ctx, best, min(M, n))  # (O, min(M, n))
     if O == 1:
         return np.stack([np.zeros(per.shape[1], np.int64), per[0]], -1)
-    depth = _pair_depth(ctx, best, per)  # (O, m)
-    flat = smallest(-depth.reshape(1, -1), M)[0]
+    s1, d1 = ctx.trajectory(best)
+    a, b = float(ctx.config.safety.footprint.a), float(ctx.config.safety.footprint.b)
+    q = ctx.futures.subset(per).q(s1[None], d1[None], a, b)[0, ..., 0]  # (O, m): 1 − depth
+    flat = smallest(q.astype(np.float64).reshape(1, -1), M)[0]
     o, i = np.divmod(flat, per.shape[1])
     return np.stack([o, per[o, i]], -1)
 
 
-def _pair_depth(ctx: PassContext, best, idx: np.ndarray) -> np.ndarray:
-    """(O, m) the conflict depth of the plan ``best`` with the samples ``idx`` (O, m)."""
-    if _plain_depth(ctx.config):
-        s1, d1 = ctx.trajectory(best)
-        a, b = float(ctx.config.safety.footprint.a), float(ctx.config.safety.footprint.b)
-        q = ctx.futures.subset(idx).q(s1[None], d1[None], a, b)[0, ..., 0]
-        return 1.0 - q.astype(np.float64)
-    return np.take_along_axis(_conflict_depth(ctx, best), idx, 1)
-
-
-def _nearest_pass(ctx: PassContext, start: Candidate, fewer: int) -> tuple[Candidate, float]:
+def _nearest_pass(
+    ctx: PassContext, start: Candidate, fewer: int
+) -> tuple[Candidate, float, np.ndarray]:
     """One nearest-futures pass from ``start``: Algorithm 1 against the M = min(O·n,
     ``nearest_futures``) planning samples of all obstacles together in deepest conflict with its
     plan (one set, padded to ``nearest_futures``, padding masked out: the pass costs the same
@@ -489,7 +489,8 @@ def _nearest_pass(ctx: PassContext, start: Candidate, fewer: int) -> tuple[Candi
     obstacle at the loose level min(``nearest_margin_factor`` · ε, ``level_cap``), and SAA's
     chance term at level (k + ½)/M, k = :func:`mmdopt.risk.hits_for_risk` (ε, n, G) − ``fewer``
     (≥ 0): a joint future met through two obstacles counts twice, so the term is conservative;
-    returns the candidate and its chance level."""
+    returns the candidate (its ``indices`` (1, P): the positions of the pooled samples), its
+    chance level and the M (obstacle, position) pairs it planned against."""
     config, obs_fr, sched = ctx.config, ctx.obs_fr, ctx.config.schedule
     O, n = obs_fr.shape[:2]
     P = int(config.safety.nearest_futures)  # one compiled program for every n and O: pad to P
