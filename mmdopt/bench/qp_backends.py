@@ -23,8 +23,8 @@ Families
     built explicitly so its size is set directly.
 
 Settings are explicit and printed: ``ipm`` at its defaults (eps 1e-9), OSQP at eps 1e-6 with
-polishing (set up once, then ``update`` + warm start), ``admm`` as tuned for this shape; every
-other backend at its own defaults.
+polishing (set up once, then ``update`` + warm start); ``admm`` and every other backend at its
+own defaults.
 
     python -m mmdopt bench qp-backends                      # both families, 1000 QPs each
     python -m mmdopt.bench.qp_backends --quick              # 100 QPs each
@@ -58,14 +58,8 @@ REFERENCE: dict[str, Any] = {
 SETTINGS: dict[str, dict[str, Any]] = {
     # interior point at its defaults, written out
     "ipm": {"eps_abs": 1e-9, "eps_rel": 1e-9},
-    # no Ruiz scaling suits this shape; float32 iterations + float64 polish, in stages
-    "admm": {
-        "scaling_iter": 0,
-        "max_iter": 4000,
-        "stage_iter": 1000,
-        "dtype": "float32",
-        "polish": True,
-    },
+    # admm at its defaults (float32 iterations in stages, a float64 polish between them)
+    "admm": {},
     # OSQP at a tolerance that reaches a violation comparable to admm's (polishing on)
     "osqp": {"eps_abs": 1e-6, "eps_rel": 1e-6, "polishing": True, "max_iter": 100_000},
     "qpsolvers:osqp": {"eps_abs": 1e-6, "eps_rel": 1e-6, "polishing": True, "max_iter": 100_000},

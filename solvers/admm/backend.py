@@ -62,7 +62,7 @@ from .core import (
     flops_per_call,
     rows_from_bounds,
 )
-from .polish import PolishData, polish, polish_data, termination
+from .polish import PolishData, active_guess, polish, polish_data, termination
 
 __all__ = ["ADMMBackend", "DENSE_N_WARN", "DIVERGED", "make_backend"]
 
@@ -72,6 +72,9 @@ DENSE_N_WARN = 2000
 DIVERGED = 1e8
 #: factors (scaling, ladder of inverses, polish data) an :class:`ADMMBackend` keeps, oldest first
 FACTOR_CACHE_SIZE = 16
+#: a later stage's batch is padded to a power of two, at least this many: every new size
+#: compiles the iterations again, and below it a smaller batch saves little time on a CPU
+MIN_STAGE_BATCH = 16
 
 
 #: the common vocabulary: ADMMSettings uses the common names; time_limit and verbose are ignored
@@ -167,7 +170,8 @@ class ADMMBackend(Backend):
         while todo.size and (first or done_iter < s.max_iter):
             first = False
             k = min(stage, s.max_iter - done_iter)
-            todo = _run_stage(run, factor, pd, P, A, batch, todo, k, s)
+            last = done_iter + k >= s.max_iter
+            todo = _run_stage(run, factor, pd, P, A, batch, todo, k, s, last)
             done_iter += k
         extras = run.extras(t_factor, s)
         rejected = _recheck_certificates(batch, P, A, run.status, run.dx, run.dy, s)
@@ -195,6 +199,9 @@ class _Run:
     admm_status: np.ndarray  # (B,) int32, as the iterations left it
     iters: np.ndarray  # (B,) iterations each QP ran
     polished: np.ndarray  # (B,) bool, the polished point was accepted
+    guess: np.ndarray | None = None  # (B, m) int8, the polish's active-set guess at the last stage
+    moves: np.ndarray | None = None  # (B,) rho moves of each QP (:func:`_patient_rho`)
+    side: np.ndarray | None = None  # (B,) ±1, the side of its first move
     t_iter: float = 0.0
     t_pol: float = 0.0
     flops: float = 0.0
@@ -243,13 +250,20 @@ class _Run:
         return extras
 
 
-def _run_stage(run: _Run, factor, pd, P, A, batch: QPBatch, todo, k: int, s: ADMMSettings):
-    """One stage: ``k`` ADMM iterations on the QPs ``todo`` (a batch padded to a power of two
-    unless it is the whole batch), the float64 re-check of what they declared solved, then the
-    polish.  Updates ``run``; returns the QPs that go on (out of iterations and not polished)."""
+def _run_stage(
+    run: _Run, factor, pd, P, A, batch: QPBatch, todo, k: int, s: ADMMSettings, last: bool
+):
+    """One stage: ``k`` ADMM iterations on the QPs ``todo`` (a batch padded to a power of two,
+    at least :data:`MIN_STAGE_BATCH`, unless it is the whole batch), the float64 re-check of
+    what they declared solved, then the polish.  Updates ``run``; returns the QPs that go on
+    (out of iterations and not polished)."""
     q, l, u = batch.q, batch.l, batch.u
     B, n, m = len(batch), batch.n, batch.m
-    Bs = todo.size if todo.size == B else min(B, 1 << (todo.size - 1).bit_length())
+    Bs = (
+        todo.size
+        if todo.size == B
+        else min(B, max(MIN_STAGE_BATCH, 1 << (todo.size - 1).bit_length()))
+    )
     sub = np.concatenate([todo, np.repeat(todo[:1], Bs - todo.size)])  # padded
     t1 = time.perf_counter()
     st = admm_iterate_jit(
@@ -282,18 +296,73 @@ def _run_stage(run: _Run, factor, pd, P, A, batch: QPBatch, todo, k: int, s: ADM
                 (STATUS_CODES.PRIMAL_INFEASIBLE, STATUS_CODES.DUAL_INFEASIBLE, STATUS_CODES.ERROR),
             )
         ]
-        if cand.size:
-            acc, xp, yp, _, _ = polish(
-                pd, P, A, q[cand], l[cand], u[cand], run.x[cand], run.z[cand], run.y[cand], s
-            )
-            ids = cand[acc]
-            run.x[ids], run.y[ids] = xp[acc], yp[acc]
-            run.status[ids] = STATUS_CODES.SOLVED
-            run.polished[ids] = True
-            run.attempted += int(cand.size)
+        # QPs that stop here (the last stage, or solved by the iterations) get the full polish,
+        # which keeps a point within the tolerance; the others only where their active-set guess
+        # has settled, with a few passes, and only an exact point (else the iterations go on)
+        final = np.full(todo.size, last) | (stt == STATUS_CODES.SOLVED)
+        if not last:
+            g = active_guess(pd, l[todo], u[todo], run.z[todo], run.y[todo])
+            if run.guess is None:
+                run.guess = np.zeros((B, m), np.int8)
+                moved = np.full(todo.size, m + 1)
+            else:
+                moved = np.sum(g != run.guess[todo], axis=1)
+            run.guess[todo] = g
+            settled = todo[(moved <= s.polish_settle_rows) & ~final]
+        else:
+            settled = todo[:0]
+        for ids_, passes, exact in (
+            (np.intersect1d(cand, todo[final]), None, False),
+            (np.intersect1d(cand, settled), s.polish_stage_passes, True),
+        ):
+            if ids_.size:
+                _polish_into(run, pd, P, A, q, l, u, ids_, s, passes, exact)
     run.t_pol += time.perf_counter() - t2
     # only QPs that ran out of iterations and were not polished go on
-    return todo[(stt == STATUS_CODES.MAX_ITER) & ~run.polished[todo]]
+    go = todo[(stt == STATUS_CODES.MAX_ITER) & ~run.polished[todo]]
+    if s.rho_patience is not None and not s.adaptive_rho and go.size:
+        _patient_rho(run, P, A, q, l, u, go, k, s)
+    return go
+
+
+def _polish_into(run: _Run, pd, P, A, q, l, u, ids, s: ADMMSettings, passes, exact) -> None:
+    """Polish the QPs ``ids``; where a polished point is accepted it replaces the iterate."""
+    acc, xp, yp, _, _ = polish(
+        pd, P, A, q[ids], l[ids], u[ids], run.x[ids], run.z[ids], run.y[ids], s, passes, exact
+    )
+    done = ids[acc]
+    run.x[done], run.y[done] = xp[acc], yp[acc]
+    run.status[done] = STATUS_CODES.SOLVED
+    run.polished[done] = True
+    run.attempted += int(ids.size)
+
+
+def _patient_rho(run: _Run, P, A, q, l, u, go: np.ndarray, k: int, s: ADMMSettings) -> None:
+    """Each time a QP that goes on passes another ``rho_patience`` iterations, it tries another
+    rung around its start: first the neighbour that OSQP's residual-balancing rule points to (up
+    when the primal residual, relative to its tolerance, is the larger; Stellato et al. 2020,
+    §5.2), then the other neighbour, then two rungs away on the first side, and so on.  The rule
+    alone is not enough: on projections with most rows active it points down where a larger step
+    finds the active set sooner."""
+    it = run.iters[go]
+    due = go[(it // s.rho_patience) > ((it - k) // s.rho_patience)]
+    if not due.size:
+        return
+    if run.moves is None:
+        run.moves = np.zeros(run.x.shape[0], np.int64)
+        run.side = np.zeros(run.x.shape[0], np.int64)
+    first = due[run.moves[due] == 0]
+    if first.size:
+        _, prim, dual, eps_p, eps_d = termination(
+            P, A, q[first], l[first], u[first], run.x[first], run.y[first], s
+        )
+        run.side[first] = np.where(prim / eps_p >= dual / eps_d, 1, -1)
+    run.moves[due] += 1
+    j = run.moves[due]
+    offset = run.side[due] * np.where(j % 2 == 1, 1, -1) * ((j + 1) // 2)
+    lad = np.asarray(s.rho_ladder)
+    start = int(np.argmin(np.abs(np.log(lad) - np.log(s.rho))))
+    run.rho[due] = lad[np.clip(start + offset, 0, lad.size - 1)]
 
 
 def _clarabel_fallback(batch: QPBatch, run: _Run) -> tuple[int, int]:

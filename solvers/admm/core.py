@@ -71,13 +71,23 @@ class PolishSettings(NamedTuple):
     """Numerics of the float64 active-set polish (:mod:`solvers.admm.polish`).
 
     In the flat settings vocabulary of ``solve``/``solve_batch`` and
-    :meth:`ADMMSettings.from_kwargs` these are ``polish_delta``, ``polish_refine_iter`` and
-    ``polish_passes``.
+    :meth:`ADMMSettings.from_kwargs` these are ``polish_delta``, ``polish_refine_iter``,
+    ``polish_passes``, ``polish_stage_passes`` and ``polish_settle_rows``.
+
+    With stages (``ADMMSettings.stage_iter``) the polish is tried after every stage, but only on
+    the QPs whose guessed active set (:func:`solvers.admm.polish.active_guess`) moved by at most
+    ``settle_rows`` rows since the previous stage, and with ``stage_passes`` repair passes: a
+    guess that still moves is rarely one the repair can finish, and each pass is a Cholesky of the
+    active rows.  After the last stage every QP not solved gets ``passes``.
     """
 
     delta: float = 1e-6  # regularisation δ of the reduced KKT system
     refine_iter: int = 3  # iterative-refinement steps per solve
-    passes: int = 25  # active-set repair passes
+    passes: int = 25  # active-set repair passes (after the last stage)
+    stage_passes: int = 4  # active-set repair passes after an earlier stage
+    settle_rows: int = (
+        2  # polish after an earlier stage only where the guess moved ≤ this many rows
+    )
 
 
 #: flat setting name -> field of :class:`PolishSettings`
@@ -85,12 +95,20 @@ _POLISH_NAMES = {
     "polish_delta": "delta",
     "polish_refine_iter": "refine_iter",
     "polish_passes": "passes",
+    "polish_stage_passes": "stage_passes",
+    "polish_settle_rows": "settle_rows",
 }
 
 
 @dataclass(frozen=True)
 class ADMMSettings:
     """Settings of the ``admm`` backend (all explicit; nothing else is changed behind them).
+
+    The defaults are a fixed step ``rho = 62.5`` on the Ruiz-scaled problem, in stages of 200
+    iterations with the polish tried between them.  On the six projection families of
+    ``benchmarks/qp_families.py`` and ``mmdopt bench qp-backends`` a fixed step reached the
+    polish's active set sooner than OSQP's residual-balancing rule over the ladder
+    (``adaptive_rho=True``), which moved the step away from it (docs/experiments/qp-backends.md).
 
     Attributes
     ----------
@@ -100,19 +118,28 @@ class ADMMSettings:
     max_iter : iteration budget per QP (rounded up to a multiple of ``check_every``).
     check_every : iterations between termination/infeasibility checks and rho updates.
     rho : initial step size; the ladder rung nearest to it is the start.
-    rho_ladder : the step sizes whose inverses are precomputed (sorted ascending).
+    rho_ladder : the step sizes whose inverses are precomputed (sorted ascending); without
+        ``adaptive_rho`` only the rung nearest to ``rho`` is computed.
     rho_eq_scale : ``rho`` multiplier on rows that are equalities in every QP of the batch.
     rho_free : the (absolute) rho on rows with both bounds infinite.
     sigma : proximal term on ``x``.
     alpha : over-relaxation.
-    adaptive_rho : re-pick each QP's rung at every check.
+    adaptive_rho : re-pick each QP's rung at every check (OSQP's residual balancing).
+    rho_patience : with stages and without ``adaptive_rho``: every this many iterations that a
+        QP runs unsolved, it moves one rung the way OSQP's residual-balancing rule points, at the
+        end of a stage (``None``: never).  A fixed step finds most projections' active sets
+        fastest; the few it does not suit get another one, slowly enough not to undo the rest.
+    adaptive_rho_tolerance : move only when the rule asks for a rho at least this factor away
+        from the present one (OSQP's ``adaptive_rho_tolerance``); ``1.0`` snaps to the nearest
+        rung at every check.
     scaling_iter : Ruiz equilibration passes (0 = no scaling).
     dtype : iteration dtype, ``"float32"`` or ``"float64"``.
     polish : run the float64 active-set polish after the iterations.
     polish_settings : its numerics, a :class:`PolishSettings` (the regularisation ``δ``,
         iterative-refinement steps, active-set repair passes); given to ``solve``/``solve_batch``,
         :meth:`from_kwargs` and :meth:`replace` by the flat names ``polish_delta``,
-        ``polish_refine_iter``, ``polish_passes``, which are also read-only attributes.
+        ``polish_refine_iter``, ``polish_passes``, ``polish_stage_passes``,
+        ``polish_settle_rows``, which are also read-only attributes.
     stage_iter : ``None`` (one stage of ``max_iter``), or run ADMM in stages of this many
         iterations: after each stage the polish is tried, the QPs it accepts leave the batch and
         the rest continue (warm-started with their rho) in a smaller batch padded to a power of
@@ -130,20 +157,33 @@ class ADMMSettings:
     eps_rel: float = 1e-5
     eps_prim_inf: float = 1e-4
     eps_dual_inf: float = 1e-4
-    max_iter: int = 1000
+    max_iter: int = 4000
     check_every: int = 25
-    rho: float = 0.1
-    rho_ladder: tuple[float, ...] = (0.1 / 125, 0.1 / 25, 0.1 / 5, 0.1, 0.5, 2.5, 12.5)
+    rho: float = 62.5
+    rho_ladder: tuple[float, ...] = (
+        0.1 / 125,
+        0.1 / 25,
+        0.1 / 5,
+        0.1,
+        0.5,
+        2.5,
+        12.5,
+        62.5,
+        312.5,
+        1562.5,
+    )
     rho_eq_scale: float = 1e3
     rho_free: float = 1e-6
     sigma: float = 1e-6
     alpha: float = 1.6
-    adaptive_rho: bool = True
+    adaptive_rho: bool = False
+    adaptive_rho_tolerance: float = 5.0
+    rho_patience: int | None = 1000
     scaling_iter: int = 10
     dtype: str = "float32"
     polish: bool = True
     polish_settings: PolishSettings = PolishSettings()
-    stage_iter: int | None = None
+    stage_iter: int | None = 200
     fallback: str | None = None
     products: str = "auto"
 
@@ -164,6 +204,12 @@ class ADMMSettings:
             raise ValueError("check_every must be ≥ 1 and max_iter ≥ 0")
         if not self.rho_ladder or min(self.rho_ladder) <= 0 or self.rho <= 0:
             raise ValueError("rho and rho_ladder must be positive")
+        if self.rho_patience is not None and self.rho_patience < 1:
+            raise ValueError(f"rho_patience must be None or ≥ 1, got {self.rho_patience!r}")
+        if not self.adaptive_rho_tolerance >= 1.0:
+            raise ValueError(
+                f"adaptive_rho_tolerance must be ≥ 1, got {self.adaptive_rho_tolerance!r}"
+            )
         if not (0 < self.alpha < 2):
             raise ValueError("alpha must be in (0, 2)")
         for name in ("eps_abs", "eps_rel", "eps_prim_inf", "eps_dual_inf", "sigma"):
@@ -182,6 +228,14 @@ class ADMMSettings:
     @property
     def polish_passes(self) -> int:
         return self.polish_settings.passes
+
+    @property
+    def polish_stage_passes(self) -> int:
+        return self.polish_settings.stage_passes
+
+    @property
+    def polish_settle_rows(self) -> int:
+        return self.polish_settings.settle_rows
 
     @classmethod
     def names(cls) -> tuple[str, ...]:
@@ -380,6 +434,9 @@ def admm_factor(
     As = E[:, None] * A * D[None, :]
     Rbase = np.where(eq, s.rho_eq_scale, 1.0)
     ladder = np.asarray(s.rho_ladder, np.float64)
+    if not s.adaptive_rho and (s.stage_iter is None or s.rho_patience is None):
+        # only the start rung is ever used: compute its inverse alone
+        ladder = ladder[_nearest_rung(s) : _nearest_rung(s) + 1]
     Kinv = np.empty((len(ladder), n, n))
     for r, rho in enumerate(ladder):
         R = np.where(free, s.rho_free, rho * Rbase)
@@ -519,11 +576,19 @@ def _mul_At_last(pb: _Scaled, yT):
 
 def _initial_rung(pb: _Scaled, s: ADMMSettings, B: int, rho0, dt) -> jax.Array:
     if rho0 is None:
-        return jnp.full((B,), _nearest_rung(s), jnp.int32)
+        return jnp.full((B,), _start_rung(s), jnp.int32)
     # per-QP start (e.g. the rho a previous run ended with): the nearest rung
     lr = jnp.log(jnp.broadcast_to(jnp.asarray(rho0, dt), (B,)))
     rung = jnp.argmin(jnp.abs(lr[:, None] - jnp.log(pb.ladder)[None, :]), axis=-1)
     return rung.astype(jnp.int32)
+
+
+def _start_rung(s: ADMMSettings) -> int:
+    """The start rung's index in the factor's ladder (which holds only that rung when no rule
+    can move a QP off it: :func:`admm_factor`)."""
+    if not s.adaptive_rho and (s.stage_iter is None or s.rho_patience is None):
+        return 0
+    return _nearest_rung(s)
 
 
 def _nearest_rung(s: ADMMSettings) -> int:
@@ -695,7 +760,8 @@ def _adapt_rung(pb: _Scaled, s: ADMMSettings, r: _Residuals, z, rung, status, ac
     rho_new = pb.ladder[rung] * jnp.sqrt(sp_ / (sd_ + 1e-30))
     lr = jnp.log(jnp.clip(rho_new, 1e-30, 1e30))
     best = jnp.argmin(jnp.abs(lr[:, None] - jnp.log(pb.ladder)[None, :]), axis=-1)
-    keep = ~jnp.isfinite(lr) | (r.prim == 0) | (r.dual == 0)
+    near = jnp.abs(lr - jnp.log(pb.ladder[rung])) < np.log(s.adaptive_rho_tolerance)
+    keep = ~jnp.isfinite(lr) | (r.prim == 0) | (r.dual == 0) | near
     return jnp.where(active & (status == RUNNING_CODE) & ~keep, best.astype(jnp.int32), rung)
 
 
@@ -805,7 +871,7 @@ def admm_iterate(
     # the step sizes R are constants of the loop (no per-step rung dispatch).
     fixed = None
     if rho0 is None and (n_chunks == 1 or not s.adaptive_rho):
-        fixed = (pb.Kinv[_nearest_rung(s)], _row_rho(pb, s, rung)[:1])  # R: (1, m), equal rows
+        fixed = (pb.Kinv[_start_rung(s)], _row_rho(pb, s, rung)[:1])  # R: (1, m), equal rows
 
     inf = jnp.full((B,), jnp.inf, dt)
     zero_b = jnp.zeros((B,), jnp.int32)

@@ -14,7 +14,7 @@ import scipy.linalg as sla
 
 from .core import ADMMSettings, spd_inverse
 
-__all__ = ["PolishData", "polish", "polish_data", "termination"]
+__all__ = ["PolishData", "active_guess", "polish", "polish_data", "termination"]
 
 #: polish keeps repairing the active set until the residuals are this fraction of the tolerance
 _POLISH_EXACT = 1e-3
@@ -164,21 +164,48 @@ def _reduced_kkt(
     return xs, ys
 
 
+def active_guess(pd: PolishData, l, u, z, y) -> np.ndarray:
+    """The active set that the polish guesses from an ADMM iterate: ``(B, m)`` int8, ``-1`` at
+    a lower bound (or an equality), ``+1`` at an upper bound, ``0`` inactive.  OSQP's rule on the
+    scaled problem: row ``i`` is at its lower bound when ``z̄ᵢ − l̄ᵢ < −ȳᵢ`` (Stellato et al.
+    2020, §4.3), at its upper bound when ``ūᵢ − z̄ᵢ < ȳᵢ``."""
+    E, c = pd.E, pd.c
+    ls, us, zs, ysc = E * l, E * u, E * z, c * y / E
+    eq = (ls == us) & np.isfinite(ls)
+    low = ((zs - ls < -ysc) | eq) & np.isfinite(ls)
+    upp = (us - zs < ysc) & np.isfinite(us) & ~low
+    return np.where(low, -1, np.where(upp, 1, 0)).astype(np.int8)
+
+
 def polish(
-    pd: PolishData, P, A, q, l, u, x, z, y, s: ADMMSettings
+    pd: PolishData,
+    P,
+    A,
+    q,
+    l,
+    u,
+    x,
+    z,
+    y,
+    s: ADMMSettings,
+    passes: int | None = None,
+    exact: bool = False,
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
-    """Batched active-set polish (float64).  Inputs unscaled ``(B, ·)``.
+    """Batched active-set polish (float64).  Inputs unscaled ``(B, ·)``; ``passes`` (default
+    ``s.polish_passes``) caps the active-set repair passes; ``exact`` accepts only points whose
+    residuals are within ``1e-3`` of the tolerance (a guess with no misplaced row), as the
+    backend asks after a stage that is not the last (the iterations go on for the others).
 
     Returns ``(accepted, x, y, prim, dual)``: where ``accepted`` the polished point passes the
     termination test (duals projected on the normal cone) — elsewhere the inputs are returned.
     """
     D, E, c = pd.D, pd.E, pd.c
     qs, ls, us = c * D * q, E * l, E * u
-    zs, ysc = E * z, c * y / E
+    ysc = c * y / E
     xsc = x / D
     eq = (ls == us) & np.isfinite(ls)
-    low = ((zs - ls < -ysc) | eq) & np.isfinite(ls)
-    upp = (us - zs < ysc) & np.isfinite(us) & ~low
+    guess = active_guess(pd, l, u, z, y)
+    low, upp = guess < 0, guess > 0
     B = q.shape[0]
     accepted = np.zeros(B, bool)
     xo, yo = x.copy(), y.copy()
@@ -187,7 +214,7 @@ def polish(
     prim_o, dual_o = prim0.copy(), dual0.copy()
     best = np.full(B, np.inf)
     todo = np.arange(B)
-    for _ in range(max(1, s.polish_passes)):
+    for _ in range(max(1, s.polish_passes if passes is None else passes)):
         if todo.size == 0:
             break
         xs_, ys_ = _reduced_kkt(
@@ -205,6 +232,8 @@ def polish(
         score = np.where(ok, np.maximum(prim / eps_p, dual / eps_d), np.inf)
         # better than the ADMM iterate and than any earlier pass
         better = ok & (score <= np.maximum(score0[todo], 1.0)) & (score < best[todo])
+        if exact:
+            better &= score <= _POLISH_EXACT
         acc = todo[better]
         accepted[acc] = True
         best[acc] = score[better]

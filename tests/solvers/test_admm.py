@@ -86,6 +86,57 @@ def test_projection_like_batch_matches_clarabel():
         _agree(sol[i], _ref(qp), qp, x_rtol=1e-6, f_rtol=1e-8, feas=1e-7)
 
 
+def test_defaults_solve_a_projection_batch_exactly():
+    """At its defaults (a fixed step, stages of 200 iterations, the polish between them) every QP
+    of a projection batch is SOLVED at Clarabel's point: x to 1e-6, violation ≤ 1e-7."""
+    batch = projection_like_batch(12, horizon=40, seed=3)
+    sol = solve_batch(batch, "admm")
+    assert sol.settings["stage_iter"] == 200 and not sol.settings["adaptive_rho"]
+    for i, qp in enumerate(batch):
+        _agree(sol[i], _ref(qp), qp, x_rtol=1e-6, f_rtol=1e-8, feas=1e-7)
+
+
+def test_active_guess_is_osqps_rule():
+    """The polish's guess: at the lower bound where z − l < −y, at the upper where u − z < y,
+    equalities always at the lower; nothing where both bounds are infinite."""
+    from solvers.admm.polish import PolishData, active_guess
+
+    pd = PolishData(*(np.eye(1),) * 5, E=np.ones(5), c=1.0)
+    l = np.array([[0.0, 0.0, 0.0, 1.0, -np.inf]])
+    u = np.array([[1.0, 1.0, 1.0, 1.0, np.inf]])
+    z = np.array([[0.01, 0.99, 0.5, 1.0, 3.0]])
+    y = np.array([[-0.1, 0.1, 0.0, 0.0, 0.0]])
+    np.testing.assert_array_equal(active_guess(pd, l, u, z, y), [[-1, 1, 0, -1, 0]])
+
+
+def test_new_settings_are_checked_by_name():
+    with pytest.raises(ValueError, match="rho_patience"):
+        ADMMSettings(rho_patience=0)
+    with pytest.raises(ValueError, match="adaptive_rho_tolerance"):
+        ADMMSettings(adaptive_rho_tolerance=0.5)
+    s = ADMMSettings.from_kwargs(polish_stage_passes=2, polish_settle_rows=0)
+    assert (s.polish_stage_passes, s.polish_settle_rows) == (2, 0)
+
+
+def test_patient_rho_tries_both_neighbours_of_the_start():
+    """A QP still unsolved after every ``rho_patience`` iterations tries the rungs around its
+    start: first the side the residual-balancing rule points to, then the other, then further."""
+    batch = projection_like_batch(1, horizon=12, seed=0)
+    P, A = (np.asarray(m) for m in batch.dense())
+    s = ADMMSettings(rho_patience=100)
+    run = admm_backend._Run.start(batch, None, s)
+    lad = np.asarray(s.rho_ladder)
+    start = int(np.argmin(np.abs(np.log(lad) - np.log(s.rho))))
+    seen = []
+    for stage in range(1, 9):
+        run.iters[:] = 50 * stage  # stages of 50 iterations: a move every second stage
+        admm_backend._patient_rho(run, P, A, batch.q, batch.l, batch.u, np.array([0]), 50, s)
+        seen.append(int(np.argmin(np.abs(np.log(lad) - np.log(run.rho[0])))) - start)
+    side = seen[1]
+    assert side in (1, -1)
+    assert seen == [0, side, side, -side, -side, 2 * side, 2 * side, -2 * side]
+
+
 def test_no_polish_still_within_admm_tolerance():
     """Without polish: SOLVED means the OSQP test holds; f to 1e-3 relative of Clarabel."""
     batch = projection_like_batch(8, horizon=30, seed=1)
@@ -185,10 +236,12 @@ def test_jitted_equals_eager_on_a_tiny_batch(dtype, atol):
 
 
 def test_core_vmaps_over_single_problems_like_the_batch():
-    """``vmap`` of the core over 1-D problems equals the batched call (x to 1e-5, float32)."""
+    """``vmap`` of the core over 1-D problems equals the batched call (x to 1e-5, float32).
+    The core alone has no polish: OSQP's adaptive rho from 0.1 suits these general small QPs."""
     P, A, q, l, u = _tiny()
     eq, free = rows_from_bounds(l, u)
-    f = admm_factor(P, A, eq_rows=eq, free_rows=free)
+    s = ADMMSettings(rho=0.1, adaptive_rho=True)
+    f = admm_factor(P, A, s, eq_rows=eq, free_rows=free)
     batched = admm_iterate(f, q, l, u, iters=300)
     vm = jax.jit(jax.vmap(lambda q, l, u: admm_iterate(f, q, l, u, iters=300)))(q, l, u)
     assert vm.x.shape == (4, 3)
