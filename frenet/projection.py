@@ -863,7 +863,6 @@ def _projector_settings(problem: ProjectionProblem, num_iters, dtype, settings):
         polish=False,
         rho=62.5,
         adaptive_rho=True,
-        adaptive_rho_tolerance=1.0,
         rho_ladder=(0.1 / 125, 0.1 / 25, 0.1 / 5, 0.1, 0.5, 2.5, 12.5, 62.5, 312.5),
     )
     base.update(settings or {})

@@ -320,7 +320,7 @@ def _run_stage(
     run.t_pol += time.perf_counter() - t2
     # only QPs that ran out of iterations and were not polished go on
     go = todo[(stt == STATUS_CODES.MAX_ITER) & ~run.polished[todo]]
-    if s.rho_patience is not None and not s.adaptive_rho and go.size:
+    if s.rho_patience is not None and not s.adaptive_rho and go.size and not last:
         _patient_rho(run, P, A, q, l, u, go, k, s)
     return go
 

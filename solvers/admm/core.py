@@ -72,22 +72,27 @@ class PolishSettings(NamedTuple):
 
     In the flat settings vocabulary of ``solve``/``solve_batch`` and
     :meth:`ADMMSettings.from_kwargs` these are ``polish_delta``, ``polish_refine_iter``,
-    ``polish_passes``, ``polish_stage_passes`` and ``polish_settle_rows``.
+    ``polish_passes``, ``polish_stage_passes``, ``polish_settle_rows`` and ``rho_patience``.
 
     With stages (``ADMMSettings.stage_iter``) the polish is tried after every stage, but only on
     the QPs whose guessed active set (:func:`solvers.admm.polish.active_guess`) moved by at most
     ``settle_rows`` rows since the previous stage, and with ``stage_passes`` repair passes: a
     guess that still moves is rarely one the repair can finish, and each pass is a Cholesky of the
     active rows.  After the last stage every QP not solved gets ``passes``.
+
+    ``rho_patience`` (flat name ``rho_patience``), with stages and without ``adaptive_rho``: every
+    this many iterations that a QP runs unsolved, it tries another rung around its start, at the
+    end of a stage (first the side OSQP's residual-balancing rule points to, then the other, then
+    further; ``None``: never).  A fixed step finds most projections' active sets fastest; the few
+    it does not suit get another one, slowly enough not to undo the rest.
     """
 
     delta: float = 1e-6  # regularisation δ of the reduced KKT system
     refine_iter: int = 3  # iterative-refinement steps per solve
     passes: int = 25  # active-set repair passes (after the last stage)
     stage_passes: int = 4  # active-set repair passes after an earlier stage
-    settle_rows: int = (
-        2  # polish after an earlier stage only where the guess moved ≤ this many rows
-    )
+    settle_rows: int = 2  # after an earlier stage: polish where the guess moved ≤ this many rows
+    rho_patience: int | None = 1000  # iterations between a straggler's rho moves (None: never)
 
 
 #: flat setting name -> field of :class:`PolishSettings`
@@ -97,6 +102,7 @@ _POLISH_NAMES = {
     "polish_passes": "passes",
     "polish_stage_passes": "stage_passes",
     "polish_settle_rows": "settle_rows",
+    "rho_patience": "rho_patience",
 }
 
 
@@ -125,13 +131,6 @@ class ADMMSettings:
     sigma : proximal term on ``x``.
     alpha : over-relaxation.
     adaptive_rho : re-pick each QP's rung at every check (OSQP's residual balancing).
-    rho_patience : with stages and without ``adaptive_rho``: every this many iterations that a
-        QP runs unsolved, it moves one rung the way OSQP's residual-balancing rule points, at the
-        end of a stage (``None``: never).  A fixed step finds most projections' active sets
-        fastest; the few it does not suit get another one, slowly enough not to undo the rest.
-    adaptive_rho_tolerance : move only when the rule asks for a rho at least this factor away
-        from the present one (OSQP's ``adaptive_rho_tolerance``); ``1.0`` snaps to the nearest
-        rung at every check.
     scaling_iter : Ruiz equilibration passes (0 = no scaling).
     dtype : iteration dtype, ``"float32"`` or ``"float64"``.
     polish : run the float64 active-set polish after the iterations.
@@ -139,7 +138,7 @@ class ADMMSettings:
         iterative-refinement steps, active-set repair passes); given to ``solve``/``solve_batch``,
         :meth:`from_kwargs` and :meth:`replace` by the flat names ``polish_delta``,
         ``polish_refine_iter``, ``polish_passes``, ``polish_stage_passes``,
-        ``polish_settle_rows``, which are also read-only attributes.
+        ``polish_settle_rows``, ``rho_patience``, which are also read-only attributes.
     stage_iter : ``None`` (one stage of ``max_iter``), or run ADMM in stages of this many
         iterations: after each stage the polish is tried, the QPs it accepts leave the batch and
         the rest continue (warm-started with their rho) in a smaller batch padded to a power of
@@ -177,8 +176,6 @@ class ADMMSettings:
     sigma: float = 1e-6
     alpha: float = 1.6
     adaptive_rho: bool = False
-    adaptive_rho_tolerance: float = 5.0
-    rho_patience: int | None = 1000
     scaling_iter: int = 10
     dtype: str = "float32"
     polish: bool = True
@@ -204,12 +201,9 @@ class ADMMSettings:
             raise ValueError("check_every must be ≥ 1 and max_iter ≥ 0")
         if not self.rho_ladder or min(self.rho_ladder) <= 0 or self.rho <= 0:
             raise ValueError("rho and rho_ladder must be positive")
-        if self.rho_patience is not None and self.rho_patience < 1:
-            raise ValueError(f"rho_patience must be None or ≥ 1, got {self.rho_patience!r}")
-        if not self.adaptive_rho_tolerance >= 1.0:
-            raise ValueError(
-                f"adaptive_rho_tolerance must be ≥ 1, got {self.adaptive_rho_tolerance!r}"
-            )
+        p = self.polish_settings.rho_patience
+        if p is not None and p < 1:
+            raise ValueError(f"rho_patience must be None or ≥ 1, got {p!r}")
         if not (0 < self.alpha < 2):
             raise ValueError("alpha must be in (0, 2)")
         for name in ("eps_abs", "eps_rel", "eps_prim_inf", "eps_dual_inf", "sigma"):
@@ -236,6 +230,10 @@ class ADMMSettings:
     @property
     def polish_settle_rows(self) -> int:
         return self.polish_settings.settle_rows
+
+    @property
+    def rho_patience(self) -> int | None:
+        return self.polish_settings.rho_patience
 
     @classmethod
     def names(cls) -> tuple[str, ...]:
@@ -760,8 +758,7 @@ def _adapt_rung(pb: _Scaled, s: ADMMSettings, r: _Residuals, z, rung, status, ac
     rho_new = pb.ladder[rung] * jnp.sqrt(sp_ / (sd_ + 1e-30))
     lr = jnp.log(jnp.clip(rho_new, 1e-30, 1e30))
     best = jnp.argmin(jnp.abs(lr[:, None] - jnp.log(pb.ladder)[None, :]), axis=-1)
-    near = jnp.abs(lr - jnp.log(pb.ladder[rung])) < np.log(s.adaptive_rho_tolerance)
-    keep = ~jnp.isfinite(lr) | (r.prim == 0) | (r.dual == 0) | near
+    keep = ~jnp.isfinite(lr) | (r.prim == 0) | (r.dual == 0)
     return jnp.where(active & (status == RUNNING_CODE) & ~keep, best.astype(jnp.int32), rung)
 
 
