@@ -326,8 +326,10 @@ class Futures:
 
     @functools.cached_property
     def _units_cache(self) -> tuple[np.ndarray, np.ndarray]:
-        # the carried heading units of the futures asked for so far, and which those are
-        return aligned_empty(self.planes.shape, np.float32), np.zeros(self.shape[:2], bool)
+        # the carried heading units of the futures asked for so far (O, n, 2, K): future-major,
+        # so that storing and gathering a future's units copies one contiguous row; and which
+        O, _, K, n = self.planes.shape
+        return np.empty((O, n, 2, K), np.float32), np.zeros(self.shape[:2], bool)
 
     def _carried(self, idx: np.ndarray) -> np.ndarray:
         """(O, 2, K, J) the carried heading units (:func:`_carried_units`) of the futures
@@ -344,12 +346,11 @@ class Futures:
             pad = np.concatenate([rows, np.repeat(rows[:1], _size_bucket(R) - R, 0)])
             xy = self.planes[pad[:, 0], :, :, pad[:, 1]].transpose(0, 2, 1)  # (B, K, 2)
             cx, cy = (np.asarray(a)[:R] for a in _carried_units(np.ascontiguousarray(xy)))
-            u[rows[:, 0], 0, :, rows[:, 1]] = cx
-            u[rows[:, 0], 1, :, rows[:, 1]] = cy
+            u[rows[:, 0], rows[:, 1]] = np.stack([cx, cy], axis=1)  # (R, 2, K)
             have[rows[:, 0], rows[:, 1]] = True
-        out = aligned_empty((O, 2, u.shape[2], J), np.float32)
+        out = aligned_empty((O, 2, u.shape[3], J), np.float32)
         for o in range(O):
-            out[o] = u[o][:, :, idx[o]]
+            out[o] = u[o][idx[o]].transpose(1, 2, 0)
         return out
 
     def q(self, s, d, a: float, b: float, windows: int = 1) -> np.ndarray:
