@@ -4,11 +4,15 @@ Meant for small dense shared matrices (``n`` up to a few hundred; a warning is g
 ``n = 2000``): ``P`` and ``A`` are densified, and the batch of ``q, l, u`` is solved with batched
 matrix products (:mod:`solvers.admm.core`), on GPU when JAX has one, on CPU otherwise.
 
-* Iterations run in ``dtype`` (float32 by default) under a fixed budget ``max_iter``; converged,
-  infeasible or broken QPs are frozen by a per-QP mask, so a slow QP never holds the batch.
-* Then (``polish=True``) a batched active-set polish in float64 NumPy
-  (:mod:`solvers.admm.polish`).  A polished point replaces the ADMM iterate only where it passes
-  the same termination test (with its duals projected onto the normal cone) and is no worse.
+* Iterations run in ``dtype`` (float32 by default) under a fixed budget ``max_iter``, in stages
+  of ``stage_iter`` (200 by default); converged, infeasible or broken QPs are frozen by a per-QP
+  mask, so a slow QP never holds the batch, and later stages run only the QPs still going.
+* Between stages (``polish=True``) a batched active-set polish in float64 NumPy
+  (:mod:`solvers.admm.polish`), on the QPs whose guessed active set has settled, accepting only
+  an exact point; after the last stage, and for QPs the iterations declare solved, the full
+  polish.  A polished point replaces the ADMM iterate only where it passes the same termination
+  test (with its duals projected onto the normal cone) and is no worse.  A QP still going every
+  ``rho_patience`` iterations tries another step size (:class:`~solvers.admm.PolishSettings`).
 * Optional, visible and counted: ``fallback="clarabel"`` re-solves the QPs still not solved.
 * Infeasibility claims are re-checked in float64 on the unscaled data (OSQP's certificates on
   the last ``δx``/``δy``); a claim that does not hold becomes ``MAX_ITER`` (then the fallback,
