@@ -432,9 +432,9 @@ def admm_factor(
     As = E[:, None] * A * D[None, :]
     Rbase = np.where(eq, s.rho_eq_scale, 1.0)
     ladder = np.asarray(s.rho_ladder, np.float64)
-    if not s.adaptive_rho and (s.stage_iter is None or s.rho_patience is None):
-        # only the start rung is ever used: compute its inverse alone
-        ladder = ladder[_nearest_rung(s) : _nearest_rung(s) + 1]
+    if _single_rung(s):  # only the start rung is ever used: compute its inverse alone
+        r0 = _nearest_rung(s)
+        ladder = ladder[r0 : r0 + 1]
     Kinv = np.empty((len(ladder), n, n))
     for r, rho in enumerate(ladder):
         R = np.where(free, s.rho_free, rho * Rbase)
@@ -581,12 +581,15 @@ def _initial_rung(pb: _Scaled, s: ADMMSettings, B: int, rho0, dt) -> jax.Array:
     return rung.astype(jnp.int32)
 
 
+def _single_rung(s: ADMMSettings) -> bool:
+    """Whether no rule can move a QP off its start rung (no adaptive rho, and no stages with a
+    patience): the factor then holds that rung alone."""
+    return not s.adaptive_rho and (s.stage_iter is None or s.rho_patience is None)
+
+
 def _start_rung(s: ADMMSettings) -> int:
-    """The start rung's index in the factor's ladder (which holds only that rung when no rule
-    can move a QP off it: :func:`admm_factor`)."""
-    if not s.adaptive_rho and (s.stage_iter is None or s.rho_patience is None):
-        return 0
-    return _nearest_rung(s)
+    """The start rung's index in the factor's ladder (:func:`_single_rung`: its only one)."""
+    return 0 if _single_rung(s) else _nearest_rung(s)
 
 
 def _nearest_rung(s: ADMMSettings) -> int:
