@@ -325,32 +325,32 @@ class Futures:
         return out
 
     @functools.cached_property
-    def _units_cache(self) -> tuple[np.ndarray, np.ndarray]:
-        # the carried heading units of the futures asked for so far (O, n, 2, K): future-major,
-        # so that storing and gathering a future's units copies one contiguous row; and which
+    def _units_cache(self) -> _UnitsCache:
+        # the carried heading units of the futures asked for so far, packed (a plan asks for a
+        # few hundred of tens of thousands: a whole-set array would be paged in for them)
         O, _, K, n = self.planes.shape
-        return np.empty((O, n, 2, K), np.float32), np.zeros(self.shape[:2], bool)
+        return _UnitsCache(O, n, K)
 
     def _carried(self, idx: np.ndarray) -> np.ndarray:
         """(O, 2, K, J) the carried heading units (:func:`_carried_units`) of the futures
         ``idx`` (O, J): each future's are formed once per set (a plan's counts ask for many
         overlapping subsets) and kept."""
-        u, have = self._units_cache
+        cache = self._units_cache
         O, J = idx.shape
         oo = np.repeat(np.arange(O), J)
         flat = idx.reshape(-1)
-        need = ~have[oo, flat]
+        need = cache.slot[oo, flat] < 0
         if need.any():
-            rows = np.unique(np.stack([oo[need], flat[need]], 1), axis=0)  # (R, 2)
-            R = rows.shape[0]
-            pad = np.concatenate([rows, np.repeat(rows[:1], _size_bucket(R) - R, 0)])
-            xy = self.planes[pad[:, 0], :, :, pad[:, 1]].transpose(0, 2, 1)  # (B, K, 2)
-            cx, cy = (np.asarray(a)[:R] for a in _carried_units(np.ascontiguousarray(xy)))
-            u[rows[:, 0], rows[:, 1]] = np.stack([cx, cy], axis=1)  # (R, 2, K)
-            have[rows[:, 0], rows[:, 1]] = True
-        out = aligned_empty((O, 2, u.shape[3], J), np.float32)
+            n = self.planes.shape[3]
+            rows = np.stack(np.divmod(np.unique(oo[need] * n + flat[need]), n), 1)  # (R, 2)
+            R, K = rows.shape[0], self.planes.shape[2]
+            xy = np.zeros((_units_bucket(R), K, 2), np.float32)  # padding: still, never read
+            xy[:R] = self.planes[rows[:, 0], :, :, rows[:, 1]].transpose(0, 2, 1)
+            cx, cy = (np.asarray(a)[:R] for a in _carried_units(xy))
+            cache.add(rows, np.stack([cx, cy], axis=1))  # (R, 2, K)
+        out = aligned_empty((O, 2, self.planes.shape[2], J), np.float32)
         for o in range(O):
-            out[o] = u[o][idx[o]].transpose(1, 2, 0)
+            out[o] = cache.units[cache.slot[o, idx[o]]].transpose(1, 2, 0)
         return out
 
     def q(self, s, d, a: float, b: float, windows: int = 1) -> np.ndarray:
@@ -395,12 +395,46 @@ class Futures:
         return self.q(s, d, a, b)[..., 0] < 1.0
 
 
+class _UnitsCache:
+    """The carried heading units of some futures of a set, packed: ``units[slot[o, j]]`` (2, K)
+    float32 is future j of obstacle o's, where ``slot[o, j]`` ≥ 0 (future-major, so that storing
+    and gathering a future's units copies one contiguous row)."""
+
+    def __init__(self, O: int, n: int, K: int) -> None:
+        self.slot = np.full((O, n), -1, np.int64)
+        self.units = np.empty((0, 2, K), np.float32)
+        self.size = 0
+
+    def add(self, rows: np.ndarray, units: np.ndarray) -> None:
+        """Keep ``units`` (R, 2, K) of the futures ``rows`` (R, 2) (obstacle, position), none
+        of them kept yet."""
+        R = rows.shape[0]
+        end = self.size + R
+        if end > self.units.shape[0]:  # grow geometrically: a plan's few additions amortise
+            grown = np.empty((max(end, 2 * self.units.shape[0]),) + self.units.shape[1:],
+                             np.float32)  # fmt: skip
+            grown[: self.size] = self.units[: self.size]
+            self.units = grown
+        self.units[self.size : end] = units
+        self.slot[rows[:, 0], rows[:, 1]] = np.arange(self.size, end)
+        self.size = end
+
+
 def _size_bucket(c: int) -> int:
     """The futures per obstacle a subset count is padded to: :data:`INDEX_BUCKET` times the least
     power of 8 that holds ``c`` (one compiled count per bucket)."""
     size = INDEX_BUCKET
     while size < c:
         size *= 8
+    return size
+
+
+def _units_bucket(c: int) -> int:
+    """The futures a carried-units computation is padded to: 64 times the least power of 4 that
+    holds ``c`` (a plan forms a few hundred at a time; one compiled program per bucket)."""
+    size = 64
+    while size < c:
+        size *= 4
     return size
 
 
