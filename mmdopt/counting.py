@@ -344,7 +344,7 @@ class Futures:
             n = self.planes.shape[3]
             rows = np.stack(np.divmod(np.unique(oo[need] * n + flat[need]), n), 1)  # (R, 2)
             R, K = rows.shape[0], self.planes.shape[2]
-            xy = np.zeros((_units_bucket(R), K, 2), np.float32)  # padding: still, never read
+            xy = np.zeros((_size_bucket(R), K, 2), np.float32)  # padding: still, never read
             xy[:R] = self.planes[rows[:, 0], :, :, rows[:, 1]].transpose(0, 2, 1)
             cx, cy = (np.asarray(a)[:R] for a in _carried_units(xy))
             cache.add(rows, np.stack([cx, cy], axis=1))  # (R, 2, K)
@@ -426,15 +426,6 @@ def _size_bucket(c: int) -> int:
     size = INDEX_BUCKET
     while size < c:
         size *= 8
-    return size
-
-
-def _units_bucket(c: int) -> int:
-    """The futures a carried-units computation is padded to: 64 times the least power of 4 that
-    holds ``c`` (a plan forms a few hundred at a time; one compiled program per bucket)."""
-    size = 64
-    while size < c:
-        size *= 4
     return size
 
 
