@@ -18,6 +18,7 @@ iterations.  Stages:
 
 from __future__ import annotations
 
+import argparse
 import time
 
 import jax
@@ -46,7 +47,8 @@ def in_graph_ms(f, xs, repeats: int = 40) -> float:
     return float(np.median(ts)) / R * 1e3
 
 
-def main() -> None:
+def main(argv=None) -> None:
+    argparse.ArgumentParser(description=__doc__.splitlines()[0]).parse_args(argv)
     sc = demo_scene()
     cfg = scene_config(sc)
     p = mmdopt.plan(sc.ego(), sc.road(), sc.obstacles, config=cfg, key=jax.random.PRNGKey(0))

@@ -9,8 +9,8 @@ of the human, collision-free of the validation futures (mean), median plan time 
 
 from __future__ import annotations
 
+import argparse
 import csv
-import sys
 from pathlib import Path
 
 import numpy as np
@@ -47,7 +47,15 @@ HEADER = (
     "futures (mean) | median plan time (s) |\n|---|---|---|---|---|---|---|---|---|---|---|"
 )
 
-if __name__ == "__main__":
-    for f in sys.argv[1:]:
+
+def main(argv=None) -> int:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("out", nargs="+", help="folders written by mmdopt bench ngsim")
+    for f in ap.parse_args(argv).out:
         print(f"{f}\n{HEADER}")
         print("\n".join(rows(f)))
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

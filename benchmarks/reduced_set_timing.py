@@ -27,8 +27,12 @@ import time
 import jax
 import numpy as np
 
-import mmdopt
-from mmdopt.reduced_set import ReducedSetConfig, select_reduced_set, select_reduced_set_unchecked
+from mmdopt.reduced_set import (
+    SELECTORS,
+    ReducedSetConfig,
+    select_reduced_set,
+    select_reduced_set_unchecked,
+)
 
 
 def two_intent(seed: int, n: int = 100, k: int = 100, p_keep: float = 0.8, dt: float = 0.1):
@@ -174,7 +178,12 @@ def compare_modes(
 def main():
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--m", type=int, nargs="+", default=[10, 20, 30, 40, 50])
-    ap.add_argument("--methods", nargs="+", default=list(mmdopt.METHODS))
+    ap.add_argument(
+        "--methods",
+        nargs="+",
+        default=list(SELECTORS),
+        help="selectors (mmdopt.reduced_set.SELECTORS; former names accepted)",
+    )
     ap.add_argument("--repeats", type=int, default=20)
     ap.add_argument(
         "--reference",
