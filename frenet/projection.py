@@ -864,6 +864,8 @@ def _projector_settings(problem: ProjectionProblem, num_iters, dtype, settings):
         rho=62.5,
         adaptive_rho=True,
         rho_ladder=(0.1 / 125, 0.1 / 25, 0.1 / 5, 0.1, 0.5, 2.5, 12.5, 62.5, 312.5),
+        eps_abs=1e-5,  # the early stop of a fixed budget: its own, not the backend's default
+        eps_rel=1e-5,
     )
     base.update(settings or {})
     return ADMMSettings.from_kwargs(**base)

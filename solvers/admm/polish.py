@@ -230,8 +230,12 @@ def polish(
         ok, prim, dual, eps_p, eps_d = termination(P, A, q[todo], l[todo], u[todo], xp, yproj, s)
         ok &= np.all(np.isfinite(xp), axis=1) & np.all(np.isfinite(yproj), axis=1)
         score = np.where(ok, np.maximum(prim / eps_p, dual / eps_d), np.inf)
-        # better than the ADMM iterate and than any earlier pass
+        # better than the ADMM iterate and than any earlier pass, and no further outside the
+        # bounds than that iterate (a point exact to 1e-3 of the tolerance aside): on a
+        # near-degenerate corner a guess with one misplaced row can trade a smaller dual
+        # residual for a larger violation, still within a relative tolerance of metre-scale rows
         better = ok & (score <= np.maximum(score0[todo], 1.0)) & (score < best[todo])
+        better &= prim <= np.maximum(prim0[todo], _POLISH_EXACT * eps_p)
         if exact:
             better &= score <= _POLISH_EXACT
         acc = todo[better]
