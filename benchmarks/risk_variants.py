@@ -9,6 +9,11 @@ futures, the mean progress and the median plan time over the scenes.
         --variants "mmd:0.005;mmd:0.1;mmd:0.1:reselect=0;mmd:0.1:w_cover=0;saa:0.005;saa:0.02"
     python -m benchmarks.risk_variants --preset lanechange --scenes 30 \\
         --variants "mmd:0.001;mmd:0.001:reselect=20;degroot:0.001;saa:0.001"
+    python -m benchmarks.risk_variants --preset cutin-low --obstacles 3 --forecast --scenes 8 \\
+        --variants "mmd:0.005;mmd:0.005:nearest_repeats=0"
+
+``--forecast`` plans through the scene's predictor (n(ε) futures per obstacle, as the frontier
+does) instead of on its fixed samples; ``--obstacles`` overrides the preset's obstacle count.
 """
 
 from __future__ import annotations
@@ -43,19 +48,23 @@ def main(argv=None) -> None:
     ap.add_argument("--scenes", type=int, default=6)
     ap.add_argument("--n-samples", type=int, default=None, help="planning samples per obstacle")
     ap.add_argument("--variants", required=True, help="';'-separated method:eps[:k=v,...]")
+    ap.add_argument("--obstacles", type=int, default=None, help="obstacles (default: preset's)")
+    ap.add_argument("--forecast", action="store_true", help="plan through the scene's predictor")
     args = ap.parse_args(argv)
     if args.seed in (0, 1):
         ap.error("seeds 0 and 1 are the validation seeds: tune on another one")
     params = PRESETS[args.preset]
     if args.n_samples is not None:
         params = dataclasses.replace(params, n_samples=args.n_samples)
+    if args.obstacles is not None:
+        params = dataclasses.replace(params, num_obstacles=args.obstacles)
     variants = [parse_variant(v) for v in args.variants.split(";") if v.strip()]
     rows: dict[int, list] = {i: [] for i in range(len(variants))}
     for s in range(args.scenes):
         scene = make_scene(s, args.seed, params)
         for i, (method, eps, over) in enumerate(variants):
             cfg = config_for_risk(method, eps).replace(**over)
-            row, _ = run_scene(scene, method, config=cfg)
+            row, _ = run_scene(scene, method, config=cfg, forecast=args.forecast)
             rows[i].append((row["collision_free"], row["progress_m"], row["plan_time_s"]))
     print(f"{'variant':36s} {'mean cf':>8s} {'min cf':>7s} {'progress m':>11s} {'time s':>7s}")
     for i, spec in enumerate(v.strip() for v in args.variants.split(";") if v.strip()):
