@@ -74,12 +74,13 @@ class Observation:
     road : :class:`mmdopt.Road` (path, lane bounds, kinematic limits)
     obstacles : (O, n, K, 2) Cartesian samples of the obstacles' futures on the planner's grid
         (``K = config.trajectory.num_steps`` over ``config.trajectory.horizon``; ``t = 0`` is
-        now); O may be 0 (an
-        empty road: the loop then plans against one phantom obstacle far behind, see
-        :func:`pad_obstacles`).  Or a :class:`mmdopt.predict.Forecast`: the loop draws from it
-        as :func:`mmdopt.plan` would (n(ε) futures per obstacle in the "samples" margin mode,
-        ``min_samples`` with the time-linear margins; the plan's key), then pads, plans and
-        shields on the drawn futures, and hands the callback the observation with them
+        now); O may be 0 (an empty road: with the time-linear margins the loop pads with
+        phantom obstacles far behind, see :func:`pad_obstacles`; on the risk dial it never
+        pads, and an empty road is planned as one, status ``ok`` with a bound of 0).  Or a
+        :class:`mmdopt.predict.Forecast`: the loop draws from it as :func:`mmdopt.plan` would
+        (n(ε) futures per obstacle in the "samples" margin mode, ``min_samples`` with the
+        time-linear margins; the plan's key), then plans and shields on the drawn futures, and
+        hands the callback the observation with them
     time : simulation time (s)
     info : anything the source wants recorded with the step (e.g. ``predict_s``, the predictor's
         wall time)
@@ -304,16 +305,21 @@ def _plan_once(obs: Observation, rc: RecedingConfig, planner, config: MMDOptConf
                t_grid):  # fmt: skip
     """One plan of the loop: ``(plan, warm start used, obs with its obstacles drawn)``; the
     plan time covers ``planner.plan`` only (a forecast's draw is the observation's
-    ``info["predict_s"]``).  A forecast drawn for the risk dial (the "samples" margin mode) is
-    not padded with phantoms: they would count as obstacles in the plan's risk bound."""
+    ``info["predict_s"]``).  On the risk dial (the "samples" margin mode) the obstacles, drawn
+    from a forecast or given as arrays, are cut to ``rc.max_obstacles`` but never padded with
+    phantoms: they would count as obstacles in the plan's risk bound, and an empty road would
+    no longer be the planner's own case (status ``ok``, a bound of 0) but phantoms whose few
+    samples support no ε (``risk floor``)."""
     heads = _observed_headings(obs)
     obs, drawn = _drawn(obs, rc, config, key)
     num = rc.max_obstacles
-    if drawn and drawn.get("forecast_samples_needed") is not None:
-        num = None  # the real obstacles only (at least one)
+    if config.safety.margins.margin_mode == "samples":  # the real obstacles only, maybe none
+        O = int(np.shape(obs.obstacles)[0])
+        num = O if num is None else min(O, num)
     obstacles = pad_obstacles(obs.obstacles, num, obs.ego, obs.road, t_grid)
     kw: dict[str, Any] = dict(method=rc.method, projector=rc.projector, key=key)
-    if heads is not None:  # cut as the obstacles were; phantoms along the path at the ego
+    if heads is not None and obstacles.shape[0] > 0:
+        # cut as the obstacles were; phantoms along the path at the ego
         O = obstacles.shape[0]
         pad = float(np.asarray(obs.road.path.heading(np.asarray([obs.ego.s])))[0])
         kw["obstacle_headings"] = np.concatenate(

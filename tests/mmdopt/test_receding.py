@@ -242,6 +242,36 @@ def test_empty_road_plans_against_a_phantom():
     assert all(r.cost < 1.0 for r in res.steps)
 
 
+def test_on_the_risk_dial_an_empty_road_reaches_the_planner_empty():
+    """The loop never pads with phantoms on the risk dial (they would count in the plan's bound,
+    and their few samples support no ε: every plan said ``risk floor``); an empty road is then
+    the planner's own case, ``ok`` with a bound of 0.  With the time-linear margins it still
+    pads to ``max_obstacles``, so the shapes stay fixed."""
+
+    class Empty(TwoLaneScene):
+        def observe(self):
+            o = super().observe()
+            return Observation(ego=o.ego, road=o.road, obstacles=np.zeros((0, 10, len(T), 2)))
+
+    class Seen(CountingPlanner):
+        def plan(self, ego, road, obstacles, **kw):
+            self.calls.append(dict(kw, shape=np.shape(obstacles)))
+            return self.inner.plan(ego, road, obstacles, **kw)
+
+    for mode, given in (("samples", 0), ("linear", 1)):
+        pl = Seen(CFG.replace(margin_mode=mode, risk=0.01))
+        seen = []
+        res = run_receding(
+            Empty(duration=1.0), RecedingConfig(max_obstacles=1), planner=pl,
+            key=jax.random.PRNGKey(0), callback=lambda i, obs, p, out: seen.append(p),
+        )  # fmt: skip
+        assert [c["shape"][0] for c in pl.calls] == [given, given]
+        assert res.done and all(r.n_obstacles == 0 for r in res.steps)
+        if mode == "samples":
+            assert all(r.status == "ok" for r in res.steps), [r.status for r in res.steps]
+            assert all(p.risk_bound == 0.0 for p in seen)
+
+
 def test_pad_obstacles_shapes_and_phantoms_far_behind():
     road = mmdopt.Road()
     ego = frenet.EgoState(s=100.0, d=0.0, vs=10.0)
