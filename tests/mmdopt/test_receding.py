@@ -260,10 +260,10 @@ def test_on_the_risk_dial_an_empty_road_reaches_the_planner_empty():
 
     for mode, given in (("samples", 0), ("linear", 1)):
         pl = Seen(CFG.replace(margin_mode=mode, risk=0.01))
-        seen = []
+        seen: list = []
         res = run_receding(
             Empty(duration=1.0), RecedingConfig(max_obstacles=1), planner=pl,
-            key=jax.random.PRNGKey(0), callback=lambda i, obs, p, out: seen.append(p),
+            key=jax.random.PRNGKey(0), callback=lambda i, obs, p, out, seen=seen: seen.append(p),
         )  # fmt: skip
         assert [c["shape"][0] for c in pl.calls] == [given, given]
         assert res.done and all(r.n_obstacles == 0 for r in res.steps)
