@@ -381,21 +381,58 @@ def warm_up(
     key=None,
     *,
     planner: PlansLike | None = None,
+    counts=None,
 ) -> float:
     """Compile the planner for the loop's shapes before timing it: one cold plan on ``obs`` and,
     when warm starts are used, one warm-started plan (a different traced input).  Returns the
     wall time (s), i.e. mostly JIT compilation.  Results are discarded; the loop's own plans are
-    unaffected (they use their own keys).  ``planner`` as in :func:`run_receding`."""
+    unaffected (they use their own keys).  ``planner`` as in :func:`run_receding`.
+
+    ``counts``: also compile for these numbers of obstacles (ints >= 1), planning on the
+    futures drawn for ``obs`` with its obstacles repeated or cut to each count.  On the risk
+    dial the loop never pads with phantoms, so each number of cars it meets is a shape of its
+    own; warmed up here, a car entering or leaving the scene costs a plan, not a compile (with
+    the time-linear margins the loop pads to ``max_obstacles``: one shape, no counts needed).
+    Nothing is done for the counts when ``obs`` has no obstacles."""
     planner, config = _planner_of(planner, config)
     key = jax.random.PRNGKey(0) if key is None else key
+    ks = _check_counts(counts)
     t_grid = frenet.TimeGrid(config.trajectory.horizon, config.trajectory.num_steps).t
     t0 = time.perf_counter()
-    p, _, _ = _plan_once(obs, receding, planner, config, key, None, t_grid)
+    p, _, drawn = _plan_once(obs, receding, planner, config, key, None, t_grid)
     if receding.warm_start:
         warm = _shifted(p, receding.dt)
         if warm is not None:
             _plan_once(obs, receding, planner, config, key, warm, t_grid)
+    arr = np.asarray(drawn.obstacles)
+    O = int(arr.shape[0])
+    heads = _observed_headings(obs)
+    for k in ks if O > 0 else ():
+        if k == O:
+            continue
+        idx = np.resize(np.arange(O), k)  # the cars in turn: 0, 1, …, O − 1, 0, …
+        variant = dataclasses.replace(
+            drawn, obstacles=arr[idx], obstacle_states=None,
+            obstacle_headings=None if heads is None else heads[:O][idx],
+        )  # fmt: skip
+        p, _, _ = _plan_once(variant, receding, planner, config, key, None, t_grid)
+        if receding.warm_start:
+            warm = _shifted(p, receding.dt)
+            if warm is not None:
+                _plan_once(variant, receding, planner, config, key, warm, t_grid)
     return time.perf_counter() - t0
+
+
+def _check_counts(counts) -> list[int]:
+    if counts is None:
+        return []
+    try:
+        given = list(counts)
+    except TypeError:
+        raise ValueError(f"counts must be an iterable of ints >= 1, got {counts!r}") from None
+    if any(isinstance(c, bool) or not isinstance(c, int | np.integer) or c < 1 for c in given):
+        raise ValueError(f"counts must be ints >= 1, got {given!r}")
+    return sorted({int(c) for c in given})
 
 
 # ------------------------------------------------------------------------------------ the loop

@@ -272,6 +272,26 @@ def test_on_the_risk_dial_an_empty_road_reaches_the_planner_empty():
             assert all(p.risk_bound == 0.0 for p in seen)
 
 
+def test_warm_up_plans_at_each_number_of_cars_it_is_given():
+    """``warm_up(..., counts=)`` compiles the shapes the loop meets on the risk dial (no phantoms:
+    one shape per number of cars): it plans cold and warm at every count, the scene's cars
+    repeated or cut; ``counts`` must be ints >= 1."""
+
+    class Seen(CountingPlanner):
+        def plan(self, ego, road, obstacles, **kw):
+            self.calls.append(dict(kw, shape=np.shape(obstacles)))
+            return self.inner.plan(ego, road, obstacles, **kw)
+
+    pl = Seen(CFG.replace(margin_mode="samples", risk=0.05))
+    warm_up(TwoLaneScene().observe(), RecedingConfig(), planner=pl, counts=range(1, 3))
+    got = [(c["shape"][0], "warm_start" in c) for c in pl.calls]
+    assert got == [(1, False), (1, True), (2, False), (2, True)]
+    assert pl.calls[2]["shape"][1:] == pl.calls[0]["shape"][1:]  # the same futures per car
+    for bad in ([0], [1.5], [True], 3):
+        with pytest.raises(ValueError, match="counts"):
+            warm_up(TwoLaneScene().observe(), RecedingConfig(), planner=pl, counts=bad)
+
+
 def test_pad_obstacles_shapes_and_phantoms_far_behind():
     road = mmdopt.Road()
     ego = frenet.EgoState(s=100.0, d=0.0, vs=10.0)

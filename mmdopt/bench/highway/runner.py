@@ -109,11 +109,14 @@ def run_episode(
             max_steps=int(math.ceil(settings.duration / settings.dt)) + 1,
             shield=(SHIELD if src.route is None else JUNCTION_SHIELD) if settings.shield else None,
         )
-        # compile once on the first scene (shapes are fixed by max_obstacles), untimed by the loop
+        # compile once on the first scene, untimed by the loop: with the time-linear margins the
+        # shapes are fixed by max_obstacles; on the risk dial (no phantoms) each number of cars
+        # up to max_obstacles is a shape, compiled here once per process
         obs0 = src.observe()
         # the config's planner on the process's shared workspaces: episodes compile once
         planner = PLANNERS.get(config)
-        first_plan = warm_up(obs0, rc, key=jax.random.PRNGKey(seed), planner=planner)
+        counts = _counts_to_warm(config, obs0, settings.max_obstacles)
+        first_plan = warm_up(obs0, rc, key=jax.random.PRNGKey(seed), planner=planner, counts=counts)
         src.predict_times.clear()
         src.step_index = 0
         res = run_receding(
@@ -183,6 +186,25 @@ def run_episode(
 
 
 # ------------------------------------------------------------------------------------ the sweep
+#: the numbers of cars each planner config has been warmed up for in this process (risk dial)
+_WARMED: dict[mmdopt.MMDOptConfig, set[int]] = {}
+
+
+def _counts_to_warm(config: mmdopt.MMDOptConfig, obs, max_obstacles: int) -> list[int] | None:
+    """The numbers of cars, 1 … ``max_obstacles``, not yet compiled for in this process when
+    ``config`` is on the risk dial (where the loop does not pad); ``None`` otherwise, or when the
+    first scene has no car to repeat."""
+    if config.safety.margins.margin_mode != "samples":
+        return None
+    fc = obs.obstacles
+    if (fc.num_obstacles if isinstance(fc, mmdopt.predict.Forecast) else np.shape(fc)[0]) == 0:
+        return None
+    done = _WARMED.setdefault(config, set())
+    todo = [k for k in range(1, int(max_obstacles) + 1) if k not in done]
+    done.update(todo)
+    return todo
+
+
 def _episode_path(out: Path, episode: int, method: str) -> Path:
     return out / "episodes" / f"episode_{episode:04d}__{method}.json"
 

@@ -306,13 +306,16 @@ def test_risk_mode_episode_states_its_level_and_each_replans_bound(tmp_path, cap
     recorded in run.json's config), futures drawn from the predictor's forecast at each replan,
     and episodes.csv's ``risk`` and ``mean_risk_bound``; a level outside (0, 0.5) is refused
     naming ``--risk``."""
-    settings = hw.HighwaySettings(duration=1.0, dt=0.5, n_samples=6, max_obstacles=3)
+    settings = hw.HighwaySettings(duration=1.0, dt=0.5, n_samples=6, max_obstacles=2)
     (row,) = hw.run_highway(
         tmp_path / "r", episodes=1, seed=3, methods=["mmd"], settings=settings,
         config_overrides=TINY, progress=False, risk=0.1,
     )  # fmt: skip
     assert row["risk"] == 0.1 and row["steps"] == 2
     assert 0.0 <= row["mean_risk_bound"] <= 1.0
+    # no phantoms on the dial: each number of cars is a shape, compiled before the timed loop
+    assert hw.runner._WARMED[hw.config_for_method("mmd", hw.highway_config(
+        hw.risk_overrides(TINY, 0.1)))] == {1, 2}  # fmt: skip
     man = json.loads((tmp_path / "r" / "run.json").read_text())
     assert man["config"]["safety"] == {"risk": 0.1, "margins": {"margin_mode": "samples"}}
     assert man["planner"]["safety"]["margins"]["margin_mode"] == "samples"
