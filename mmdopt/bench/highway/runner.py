@@ -109,16 +109,7 @@ def run_episode(
             max_steps=int(math.ceil(settings.duration / settings.dt)) + 1,
             shield=(SHIELD if src.route is None else JUNCTION_SHIELD) if settings.shield else None,
         )
-        # compile once on the first scene, untimed by the loop: with the time-linear margins the
-        # shapes are fixed by max_obstacles; on the risk dial (no phantoms) each number of cars
-        # up to max_obstacles is a shape, compiled here once per process
-        obs0 = src.observe()
-        # the config's planner on the process's shared workspaces: episodes compile once
-        planner = PLANNERS.get(config)
-        counts = _counts_to_warm(config, obs0, settings.max_obstacles)
-        first_plan = warm_up(obs0, rc, key=jax.random.PRNGKey(seed), planner=planner, counts=counts)
-        src.predict_times.clear()
-        src.step_index = 0
+        planner, first_plan = _warmed_planner(src, rc, config, seed, settings.max_obstacles)
         res = run_receding(
             src, rc, key=jax.random.PRNGKey(seed), callback=callback, planner=planner
         )
@@ -183,6 +174,23 @@ def run_episode(
         rec["frame_views"] = src.frame_views
     src.close()
     return rec
+
+
+def _warmed_planner(src: HighwaySource, rc: RecedingConfig, config, seed: int, max_obstacles: int):
+    """The config's planner (on the process's shared workspaces: episodes compile once) and the
+    wall time of compiling it on the episode's first scene, untimed by the loop: with the
+    time-linear margins the shapes are fixed by ``max_obstacles``; on the risk dial (no
+    phantoms) each number of cars up to ``max_obstacles`` is a shape, compiled once per process
+    (:func:`_counts_to_warm`).  The source is rewound to its first replan."""
+    import jax
+
+    obs0 = src.observe()
+    planner = PLANNERS.get(config)
+    counts = _counts_to_warm(config, obs0, max_obstacles)
+    first = warm_up(obs0, rc, key=jax.random.PRNGKey(seed), planner=planner, counts=counts)
+    src.predict_times.clear()
+    src.step_index = 0
+    return planner, first
 
 
 # ------------------------------------------------------------------------------------ the sweep
