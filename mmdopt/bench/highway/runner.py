@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import csv
+import dataclasses
 import json
 import math
 import time
@@ -180,21 +181,33 @@ def _warmed_planner(src: HighwaySource, rc: RecedingConfig, config, seed: int, m
     """The config's planner (on the process's shared workspaces: episodes compile once) and the
     wall time of compiling it on the episode's first scene, untimed by the loop: with the
     time-linear margins the shapes are fixed by ``max_obstacles``; on the risk dial (no
-    phantoms) each number of cars up to ``max_obstacles`` is a shape, compiled once per process
+    phantoms) each number of cars up to ``max_obstacles`` is a shape, and so is an empty road
+    (the planner's own phantom on the source's ``n_samples`` futures), compiled once per process
     (:func:`_counts_to_warm`).  The source is rewound to its first replan."""
     import jax
 
     obs0 = src.observe()
     planner = PLANNERS.get(config)
     counts = _counts_to_warm(config, obs0, max_obstacles)
-    first = warm_up(obs0, rc, key=jax.random.PRNGKey(seed), planner=planner, counts=counts)
+    key = jax.random.PRNGKey(seed)
+    first = warm_up(obs0, rc, key=key, planner=planner, counts=counts)
+    done = _WARMED.get(config)
+    if done is not None and 0 not in done:  # on the dial: an empty road, once per process
+        K = config.trajectory.num_steps
+        empty = dataclasses.replace(
+            obs0, obstacles=np.zeros((0, src.settings.n_samples, K, 2)), obstacle_headings=None,
+            obstacle_states=None,
+        )  # fmt: skip
+        first += warm_up(empty, rc, key=key, planner=planner)
+        done.add(0)
     src.predict_times.clear()
     src.step_index = 0
     return planner, first
 
 
 # ------------------------------------------------------------------------------------ the sweep
-#: the numbers of cars each planner config has been warmed up for in this process (risk dial)
+#: the numbers of cars each planner config has been warmed up for in this process (risk dial;
+#: 0: an empty road)
 _WARMED: dict[mmdopt.MMDOptConfig, set[int]] = {}
 
 
@@ -204,10 +217,10 @@ def _counts_to_warm(config: mmdopt.MMDOptConfig, obs, max_obstacles: int) -> lis
     first scene has no car to repeat."""
     if config.safety.margins.margin_mode != "samples":
         return None
+    done = _WARMED.setdefault(config, set())
     fc = obs.obstacles
     if (fc.num_obstacles if isinstance(fc, mmdopt.predict.Forecast) else np.shape(fc)[0]) == 0:
         return None
-    done = _WARMED.setdefault(config, set())
     todo = [k for k in range(1, int(max_obstacles) + 1) if k not in done]
     done.update(todo)
     return todo
