@@ -832,13 +832,17 @@ class MMDOptConfig:
         ``w_lane`` = 6, lateral gain 4) and a following distance of 6 m + 1.0 s·ṡ behind every
         obstacle point (the RSS shield of :mod:`mmdopt.safety` then rarely has to brake), a
         rule for the lane: kept in full within 2.5 m to the side of the point, the shield's
-        corridor (``headway_lane``)."""
+        corridor (``headway_lane``).  On the risk dial (``margin_mode="samples"``) one
+        nearest-futures pass and no tail passes (``nearest_repeats`` = ``tail_passes`` = 0): in
+        a receding loop the next replan comes δ later, and the repeated passes of a replan that
+        cannot keep ε nearly doubled its time with the same driving and the same bounds
+        (docs/experiments/highway.md)."""
         base = cls().replace(
             horizon=5.0, num_steps=51, n_samples=400, n_cem=100, n_elite=30, iterations=12,
             reduced_set_size=10, v_des=30.0, b=2.6, margin_lat=0.4, margin_long=2.5,
             margin_rate=1.0, margin_mode="linear", reselect=0, lane_setpoints=True,
             lateral_gain=4.0, lane_commit=0.5, w_lane=6.0, headway_time=1.0, headway_gap=6.0,
-            headway_lane=2.5,
+            headway_lane=2.5, nearest_repeats=0, tail_passes=0,
         )  # fmt: skip
         return base.replace(**overrides)
 

@@ -148,6 +148,26 @@ def test_the_pass_repeats_while_its_plan_breaks_the_bound_and_the_promise_holds(
         assert p.status == "risk exceeded" and p.risk_bound == pytest.approx(min(bounds))
 
 
+def test_the_closed_loop_schedule_runs_one_nearest_pass_and_still_tells_the_truth(monkeypatch):
+    """The schedule of the closed-loop preset (``MMDOptConfig.highway()``: ``nearest_repeats`` =
+    ``tail_passes`` = 0): a plan that breaks its bound gets one nearest-futures pass and no pass
+    after it (the next replan comes δ later), and its status still says whether ε holds."""
+    import mmdopt.risk
+    import mmdopt.schedule
+
+    preset = mmdopt.MMDOptConfig.highway().schedule
+    assert (preset.nearest_repeats, preset.tail_passes) == (0, 0)
+    true_hits = mmdopt.risk.hits_for_risk
+    monkeypatch.setattr(mmdopt.schedule, "hits_for_risk", lambda *a, **k: true_hits(*a, **k) + 20)
+    obs = _slow_car_ahead(3 * samples_for_risk(EPS, 1), gap=12.0)
+    p = _plan(obs, TINY.replace(nearest_futures=40, nearest_repeats=0, tail_passes=0))
+    d = p.diagnostics
+    assert len(d["nearest_levels"]) == 1 and d.get("tail_passes", 0) == 0
+    assert d["final_check_passes"].count("nearest") == 1
+    assert "tail" not in d["final_check_passes"]
+    assert (p.status == "ok") == (p.risk_bound <= EPS), p.status_text
+
+
 def test_an_allowance_above_the_futures_seen_keeps_a_chance_level_below_one():
     """ε = 0.05 over 177 futures allows 3 hits; a pass that sees 2 futures may meet both
     (level 1.5/2), not an invalid level of 3.5/2."""
