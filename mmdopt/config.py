@@ -826,17 +826,13 @@ class MMDOptConfig:
     @classmethod
     def highway(cls, **overrides: Any) -> MMDOptConfig:
         """The closed-loop highway-env planner: 5 s on 51 points (re-planned every step), a
-        lateral semi-axis of 2.6 m, time-linear margins 2.5 + 1.0·t m and 0.4 m, a desired
-        speed of 30 m/s, sizes for a real-time budget (400 samples, n_cem 100, n_e 30,
-        12 iterations, m = 10), lane discipline (lateral set-points at lane centres,
-        ``w_lane`` = 6, lateral gain 4) and a following distance of 6 m + 1.0 s·ṡ behind every
-        obstacle point (the RSS shield of :mod:`mmdopt.safety` then rarely has to brake), a
-        rule for the lane: kept in full within 2.5 m to the side of the point, the shield's
-        corridor (``headway_lane``).  On the risk dial (``margin_mode="samples"``) one
-        nearest-futures pass and no tail passes (``nearest_repeats`` = ``tail_passes`` = 0): in
-        a receding loop the next replan comes δ later, and the repeated passes of a replan that
-        cannot keep ε nearly doubled its time with the same driving and the same bounds
-        (docs/experiments/highway.md)."""
+        lateral semi-axis of 2.6 m, time-linear margins 2.5 + 1.0·t m and 0.4 m, a desired speed
+        of 30 m/s, sizes for a real-time budget (400 samples, n_cem 100, n_e 30, 12 iterations,
+        m = 10), lane discipline (set-points at lane centres, ``w_lane`` = 6, lateral gain 4), a
+        following distance of 6 m + 1.0 s·ṡ behind every obstacle point, kept in full within
+        2.5 m to its side (``headway_lane``, the RSS shield's corridor), and on the risk dial one
+        nearest-futures pass and no tail passes (the next replan comes δ later; the repeats cost
+        time, not driving: docs/experiments/highway.md)."""
         base = cls().replace(
             horizon=5.0, num_steps=51, n_samples=400, n_cem=100, n_elite=30, iterations=12,
             reduced_set_size=10, v_des=30.0, b=2.6, margin_lat=0.4, margin_long=2.5,
