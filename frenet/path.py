@@ -258,18 +258,27 @@ class ReferencePath:
                 return s, d
             return s, d, self._relative_heading(heading, shape, math.atan2(uy, ux))
         s = self._coarse(px, py)
-        # Newton on f(s) = (r(s) − p)·r'(s)
+        # Newton on f(s) = (r(s) − p)·r'(s), on the points not yet converged only: a point
+        # whose step fell below the tolerance stops there (its next steps would be smaller
+        # still), so the few slow points do not make every point iterate
         step_cap = 2.0 * self.spacing
+        stop = tol * max(1.0, self.length)
+        at = np.arange(s.size)
+        sa, qx, qy = s, px, py
         for _ in range(max_iter):
-            rx, ry, dx, dy, ddx, ddy = self._eval(s)
-            ex, ey = rx - px, ry - py
+            rx, ry, dx, dy, ddx, ddy = self._eval(sa)
+            ex, ey = rx - qx, ry - qy
             f = ex * dx + ey * dy
             g = dx * dx + dy * dy + ex * ddx + ey * ddy
             step = np.where(g > 0.05, -f / np.where(g > 0.05, g, 1.0), -f)
             step = np.clip(step, -step_cap, step_cap)
-            s = s + step
-            if np.max(np.abs(step), initial=0.0) < tol * max(1.0, self.length):
+            sa = sa + step
+            s[at] = sa
+            going = np.abs(step) >= stop
+            if not going.any():
                 break
+            if not going.all():
+                at, sa, qx, qy = at[going], sa[going], qx[going], qy[going]
         rx, ry, dx, dy, _, _ = self._eval(s)
         nrm = np.hypot(dx, dy)
         d = ((px - rx) * (-dy) + (py - ry) * dx) / nrm
@@ -334,7 +343,8 @@ class ReferencePath:
         """Initial arc length: nearest dense sample, then projection onto its two chords."""
         pts = self._tree.data
         n = len(pts)
-        _, i = self._tree.query(np.column_stack([px, py]))
+        # on every core (the same nearest sample)
+        _, i = self._tree.query(np.column_stack([px, py]), workers=-1)
         best_s = np.zeros_like(px)
         best_d = np.full_like(px, np.inf)
         for lo in (i - 1, i):

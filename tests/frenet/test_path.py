@@ -42,6 +42,23 @@ def test_round_trip_frenet_cartesian_frenet_within_micrometre(name):
     assert np.max(np.hypot(x3 - x, y3 - y)) <= 1e-6
 
 
+@pytest.mark.parametrize("name", ["circle", "s_curve"])
+def test_a_point_projects_the_same_alone_as_in_a_large_batch(name):
+    """The Newton search stops each point when its own step is below the tolerance: a point's
+    coordinates do not depend on which other points it is converted with (the slow points of a
+    batch, far off the path or near its ends, do not move the others)."""
+    make, dmax = PATHS[name]
+    path = make()
+    rng = np.random.default_rng(1)
+    s = rng.uniform(-10.0, path.length + 10.0, 3000)
+    d = rng.uniform(-3 * dmax, 3 * dmax, 3000)  # far off the path too: more iterations
+    x, y = path.to_cartesian(s, d)
+    sb, db = path.to_frenet(x, y)
+    for i in rng.choice(3000, 40, replace=False):
+        s1, d1 = path.to_frenet(x[i : i + 1], y[i : i + 1])
+        assert abs(s1[0] - sb[i]) <= 1e-9 and abs(d1[0] - db[i]) <= 1e-9
+
+
 def test_circle_geometry_arc_length_heading_curvature():
     R = 50.0
     path = _circle(R)
