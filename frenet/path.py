@@ -343,8 +343,7 @@ class ReferencePath:
         """Initial arc length: nearest dense sample, then projection onto its two chords."""
         pts = self._tree.data
         n = len(pts)
-        # on every core (the same nearest sample)
-        _, i = self._tree.query(np.column_stack([px, py]), workers=-1)
+        _, i = self._tree.query(np.column_stack([px, py]))
         best_s = np.zeros_like(px)
         best_d = np.full_like(px, np.inf)
         for lo in (i - 1, i):
