@@ -181,18 +181,23 @@ def _warmed_planner(src: HighwaySource, rc: RecedingConfig, config, seed: int, m
     """The config's planner (on the process's shared workspaces: episodes compile once) and the
     wall time of compiling it on the episode's first scene, untimed by the loop: with the
     time-linear margins the shapes are fixed by ``max_obstacles``; on the risk dial (no
-    phantoms) each number of cars up to ``max_obstacles`` is a shape, and so is an empty road
-    (the planner's own phantom on the source's ``n_samples`` futures), compiled once per process
-    (:func:`_counts_to_warm`).  The source is rewound to its first replan."""
+    phantoms) each number of cars 1 … ``max_obstacles`` is a shape, and so is an empty road (the
+    planner's own phantom on the source's ``n_samples`` futures), each compiled once per process
+    (:data:`_WARMED`; the cars in turn need a first scene with a car).  The source is rewound to
+    its first replan."""
     import jax
 
     obs0 = src.observe()
     planner = PLANNERS.get(config)
-    counts = _counts_to_warm(config, obs0, max_obstacles)
     key = jax.random.PRNGKey(seed)
+    dial = config.safety.margins.margin_mode == "samples"
+    done = _WARMED.setdefault(config, set()) if dial else set()
+    fc = obs0.obstacles
+    cars = fc.num_obstacles if isinstance(fc, mmdopt.predict.Forecast) else np.shape(fc)[0]
+    counts = [k for k in range(1, int(max_obstacles) + 1) if k not in done] if dial and cars else []
     first = warm_up(obs0, rc, key=key, planner=planner, counts=counts)
-    done = _WARMED.get(config)
-    if done is not None and 0 not in done:  # on the dial: an empty road, once per process
+    done.update(counts)
+    if dial and 0 not in done:  # an empty road
         K = config.trajectory.num_steps
         empty = dataclasses.replace(
             obs0, obstacles=np.zeros((0, src.settings.n_samples, K, 2)), obstacle_headings=None,
@@ -206,24 +211,9 @@ def _warmed_planner(src: HighwaySource, rc: RecedingConfig, config, seed: int, m
 
 
 # ------------------------------------------------------------------------------------ the sweep
-#: the numbers of cars each planner config has been warmed up for in this process (risk dial;
-#: 0: an empty road)
+#: the shapes each planner config on the risk dial has been warmed up for in this process: the
+#: numbers of cars (0: an empty road)
 _WARMED: dict[mmdopt.MMDOptConfig, set[int]] = {}
-
-
-def _counts_to_warm(config: mmdopt.MMDOptConfig, obs, max_obstacles: int) -> list[int] | None:
-    """The numbers of cars, 1 … ``max_obstacles``, not yet compiled for in this process when
-    ``config`` is on the risk dial (where the loop does not pad); ``None`` otherwise, or when the
-    first scene has no car to repeat."""
-    if config.safety.margins.margin_mode != "samples":
-        return None
-    done = _WARMED.setdefault(config, set())
-    fc = obs.obstacles
-    if (fc.num_obstacles if isinstance(fc, mmdopt.predict.Forecast) else np.shape(fc)[0]) == 0:
-        return None
-    todo = [k for k in range(1, int(max_obstacles) + 1) if k not in done]
-    done.update(todo)
-    return todo
 
 
 def _episode_path(out: Path, episode: int, method: str) -> Path:
