@@ -32,6 +32,14 @@ __all__ = ["ReferencePath", "wrap_angle"]
 
 _GAUSS_X, _GAUSS_W = np.polynomial.legendre.leggauss(6)
 
+#: a batch of at least this many points starts its Newton search from the path's start grid
+_GRID_MIN_POINTS = 20_000
+#: spacing (m) of the start grid's nodes, and how far (m) it reaches beyond the path's samples
+_GRID_STEP = 0.5
+_GRID_MARGIN = 30.0
+#: no grid for a path whose grid would have more nodes than this (the tree serves it)
+_GRID_MAX_NODES = 3_000_000
+
 
 def wrap_angle(a: ArrayLike) -> NDArray[np.float64]:
     """Angles wrapped to ``[−π, π)``."""
@@ -104,6 +112,10 @@ class ReferencePath:
     #: ``(x0, y0, ux, uy)`` when the path is a straight line (start point, unit direction):
     #: Cartesian → Frenet is then a projection, exact, with no search or Newton steps
     _line: tuple[float, float, float, float] | None = None
+    #: the splines' piecewise-cubic coefficients, highest power first, one contiguous array per
+    #: coefficient (x's four, then y's four), each (N − 1,): :meth:`_eval` finds a point's piece
+    #: once and evaluates x, y and their derivatives by Horner's rule on these
+    _coef: tuple[np.ndarray, ...] = ()
 
     # ------------------------------------------------------------------ construction
     @classmethod
@@ -180,16 +192,42 @@ class ReferencePath:
         sx, sy = CubicSpline(s, px, bc_type=bc), CubicSpline(s, py, bc_type=bc)
         tree = cKDTree(np.column_stack([px, py]))
         spacing = float(np.max(np.diff(s)))
-        return cls(sx, sy, float(s[-1]), spacing, s, tree, waypoints, _straight_line(s, px, py))
+        coef = tuple(np.ascontiguousarray(c) for c in np.concatenate([sx.c, sy.c]))
+        line = _straight_line(s, px, py)
+        return cls(sx, sy, float(s[-1]), spacing, s, tree, waypoints, line, coef)
 
     # ------------------------------------------------------------------ geometry
-    def _eval(self, s: np.ndarray):
-        """Position, first and second derivatives at ``s`` (flat), linear past the ends."""
+    def _piece(self, sc: np.ndarray, near: np.ndarray | None = None) -> np.ndarray:
+        """Index of the spline piece holding each clipped ``sc``; ``near`` (a guess of it, as
+        a Newton step leaves most points on their piece) is checked and mended before any
+        binary search."""
+        k = self._knots
+        top = len(k) - 2
+        if near is not None:
+            i = near
+            i = np.clip(i - (sc < k[i]) + (sc >= k[i + 1]), 0, top)
+            bad = (sc < k[i]) | ((sc >= k[i + 1]) & (i < top))
+            if not bad.any():
+                return i
+            i = i.copy()
+            i[bad] = np.searchsorted(k, sc[bad], side="right") - 1
+            return np.clip(i, 0, top)
+        return np.clip(np.searchsorted(k, sc, side="right") - 1, 0, top)
+
+    def _eval(self, s: np.ndarray, piece: np.ndarray | None = None):
+        """Position, first and second derivatives at ``s`` (flat), linear past the ends, and
+        the spline piece of each point (pass it back as ``piece`` for nearby ``s``)."""
         L = self.length
         sc = np.clip(s, 0.0, L)
-        x, y = self._sx(sc), self._sy(sc)
-        dx, dy = self._sx(sc, 1), self._sy(sc, 1)
-        ddx, ddy = self._sx(sc, 2), self._sy(sc, 2)
+        i = self._piece(sc, piece)
+        a, b, c, e, p, q, r, w = (np.take(cf, i) for cf in self._coef)
+        t = sc - np.take(self._knots, i)
+        x = ((a * t + b) * t + c) * t + e
+        y = ((p * t + q) * t + r) * t + w
+        dx = (3.0 * a * t + 2.0 * b) * t + c
+        dy = (3.0 * p * t + 2.0 * q) * t + r
+        ddx = 6.0 * a * t + 2.0 * b
+        ddy = 6.0 * p * t + 2.0 * q
         out = (s < 0.0) | (s > L)
         if np.any(out):
             nrm = np.hypot(dx, dy)
@@ -199,7 +237,7 @@ class ReferencePath:
             y = np.where(out, y + e * ty, y)
             dx, dy = np.where(out, tx, dx), np.where(out, ty, dy)
             ddx, ddy = np.where(out, 0.0, ddx), np.where(out, 0.0, ddy)
-        return x, y, dx, dy, ddx, ddy
+        return x, y, dx, dy, ddx, ddy, i
 
     def point(self, s: ArrayLike) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
         """Cartesian ``(x, y)`` of the path at arc length ``s`` (any shape)."""
@@ -212,14 +250,14 @@ class ReferencePath:
         """Path heading ``θ(s)`` (rad, wrapped to [−π, π))."""
         s = _as_float("s", s)
         _check_finite("s", s)
-        _, _, dx, dy, _, _ = self._eval(s.ravel())
+        _, _, dx, dy, _, _, _ = self._eval(s.ravel())
         return np.arctan2(dy, dx).reshape(s.shape)
 
     def curvature(self, s: ArrayLike) -> NDArray[np.float64]:
         """Signed curvature ``κ(s)`` (1/m, positive turning left); zero beyond the ends."""
         s = _as_float("s", s)
         _check_finite("s", s)
-        _, _, dx, dy, ddx, ddy = self._eval(s.ravel())
+        _, _, dx, dy, ddx, ddy, _ = self._eval(s.ravel())
         k = (dx * ddy - dy * ddx) / np.hypot(dx, dy) ** 3
         return k.reshape(s.shape)
 
@@ -257,34 +295,13 @@ class ReferencePath:
             if heading is None:
                 return s, d
             return s, d, self._relative_heading(heading, shape, math.atan2(uy, ux))
-        s = self._coarse(px, py)
-        # Newton on f(s) = (r(s) − p)·r'(s), on the points not yet converged only: a point
-        # whose step fell below the tolerance stops there (its next steps would be smaller
-        # still), so the few slow points do not make every point iterate
-        step_cap = 2.0 * self.spacing
-        stop = tol * max(1.0, self.length)
-        at = np.arange(s.size)
-        sa, qx, qy = s, px, py
-        for _ in range(max_iter):
-            rx, ry, dx, dy, ddx, ddy = self._eval(sa)
-            ex, ey = rx - qx, ry - qy
-            f = ex * dx + ey * dy
-            g = dx * dx + dy * dy + ex * ddx + ey * ddy
-            step = np.where(g > 0.05, -f / np.where(g > 0.05, g, 1.0), -f)
-            step = np.clip(step, -step_cap, step_cap)
-            sa = sa + step
-            s[at] = sa
-            going = np.abs(step) >= stop
-            if not going.any():
-                break
-            if not going.all():
-                at, sa, qx, qy = at[going], sa[going], qx[going], qy[going]
-        rx, ry, dx, dy, _, _ = self._eval(s)
-        nrm = np.hypot(dx, dy)
-        d = ((px - rx) * (-dy) + (py - ry) * dx) / nrm
-        s, d = s.reshape(shape), d.reshape(shape)
+        s, d = self._project(px, py, max_iter, tol)
         if heading is None:
-            return s, d
+            return s.reshape(shape), d.reshape(shape)
+        # the tangent at the final s (the search's last one is a step behind: an angle of
+        # that step times the curvature)
+        _, _, dx, dy, _, _, _ = self._eval(s)
+        s, d = s.reshape(shape), d.reshape(shape)
         return s, d, self._relative_heading(heading, shape, np.arctan2(dy, dx).reshape(shape))
 
     def to_frenet_points(
@@ -339,29 +356,135 @@ class ReferencePath:
         _check_finite("heading", heading)
         return wrap_angle(heading - theta)
 
-    def _coarse(self, px: np.ndarray, py: np.ndarray) -> np.ndarray:
-        """Initial arc length: nearest dense sample, then projection onto its two chords."""
-        pts = self._tree.data
-        n = len(pts)
+    def _project(
+        self, px: np.ndarray, py: np.ndarray, max_iter: int = 30, tol: float = 1e-12
+    ) -> tuple[np.ndarray, np.ndarray]:
+        """Arc length of the nearest path point of each (px, py) (flat) and the signed offset
+        (:meth:`_newton`).
+
+        The start of the Newton search comes from the k-d tree and chords (:meth:`_coarse`); a
+        large batch (≥ ``_GRID_MIN_POINTS`` points) starts instead from a grid of projected
+        points built once per path (:class:`_StartGrid`), linearised, and falls back to the tree
+        where the grid does not reach or the nearest point is not unique near the point.  Both
+        starts end in the same Newton search to the same tolerance."""
+        if px.size >= _GRID_MIN_POINTS and (grid := self._start_grid()) is not None:
+            s, piece, near = grid.start(px, py)
+            if not near.all():
+                far = ~near
+                s[far], piece[far] = self._coarse(px[far], py[far])
+        else:
+            s, piece = self._coarse(px, py)
+        return self._newton(px, py, s, piece, max_iter, tol)
+
+    def _newton(
+        self,
+        px: np.ndarray,
+        py: np.ndarray,
+        s: np.ndarray,
+        piece: np.ndarray,
+        max_iter: int,
+        tol: float,
+    ) -> tuple[np.ndarray, np.ndarray]:
+        """Newton from ``s`` (modified in place) to the projection of each point.
+
+        Returns ``s`` and the signed offset ``d``.
+        A point stops when its step is below the tolerance, or when the step's square is:
+        Newton converges quadratically where ``g = f'`` is not small, so the error left after
+        such a step is ``|f''/2f'|·step²``, below the tolerance for ``|f''/2f'| ≤ 100 /m`` (the
+        path's curvature and its rate, divided by ``g > 0.05``).  ``d`` and the tangent come
+        from the last evaluation, a step of ≤ ``√(tol/100)`` before ``s``: the offset changes
+        by the square of that step times the curvature (the normal is orthogonal to the step),
+        the tangent by the step times the curvature (so a caller wanting the heading evaluates
+        it again).
+        """
+        # Newton on f(s) = (r(s) − p)·r'(s), on the points not yet converged only, so the
+        # few slow points (far off the path, near its ends) do not make every point iterate
+        step_cap = 2.0 * self.spacing
+        stop = tol * max(1.0, self.length)
+        quad = math.sqrt(stop / 100.0)
+        d = np.empty_like(s)
+        at = np.arange(s.size)
+        sa, pa, qx, qy = s, piece, px, py
+        for it in range(max_iter):
+            rx, ry, dx, dy, ddx, ddy, pa = self._eval(sa, pa)
+            ex, ey = rx - qx, ry - qy
+            f = ex * dx + ey * dy
+            g = dx * dx + dy * dy + ex * ddx + ey * ddy
+            fast = g > 0.05
+            step = np.where(fast, -f / np.where(fast, g, 1.0), -f)
+            step = np.clip(step, -step_cap, step_cap)
+            sa = sa + step
+            s[at] = sa
+            a = np.abs(step)
+            going = (a >= stop) & ((a >= quad) | ~fast)
+            if it == max_iter - 1:
+                going[:] = False
+            done = ~going
+            if done.all():
+                dn, at_d = slice(None), at
+            elif done.any():
+                dn, at_d = done, at[done]
+            else:
+                continue
+            ux, uy = dx[dn], dy[dn]
+            d[at_d] = (ex[dn] * uy - ey[dn] * ux) / np.hypot(ux, uy)
+            if dn is not done:
+                break
+            at, sa, pa, qx, qy = at[going], sa[going], pa[going], qx[going], qy[going]
+        return s, d
+
+    def _start_grid(self) -> _StartGrid | None:
+        """The start grid of this path, built on first use (``None`` where it would be too
+        large: the tree serves every point then)."""
+        if "_grid_cache" not in self.__dict__:
+            object.__setattr__(self, "_grid_cache", _StartGrid.build(self))
+        return self.__dict__["_grid_cache"]
+
+    def _coarse(self, px: np.ndarray, py: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Initial arc length and its spline piece: the nearest dense sample, then the
+        projection onto the better of its two chords (past the path's ends, onto the end
+        chord's straight extension)."""
+        n = len(self._knots)
         _, i = self._tree.query(np.column_stack([px, py]))
-        best_s = np.zeros_like(px)
-        best_d = np.full_like(px, np.inf)
+        ax, ay, vx, vy, inv_l2 = self._chords()
+        best_s = best_d = best_a = None
         for lo in (i - 1, i):
             a = np.clip(lo, 0, n - 2)
-            b = a + 1
-            ax, ay = pts[a, 0], pts[a, 1]
-            vx, vy = pts[b, 0] - ax, pts[b, 1] - ay
-            L2 = vx * vx + vy * vy
-            t = ((px - ax) * vx + (py - ay) * vy) / L2
+            cx, cy = np.take(ax, a), np.take(ay, a)
+            ux, uy = np.take(vx, a), np.take(vy, a)
+            rx, ry = px - cx, py - cy
+            t = (rx * ux + ry * uy) * np.take(inv_l2, a)
             # stay on the chord, except past the path's ends (linear extension)
-            t = np.clip(t, np.where(a == 0, -np.inf, 0.0), np.where(b == n - 1, np.inf, 1.0))
-            dist = np.hypot(ax + t * vx - px, ay + t * vy - py)
-            sa, sb = self._knots[a], self._knots[b]
-            cand = sa + t * (sb - sa)
+            t = np.minimum(t, 1.0, out=t, where=a != n - 2)
+            t = np.maximum(t, 0.0, out=t, where=a != 0)
+            rx -= t * ux
+            ry -= t * uy
+            dist = rx * rx + ry * ry
+            sa = np.take(self._knots, a)
+            cand = sa + t * (np.take(self._knots, a + 1) - sa)
+            if best_s is None:
+                best_s, best_d, best_a = cand, dist, a
+                continue
             better = dist < best_d
             best_s = np.where(better, cand, best_s)
-            best_d = np.where(better, dist, best_d)
-        return best_s
+            best_a = np.where(better, a, best_a)
+        return best_s, best_a
+
+    def _chords(self) -> tuple[np.ndarray, ...]:
+        """Start point, vector and 1/length² of each chord between the dense samples."""
+        ch = self.__dict__.get("_chord_cache")
+        if ch is None:
+            pts = self._tree.data
+            v = np.diff(pts, axis=0)
+            ch = (
+                np.ascontiguousarray(pts[:-1, 0]),
+                np.ascontiguousarray(pts[:-1, 1]),
+                np.ascontiguousarray(v[:, 0]),
+                np.ascontiguousarray(v[:, 1]),
+                1.0 / np.einsum("ij,ij->i", v, v),
+            )
+            object.__setattr__(self, "_chord_cache", ch)
+        return ch
 
     def to_cartesian(
         self, s: ArrayLike, d: ArrayLike, heading: ArrayLike | None = None
@@ -373,7 +496,7 @@ class ReferencePath:
         s, d = _broadcast(("s", "d"), s, d)
         _check_finite("s/d", s, d)
         shape = s.shape
-        rx, ry, dx, dy, _, _ = self._eval(s.ravel())
+        rx, ry, dx, dy, _, _, _ = self._eval(s.ravel())
         nrm = np.hypot(dx, dy)
         dd = d.ravel()
         x = rx - dd * dy / nrm
@@ -467,3 +590,95 @@ class ReferencePath:
 
     def __repr__(self) -> str:
         return f"ReferencePath(length={self.length:.3f} m, {len(self.waypoints)} way-points)"
+
+
+@dataclass(frozen=True, eq=False)
+class _StartGrid:
+    """Projections of a regular grid of nodes around a path, to start the Newton search of a
+    large batch without the k-d tree.
+
+    Each node holds its arc length ``s`` (the full projection), the gradient ``∂s/∂p =
+    r'(s) / g`` with ``g = |r'|² + (r − p)·r''`` (the implicit-function derivative of the
+    projection condition ``(r(s) − p)·r'(s) = 0``), and its spline piece.  A point starts at
+    ``s + ∂s/∂p · (p − node)`` from its nearest node, a few millimetres from its projection on
+    paths of metre-scale curvature radius, so Newton needs two or three steps.
+
+    A node is *unsafe* where the projection is not a smooth function near it: ``g`` small (near a
+    centre of curvature), or the linear prediction to a neighbouring node missing that node's
+    arc length by more than ``_JUMP`` (the nearest point jumps between two parts of the path
+    there); unsafe marks spread to the eight neighbours.  Points at unsafe nodes, or outside
+    the grid, are left to the tree (``near`` false), so both routes give the same projection.
+    """
+
+    x0: float
+    y0: float
+    step: float
+    nx: int
+    ny: int
+    s: np.ndarray
+    jx: np.ndarray
+    jy: np.ndarray
+    piece: np.ndarray
+    safe: np.ndarray
+
+    _JUMP = 0.25  # m; smooth-region mismatch is ≈ κ·step²/2, a few centimetres at most
+    _G_MIN = 0.25
+
+    @classmethod
+    def build(cls, path: ReferencePath) -> _StartGrid | None:
+        pts = path._tree.data
+        h = _GRID_STEP
+        lo = pts.min(axis=0) - _GRID_MARGIN
+        n = np.floor((pts.max(axis=0) + _GRID_MARGIN - lo) / h).astype(int) + 1
+        if int(n[0]) * int(n[1]) > _GRID_MAX_NODES:
+            return None
+        nx, ny = int(n[0]), int(n[1])
+        gx = lo[0] + h * np.arange(nx)
+        gy = lo[1] + h * np.arange(ny)
+        X, Y = (a.ravel() for a in np.meshgrid(gx, gy, indexing="ij"))
+        s0, piece0 = path._coarse(X, Y)
+        s = path._newton(X, Y, s0, piece0, 30, 1e-12)[0]
+        rx, ry, dx, dy, ddx, ddy, piece = path._eval(s, piece0)
+        g = dx * dx + dy * dy + (rx - X) * ddx + (ry - Y) * ddy
+        ok = g > cls._G_MIN
+        gs = np.where(ok, g, 1.0)
+        jx, jy = dx / gs, dy / gs
+        S, JX, JY = (a.reshape(nx, ny) for a in (s, jx, jy))
+        bad = ~ok.reshape(nx, ny)
+        # linear prediction along each grid edge, from both ends
+        ex = np.abs(S[1:] - S[:-1] - 0.5 * h * (JX[1:] + JX[:-1])) > cls._JUMP
+        ey = np.abs(S[:, 1:] - S[:, :-1] - 0.5 * h * (JY[:, 1:] + JY[:, :-1])) > cls._JUMP
+        bad[1:] |= ex
+        bad[:-1] |= ex
+        bad[:, 1:] |= ey
+        bad[:, :-1] |= ey
+        grown = bad.copy()  # spread to the eight neighbours
+        grown[1:] |= bad[:-1]
+        grown[:-1] |= bad[1:]
+        g2 = grown.copy()
+        g2[:, 1:] |= grown[:, :-1]
+        g2[:, :-1] |= grown[:, 1:]
+        return cls(
+            float(lo[0]),
+            float(lo[1]),
+            h,
+            nx,
+            ny,
+            s,
+            jx.astype(np.float32),
+            jy.astype(np.float32),
+            piece.astype(np.int32),
+            ~g2.ravel(),
+        )
+
+    def start(self, px: np.ndarray, py: np.ndarray) -> tuple[np.ndarray, ...]:
+        """Start ``s``, its piece, and ``near`` (false: use the tree) for each point."""
+        fx = np.rint((px - self.x0) / self.step)
+        fy = np.rint((py - self.y0) / self.step)
+        inside = (fx >= 0) & (fx < self.nx) & (fy >= 0) & (fy < self.ny)
+        k = np.where(inside, fx * self.ny + fy, 0).astype(np.int64)
+        near = inside & np.take(self.safe, k)
+        ox = px - (self.x0 + fx * self.step)
+        oy = py - (self.y0 + fy * self.step)
+        s = np.take(self.s, k) + np.take(self.jx, k) * ox + np.take(self.jy, k) * oy
+        return s, np.take(self.piece, k).astype(np.intp), near

@@ -50,13 +50,53 @@ def test_a_point_projects_the_same_alone_as_in_a_large_batch(name):
     make, dmax = PATHS[name]
     path = make()
     rng = np.random.default_rng(1)
-    s = rng.uniform(-10.0, path.length + 10.0, 3000)
-    d = rng.uniform(-3 * dmax, 3 * dmax, 3000)  # far off the path too: more iterations
+    n = 30_000  # a large batch starts from the path's grid, a single point from the k-d tree
+    s = rng.uniform(-10.0, path.length + 10.0, n)
+    d = rng.uniform(-3 * dmax, 3 * dmax, n)  # far off the path too: more iterations
     x, y = path.to_cartesian(s, d)
     sb, db = path.to_frenet(x, y)
-    for i in rng.choice(3000, 40, replace=False):
+    for i in rng.choice(n, 40, replace=False):
         s1, d1 = path.to_frenet(x[i : i + 1], y[i : i + 1])
         assert abs(s1[0] - sb[i]) <= 1e-9 and abs(d1[0] - db[i]) <= 1e-9
+
+
+def _hairpin():
+    """Out 60 m, a half turn of radius 6 m, back 60 m: the two legs 12 m apart, so the
+    nearest point jumps from leg to leg on the line between them."""
+    th = np.linspace(-np.pi / 2, np.pi / 2, 15)
+    out = np.c_[np.linspace(-60.0, 0.0, 13)[:-1], np.full(12, -6.0)]
+    turn = np.c_[6 * np.cos(th), 6 * np.sin(th)]
+    back = np.c_[np.linspace(0.0, -60.0, 13)[1:], np.full(12, 6.0)]
+    return ReferencePath.from_waypoints(np.r_[out, turn, back])
+
+
+@pytest.mark.parametrize("make", [_hairpin, _circle], ids=["hairpin", "circle"])
+def test_a_large_batch_finds_the_nearest_path_point_where_it_jumps(make):
+    """Between the legs of a hairpin and around a circle's centre the nearest point jumps (or
+    is not unique); a large batch (started from the path's grid) must still return the
+    *nearest* path point: its |d| equals the distance to a dense sampling of the path, and a
+    point gets the same coordinates alone (started from the k-d tree)."""
+    path = make()
+    rng = np.random.default_rng(7)
+    lo = path._tree.data.min(axis=0) - 8.0
+    hi = path._tree.data.max(axis=0) + 8.0
+    xy = rng.uniform(lo, hi, (40_000, 2))
+    s, d = path.to_frenet(xy[:, 0], xy[:, 1])
+    ss = np.linspace(0.0, path.length, 40_001)
+    px, py = path.point(ss)
+    from scipy.spatial import cKDTree
+
+    dist, _ = cKDTree(np.c_[px, py]).query(xy)
+    inside = (s >= 0.0) & (s <= path.length)  # past the ends the path runs on straight
+    spacing = path.length / 40_000
+    # near a centre of curvature the distance is flat in s: a few micrometres of slack
+    assert np.all(np.abs(d[inside]) <= dist[inside] + 1e-5)
+    assert np.all(np.abs(d[inside]) >= dist[inside] - spacing)  # samples are spacing apart
+    for i in rng.choice(len(xy), 60, replace=False):
+        s1, d1 = path.to_frenet(xy[i : i + 1, 0], xy[i : i + 1, 1])
+        if abs(abs(d1[0]) - abs(d[i])) <= 1e-9 and abs(s1[0] - s[i]) > 1e-6:
+            continue  # equidistant from two path points: either is the nearest
+        assert abs(s1[0] - s[i]) <= 1e-9 and abs(d1[0] - d[i]) <= 1e-9
 
 
 def test_circle_geometry_arc_length_heading_curvature():
