@@ -4,7 +4,9 @@ against the general search (k-d tree, chords, Newton steps) on the same points.
 A plan that draws its futures from a predictor converts every one of them (n futures x K = 100
 steps) before it plans; at MMD-Opt's n(0.001) = 50 000 futures that is 5 million points.
 Prints, per size, the time of each way (best of ``--repeats``), their ratio and the largest
-difference of their (s, d), and the general search on a curved path of the same length.
+difference of their (s, d), and the general search on a curved path of the same length: started
+from the path's grid of projected nodes (what a batch of ≥ 20 000 points uses) and, as the peer
+in the same run, from the k-d tree and chords alone, with the largest difference of the two.
 
     python -m benchmarks.frenet_conversion --futures 5000,50000 --repeats 3
 """
@@ -17,6 +19,7 @@ import time
 
 import numpy as np
 
+import frenet.path as frenet_path
 from frenet import ReferencePath
 
 
@@ -42,9 +45,10 @@ def main(argv=None) -> None:
     rng = np.random.default_rng(0)
     print(
         "| futures | points | straight projection (s) | general search (s) | ratio "
-        "| max abs diff (m) | curved path, general search (s) |"
+        "| max abs diff (m) | curved path, grid start (s) | curved path, tree start (s) "
+        "| ratio | max abs diff (m) |"
     )
-    print("|---|---|---|---|---|---|---|")
+    print("|---|---|---|---|---|---|---|---|---|---|")
     for n in (int(v) for v in args.futures.split(",")):
         K = args.steps
         s0 = rng.uniform(40.0, 80.0, (n, 1)) + np.cumsum(rng.uniform(0.3, 1.0, (n, K)), axis=1)
@@ -53,11 +57,18 @@ def main(argv=None) -> None:
         cx, cy = curved.to_cartesian(s0, d0)
         t_fast, fast = _best(lambda x=x, y=y: straight.to_frenet(x, y), args.repeats)
         t_gen, slow = _best(lambda x=x, y=y: general.to_frenet(x, y), args.repeats)
-        t_cur, _ = _best(lambda cx=cx, cy=cy: curved.to_frenet(cx, cy), args.repeats)
+        t_cur, grid = _best(lambda cx=cx, cy=cy: curved.to_frenet(cx, cy), args.repeats)
+        floor = frenet_path._GRID_MIN_POINTS
+        frenet_path._GRID_MIN_POINTS = np.iinfo(np.int64).max  # the tree for every batch
+        try:
+            t_tree, tree = _best(lambda cx=cx, cy=cy: curved.to_frenet(cx, cy), args.repeats)
+        finally:
+            frenet_path._GRID_MIN_POINTS = floor
         diff = max(np.max(np.abs(fast[0] - slow[0])), np.max(np.abs(fast[1] - slow[1])))
+        dgrid = max(np.max(np.abs(grid[0] - tree[0])), np.max(np.abs(grid[1] - tree[1])))
         print(
             f"| {n} | {n * K} | {t_fast:.3f} | {t_gen:.3f} | {t_gen / t_fast:.0f} x | "
-            f"{diff:.1e} | {t_cur:.3f} |"
+            f"{diff:.1e} | {t_cur:.3f} | {t_tree:.3f} | {t_tree / t_cur:.1f} x | {dgrid:.1e} |"
         )
 
 
