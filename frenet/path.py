@@ -33,12 +33,14 @@ __all__ = ["ReferencePath", "wrap_angle"]
 _GAUSS_X, _GAUSS_W = np.polynomial.legendre.leggauss(6)
 
 #: a batch of at least this many points starts its Newton search from the path's start grid
-_GRID_MIN_POINTS = 20_000
+#: where the grid has been computed: a tile of it is computed once the batches have brought it
+#: ``_GRID_PAYBACK`` points per node (a node costs about what the tree start of two points
+#: saves), so a path converted once or twice keeps the k-d tree
+_GRID_MIN_POINTS = 4096
+_GRID_PAYBACK = 2.0
 #: spacing (m) of the start grid's nodes, and how far (m) it reaches beyond the path's samples
 _GRID_STEP = 0.5
-_GRID_MARGIN = 30.0
-#: no grid for a path whose grid would have more nodes than this (the tree serves it)
-_GRID_MAX_NODES = 3_000_000
+_GRID_MARGIN = 80.0
 
 
 def wrap_angle(a: ArrayLike) -> NDArray[np.float64]:
@@ -364,7 +366,8 @@ class ReferencePath:
 
         The start of the Newton search comes from the k-d tree and chords (:meth:`_coarse`); a
         large batch (≥ ``_GRID_MIN_POINTS`` points) starts instead from a grid of projected
-        points built once per path (:class:`_StartGrid`), linearised, and falls back to the tree
+        points built once per path (:class:`_StartGrid`, :meth:`_start_grid`), linearised, and
+        falls back to the tree
         where the grid does not reach or the nearest point is not unique near the point.  Both
         starts end in the same Newton search to the same tolerance."""
         if px.size >= _GRID_MIN_POINTS and (grid := self._start_grid()) is not None:
@@ -434,8 +437,9 @@ class ReferencePath:
         return s, d
 
     def _start_grid(self) -> _StartGrid | None:
-        """The start grid of this path, built on first use (``None`` where it would be too
-        large: the tree serves every point then)."""
+        """The start grid of this path (created empty on first use; its tiles are computed
+        where the batches go: :class:`_StartGrid`), ``None`` where it would need too many
+        tiles: the tree serves every point then."""
         if "_grid_cache" not in self.__dict__:
             object.__setattr__(self, "_grid_cache", _StartGrid.build(self))
         return self.__dict__["_grid_cache"]
@@ -592,7 +596,6 @@ class ReferencePath:
         return f"ReferencePath(length={self.length:.3f} m, {len(self.waypoints)} way-points)"
 
 
-@dataclass(frozen=True, eq=False)
 class _StartGrid:
     """Projections of a regular grid of nodes around a path, to start the Newton search of a
     large batch without the k-d tree.
@@ -600,84 +603,118 @@ class _StartGrid:
     Each node holds its arc length ``s`` (the full projection), the gradient ``∂s/∂p =
     r'(s) / g`` with ``g = |r'|² + (r − p)·r''`` (the implicit-function derivative of the
     projection condition ``(r(s) − p)·r'(s) = 0``), and its spline piece.  A point starts at
-    ``s + ∂s/∂p · (p − node)`` from its nearest node, a few millimetres from its projection on
-    paths of metre-scale curvature radius, so Newton needs two or three steps.
+    ``s + ∂s/∂p · (p − node)`` from its nearest node, a fraction of a millimetre from its
+    projection on paths of metre-scale curvature radius, so Newton needs one or two steps.
 
     A node is *unsafe* where the projection is not a smooth function near it: ``g`` small (near a
     centre of curvature), or the linear prediction to a neighbouring node missing that node's
     arc length by more than ``_JUMP`` (the nearest point jumps between two parts of the path
     there); unsafe marks spread to the eight neighbours.  Points at unsafe nodes, or outside
     the grid, are left to the tree (``near`` false), so both routes give the same projection.
-    """
 
-    x0: float
-    y0: float
-    step: float
-    nx: int
-    ny: int
-    s: np.ndarray
-    jx: np.ndarray
-    jy: np.ndarray
-    piece: np.ndarray
-    safe: np.ndarray
+    The grid spans the path's bounding box plus ``_GRID_MARGIN`` but is built lazily, in tiles
+    of ``TILE × TILE`` nodes: a tile is computed once the batches have brought it
+    ``payback_points`` points (a node costs about what the tree start of two points saves), so
+    only the area the futures visit is paid for, and a path converted once keeps the tree.
+    """
 
     _JUMP = 0.25  # m; smooth-region mismatch is ≈ κ·step²/2, a few centimetres at most
     _G_MIN = 0.25
+    TILE = 32
+    _HALO = 2  # nodes computed around a tile, so its border nodes see every edge near them
+    _MAX_TILES = 4_000_000
+
+    def __init__(self, path: ReferencePath, lo: np.ndarray, ntx: int, nty: int) -> None:
+        self.path = path
+        self.x0, self.y0 = float(lo[0]), float(lo[1])
+        self.step = _GRID_STEP
+        self.ntx, self.nty = ntx, nty
+        self.payback_points = int(_GRID_PAYBACK * self.TILE * self.TILE)
+        self.seen = np.zeros(ntx * nty, np.int64)
+        self.slot = np.full(ntx * nty, -1, np.int64)
+        self._parts: list[tuple[np.ndarray, ...]] = []
+        self.s = np.empty(0)
+        self.jx = self.jy = np.empty(0, np.float32)
+        self.piece = np.empty(0, np.int32)
+        self.safe = np.empty(0, bool)
 
     @classmethod
     def build(cls, path: ReferencePath) -> _StartGrid | None:
+        """The (empty) grid of ``path``; ``None`` where it would need too many tiles."""
         pts = path._tree.data
-        h = _GRID_STEP
         lo = pts.min(axis=0) - _GRID_MARGIN
-        n = np.floor((pts.max(axis=0) + _GRID_MARGIN - lo) / h).astype(int) + 1
-        if int(n[0]) * int(n[1]) > _GRID_MAX_NODES:
+        side = _GRID_STEP * cls.TILE
+        nt = np.ceil((pts.max(axis=0) + _GRID_MARGIN - lo) / side).astype(int)
+        if int(nt[0]) * int(nt[1]) > cls._MAX_TILES:
             return None
-        nx, ny = int(n[0]), int(n[1])
-        gx = lo[0] + h * np.arange(nx)
-        gy = lo[1] + h * np.arange(ny)
-        X, Y = (a.ravel() for a in np.meshgrid(gx, gy, indexing="ij"))
+        return cls(path, lo, int(nt[0]), int(nt[1]))
+
+    def _add_tiles(self, tiles: np.ndarray) -> None:
+        """Compute the nodes of ``tiles`` (flat tile ids) and append them to the storage."""
+        T, H, h, path = self.TILE, self._HALO, self.step, self.path
+        W = T + 2 * H
+        tx, ty = tiles // self.nty, tiles % self.nty
+        r = np.arange(W) - H
+        gx = (tx[:, None] * T + r[None, :]) * h + self.x0  # (nt, W)
+        gy = (ty[:, None] * T + r[None, :]) * h + self.y0
+        X = np.broadcast_to(gx[:, :, None], (len(tiles), W, W)).ravel()
+        Y = np.broadcast_to(gy[:, None, :], (len(tiles), W, W)).ravel()
         s0, piece0 = path._coarse(X, Y)
         s = path._newton(X, Y, s0, piece0, 30, 1e-12)[0]
         rx, ry, dx, dy, ddx, ddy, piece = path._eval(s, piece0)
         g = dx * dx + dy * dy + (rx - X) * ddx + (ry - Y) * ddy
-        ok = g > cls._G_MIN
+        ok = g > self._G_MIN
         gs = np.where(ok, g, 1.0)
         jx, jy = dx / gs, dy / gs
-        S, JX, JY = (a.reshape(nx, ny) for a in (s, jx, jy))
-        bad = ~ok.reshape(nx, ny)
+        S, JX, JY = (a.reshape(-1, W, W) for a in (s, jx, jy))
+        bad = ~ok.reshape(-1, W, W)
         # linear prediction along each grid edge, from both ends
-        ex = np.abs(S[1:] - S[:-1] - 0.5 * h * (JX[1:] + JX[:-1])) > cls._JUMP
-        ey = np.abs(S[:, 1:] - S[:, :-1] - 0.5 * h * (JY[:, 1:] + JY[:, :-1])) > cls._JUMP
-        bad[1:] |= ex
-        bad[:-1] |= ex
-        bad[:, 1:] |= ey
-        bad[:, :-1] |= ey
+        ex = np.abs(S[:, 1:] - S[:, :-1] - 0.5 * h * (JX[:, 1:] + JX[:, :-1])) > self._JUMP
+        ey = np.abs(S[:, :, 1:] - S[:, :, :-1] - 0.5 * h * (JY[:, :, 1:] + JY[:, :, :-1]))
+        ey = ey > self._JUMP
+        bad[:, 1:] |= ex
+        bad[:, :-1] |= ex
+        bad[:, :, 1:] |= ey
+        bad[:, :, :-1] |= ey
         grown = bad.copy()  # spread to the eight neighbours
-        grown[1:] |= bad[:-1]
-        grown[:-1] |= bad[1:]
+        grown[:, 1:] |= bad[:, :-1]
+        grown[:, :-1] |= bad[:, 1:]
         g2 = grown.copy()
-        g2[:, 1:] |= grown[:, :-1]
-        g2[:, :-1] |= grown[:, 1:]
-        return cls(
-            float(lo[0]),
-            float(lo[1]),
-            h,
-            nx,
-            ny,
-            s,
-            jx.astype(np.float32),
-            jy.astype(np.float32),
-            piece.astype(np.int32),
-            ~g2.ravel(),
+        g2[:, :, 1:] |= grown[:, :, :-1]
+        g2[:, :, :-1] |= grown[:, :, 1:]
+        inner = (slice(None), slice(H, H + T), slice(H, H + T))
+        part = (
+            S[inner].ravel(),
+            JX[inner].astype(np.float32).ravel(),
+            JY[inner].astype(np.float32).ravel(),
+            piece.reshape(-1, W, W)[inner].astype(np.int32).ravel(),
+            ~g2[inner].ravel(),
+        )
+        first = sum(len(q[0]) for q in self._parts) // (T * T)
+        self._parts.append(part)
+        self.slot[tiles] = first + np.arange(len(tiles))
+        self.s, self.jx, self.jy, self.piece, self.safe = (
+            np.concatenate([q[i] for q in self._parts]) for i in range(5)
         )
 
     def start(self, px: np.ndarray, py: np.ndarray) -> tuple[np.ndarray, ...]:
         """Start ``s``, its piece, and ``near`` (false: use the tree) for each point."""
+        T = self.TILE
         fx = np.rint((px - self.x0) / self.step)
         fy = np.rint((py - self.y0) / self.step)
-        inside = (fx >= 0) & (fx < self.nx) & (fy >= 0) & (fy < self.ny)
-        k = np.where(inside, fx * self.ny + fy, 0).astype(np.int64)
-        near = inside & np.take(self.safe, k)
+        tx, ty = np.floor_divide(fx, T), np.floor_divide(fy, T)
+        inside = (tx >= 0) & (tx < self.ntx) & (ty >= 0) & (ty < self.nty)
+        tid = np.where(inside, tx * self.nty + ty, 0).astype(np.int64)
+        self.seen += np.bincount(tid[inside], minlength=self.seen.size)
+        new = np.flatnonzero((self.seen >= max(self.payback_points, 1)) & (self.slot < 0))
+        if new.size:
+            self._add_tiles(new)
+        sl = self.slot[tid]
+        ok = inside & (sl >= 0)
+        if not ok.any():  # no point on a computed tile: every start from the tree
+            return np.zeros_like(px), np.zeros(px.shape, np.intp), ok
+        k = np.where(ok, sl * (T * T) + (fx - tx * T) * T + (fy - ty * T), 0).astype(np.int64)
+        near = ok & np.take(self.safe, k)
         ox = px - (self.x0 + fx * self.step)
         oy = py - (self.y0 + fy * self.step)
         s = np.take(self.s, k) + np.take(self.jx, k) * ox + np.take(self.jy, k) * oy

@@ -23,10 +23,13 @@ PATHS = {
 }
 
 
+@pytest.mark.parametrize("start", ["tree", "grid"])
 @pytest.mark.parametrize("name", PATHS)
-def test_round_trip_frenet_cartesian_frenet_within_micrometre(name):
+def test_round_trip_frenet_cartesian_frenet_within_micrometre(name, start):
     make, dmax = PATHS[name]
     path = make()
+    if start == "grid":  # every tile the batch touches computed now (else once paid for)
+        path._start_grid().payback_points = 0
     rng = np.random.default_rng(0)
     s = rng.uniform(
         -10.0, path.length + 10.0, (200, 100)
@@ -50,7 +53,9 @@ def test_a_point_projects_the_same_alone_as_in_a_large_batch(name):
     make, dmax = PATHS[name]
     path = make()
     rng = np.random.default_rng(1)
-    n = 30_000  # a large batch starts from the path's grid, a single point from the k-d tree
+    path._start_grid().payback_points = 0  # a large batch starts from the grid, a point from
+    # the k-d tree
+    n = 30_000
     s = rng.uniform(-10.0, path.length + 10.0, n)
     d = rng.uniform(-3 * dmax, 3 * dmax, n)  # far off the path too: more iterations
     x, y = path.to_cartesian(s, d)
@@ -77,6 +82,7 @@ def test_a_large_batch_finds_the_nearest_path_point_where_it_jumps(make):
     *nearest* path point: its |d| equals the distance to a dense sampling of the path, and a
     point gets the same coordinates alone (started from the k-d tree)."""
     path = make()
+    path._start_grid().payback_points = 0
     rng = np.random.default_rng(7)
     lo = path._tree.data.min(axis=0) - 8.0
     hi = path._tree.data.max(axis=0) + 8.0
@@ -97,6 +103,29 @@ def test_a_large_batch_finds_the_nearest_path_point_where_it_jumps(make):
         if abs(abs(d1[0]) - abs(d[i])) <= 1e-9 and abs(s1[0] - s[i]) > 1e-6:
             continue  # equidistant from two path points: either is the nearest
         assert abs(s1[0] - s[i]) <= 1e-9 and abs(d1[0] - d[i]) <= 1e-9
+
+
+def test_a_path_computes_its_start_grid_where_the_batches_pay_for_it():
+    """A path converted once keeps the k-d tree (a grid node costs about what the tree start of
+    two points saves); where batches come again and again the grid's tiles are computed, only
+    there, and the coordinates do not depend on which start a batch had."""
+    path = _s_curve()
+    rng = np.random.default_rng(3)
+    s = rng.uniform(20.0, 100.0, 5000)  # a part of the path's area, ~1000 points per tile
+    d = rng.uniform(-5.0, 5.0, 5000)
+    x, y = path.to_cartesian(s, d)
+    s1, d1 = path.to_frenet(x, y)
+    grid = path._start_grid()
+    assert grid is not None and not np.any(grid.slot >= 0)  # nothing paid for yet
+    for _ in range(20):
+        path.to_frenet(x, y)
+    built = int(np.sum(grid.slot >= 0))
+    assert 0 < built < grid.slot.size // 4  # the visited tiles only
+    s2, d2 = path.to_frenet(x, y)
+    assert np.max(np.abs(s2 - s1)) <= 1e-9 and np.max(np.abs(d2 - d1)) <= 1e-9
+    assert np.max(np.abs(s2 - s)) <= 1e-6 and np.max(np.abs(d2 - d)) <= 1e-6
+    small = path.to_frenet(x[:10], y[:10])  # a small batch still starts from the tree
+    assert np.max(np.abs(small[0] - s1[:10])) <= 1e-9
 
 
 def test_circle_geometry_arc_length_heading_curvature():
