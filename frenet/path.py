@@ -9,8 +9,11 @@ Frenet coordinates: ``s`` (arc length of the nearest path point) and ``d`` (sign
 positive to the left of the direction of travel): ``p = r(s) + d·n(s)``, ``n = (−sin θ, cos θ)``.
 The nearest point is found by a proper projection – a k-d tree over densely sampled path points,
 projection onto the two adjacent chords, then Newton's method on ``(r(s) − p)·r'(s) = 0`` – not a
-brute-force scan; on a straight path (:meth:`ReferencePath.straight`, or collinear way-points in
-order) it is the exact projection onto the line.  Round trips are exact to ~1e-9 m wherever the
+brute-force scan; a large batch on a path converted again and again starts its Newton search
+from a grid of projected nodes instead (computed in tiles where the batches go, left to the tree
+where the nearest point jumps), to the same answer; on a straight path
+(:meth:`ReferencePath.straight`, or collinear way-points in order) it is the exact projection
+onto the line.  Round trips are exact to ~1e-9 m wherever the
 nearest point is unique (``|d| < 1/|κ|``).
 """
 
