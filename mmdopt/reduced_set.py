@@ -42,7 +42,9 @@ Methods
 ``"uniform"`` a uniformly random m-subset (the paper's "exhaustive search" baseline).
 ``"conflict"`` de Groot et al. as in the reference's baseline: score g_j = max_k f(ego_guess_k,
               obstacle centre_j,k), f the ellipse collision function (a, b); top-m by score.
-              Needs ``ego_guess`` (K, 2).
+              Needs ``ego_guess`` (K, 2).  Beyond ``KERNEL_POOL`` samples its weights,
+              bandwidth and MMD² are estimated on a pool of that many (its choice and its
+              scenario cost read none of them).
 
 Weights of the m selected samples (``config.weights``), the same for every method:
 ``"simplex"`` (default) eq. (red_set_opt_proposed_2) with ridge,
@@ -99,6 +101,13 @@ __all__ = [
 #: paper's MMD selection by CEM), "herding", "uniform" (a random m-subset), "conflict" (de
 #: Groot's deepest conflicts with an ego guess)
 SELECTORS = ("kernel-cem", "herding", "uniform", "conflict")
+
+#: beyond this many samples de Groot's selector ("conflict", whose choice reads no kernel and
+#: whose scenario cost reads no weight) fits the weights, bandwidth and reported MMD² of its set
+#: on a pool of this many samples (evenly spaced) with the chosen ones, not on the n × n Gram,
+#: which dominated its plan at the thousands of futures per car a small ε needs
+#: (docs/experiments/frontier.md); its plans do not change
+KERNEL_POOL = 256
 #: former selector names, still accepted (they were the plan methods' names)
 SELECTOR_ALIASES: Mapping[str, str] = MappingProxyType(
     {"mmd": "kernel-cem", "random": "uniform", "degroot": "conflict"}
@@ -301,11 +310,17 @@ def refine_weights(K: ArrayLike, idx: ArrayLike, config: ReducedSetConfig) -> ja
     ``min ½ᾱᵀ(K_RR + ρI)ᾱ − (1/n)1ᵀK_NR ᾱ  s.t. 1ᵀᾱ = 1`` (+ ᾱ ≥ 0 for ``weights="simplex"``);
     ½ × the squared MMD of eq. (red_set_opt_proposed_2) up to a constant, plus the ridge.
     """
-    m = idx.shape[0]
     if config.weights == "uniform":
-        return jnp.full((m,), 1.0 / m, dtype=K.dtype)
-    A = K[idx][:, idx] + config.ridge * jnp.eye(m, dtype=K.dtype)
-    b = jnp.mean(K, axis=0)[idx]  # (1/n) K_NRᵀ 1
+        return jnp.full((idx.shape[0],), 1.0 / idx.shape[0], dtype=K.dtype)
+    return _fit_weights(K[idx][:, idx], jnp.mean(K, axis=0)[idx], config)  # b = (1/n) K_NRᵀ 1
+
+
+def _fit_weights(K_RR: jax.Array, b: jax.Array, config: ReducedSetConfig) -> jax.Array:
+    """:func:`refine_weights` from the reduced set's Gram ``K_RR`` and ``b = (1/n) K_NRᵀ 1``."""
+    m = K_RR.shape[0]
+    if config.weights == "uniform":
+        return jnp.full((m,), 1.0 / m, dtype=K_RR.dtype)
+    A = K_RR + config.ridge * jnp.eye(m, dtype=K_RR.dtype)
     w = _kkt_weights(A, b)
     if config.weights == "kkt":
         return w
@@ -620,6 +635,11 @@ def select_reduced_set_unchecked(
         samples = samples.astype(float)
     n = samples.shape[0]
     feats = samples.reshape(n, -1) * config.feature_scale
+    if method == "conflict" and n > KERNEL_POOL:
+        # the choice reads no kernel, the scenario cost no weight: the weights and the MMD²
+        # from a pool, not from an n × n Gram
+        idx = _deepest_conflicts(samples, m, ego_guess, footprint).astype(jnp.int32)
+        return _pooled_set(feats, idx, config, method)
     bw = median_heuristic(feats) if config.bandwidth is None else jnp.asarray(config.bandwidth)
     bw = bw.astype(feats.dtype)
     K = gaussian_gram(feats, None, bw)
@@ -642,12 +662,7 @@ def select_reduced_set_unchecked(
     elif method == "uniform":
         _, idx = jax.lax.top_k(jax.random.uniform(key, (n,)), m)  # uniform m-subset
     elif method == "conflict":
-        ego = jnp.asarray(ego_guess, dtype=samples.dtype)
-        d = ego[None] - samples  # (n, K, 2)
-        fp = Footprint() if footprint is None else footprint
-        f = 1.0 - d[..., 0] ** 2 / fp.a**2 - d[..., 1] ** 2 / fp.b**2
-        g = jnp.max(f, axis=-1)
-        _, idx = jax.lax.top_k(g, m)
+        idx = _deepest_conflicts(samples, m, ego_guess, footprint)
     else:  # pragma: no cover - validated by the wrapper
         raise ValueError(f"unknown method {method!r}")
 
@@ -663,6 +678,39 @@ def select_reduced_set_unchecked(
         bandwidth=bw,
         method=method,
     )
+
+
+def _deepest_conflicts(samples, m: int, ego_guess, footprint) -> jax.Array:
+    """de Groot's choice: the m samples whose ellipse the ego guess enters deepest, g_j =
+    max_k f(ego_guess_k, sample_jk)."""
+    ego = jnp.asarray(ego_guess, dtype=samples.dtype)
+    d = ego[None] - samples  # (n, K, 2)
+    fp = Footprint() if footprint is None else footprint
+    f = 1.0 - d[..., 0] ** 2 / fp.a**2 - d[..., 1] ** 2 / fp.b**2
+    _, idx = jax.lax.top_k(jnp.max(f, axis=-1), m)
+    return idx
+
+
+def _pooled_set(feats, idx, config: ReducedSetConfig, method: str) -> ReducedSet:
+    """The :class:`ReducedSet` of the chosen ``idx`` with the kernel quantities estimated on
+    ``KERNEL_POOL`` evenly spaced samples (P) standing for all n: the bandwidth (median
+    heuristic over P), ``b = (1/n) K_NRᵀ 1`` as the mean over P, and the MMD² terms over P."""
+    n, m = feats.shape[0], idx.shape[0]
+    stride = n // KERNEL_POOL
+    pool = feats[stride * jnp.arange(KERNEL_POOL)]
+    bw = median_heuristic(pool) if config.bandwidth is None else jnp.asarray(config.bandwidth)
+    bw = bw.astype(feats.dtype)
+    pts = jnp.concatenate([feats[idx], pool])
+    K = gaussian_gram(pts, None, bw)
+    D = one_minus_gaussian_gram(pts, None, bw)
+    w = _fit_weights(K[:m, :m], jnp.mean(K[m:, :m], axis=0), config)
+    dxx = jnp.mean(D[m:, m:])
+    dyy = w @ D[:m, :m] @ w
+    dxy = jnp.mean(D[m:, :m] @ w)
+    mass = 1.0 - jnp.sum(w)
+    mmd2 = jnp.maximum(mass * mass + (dxy - dxx) + (dxy - dyy), 0.0)
+    alpha = jnp.zeros((n,), K.dtype).at[idx].set(w)
+    return ReducedSet(indices=idx, weights=w, alpha=alpha, mmd2=mmd2, bandwidth=bw, method=method)
 
 
 def _is_concrete(x) -> bool:

@@ -10,6 +10,7 @@ import pytest
 import mmdopt  # noqa: F401
 from mmdopt.kernels import gaussian_gram
 from mmdopt.reduced_set import (
+    KERNEL_POOL,
     SELECTORS,
     ReducedSetConfig,
     project_simplex,
@@ -168,6 +169,41 @@ def test_degroot_picks_the_samples_deepest_in_conflict_with_the_ego_guess():
     d = EGO_GUESS[None] - X
     g = np.max(1 - d[..., 0] ** 2 / 4.5**2 - d[..., 1] ** 2 / 3.5**2, axis=-1)
     assert set(np.asarray(rs.indices).tolist()) == set(np.argsort(-g)[:10].tolist())
+
+
+def _value_sizes(jaxpr) -> list[int]:
+    """Sizes of every value a jaxpr computes, its sub-jaxprs (jit, loops, conds) included."""
+    out = []
+    for e in jaxpr.eqns:
+        out += [int(np.prod(v.aval.shape)) for v in e.outvars]
+        for p in e.params.values():
+            for q in p if isinstance(p, tuple | list) else (p,):
+                sub = getattr(q, "jaxpr", q)
+                if hasattr(sub, "eqns"):
+                    out += _value_sizes(sub)
+    return out
+
+
+def test_degroot_at_thousands_of_futures_chooses_as_before_without_an_n_by_n_gram():
+    """Beyond KERNEL_POOL samples de Groot's set is the same deepest conflicts; its weights
+    and MMD² are estimated on a pool, and no array of the n × n Gram is ever formed."""
+    n = 3000
+    assert n > KERNEL_POOL
+    X, keep = two_intent(5, n=n)
+    rs = _select("degroot", samples=X)
+    d = EGO_GUESS[None] - X
+    g = np.max(1 - d[..., 0] ** 2 / 4.5**2 - d[..., 1] ** 2 / 3.5**2, axis=-1)
+    assert set(np.asarray(rs.indices).tolist()) == set(np.argsort(-g)[:10].tolist())
+    w = np.asarray(rs.weights)
+    assert np.all(w >= -1e-12) and abs(w.sum() - 1.0) < 1e-9
+    assert 0.0 <= float(rs.mmd2) < 2.0 and np.isfinite(float(rs.bandwidth))
+    jaxpr = jax.make_jaxpr(
+        lambda x: select_reduced_set_unchecked(
+            jax.random.key(0), x, 10, "conflict", ReducedSetConfig(), EGO_GUESS
+        )
+    )(jnp.asarray(X))
+    sizes = _value_sizes(jaxpr.jaxpr)  # every value of the program, inside the jit too
+    assert max(sizes) < n * n / 10
 
 
 def test_same_key_gives_the_same_reduced_set_and_different_keys_may_differ():
