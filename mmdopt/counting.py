@@ -312,8 +312,8 @@ class Futures:
         idx = np.asarray(idx)
         O, _, K, _ = self.planes.shape
         planes = aligned_empty((O, 2, K, idx.shape[1]), np.float32)
-        for o in range(O):
-            planes[o] = self.planes[o][:, :, idx[o]]
+        for o in range(O):  # into place (a fancy index would gather into a temporary first)
+            np.take(self.planes[o], idx[o], axis=2, out=planes[o])
         h = None if self.heading is None else np.take_along_axis(self.heading, idx[..., None], 1)
         out = Futures(planes, h)
         if h is None:
