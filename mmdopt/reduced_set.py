@@ -310,8 +310,6 @@ def refine_weights(K: ArrayLike, idx: ArrayLike, config: ReducedSetConfig) -> ja
     ``min ½ᾱᵀ(K_RR + ρI)ᾱ − (1/n)1ᵀK_NR ᾱ  s.t. 1ᵀᾱ = 1`` (+ ᾱ ≥ 0 for ``weights="simplex"``);
     ½ × the squared MMD of eq. (red_set_opt_proposed_2) up to a constant, plus the ridge.
     """
-    if config.weights == "uniform":
-        return jnp.full((idx.shape[0],), 1.0 / idx.shape[0], dtype=K.dtype)
     return _fit_weights(K[idx][:, idx], jnp.mean(K, axis=0)[idx], config)  # b = (1/n) K_NRᵀ 1
 
 
@@ -335,9 +333,14 @@ def _reduced_mmd2(D: jax.Array, idx: jax.Array, w: jax.Array) -> jax.Array:
     """MMD² between the uniform embedding of all n samples and ᾱ on ``idx``, from D = 1 − K."""
     n = D.shape[0]
     u = jnp.full((n,), 1.0 / n, dtype=D.dtype)
-    dxx = u @ D @ u
-    dyy = w @ D[idx][:, idx] @ w
-    dxy = u @ D[:, idx] @ w
+    return _mmd2_from(u @ D @ u, D[idx][:, idx], u @ D[:, idx], w)
+
+
+def _mmd2_from(dxx: jax.Array, D_RR: jax.Array, d_xR: jax.Array, w: jax.Array) -> jax.Array:
+    """MMD² from D = 1 − K: ``dxx`` the mean of D over the samples' pairs, ``D_RR`` (m, m) its
+    block on the reduced set, ``d_xR`` (m,) its mean over the samples against each point."""
+    dyy = w @ D_RR @ w
+    dxy = d_xR @ w
     mass = 1.0 - jnp.sum(w)
     return jnp.maximum(mass * mass + (dxy - dxx) + (dxy - dyy), 0.0)
 
@@ -704,11 +707,7 @@ def _pooled_set(feats, idx, config: ReducedSetConfig, method: str) -> ReducedSet
     K = gaussian_gram(pts, None, bw)
     D = one_minus_gaussian_gram(pts, None, bw)
     w = _fit_weights(K[:m, :m], jnp.mean(K[m:, :m], axis=0), config)
-    dxx = jnp.mean(D[m:, m:])
-    dyy = w @ D[:m, :m] @ w
-    dxy = jnp.mean(D[m:, :m] @ w)
-    mass = 1.0 - jnp.sum(w)
-    mmd2 = jnp.maximum(mass * mass + (dxy - dxx) + (dxy - dyy), 0.0)
+    mmd2 = _mmd2_from(jnp.mean(D[m:, m:]), D[:m, :m], jnp.mean(D[m:, :m], axis=0), w)
     alpha = jnp.zeros((n,), K.dtype).at[idx].set(w)
     return ReducedSet(indices=idx, weights=w, alpha=alpha, mmd2=mmd2, bandwidth=bw, method=method)
 
