@@ -398,12 +398,16 @@ def warm_up(
     key = jax.random.PRNGKey(0) if key is None else key
     ks = _check_counts(counts)
     t_grid = frenet.TimeGrid(config.trajectory.horizon, config.trajectory.num_steps).t
-    t0 = time.perf_counter()
-    p, _, drawn = _plan_once(obs, receding, planner, config, key, None, t_grid)
-    if receding.warm_start:
-        warm = _shifted(p, receding.dt)
+
+    def cold_and_warm(o):  # a cold plan and, with warm starts, a warm-started one
+        p, _, drawn = _plan_once(o, receding, planner, config, key, None, t_grid)
+        warm = _shifted(p, receding.dt) if receding.warm_start else None
         if warm is not None:
-            _plan_once(obs, receding, planner, config, key, warm, t_grid)
+            _plan_once(o, receding, planner, config, key, warm, t_grid)
+        return drawn
+
+    t0 = time.perf_counter()
+    drawn = cold_and_warm(obs)
     arr = np.asarray(drawn.obstacles)
     O = int(arr.shape[0])
     heads = _observed_headings(obs)
@@ -415,11 +419,7 @@ def warm_up(
             drawn, obstacles=arr[idx], obstacle_states=None,
             obstacle_headings=None if heads is None else heads[:O][idx],
         )  # fmt: skip
-        p, _, _ = _plan_once(variant, receding, planner, config, key, None, t_grid)
-        if receding.warm_start:
-            warm = _shifted(p, receding.dt)
-            if warm is not None:
-                _plan_once(variant, receding, planner, config, key, warm, t_grid)
+        cold_and_warm(variant)
     return time.perf_counter() - t0
 
 
