@@ -186,31 +186,33 @@ def _mixed(planes):
     return anyv & ~allv
 
 
-@jax.jit
-def _carried_units(xy):
-    """(J, K) float32 unit vectors of :func:`mmdopt.collision.headings` (no initial heading) of
-    the futures ``xy`` (J, K, 2): each forward difference normalised, a step shorter than
+def _carried_units(planes) -> np.ndarray:
+    """(O, 2, K, J) float32, 64-byte aligned: the unit vectors of
+    :func:`mmdopt.collision.headings` (no initial heading) of the futures ``planes``
+    (O, 2, K, J), in their layout: each forward difference normalised, a step shorter than
     MIN_HEADING_STEP taking the last longer one's, before the first longer one that one's, none
-    at all: along the path; the last step repeats the one before."""
-    f32 = jnp.float32
-    x, y = xy[..., 0].astype(f32), xy[..., 1].astype(f32)
-    dx, dy = x[..., 1:] - x[..., :-1], y[..., 1:] - y[..., :-1]
-    n2 = dx * dx + dy * dy
-    moving = n2 >= f32(MIN_HEADING_STEP * MIN_HEADING_STEP)
-    inv = jnp.where(moving, lax.rsqrt(jnp.where(moving, n2, 1.0)), 0.0)
-    ux, uy = dx * inv, dy * inv
-    idx = jnp.arange(dx.shape[-1])
-    last = lax.cummax(jnp.where(moving, idx, -1), axis=dx.ndim - 1)  # last moving step so far
-    first = jnp.argmax(moving, axis=-1)[..., None]  # the first moving step (0 when none)
-    fx = jnp.take_along_axis(ux, first, axis=-1)
-    fy = jnp.take_along_axis(uy, first, axis=-1)
-    anyv = moving.any(-1, keepdims=True)
-    fx, fy = jnp.where(anyv, fx, 1.0), jnp.where(anyv, fy, 0.0)  # none: along the path
-    j = jnp.maximum(last, 0)
-    cx = jnp.where(last >= 0, jnp.take_along_axis(ux, j, axis=-1), fx)
-    cy = jnp.where(last >= 0, jnp.take_along_axis(uy, j, axis=-1), fy)
-    return (jnp.concatenate([cx, cx[..., -1:]], axis=-1),
-            jnp.concatenate([cy, cy[..., -1:]], axis=-1))  # fmt: skip
+    at all: along the path; the last step repeats the one before.  In NumPy: the carry is a
+    running maximum of step indices and one gather (XLA's CPU cumulative maximum and gather
+    along the steps cost several times more)."""
+    P = np.asarray(planes, np.float32)
+    O, _, K, J = P.shape
+    u = np.diff(P, axis=2)  # (O, 2, K − 1, J)
+    n2 = u[:, 0] * u[:, 0] + u[:, 1] * u[:, 1]
+    moving = n2 >= np.float32(MIN_HEADING_STEP * MIN_HEADING_STEP)
+    inv = np.zeros_like(n2)
+    np.divide(np.float32(1.0), np.sqrt(n2), out=inv, where=moving)
+    u *= inv[:, None]
+    steps = np.arange(K - 1, dtype=np.int32)[:, None]
+    src = np.maximum.accumulate(np.where(moving, steps, -1), axis=1)  # last moving step so far
+    first = np.argmax(moving, axis=1).astype(np.int32)[:, None]  # the first (0 when none)
+    np.copyto(src, first, where=src < 0)
+    out = aligned_empty((O, 2, K, J), np.float32)
+    out[:, :, : K - 1] = np.take_along_axis(u, src[:, None], axis=2)
+    still = np.broadcast_to(~moving.any(1)[:, None, :], n2.shape)  # none moves: along the path
+    out[:, 0, : K - 1][still] = 1.0
+    out[:, 1, : K - 1][still] = 0.0
+    out[:, :, K - 1] = out[:, :, K - 2]
+    return out
 
 
 #: futures per block of the conversions to planes (the block's transposition stays in cache)
@@ -319,39 +321,23 @@ class Futures:
         if h is None:
             mixed = np.take_along_axis(self.mixed, idx, 1)
             out.__dict__["mixed"] = mixed
-            if mixed.any():  # every heading carried, as the whole set's would be
-                out.__dict__["units"] = self._carried(idx)
-                out.__dict__["mixed"] = np.zeros_like(mixed)
+            if mixed.any():  # their carried units: read from the whole set's, formed once
+                whole = self._mixed_part
+                o, j = np.nonzero(mixed)
+                cols = whole.slot[o, idx[o, j]]
+                out.__dict__["_mixed_part"] = _MixedPart.of(
+                    o, j, mixed.shape, whole.part.planes[0][:, :, cols],
+                    whole.part.units[0][:, :, cols],
+                )  # fmt: skip
         return out
 
     @functools.cached_property
-    def _units_cache(self) -> _UnitsCache:
-        # the carried heading units of the futures asked for so far, packed (a plan asks for a
-        # few hundred of tens of thousands: a whole-set array would be paged in for them)
-        O, _, K, n = self.planes.shape
-        return _UnitsCache(O, n, K)
-
-    def _carried(self, idx: np.ndarray) -> np.ndarray:
-        """(O, 2, K, J) the carried heading units (:func:`_carried_units`) of the futures
-        ``idx`` (O, J): each future's are formed once per set (a plan's counts ask for many
-        overlapping subsets) and kept."""
-        cache = self._units_cache
-        O, J = idx.shape
-        oo = np.repeat(np.arange(O), J)
-        flat = idx.reshape(-1)
-        need = cache.slot[oo, flat] < 0
-        if need.any():
-            n = self.planes.shape[3]
-            rows = np.stack(np.divmod(np.unique(oo[need] * n + flat[need]), n), 1)  # (R, 2)
-            R, K = rows.shape[0], self.planes.shape[2]
-            xy = np.zeros((_size_bucket(R), K, 2), np.float32)  # padding: still, never read
-            xy[:R] = self.planes[rows[:, 0], :, :, rows[:, 1]].transpose(0, 2, 1)
-            cx, cy = (np.asarray(a)[:R] for a in _carried_units(xy))
-            cache.add(rows, np.stack([cx, cy], axis=1))  # (R, 2, K)
-        out = aligned_empty((O, 2, self.planes.shape[2], J), np.float32)
-        for o in range(O):
-            out[o] = cache.units[cache.slot[o, idx[o]]].transpose(1, 2, 0)
-        return out
+    def _mixed_part(self) -> _MixedPart:
+        """The futures whose headings are carried (:attr:`mixed`) with their units, formed once
+        per set (every count of the set and of its subsets reads them)."""
+        o, j = np.nonzero(self.mixed)
+        xy = np.ascontiguousarray(self.planes[o, :, :, j].transpose(1, 2, 0))  # (2, K, R)
+        return _MixedPart.of(o, j, self.mixed.shape, xy, _carried_units(xy[None])[0])
 
     def q(self, s, d, a: float, b: float, windows: int = 1) -> np.ndarray:
         """(P, O, n, windows) float32: the least ``q = Δs²/a² + Δd²/b²`` over the footprint's
@@ -374,20 +360,10 @@ class Futures:
                                  1.0 / (b * b), windows, offsets))[0]
             for p in range(P)
         ]).transpose(0, 1, 3, 2)  # (P, O, n, W)  # fmt: skip
-        mixed = self.mixed
-        if mixed.any():  # their headings are carried: counted apart
-            o, j = np.nonzero(mixed)
-            J = _size_bucket(int(mixed.sum(1).max()))
-            idx = np.zeros((O, J), np.int64)
-            for oo in range(O):
-                jj = j[o == oo]
-                idx[oo, : jj.size] = jj
-                idx[oo, jj.size :] = jj[0] if jj.size else 0
-            sub = self.subset(idx).q(s, d, a, b, windows)  # (P, O, J, W)
+        if self.mixed.any():  # their headings are carried: counted apart
+            mp = self._mixed_part
             q = np.array(q)
-            for oo in range(O):
-                jj = j[o == oo]
-                q[:, oo, jj] = sub[:, oo, : jj.size]
+            q[:, mp.o, mp.j] = mp.part.q(s, d, a, b, windows)[:, 0, : mp.o.size]  # (P, R, W)
         return q
 
     def met(self, s, d, a: float, b: float) -> np.ndarray:
@@ -395,29 +371,35 @@ class Futures:
         return self.q(s, d, a, b)[..., 0] < 1.0
 
 
-class _UnitsCache:
-    """The carried heading units of some futures of a set, packed: ``units[slot[o, j]]`` (2, K)
-    float32 is future j of obstacle o's, where ``slot[o, j]`` ≥ 0 (future-major, so that storing
-    and gathering a future's units copies one contiguous row)."""
+@dataclass(frozen=True, eq=False)
+class _MixedPart:
+    """The futures of a set (of ``shape`` (O, n)) whose headings are carried: their obstacles
+    ``o`` and positions ``j`` (R,), and ``part``: they as one row (1, 2, K, J) with their units,
+    J = R padded to a bucket by repeating the first (one compiled count per bucket)."""
 
-    def __init__(self, O: int, n: int, K: int) -> None:
-        self.slot = np.full((O, n), -1, np.int64)
-        self.units = np.empty((0, 2, K), np.float32)
-        self.size = 0
+    o: np.ndarray
+    j: np.ndarray
+    shape: tuple[int, int]
+    part: Futures
 
-    def add(self, rows: np.ndarray, units: np.ndarray) -> None:
-        """Keep ``units`` (R, 2, K) of the futures ``rows`` (R, 2) (obstacle, position), none
-        of them kept yet."""
-        R = rows.shape[0]
-        end = self.size + R
-        if end > self.units.shape[0]:  # grow geometrically: a plan's few additions amortise
-            grown = np.empty((max(end, 2 * self.units.shape[0]),) + self.units.shape[1:],
-                             np.float32)  # fmt: skip
-            grown[: self.size] = self.units[: self.size]
-            self.units = grown
-        self.units[self.size : end] = units
-        self.slot[rows[:, 0], rows[:, 1]] = np.arange(self.size, end)
-        self.size = end
+    @classmethod
+    def of(cls, o, j, shape, xy, units) -> _MixedPart:
+        """From the futures' (o, j) (R,), their positions ``xy`` and units (2, K, R)."""
+        R, K = o.size, xy.shape[1]
+        planes, u = (aligned_empty((1, 2, K, _size_bucket(R)), np.float32) for _ in "pu")
+        planes[0, :, :, :R], u[0, :, :, :R] = xy, units
+        planes[0, :, :, R:], u[0, :, :, R:] = xy[:, :, :1], units[:, :, :1]
+        part = Futures(planes)
+        part.__dict__["units"] = u
+        part.__dict__["mixed"] = np.zeros((1, planes.shape[3]), bool)
+        return cls(o, j, tuple(shape), part)
+
+    @functools.cached_property
+    def slot(self) -> np.ndarray:
+        """(O, n) each future's column in ``part`` (−1: not carried)."""
+        slot = np.full(self.shape, -1, np.int64)
+        slot[self.o, self.j] = np.arange(self.o.size)
+        return slot
 
 
 def _size_bucket(c: int) -> int:

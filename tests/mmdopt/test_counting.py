@@ -81,7 +81,9 @@ def test_headings_without_trigonometry_equal_the_carried_headings():
     xy[:5] = 0.0
     with jax.enable_x64(True):
         h = np.asarray(headings(xy))
-        ux, uy = (np.asarray(a) for a in _carried_units(xy))
+    u = _carried_units(xy.transpose(2, 1, 0)[None])  # the planes (1, 2, K, J)
+    assert u.dtype == np.float32 and u.ctypes.data % 64 == 0
+    ux, uy = u[0, 0].T, u[0, 1].T
     np.testing.assert_allclose(ux, np.cos(h), atol=1e-5)
     np.testing.assert_allclose(uy, np.sin(h), atol=1e-5)
 
@@ -125,6 +127,25 @@ def test_the_index_counts_and_finds_the_nearest_exactly_from_a_few_futures():
             q2 = fut.q(s + shift, d, A, B)[0, ..., 0]
             np.testing.assert_array_equal(near2, smallest(q2, 100))
     assert answered >= 1
+
+
+def test_a_subset_counts_as_the_whole_set_at_its_futures():
+    """Any subset of futures, stopped and never-moving ones among them, in any order and with
+    repeats (how the index pads its candidates), gets the whole set's ``q`` at each of its
+    futures, bit for bit: a future's carried heading is its own, whichever set it is counted
+    in."""
+    obs = _traffic(900, seed=5)
+    s, d = _plans()
+    fut = Futures.of(obs)
+    whole = fut.q(s, d, A, B, windows=3)
+    assert fut.mixed[0].any() and not fut.mixed[1].any()
+    rng = np.random.default_rng(0)
+    for J in (7, 300, 1500):
+        idx = rng.integers(0, 900, (2, J))
+        idx[0, : J // 2] = rng.integers(0, 90, J // 2)  # the stopped ones of the first car
+        got = fut.subset(idx).q(s, d, A, B, windows=3)
+        want = np.stack([whole[:, o, idx[o]] for o in range(2)], 1)
+        np.testing.assert_array_equal(got, want)
 
 
 def test_smallest_is_a_stable_partial_sort():
