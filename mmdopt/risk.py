@@ -191,7 +191,7 @@ def coverage_data(
             or (rows.min() < 0 or rows.max() >= n)
         ):
             raise ValueError(f"rows must be a 1-D array of sample positions in [0, {n})")
-    used = X if rows is None else X[:, rows]
+    used = X if rows is None else _gather_rows(X, rows)
     if not np.all(np.isfinite(used)):
         raise ValueError("obstacles_frenet contains NaN or inf")
     scale2 = np.tile(np.array([1.0, float(lateral_scale) ** 2]), K)
@@ -211,6 +211,16 @@ def coverage_data(
     return CoverageData(
         X.shape, float(lateral_scale), *map(tuple, (flat, FF, flat2, std_s, centre)), rows
     )
+
+
+def _gather_rows(X: np.ndarray, rows: np.ndarray) -> np.ndarray:
+    """``X[:, rows]`` (O, R, K, 2); from samples held as the count's planes (``X`` a transposed
+    view of (O, 2, K, n), :mod:`mmdopt.counting`) gathered along the planes' rows, as a view
+    of (O, 2, K, R) (a gather of (K, 2) blocks from that view reads one float per cache line)."""
+    base = X.transpose(0, 3, 2, 1)
+    if X.flags.c_contiguous or not base.flags.c_contiguous:
+        return X[:, rows]
+    return np.take(base, rows, axis=3).transpose(0, 3, 2, 1)
 
 
 def coverage_margins(
