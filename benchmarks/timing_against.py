@@ -3,10 +3,10 @@
 A figure of ``mmdopt bench timing`` taken on another day cannot say whether the code got slower
 or the machine was busier.  This script checks the commit ``--rev`` out into a temporary git
 worktree and runs ``mmdopt bench timing`` (m = 20, n = 100, the paper's Algorithm 1) in turns
-from it and from this checkout, each in a fresh process without the persistent compilation
-cache (so the first call compiles), ``--rounds`` times, and prints the medians and the ratios
-this checkout ÷ ``--rev``.  A ratio near 1 says the code did not move; a slowdown shows as a
-ratio above 1 in every round.
+from it and from this checkout (the order alternating between rounds), each in a fresh process
+without the persistent compilation cache (so the first call compiles), ``--rounds`` times, and
+prints the medians and the ratios this checkout ÷ ``--rev``.  A ratio near 1 says the code did
+not move; a slowdown shows as a ratio above 1 in every round.
 
     python -m benchmarks.timing_against --rev c4ea702
     python -m benchmarks.timing_against --rev HEAD~5 --rounds 3 --repeats 7
@@ -54,7 +54,10 @@ def main(argv=None) -> int:
         try:
             runs: dict[str, list[dict[str, float]]] = {"this": [], args.rev: []}
             for r in range(args.rounds):
-                for name, root in ((args.rev, wt), ("this", REPO)):
+                pair = ((args.rev, wt), ("this", REPO))
+                # the order alternates between rounds (ABBA): a second process in a turn can
+                # run slower than the first, and that must not read as a regression
+                for name, root in pair if r % 2 == 0 else pair[::-1]:
                     out = Path(tmp) / f"{len(runs[name])}_{name.replace('/', '_')}"
                     runs[name].append(_timing(root, out, args.repeats))
                     print(f"round {r + 1} {name:>12s}: " + "  ".join(
