@@ -191,9 +191,9 @@ def _carried_units(planes) -> np.ndarray:
     :func:`mmdopt.collision.headings` (no initial heading) of the futures ``planes``
     (O, 2, K, J), in their layout: each forward difference normalised, a step shorter than
     MIN_HEADING_STEP taking the last longer one's, before the first longer one that one's, none
-    at all: along the path; the last step repeats the one before.  In NumPy: the carry is a
-    running maximum of step indices and one gather (XLA's CPU cumulative maximum and gather
-    along the steps cost several times more)."""
+    at all: along the path; the last step repeats the one before.  In NumPy (a running maximum
+    of step indices and one gather), so that it runs on the futures given and no more: a jitted
+    form needs them padded to a bucket of fixed shapes, 2.2 times the work at 3724 futures."""
     P = np.asarray(planes, np.float32)
     O, _, K, J = P.shape
     u = np.diff(P, axis=2)  # (O, 2, K − 1, J)
