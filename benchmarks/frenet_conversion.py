@@ -7,7 +7,8 @@ Prints, per size, the time of each way (best of ``--repeats``), their ratio and 
 difference of their (s, d), and the general search on a curved path of the same length:
 started from the path's grid of projected nodes (its tiles computed first, untimed) and, as
 the peer in the same run, from the k-d tree and chords alone, with the largest
-difference of the two.
+difference of the two; and the grid start at the planner's tolerance for float32 planes
+(``frenet.FLOAT32_TOL``), its ratio to the full search and its largest difference from it.
 
     python -m benchmarks.frenet_conversion --futures 5000,50000 --repeats 3
 """
@@ -49,9 +50,10 @@ def main(argv=None) -> None:
     print(
         "| futures | points | straight projection (s) | general search (s) | ratio "
         "| max abs diff (m) | curved path, grid start (s) | curved path, tree start (s) "
-        "| ratio | max abs diff (m) |"
+        "| ratio | max abs diff (m) | grid start, float32 tolerance (s) | ratio to full "
+        "| max abs diff (m) |"
     )
-    print("|---|---|---|---|---|---|---|---|---|---|")
+    print("|---|---|---|---|---|---|---|---|---|---|---|---|---|")
     for n in (int(v) for v in args.futures.split(",")):
         K = args.steps
         s0 = rng.uniform(40.0, 80.0, (n, 1)) + np.cumsum(rng.uniform(0.3, 1.0, (n, K)), axis=1)
@@ -71,11 +73,17 @@ def main(argv=None) -> None:
             t_tree, tree = _best(lambda cx=cx, cy=cy: curved.to_frenet(cx, cy), args.repeats)
         finally:
             frenet_path._GRID_MIN_POINTS = floor
+        t_f32, f32 = _best(
+            lambda cx=cx, cy=cy: curved.to_frenet(cx, cy, tol=frenet_path.FLOAT32_TOL),
+            args.repeats,
+        )
+        d32 = max(np.max(np.abs(f32[0] - grid[0])), np.max(np.abs(f32[1] - grid[1])))
         diff = max(np.max(np.abs(fast[0] - slow[0])), np.max(np.abs(fast[1] - slow[1])))
         dgrid = max(np.max(np.abs(grid[0] - tree[0])), np.max(np.abs(grid[1] - tree[1])))
         print(
             f"| {n} | {n * K} | {t_fast:.3f} | {t_gen:.3f} | {t_gen / t_fast:.0f} x | "
-            f"{diff:.1e} | {t_cur:.3f} | {t_tree:.3f} | {t_tree / t_cur:.1f} x | {dgrid:.1e} |"
+            f"{diff:.1e} | {t_cur:.3f} | {t_tree:.3f} | {t_tree / t_cur:.1f} x | {dgrid:.1e} | "
+            f"{t_f32:.3f} | {t_f32 / t_cur:.2f} | {d32:.1e} |"
         )
 
 

@@ -24,7 +24,7 @@ Typical use (Algorithm 1's lines 6 and 8)::
 """
 
 from .basis import Basis, BernsteinBasis, TimeGrid, TripleIntegratorBasis, make_basis
-from .path import ReferencePath, wrap_angle
+from .path import FLOAT32_TOL, ReferencePath, wrap_angle
 from .planner import BehaviouralPlanner, EgoState, PlannerConfig, Trajectories, state_array
 from .projection import (
     DiffProjection,
@@ -42,6 +42,7 @@ __all__ = [
     "BernsteinBasis",
     "make_basis",
     "ReferencePath",
+    "FLOAT32_TOL",
     "wrap_angle",
     "EgoState",
     "PlannerConfig",

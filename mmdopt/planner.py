@@ -366,7 +366,9 @@ class Planner:
             if affine is not None:
                 planes = to_planes(arr, affine=affine)
             else:
-                planes = to_planes(arr, lambda b: road.path.to_frenet_points(b, s_off))
+                planes = to_planes(
+                    arr, lambda b: road.path.to_frenet_points(b, s_off, tol=frenet.FLOAT32_TOL)
+                )
             if not math.isfinite(float(planes.max())) or not math.isfinite(float(planes.min())):
                 raise ValueError(
                     "obstacles could not be converted to the road's Frenet frame (non-finite)"

@@ -295,7 +295,7 @@ def coverage_margins(
             h_e = bandwidth * 1.06 * data.std_s[o] * n**-0.2  # (K,)
         if data.rows is not None:
             anchors = np.asarray(X[o, idx[o]], np.float64).reshape(J, -1) - data.centre[o]
-            out[:, o] = _rows_margins(data, o, anchors, idx[o], lateral_scale, knn, z, prior, h_e)
+            out[:, o] = _rows_margins(data, o, anchors, lateral_scale, knn, z, prior, h_e)
             continue
         flat, FF = data.flat[o], data.FF[o]
         A = flat[idx[o]]
@@ -308,7 +308,7 @@ def coverage_margins(
         if knn == 0:
             # nearest point of every sample (a repeated point's samples go to its first copy),
             # and every point belongs to its own cluster
-            _, first = np.unique(idx[o], return_index=True)
+            first = _first_copies(A)
             rows = np.concatenate([first[np.argmin(sq[first], axis=0)], np.arange(J)])
             cols = np.concatenate([np.arange(n), idx[o]])
         else:
@@ -325,7 +325,16 @@ def coverage_margins(
     return out
 
 
-def _rows_margins(data, o, anchors, pts, lateral_scale, knn, z, prior, h_e):
+def _first_copies(points: np.ndarray) -> np.ndarray:
+    """Positions of the first copy of each distinct row of ``points`` (J, 2K), ascending.  A
+    point repeated (the same sample named twice, or two samples of equal coordinates) ties in
+    every distance, and which copy a matrix product's rounding makes the nearer depends on the
+    BLAS: its members go to the first copy instead, on every machine."""
+    _, first = np.unique(points, axis=0, return_index=True)
+    return np.sort(first)
+
+
+def _rows_margins(data, o, anchors, lateral_scale, knn, z, prior, h_e):
     """:func:`coverage_margins` of obstacle ``o`` from data formed from rows: the samples are the
     R rows and the J points themselves (``anchors`` (J, 2K), centred as the rows); with
     ``knn = 0`` every row and every point joins its nearest point (a repeated point's members go
@@ -341,7 +350,7 @@ def _rows_margins(data, o, anchors, pts, lateral_scale, knn, z, prior, h_e):
     R = sq.shape[1]
     own = np.eye(J)
     if knn == 0:
-        _, first = np.unique(pts, return_index=True)
+        first = _first_copies(anchors)
         rr = np.concatenate([first[np.argmin(sq[first], axis=0)]])
         cc = np.arange(R)
         sqa = gg[:, None] + gg[None, :] - 2.0 * ga @ anchors.T  # (J, J)

@@ -146,6 +146,27 @@ def test_coverage_margins_equal_their_definition_far_from_the_origin(seed):
         np.testing.assert_allclose(got, _direct_margins(X, idx, 0.01, **kw), rtol=0, atol=1e-9)
 
 
+@pytest.mark.parametrize("rows", [False, True])
+def test_two_samples_of_equal_coordinates_are_one_point_named_twice(rows):
+    """A point set holding two samples with the same coordinates (a car at rest, a noise-free
+    mode) gets the margins of that point named twice: the samples join the first copy, not
+    whichever copy a matrix product's rounding makes the nearer (that depends on the BLAS)."""
+    from mmdopt.risk import coverage_data
+
+    rng = np.random.default_rng(3)
+    n, K = 400, 12
+    X = np.stack([np.cumsum(rng.uniform(0.5, 2, (1, n, K)), -1), rng.normal(0, 1, (1, n, K))], -1)
+    X[0, 17] = X[0, 5]  # sample 17: a copy of sample 5
+    pts = rng.choice(np.setdiff1d(np.arange(n), [5, 17]), 10, replace=False)
+    copies = np.r_[pts, 5, 17][None]
+    named_twice = np.r_[pts, 5, 5][None]
+    kw = dict(lateral_scale=10.0)
+    if rows:
+        kw["data"] = coverage_data(X, 10.0, np.arange(0, n, 3))
+    got = coverage_margins(X, copies, 0.01, **kw)
+    np.testing.assert_array_equal(got, coverage_margins(X, named_twice, 0.01, **kw))
+
+
 def test_coverage_margins_check_their_inputs():
     X = _two_clusters()
     with pytest.raises(ValueError, match="obstacles_frenet"):
