@@ -221,14 +221,16 @@ def test_plan_with_a_given_reduced_set_uses_it_and_validates_it():
 
 def test_demo_plan_is_unchanged_by_the_restructure():
     """The demo scene's MMD-Opt plan with the paper's Algorithm 1 (time-linear margins, no
-    re-selection pass), pinned: a refactor that moves it must say why."""
+    re-selection pass), pinned: a refactor that moves it must say why.  The cost is a float32
+    sum over the horizon: XLA releases round it differently by about 10⁻⁶ of its value (jax
+    0.10.2 gives 25.484167 for 25.484129), so the pin allows 10⁻⁵."""
     from mmdopt.bench.scenes import demo_scene
     from mmdopt.bench.synthetic import scene_config
 
     sc = demo_scene()
     cfg = scene_config(sc, mmdopt.MMDOptConfig.paper())
     p = mmdopt.plan(sc.ego(), sc.road(), sc.obstacles, config=cfg, key=sc.key())
-    assert p.cost == pytest.approx(25.484128952026367, rel=1e-6)
+    assert p.cost == pytest.approx(25.484128952026367, rel=1e-5)
     assert p.progress == pytest.approx(78.05859374999413, rel=1e-6)
 
 
