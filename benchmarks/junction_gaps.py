@@ -24,6 +24,7 @@ import time
 
 import numpy as np
 
+import frenet
 from mmdopt.bench.highway.runner import (
     config_for_method,
     highway_config,
@@ -56,7 +57,8 @@ def replan_gap(obs, plan) -> tuple[int, int, float]:
     if arr.shape[0] == 0:
         return 0, 0, 0.0
     s_off = float(obs.ego.s)
-    planes = to_planes(arr, lambda b: obs.road.path.to_frenet_points(b, s_off))
+    path = obs.road.path  # converted as the planner converts them (float32 planes)
+    planes = to_planes(arr, lambda b: path.to_frenet_points(b, s_off, tol=frenet.FLOAT32_TOL))
     obs_fr = planes.transpose(0, 3, 2, 1)
     s = go_profiles(np.asarray(plan.t, float), max(float(obs.ego.vs), 0.0), obs.road.v_max)
     d = np.full_like(s, float(obs.ego.d))
